@@ -1,0 +1,280 @@
+"""Scenarios: terrain, friction map, sun, course, start pose and duration, loaded from YAML.
+
+A scenario is a frozen :class:`ScenarioConfig`. Shipped presets live in ``rover_env/scenarios``
+as YAML files; :func:`load_scenario` takes a preset name or a path. Angles that people write by
+hand (sun, start yaw, slope) are given in degrees under keys that end in ``_deg``; properties
+without the suffix return radians, which is what the code uses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from rover_env.config_io import ConfigError, check_range, load_yaml_dataclass, replace
+
+TEXTURE_PRESETS: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete", "checkerboard")
+
+
+@dataclass(frozen=True)
+class TerrainConfig:
+    """Ground shape and appearance. The terrain is centred on the world origin.
+
+    Attributes:
+        kind: ``"flat"`` (an exact plane, possibly inclined) or ``"rough"`` (a heightfield).
+        size: Extent of the terrain along world x and y [m].
+        cell: Heightfield grid spacing [m] (rough terrain only).
+        roughness: RMS height of the random relief [m] (rough terrain only).
+        wavelength: Dominant wavelength of the relief [m]; shorter bumps are attenuated.
+        slope_deg: Inclination of the mean ground plane [deg].
+        slope_azimuth_deg: Direction of steepest ascent, counter-clockwise from world x [deg].
+        seed: Seed of the random relief and of procedural textures.
+        texture: A preset (``regolith``, ``sand``, ``gravel``, ``concrete``, ``checkerboard``)
+            or the path of an image file (relative paths are relative to the scenario file).
+        texture_tile: Ground size covered by one repetition of the texture [m].
+        texture_px: Pixels along one edge of a procedural texture tile; with ``texture_tile``
+            this sets the detail (default 2 m / 1024 px, about 2 mm per pixel).
+    """
+
+    kind: Literal["flat", "rough"] = "flat"
+    size: tuple[float, float] = (40.0, 40.0)
+    cell: float = 0.1
+    roughness: float = 0.0
+    wavelength: float = 1.5
+    slope_deg: float = 0.0
+    slope_azimuth_deg: float = 0.0
+    seed: int = 0
+    texture: str = "regolith"
+    texture_tile: float = 2.0
+    texture_px: int = 1024
+
+    def __post_init__(self) -> None:
+        for i, v in enumerate(self.size):
+            check_range(f"size[{i}]", v, 2.0, 500.0)
+        check_range("cell", self.cell, 0.02, 1.0)
+        check_range("roughness", self.roughness, 0.0, 0.5)
+        check_range("wavelength", self.wavelength, 2 * self.cell, 100.0)
+        check_range("slope_deg", self.slope_deg, 0.0, 35.0)
+        check_range("slope_azimuth_deg", self.slope_azimuth_deg, -360.0, 360.0)
+        check_range("texture_tile", self.texture_tile, 0.1, 100.0)
+        check_range("texture_px", self.texture_px, 16, 8192)
+        if self.kind == "flat" and self.roughness > 0:
+            raise ConfigError("roughness: must be 0 for kind 'flat' (use kind 'rough')")
+        if self.kind == "rough" and self.roughness == 0:
+            raise ConfigError("roughness: must be > 0 for kind 'rough'")
+        if not self.texture:
+            raise ConfigError("texture: must name a preset or an image file")
+
+    @property
+    def slope(self) -> float:
+        """Inclination [rad]."""
+        return math.radians(self.slope_deg)
+
+    @property
+    def slope_azimuth(self) -> float:
+        """Direction of steepest ascent [rad]."""
+        return math.radians(self.slope_azimuth_deg)
+
+
+@dataclass(frozen=True)
+class FrictionPatch:
+    """A region of the ground with its own friction coefficient.
+
+    Attributes:
+        mu: Coulomb friction coefficient in the region, 0.05 to 1.5.
+        center: Region centre in the world x-y plane [m].
+        shape: ``"rect"`` or ``"circle"``.
+        size: Rectangle extent along its own x and y before rotation [m].
+        yaw_deg: Rectangle rotation about world z [deg].
+        radius: Circle radius [m].
+    """
+
+    mu: float
+    center: tuple[float, float]
+    shape: Literal["rect", "circle"] = "rect"
+    size: tuple[float, float] = (2.0, 2.0)
+    yaw_deg: float = 0.0
+    radius: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_range("mu", self.mu, 0.05, 1.5)
+        for i, v in enumerate(self.size):
+            check_range(f"size[{i}]", v, 0.0, 1000.0, lo_open=True)
+        check_range("radius", self.radius, 0.0, 1000.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class FrictionMapConfig:
+    """Friction over the ground: a default and patches; later patches override earlier ones."""
+
+    default_mu: float = 0.9
+    patches: tuple[FrictionPatch, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_range("default_mu", self.default_mu, 0.05, 1.5)
+
+
+@dataclass(frozen=True)
+class SunConfig:
+    """Directional sunlight.
+
+    Attributes:
+        azimuth_deg: Direction toward the sun in the ground plane, counter-clockwise from
+            world x [deg].
+        elevation_deg: Sun height above the horizon [deg].
+    """
+
+    azimuth_deg: float = 180.0
+    elevation_deg: float = 45.0
+
+    def __post_init__(self) -> None:
+        check_range("azimuth_deg", self.azimuth_deg, -360.0, 360.0)
+        check_range("elevation_deg", self.elevation_deg, 1.0, 90.0)
+
+    def direction(self) -> np.ndarray:
+        """Unit vector from the ground toward the sun, world frame."""
+        az, el = math.radians(self.azimuth_deg), math.radians(self.elevation_deg)
+        return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+
+
+@dataclass(frozen=True)
+class CourseConfig:
+    """The waypoint course of the driving task.
+
+    Attributes:
+        waypoints: Waypoints in the world x-y plane [m], driven in order from the start.
+        tolerance: Distance at which a waypoint counts as reached [m].
+        speed: Nominal cruise speed for controllers [m/s].
+    """
+
+    waypoints: tuple[tuple[float, float], ...]
+    tolerance: float = 0.5
+    speed: float = 0.8
+
+    def __post_init__(self) -> None:
+        if len(self.waypoints) < 1:
+            raise ConfigError("waypoints: need at least one waypoint")
+        check_range("tolerance", self.tolerance, 0.05, 10.0)
+        check_range("speed", self.speed, 0.0, 5.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class StartConfig:
+    """Start pose of the rover and its random variation at reset.
+
+    Attributes:
+        position: Body centre start position in the world x-y plane [m].
+        yaw_deg: Start heading, counter-clockwise from world x [deg].
+        jitter_position: Radius of a uniform random offset added at reset [m].
+        jitter_yaw_deg: Half-width of a uniform random heading offset at reset [deg].
+    """
+
+    position: tuple[float, float] = (0.0, 0.0)
+    yaw_deg: float = 0.0
+    jitter_position: float = 0.0
+    jitter_yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_range("yaw_deg", self.yaw_deg, -360.0, 360.0)
+        check_range("jitter_position", self.jitter_position, 0.0, 5.0)
+        check_range("jitter_yaw_deg", self.jitter_yaw_deg, 0.0, 180.0)
+
+    @property
+    def yaw(self) -> float:
+        """Start heading [rad]."""
+        return math.radians(self.yaw_deg)
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """A complete driving scenario. See the shipped YAML presets for examples.
+
+    Attributes:
+        name: Short identifier.
+        course: The waypoint course.
+        description: One line for listings.
+        terrain: Ground shape and texture.
+        friction: Friction map.
+        sun: Sun direction.
+        start: Start pose.
+        duration: Episode time limit [s].
+    """
+
+    name: str
+    course: CourseConfig
+    description: str = ""
+    terrain: TerrainConfig = field(default_factory=TerrainConfig)
+    friction: FrictionMapConfig = field(default_factory=FrictionMapConfig)
+    sun: SunConfig = field(default_factory=SunConfig)
+    start: StartConfig = field(default_factory=StartConfig)
+    duration: float = 60.0
+
+    def __post_init__(self) -> None:
+        check_range("duration", self.duration, 0.1, 36000.0)
+        hx, hy = self.terrain.size[0] / 2 - 1.0, self.terrain.size[1] / 2 - 1.0
+        points = [("start.position", self.start.position)] + [
+            (f"course.waypoints[{i}]", w) for i, w in enumerate(self.course.waypoints)
+        ]
+        for key, (x, y) in points:
+            if abs(x) > hx or abs(y) > hy:
+                raise ConfigError(
+                    f"{key}: ({x:g}, {y:g}) is outside the terrain (|x| <= {hx:g}, |y| <= {hy:g}"
+                    " m, 1 m from the edge); enlarge terrain.size or move the point"
+                )
+
+
+def _preset_dir() -> resources.abc.Traversable:
+    return resources.files("rover_env") / "scenarios"
+
+
+def list_scenarios() -> list[str]:
+    """Names of the shipped scenario presets."""
+    return sorted(
+        p.name[: -len(".yaml")] for p in _preset_dir().iterdir() if p.name.endswith(".yaml")
+    )
+
+
+def load_scenario(scenario: str | Path | ScenarioConfig) -> ScenarioConfig:
+    """Load a scenario from a preset name, a YAML path, or pass a config through.
+
+    Args:
+        scenario: A name from :func:`list_scenarios`, a path to a YAML file, or a
+            :class:`ScenarioConfig`.
+
+    Returns:
+        The validated scenario, with a relative texture path resolved against the YAML file.
+
+    Raises:
+        ConfigError: Unknown preset, missing file, or invalid content (naming file and key).
+    """
+    if isinstance(scenario, ScenarioConfig):
+        return scenario
+    text = str(scenario)
+    if isinstance(scenario, str) and not text.endswith((".yaml", ".yml")) and "/" not in text:
+        names = list_scenarios()
+        if text not in names:
+            raise ConfigError(
+                f"unknown scenario preset {text!r}; presets: {', '.join(names)} "
+                "(or pass the path of a YAML file)"
+            )
+        with resources.as_file(_preset_dir() / f"{text}.yaml") as path:
+            return load_yaml_dataclass(ScenarioConfig, path)
+    path = Path(scenario)
+    cfg = load_yaml_dataclass(ScenarioConfig, path)
+    tex = cfg.terrain.texture
+    if tex not in TEXTURE_PRESETS:
+        tex_path = Path(tex)
+        if not tex_path.is_absolute():
+            tex_path = (path.parent / tex_path).resolve()
+        if not tex_path.is_file():
+            raise ConfigError(
+                f"{path}: terrain.texture: {tex!r} is neither a preset "
+                f"({', '.join(TEXTURE_PRESETS)}) nor an existing image file"
+            )
+        cfg = replace(cfg, terrain=replace(cfg.terrain, texture=str(tex_path)))
+    return cfg
