@@ -1,0 +1,1 @@
+"""Controllers that drive the rover from observations (never from the simulator)."""

@@ -1,0 +1,14 @@
+"""Camera-based state estimation for planetary rovers (images and camera models in, states out).
+
+This package depends on numpy, OpenCV and SciPy only; it never needs the simulator.
+"""
+
+from perception.wheel_kinematics import (
+    SLIP_EPS,
+    slip_angle,
+    slip_ratio,
+    wheel_ground_velocity,
+)
+
+__all__ = ["SLIP_EPS", "slip_angle", "slip_ratio", "wheel_ground_velocity"]
+__version__ = "0.1.0"

@@ -1,0 +1,59 @@
+"""Wheel-ground kinematics shared by ground truth and estimators: slip ratio and slip angle.
+
+Definitions (DESIGN.md): for wheel i with spin rate omega_i [rad/s] and radius r [m], and ground
+velocity v_i of its centre along its heading (longitudinal) and across it (lateral) [m/s],
+
+    s_i    = (omega_i r - v_i,long) / max(|omega_i r|, |v_i,long|, eps)    in [-1, 1]
+    beta_i = atan2(v_i,lat, v_i,long)                                       [rad]
+
+s > 0: the wheel spins faster than it travels (traction loss); s < 0: it skids.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SLIP_EPS = 0.01  # [m/s] speed below which slip is not resolvable; keeps s finite at standstill
+
+
+def slip_ratio(tread_speed: np.ndarray | float, ground_speed: np.ndarray | float,
+               eps: float = SLIP_EPS) -> np.ndarray:
+    """Longitudinal slip ratio.
+
+    Args:
+        tread_speed: Wheel spin rate times radius, omega * r [m/s].
+        ground_speed: Longitudinal ground velocity of the wheel centre [m/s].
+        eps: Denominator floor [m/s].
+
+    Returns:
+        Slip ratio in [-1, 1], same shape as the inputs.
+    """
+    ws = np.asarray(tread_speed, dtype=np.float64)
+    v = np.asarray(ground_speed, dtype=np.float64)
+    den = np.maximum(np.maximum(np.abs(ws), np.abs(v)), eps)
+    return np.clip((ws - v) / den, -1.0, 1.0)
+
+
+def slip_angle(v_long: np.ndarray | float, v_lat: np.ndarray | float) -> np.ndarray:
+    """Slip angle atan2(v_lat, v_long) [rad]; 0 for a wheel at rest."""
+    return np.arctan2(np.asarray(v_lat, dtype=np.float64), np.asarray(v_long, dtype=np.float64))
+
+
+def wheel_ground_velocity(twist: np.ndarray, wheel_xy: np.ndarray,
+                          steering: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Planar body twist transported to wheel centres and rotated into each wheel's heading.
+
+    Args:
+        twist: (v_x, v_y, omega) of the body in the body frame [m/s, m/s, rad/s].
+        wheel_xy: Wheel centre positions in the body frame, shape (N, 2) [m].
+        steering: Per-wheel steering angles, shape (N,) [rad], positive turns left.
+
+    Returns:
+        ``(v_long, v_lat)``, each shape (N,) [m/s], along and across each wheel's heading.
+    """
+    vx, vy, wz = (float(v) for v in twist)
+    xy = np.asarray(wheel_xy, dtype=np.float64)
+    vwx = vx - wz * xy[:, 1]
+    vwy = vy + wz * xy[:, 0]
+    c, s = np.cos(steering), np.sin(steering)
+    return c * vwx + s * vwy, -s * vwx + c * vwy

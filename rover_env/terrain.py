@@ -1,0 +1,225 @@
+"""Terrain: ground shape (plane or heightfield), its textured visual mesh, and the friction map.
+
+World frame: z up, the terrain centred on the origin. Heights are exact: for the plane the
+analytic plane, for the heightfield the same triangles Bullet collides with.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from rover_env.scenario import TEXTURE_PRESETS, FrictionMapConfig, TerrainConfig
+from rover_env.textures import cache_dir, periodic_noise, texture_file
+
+if TYPE_CHECKING:
+    from pybullet_utils.bullet_client import BulletClient
+
+log = logging.getLogger(__name__)
+
+
+class FrictionMap:
+    """Friction coefficient over the world x-y plane: a default and overriding patches.
+
+    Patch edges are sharp; where patches overlap the later one wins.
+    """
+
+    def __init__(self, cfg: FrictionMapConfig) -> None:
+        self.cfg = cfg
+        self._patches = []
+        for p in cfg.patches:
+            yaw = math.radians(p.yaw_deg)
+            self._patches.append(
+                (p.shape == "circle", p.center[0], p.center[1], math.cos(yaw), math.sin(yaw),
+                 p.size[0] / 2, p.size[1] / 2, p.radius * p.radius, p.mu)
+            )
+
+    def mu_at(self, x: float, y: float) -> float:
+        """Friction coefficient at world point (x, y) [m] (scalar fast path)."""
+        mu = self.cfg.default_mu
+        for circle, cx, cy, c, s, hx, hy, r2, pmu in self._patches:
+            dx, dy = x - cx, y - cy
+            if circle:
+                if dx * dx + dy * dy <= r2:
+                    mu = pmu
+            elif abs(c * dx + s * dy) <= hx and abs(-s * dx + c * dy) <= hy:
+                mu = pmu
+        return mu
+
+    def mu_grid(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Vectorised :meth:`mu_at` over arrays of equal shape [m]."""
+        mu = np.full(np.broadcast(x, y).shape, self.cfg.default_mu, dtype=np.float64)
+        for circle, cx, cy, c, s, hx, hy, r2, pmu in self._patches:
+            dx, dy = x - cx, y - cy
+            if circle:
+                inside = dx * dx + dy * dy <= r2
+            else:
+                inside = (np.abs(c * dx + s * dy) <= hx) & (np.abs(-s * dx + c * dy) <= hy)
+            mu[inside] = pmu
+        return mu
+
+
+def make_heights(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Grid coordinates and heights of the terrain.
+
+    Returns:
+        ``(xs, ys, heights)`` with xs (nx,), ys (ny,) [m] and heights (ny, nx) [m]
+        (row j is y = ys[j]). Includes the slope plane; the random relief has RMS
+        ``cfg.roughness`` and periods between ``wavelength / 2`` and ``4 * wavelength``.
+    """
+    nx = int(round(cfg.size[0] / cfg.cell)) + 1
+    ny = int(round(cfg.size[1] / cfg.cell)) + 1
+    xs = (np.arange(nx) - (nx - 1) / 2) * cfg.cell
+    ys = (np.arange(ny) - (ny - 1) / 2) * cfg.cell
+    gx, gy = np.meshgrid(xs, ys)
+    h = _slope_height(cfg, gx, gy)
+    if cfg.roughness > 0:
+        n = int(2 ** math.ceil(math.log2(max(nx, ny))))
+        rng = np.random.default_rng(cfg.seed)
+        noise = periodic_noise(n, rng, beta=2.0, min_period_px=cfg.wavelength / 2 / cfg.cell,
+                               max_period_px=4 * cfg.wavelength / cfg.cell)[:ny, :nx]
+        noise = (noise - noise.mean()) / noise.std()
+        h = h + cfg.roughness * noise
+    return xs, ys, h
+
+
+def _slope_height(cfg: TerrainConfig, x, y):
+    t = math.tan(cfg.slope)
+    return t * (math.cos(cfg.slope_azimuth) * x + math.sin(cfg.slope_azimuth) * y)
+
+
+class Terrain:
+    """The ground body in one PyBullet client: collision shape, textured visual, friction map.
+
+    Args:
+        client: The environment's own BulletClient.
+        cfg: Terrain shape and texture.
+        friction: Friction map configuration.
+    """
+
+    def __init__(self, client: BulletClient, cfg: TerrainConfig, friction: FrictionMapConfig):
+        import pybullet as pb
+
+        self.cfg = cfg
+        self.friction = FrictionMap(friction)
+        self._client = client
+        if cfg.kind == "rough":
+            self.xs, self.ys, self.heights = make_heights(cfg)
+            nx, ny = len(self.xs), len(self.ys)
+            hmin, hmax = float(self.heights.min()), float(self.heights.max())
+            shape = client.createCollisionShape(
+                pb.GEOM_HEIGHTFIELD,
+                meshScale=[cfg.cell, cfg.cell, 1.0],
+                heightfieldData=self.heights.ravel().tolist(),
+                numHeightfieldRows=nx,
+                numHeightfieldColumns=ny,
+            )
+            # Bullet centres a heightfield on its mid-height; shift it back to true heights.
+            base_z = 0.5 * (hmin + hmax)
+        else:
+            self.xs = self.ys = self.heights = None
+            t = math.tan(cfg.slope)
+            n = np.array([-t * math.cos(cfg.slope_azimuth), -t * math.sin(cfg.slope_azimuth), 1.0])
+            n /= np.linalg.norm(n)
+            self._plane_normal = n
+            shape = client.createCollisionShape(pb.GEOM_PLANE, planeNormal=n.tolist())
+            base_z = 0.0
+        visual = client.createVisualShape(pb.GEOM_MESH, fileName=str(self._visual_mesh()))
+        self.body_id = client.createMultiBody(0, shape, visual, basePosition=[0, 0, base_z])
+        client.changeDynamics(self.body_id, -1, lateralFriction=1.0, restitution=0.0,
+                              rollingFriction=0.0, spinningFriction=0.0)
+        tex_path = (texture_file(cfg.texture, cfg.texture_px, cfg.seed)
+                    if cfg.texture in TEXTURE_PRESETS else Path(cfg.texture))
+        self.texture_id = client.loadTexture(str(tex_path))
+        if self.texture_id < 0:
+            raise ValueError(f"terrain.texture: PyBullet could not load image {tex_path}")
+        client.changeVisualShape(self.body_id, -1, textureUniqueId=self.texture_id,
+                                 rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0])
+
+    # ------------------------------------------------------------------ geometry queries
+    def height_at(self, x: float | np.ndarray, y: float | np.ndarray) -> np.ndarray:
+        """Ground height z at world (x, y) [m], exact on Bullet's triangles."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        if self.heights is None:
+            return _slope_height(self.cfg, x, y)
+        cell = self.cfg.cell
+        fx = np.clip((x - self.xs[0]) / cell, 0, len(self.xs) - 1 - 1e-9)
+        fy = np.clip((y - self.ys[0]) / cell, 0, len(self.ys) - 1 - 1e-9)
+        i, j = np.floor(fx).astype(int), np.floor(fy).astype(int)
+        u, v = fx - i, fy - j
+        h = self.heights
+        h00, h10, h01, h11 = h[j, i], h[j, i + 1], h[j + 1, i], h[j + 1, i + 1]
+        # Bullet splits each cell along the (i+1, j)-(i, j+1) diagonal.
+        z_low = h00 + u * (h10 - h00) + v * (h01 - h00)
+        z_high = h11 + (1 - u) * (h01 - h11) + (1 - v) * (h10 - h11)
+        return np.where(u + v <= 1.0, z_low, z_high)
+
+    def normal_at(self, x: float, y: float, eps: float = 0.02) -> np.ndarray:
+        """Unit ground normal at world (x, y), world frame (finite differences over ``eps`` m)."""
+        if self.heights is None:
+            return self._plane_normal.copy()
+        dzdx = (self.height_at(x + eps, y) - self.height_at(x - eps, y)) / (2 * eps)
+        dzdy = (self.height_at(x, y + eps) - self.height_at(x, y - eps)) / (2 * eps)
+        n = np.array([-float(dzdx), -float(dzdy), 1.0])
+        return n / np.linalg.norm(n)
+
+    def contains(self, x: float, y: float, margin: float = 0.5) -> bool:
+        """True if (x, y) lies on the terrain at least ``margin`` m from its edge."""
+        return abs(x) <= self.cfg.size[0] / 2 - margin and abs(y) <= self.cfg.size[1] / 2 - margin
+
+    # ------------------------------------------------------------------ visual mesh
+    def _visual_mesh(self) -> Path:
+        """Write (once, cached) the textured OBJ mesh of the ground and return its path."""
+        cfg = self.cfg
+        key = f"terrain-v2:{cfg!r}"
+        import hashlib
+
+        path = cache_dir() / f"terrain_{hashlib.sha1(key.encode()).hexdigest()[:16]}.obj"
+        if path.is_file():
+            return path
+        if self.heights is not None:
+            xs, ys, h = self.xs, self.ys, self.heights
+        else:
+            step = min(cfg.texture_tile, 2.0)
+            nx = int(math.ceil(cfg.size[0] / step)) + 1
+            ny = int(math.ceil(cfg.size[1] / step)) + 1
+            xs = np.linspace(-cfg.size[0] / 2, cfg.size[0] / 2, nx)
+            ys = np.linspace(-cfg.size[1] / 2, cfg.size[1] / 2, ny)
+            gx, gy = np.meshgrid(xs, ys)
+            h = _slope_height(cfg, gx, gy)
+        write_grid_obj(path, xs, ys, h, cfg.texture_tile)
+        return path
+
+
+def write_grid_obj(path: Path, xs: np.ndarray, ys: np.ndarray, h: np.ndarray, tile: float) -> None:
+    """Write a height grid as an OBJ triangle mesh with normals and tiling UVs (u = x / tile).
+
+    Triangles follow Bullet's heightfield split, so the visual matches the collision surface.
+    """
+    import os
+    import tempfile
+
+    gx, gy = np.meshgrid(xs, ys)
+    gz = np.gradient(h, ys, xs)
+    nrm = np.stack([-gz[1], -gz[0], np.ones_like(h)], axis=-1)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    ny, nx = h.shape
+    idx = np.arange(nx * ny).reshape(ny, nx) + 1
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
+    lines = ["# rover_env terrain mesh"]
+    v = np.stack([gx.ravel(), gy.ravel(), h.ravel()], 1)
+    lines += [f"v {p[0]:.4f} {p[1]:.4f} {p[2]:.5f}" for p in v]
+    lines += [f"vt {p[0] / tile:.5f} {p[1] / tile:.5f}" for p in v]
+    lines += [f"vn {n[0]:.4f} {n[1]:.4f} {n[2]:.4f}" for n in nrm.reshape(-1, 3)]
+    lines += [f"f {i}/{i}/{i} {j}/{j}/{j} {k}/{k}/{k}" for i, j, k in faces]
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".obj")
+    with os.fdopen(fd, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    os.replace(tmp, path)
