@@ -1,0 +1,80 @@
+"""Exact ground truth read from the simulator, in the frames and units of DESIGN.md."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+GROUND_TRUTH_KEYS: tuple[str, ...] = (
+    "pose",
+    "twist",
+    "wheel_rate",
+    "wheel_angle",
+    "slip_ratio",
+    "slip_angle",
+    "axle_roll",
+    "axle_height",
+    "steering",
+)
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """The rover's true state at one instant. Wheel order FL, FR, RL, RR; axle order F, R.
+
+    Attributes:
+        t: Simulation time since the episode start [s].
+        pose: (x, y, z, qx, qy, qz, qw): body centre and orientation, world frame [m].
+        twist: (v_x, v_y, omega): body velocity and yaw rate in the body frame [m/s, rad/s].
+        wheel_rate: Wheel spin rates relative to their knuckles [rad/s].
+        wheel_angle: Unwrapped wheel angles [rad].
+        slip_ratio: Longitudinal slip ratio per wheel, in [-1, 1].
+        slip_angle: Slip angle per wheel [rad].
+        axle_roll: Axle roll psi_F, psi_R relative to the body, about body x [rad].
+        axle_height: Axle-body distance d_F, d_R: depth of the axle roll centre below the body
+            origin along body -z [m].
+        steering: Axle steering lambda_F, lambda_R [rad] (the virtual centre-wheel angle that
+            the two measured wheel angles of the axle imply, averaged).
+        wheel_steer: Measured steering angle of each wheel [rad].
+        wheel_v_long: Ground velocity of each wheel centre along its heading [m/s].
+        wheel_v_lat: Ground velocity of each wheel centre across its heading, left + [m/s].
+        friction: Friction coefficient applied to each wheel (from the map under it).
+        normal_force: Total contact normal force on each wheel [N].
+        contact_point: World position of each wheel's deepest contact (NaN if none) [m].
+    """
+
+    t: float
+    pose: np.ndarray
+    twist: np.ndarray
+    wheel_rate: np.ndarray
+    wheel_angle: np.ndarray
+    slip_ratio: np.ndarray
+    slip_angle: np.ndarray
+    axle_roll: np.ndarray
+    axle_height: np.ndarray
+    steering: np.ndarray
+    wheel_steer: np.ndarray
+    wheel_v_long: np.ndarray
+    wheel_v_lat: np.ndarray
+    friction: np.ndarray
+    normal_force: np.ndarray
+    contact_point: np.ndarray
+
+    @property
+    def in_contact(self) -> np.ndarray:
+        """Whether each wheel touches the ground."""
+        return self.normal_force > 0.0
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """The public ``info["ground_truth"]`` dict: exactly :data:`GROUND_TRUTH_KEYS`."""
+        return {k: np.array(getattr(self, k), dtype=np.float64) for k in GROUND_TRUTH_KEYS}
+
+    def contact_dict(self) -> dict[str, np.ndarray]:
+        """Per-wheel friction and contact (``info["wheel_contact"]``)."""
+        return {
+            "friction": self.friction.copy(),
+            "normal_force": self.normal_force.copy(),
+            "in_contact": self.in_contact.astype(np.float64),
+            "contact_point": self.contact_point.copy(),
+        }
