@@ -39,6 +39,7 @@ class GroundTruth:
         wheel_steer: Measured steering angle of each wheel [rad].
         wheel_v_long: Ground velocity of each wheel centre along its heading [m/s].
         wheel_v_lat: Ground velocity of each wheel centre across its heading, left + [m/s].
+        wheel_torque: Torque applied by each drive motor in the last physics step [N m].
         friction: Friction coefficient applied to each wheel (from the map under it).
         normal_force: Total contact normal force on each wheel [N].
         contact_point: World position of each wheel's deepest contact (NaN if none) [m].
@@ -57,6 +58,7 @@ class GroundTruth:
     wheel_steer: np.ndarray
     wheel_v_long: np.ndarray
     wheel_v_lat: np.ndarray
+    wheel_torque: np.ndarray
     friction: np.ndarray
     normal_force: np.ndarray
     contact_point: np.ndarray

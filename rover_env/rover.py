@@ -217,6 +217,7 @@ class Rover:
             wheel_steer=wheel_steer,
             wheel_v_long=v_long,
             wheel_v_lat=v_lat,
+            wheel_torque=np.array([joints[j][3] for j in self.wheel_joints]),
             friction=np.array(self._mu, dtype=np.float64),
             normal_force=normal_force,
             contact_point=contact_point,

@@ -1,0 +1,329 @@
+"""``Rover-v0``: drive a waypoint course with a double-Ackermann rover in PyBullet."""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pybullet as pb
+from gymnasium import spaces
+
+from rover_env.geometry import RoverGeometry
+from rover_env.ground_truth import GroundTruth
+from rover_env.rover import ackermann_wheel_speeds
+from rover_env.scenario import ScenarioConfig, load_scenario
+from rover_env.sim import RoverSim, quat_to_yaw
+from rover_env.task import RewardConfig, WaypointCourse
+
+log = logging.getLogger(__name__)
+
+
+class ActionMode(str, enum.Enum):
+    """How the action vector is interpreted."""
+
+    DRIVE = "drive"
+    WHEELS = "wheels"
+
+
+class ObsSource(str, enum.Enum):
+    """Where the observation's state fields come from."""
+
+    GROUND_TRUTH = "ground_truth"
+    ESTIMATED = "estimated"
+
+
+#: Names of the observation fields before the previous action, in order.
+OBS_FIELDS: tuple[str, ...] = (
+    "v_x", "v_y", "omega",
+    "wheel_rate_FL", "wheel_rate_FR", "wheel_rate_RL", "wheel_rate_RR",
+    "slip_FL", "slip_FR", "slip_RL", "slip_RR",
+    "axle_roll_F", "axle_roll_R",
+    "axle_height_F", "axle_height_R",
+    "steering_F", "steering_R",
+    "odometry_quality", "kinematics_quality",
+    "waypoint_distance", "waypoint_bearing", "cross_track", "heading_error",
+)  # fmt: skip
+
+
+class RoverEnv(gym.Env):
+    """Drive a four-wheel double-Ackermann rover through a waypoint course.
+
+    Physics runs at ``physics_hz`` (240 Hz); the agent acts at ``control_hz`` (30 Hz).
+
+    **Action** ``Box(-1, 1)`` float32. Values outside [-1, 1] are clipped; NaN or infinite
+    values raise ``ValueError``.
+
+    =====  ==================  ===========================================================
+    mode   components          scaling
+    =====  ==================  ===========================================================
+    drive  speed, lam_F, lam_R speed * v_max [m/s] at the body centre, wheel rates from the
+                               Ackermann turn centre; lam * steer_limit (30 deg) per axle
+    wheels w_FL, w_FR, w_RL,   wheel surface-speed targets w * v_max [m/s] (divided by the
+           w_RR, lam_F, lam_R  wheel radius for the motors); lam as in drive
+    =====  ==================  ===========================================================
+
+    **Observation** float32 vector in physical units (``OBS_FIELDS`` then the previous
+    action), clipped to generous finite bounds (|v| <= 20 m/s, |wheel rate| <= 100 rad/s,
+    distances <= 1000 m) that only a numerical blow-up could reach. Wheel order FL, FR, RL, RR.
+
+    =======  =====================  ======  ==================================================
+    index    field                  unit    meaning
+    =======  =====================  ======  ==================================================
+    0-2      v_x, v_y, omega        m/s,    body twist in the body frame (x forward, y left),
+                                    rad/s   yaw rate counter-clockwise +
+    3-6      wheel_rate             rad/s   wheel spin rates
+    7-10     slip                   1       longitudinal slip ratio in [-1, 1]
+    11-12    axle_roll              rad     psi_F, psi_R about body x
+    13-14    axle_height            m       d_F, d_R, axle roll centre below the body origin
+    15-16    steering               rad     lambda_F, lambda_R
+    17-18    quality                1       odometry and kinematics estimate quality in [0, 1]
+                                            (1 with ``obs_source="ground_truth"``)
+    19       waypoint_distance      m       distance to the next waypoint
+    20       waypoint_bearing       rad     direction of the next waypoint, left +
+    21       cross_track            m       offset from the current course segment, left +
+    22       heading_error          rad     segment heading minus body heading
+    23-      previous action        1       the last clipped action (3 or 6 values)
+    =======  =====================  ======  ==================================================
+
+    **Reward**: the sum of the terms in ``info["reward_terms"]`` (see :class:`RewardConfig`):
+    progress along the course, minus cross-track, heading, slip, energy and time penalties,
+    plus a success bonus, minus a failure penalty.
+
+    **Episode end**: terminated on reaching the last waypoint (``info["is_success"]``), on
+    tipping over (body tilt > 60 deg) or on leaving the terrain; truncated after the
+    scenario's ``duration``.
+
+    **Info**: ``ground_truth`` (exact state, keys of DESIGN.md), ``wheel_contact`` (friction,
+    normal force, contact flag and point per wheel), ``reward_terms``, ``t`` [s],
+    ``waypoint_index``, ``progress`` [m], ``is_success``, ``termination``.
+
+    Args:
+        scenario: Preset name, YAML path or :class:`ScenarioConfig`.
+        obs_source: ``"ground_truth"``. (``"estimated"``, filling the state fields from the
+            camera estimators, needs the perception estimators, which this version does not
+            ship yet; asking for it raises ``ValueError``.)
+        action_mode: ``"drive"`` or ``"wheels"``.
+        render_mode: None or ``"rgb_array"`` (a third-person chase view).
+        control_hz: Agent rate [Hz]; must divide ``physics_hz``.
+        physics_hz: Physics rate [Hz].
+        v_max: Speed that action 1.0 commands [m/s].
+        geometry: Rover geometry (defaults to :class:`RoverGeometry`).
+        reward: Reward weights (defaults to :class:`RewardConfig`).
+        render_size: (width, height) of the rendered frame [px].
+        solver_iterations: Physics constraint-solver iterations per step.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(
+        self,
+        scenario: str | Path | ScenarioConfig = "flat_patches",
+        obs_source: str = "ground_truth",
+        action_mode: str = "drive",
+        render_mode: str | None = None,
+        control_hz: float = 30.0,
+        physics_hz: float = 240.0,
+        v_max: float = 2.0,
+        geometry: RoverGeometry | None = None,
+        reward: RewardConfig | None = None,
+        render_size: tuple[int, int] = (480, 360),
+        solver_iterations: int = 20,
+    ) -> None:
+        super().__init__()
+        try:
+            self.action_mode = ActionMode(action_mode)
+        except ValueError:
+            raise ValueError(f"action_mode={action_mode!r}: use 'drive' or 'wheels'") from None
+        try:
+            self.obs_source = ObsSource(obs_source)
+        except ValueError:
+            raise ValueError(
+                f"obs_source={obs_source!r}: use 'ground_truth' or 'estimated'"
+            ) from None
+        if self.obs_source is ObsSource.ESTIMATED:
+            raise ValueError(
+                "obs_source='estimated' needs the camera estimators, which this version does "
+                "not ship yet; use obs_source='ground_truth'"
+            )
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode={render_mode!r}: use None or 'rgb_array'")
+        substeps = physics_hz / control_hz
+        if control_hz <= 0 or abs(substeps - round(substeps)) > 1e-9 or round(substeps) < 1:
+            raise ValueError(
+                f"control_hz={control_hz} must divide physics_hz={physics_hz} into whole steps"
+            )
+        if not (0.0 < v_max <= 5.0):
+            raise ValueError(f"v_max={v_max}: use a speed in (0, 5] m/s")
+        if len(render_size) != 2 or min(render_size) < 16 or max(render_size) > 4096:
+            raise ValueError(f"render_size={render_size}: use (width, height) of 16 to 4096 px")
+        self.scenario = load_scenario(scenario)
+        self.geometry = geometry or RoverGeometry()
+        self.reward_cfg = reward or RewardConfig()
+        self.render_mode = render_mode
+        self.render_size = (int(render_size[0]), int(render_size[1]))
+        self.control_hz = float(control_hz)
+        self.control_dt = 1.0 / control_hz
+        self.v_max = float(v_max)
+        self.metadata = {**self.metadata, "render_fps": self.control_hz}
+        self.sim = RoverSim(self.scenario, self.geometry, physics_hz=physics_hz,
+                            solver_iterations=solver_iterations)
+        self.course = WaypointCourse(self.scenario.course)
+        n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
+        # Finite bounds far outside anything physical; observations are clipped to them.
+        bound = [20.0, 20.0, 20.0] + [100.0] * 4 + [1.0] * 4 + [math.pi] * 2 + [1.0] * 2 \
+            + [math.pi / 2] * 2 + [1.0] * 2 + [1000.0, math.pi, 1000.0, math.pi] + [1.0] * n_act
+        high = np.asarray(bound, dtype=np.float32)
+        low = -high
+        low[17:19] = 0.0
+        low[19] = 0.0
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self._prev_action = np.zeros(n_act, dtype=np.float32)
+        self._gt: GroundTruth | None = None
+        self._progress = 0.0
+        self._closed = False
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Start an episode at the scenario's start pose plus random jitter from ``seed``."""
+        super().reset(seed=seed)
+        st = self.scenario.start
+        r = st.jitter_position * math.sqrt(self.np_random.uniform())
+        ang = self.np_random.uniform(-math.pi, math.pi)
+        x = st.position[0] + r * math.cos(ang)
+        y = st.position[1] + r * math.sin(ang)
+        yaw = st.yaw + math.radians(st.jitter_yaw_deg) * self.np_random.uniform(-1.0, 1.0)
+        self._gt = self.sim.reset(x, y, yaw)
+        self.course.reset(self._gt.pose[:2])
+        self._prev_action = np.zeros_like(self._prev_action)
+        feats = self.course.features(self._gt.pose[:2], quat_to_yaw(self._gt.pose[3:]))
+        self._progress = feats.progress
+        terms = dict.fromkeys(self._term_names(), 0.0)
+        return self._observation(feats), self._info(feats, terms, False, None)
+
+    def step(self, action):
+        """Apply ``action`` for one control period and advance physics."""
+        if self._gt is None:
+            raise RuntimeError("call reset() before step()")
+        act = self._validate_action(action)
+        g = self.geometry
+        lam_f = float(act[-2]) * g.steer_limit
+        lam_r = float(act[-1]) * g.steer_limit
+        if self.action_mode is ActionMode.DRIVE:
+            speeds = ackermann_wheel_speeds(g, float(act[0]) * self.v_max, lam_f, lam_r)
+        else:
+            speeds = act[:4].astype(np.float64) * self.v_max
+        self.sim.rover.command(speeds / g.wheel_radius, lam_f, lam_r)
+        self.sim.step(self.control_dt)
+        gt = self.sim.ground_truth()
+        self._gt = gt
+        self._prev_action = act
+        xy = gt.pose[:2]
+        self.course.update(xy)
+        feats = self.course.features(xy, quat_to_yaw(gt.pose[3:]))
+        success = self.course.finished
+        rot = np.array(self.sim.client.getMatrixFromQuaternion(gt.pose[3:].tolist())).reshape(3, 3)
+        tipped = rot[2, 2] < 0.5
+        off = not self.sim.terrain.contains(xy[0], xy[1], margin=0.5)
+        failure = tipped or off
+        terms = self._reward_terms(gt, feats, success, failure)
+        self._progress = feats.progress
+        terminated = success or failure
+        truncated = (not terminated) and gt.t >= self.scenario.duration - 1e-9
+        reason = "success" if success else "tipped_over" if tipped else (
+            "left_terrain" if off else "time_limit" if truncated else None)
+        obs = self._observation(feats)
+        return (obs, float(sum(terms.values())), terminated, truncated,
+                self._info(feats, terms, success, reason))
+
+    def render(self) -> np.ndarray | None:
+        """Third-person chase view, RGB uint8 (H, W, 3), with the sun's shadows."""
+        if self.render_mode != "rgb_array":
+            return None
+        c = self.sim.client
+        pos, quat = c.getBasePositionAndOrientation(self.sim.rover.body_id)
+        yaw = quat_to_yaw(quat)
+        eye = [pos[0] - 2.6 * math.cos(yaw) + 0.8 * math.sin(yaw),
+               pos[1] - 2.6 * math.sin(yaw) - 0.8 * math.cos(yaw), pos[2] + 1.6]
+        w, h = self.render_size
+        view = c.computeViewMatrix(eye, [pos[0], pos[1], pos[2] - 0.1], [0, 0, 1])
+        proj = c.computeProjectionMatrixFOV(55.0, w / h, 0.05, 60.0)
+        sun = self.scenario.sun.direction() * 100.0
+        img = c.getCameraImage(w, h, view, proj, shadow=1, lightDirection=sun.tolist(),
+                               lightAmbientCoeff=0.45, lightDiffuseCoeff=0.6,
+                               lightSpecularCoeff=0.05, renderer=pb.ER_TINY_RENDERER)
+        rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (h, w, 4))
+        return np.ascontiguousarray(rgba[:, :, :3])
+
+    def close(self) -> None:
+        """Release the physics client; safe to call more than once."""
+        if not self._closed:
+            self._closed = True
+            self.sim.close()
+
+    # ------------------------------------------------------------------ helpers
+    def _validate_action(self, action) -> np.ndarray:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != self.action_space.shape:
+            raise ValueError(
+                f"action has shape {a.shape}; action_mode={self.action_mode.value!r} expects "
+                f"{self.action_space.shape}"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ValueError(
+                f"action contains NaN or infinite values: {a.tolist()}; "
+                "send finite values in [-1, 1]"
+            )
+        return np.clip(a, -1.0, 1.0).astype(np.float32)
+
+    def _observation(self, feats) -> np.ndarray:
+        gt = self._gt
+        assert gt is not None
+        state = np.concatenate([
+            gt.twist, gt.wheel_rate, gt.slip_ratio, gt.axle_roll, gt.axle_height, gt.steering,
+            [1.0, 1.0],
+            [feats.distance, feats.bearing, feats.cross_track, feats.heading_error],
+        ])
+        obs = np.concatenate([state, self._prev_action]).astype(np.float32)
+        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+
+    @staticmethod
+    def _term_names() -> tuple[str, ...]:
+        return ("progress", "cross_track", "heading", "slip", "energy", "time", "success",
+                "failure")
+
+    def _reward_terms(self, gt: GroundTruth, feats, success: bool,
+                      failure: bool) -> dict[str, float]:
+        w = self.reward_cfg
+        dt = self.control_dt
+        power = float(np.sum(np.abs(gt.wheel_torque * gt.wheel_rate)))
+        return {
+            "progress": w.progress * (feats.progress - self._progress),
+            "cross_track": -w.cross_track * abs(feats.cross_track) * dt,
+            "heading": -w.heading * abs(feats.heading_error) * dt,
+            "slip": -w.slip * float(np.mean(np.abs(gt.slip_ratio))) * dt,
+            "energy": -w.energy * power * dt,
+            "time": -w.time * dt,
+            "success": w.success if success else 0.0,
+            "failure": -w.failure if failure else 0.0,
+        }
+
+    def _info(self, feats, terms: dict[str, float], success: bool,
+              reason: str | None) -> dict[str, Any]:
+        gt = self._gt
+        assert gt is not None
+        return {
+            "ground_truth": gt.as_dict(),
+            "wheel_contact": gt.contact_dict(),
+            "reward_terms": terms,
+            "t": gt.t,
+            "waypoint_index": self.course.index,
+            "progress": feats.progress,
+            "is_success": bool(success),
+            "termination": reason,
+        }

@@ -1,0 +1,128 @@
+"""The waypoint-course driving task: progress, task features and reward terms."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rover_env.config_io import check_range
+from rover_env.scenario import CourseConfig
+
+
+def wrap_angle(a: float) -> float:
+    """Wrap an angle to [-pi, pi) [rad]."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Weights of the reward terms; every term is reported in ``info["reward_terms"]``.
+
+    Attributes:
+        progress: Reward per metre of progress along the course [1/m].
+        cross_track: Penalty per metre of |cross-track error| per second [1/(m s)].
+        heading: Penalty per radian of |heading error| per second [1/(rad s)].
+        slip: Penalty per unit of mean |slip ratio| of the wheels per second [1/s].
+        energy: Penalty per joule of wheel-motor mechanical work [1/J].
+        time: Penalty per second [1/s].
+        success: Bonus for reaching the last waypoint.
+        failure: Penalty for tipping over or leaving the terrain.
+    """
+
+    progress: float = 1.0
+    cross_track: float = 0.2
+    heading: float = 0.05
+    slip: float = 0.5
+    energy: float = 0.002
+    time: float = 0.05
+    success: float = 10.0
+    failure: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            check_range(name, getattr(self, name), 0.0, 1e6)
+
+
+@dataclass(frozen=True)
+class CourseFeatures:
+    """Task features in the body frame.
+
+    Attributes:
+        distance: Distance to the next waypoint [m].
+        bearing: Direction of the next waypoint from the body x axis, left + [rad].
+        cross_track: Signed distance from the current course segment, left of it + [m].
+        heading_error: Segment heading minus body heading, wrapped [rad].
+        progress: Arc length travelled along the course [m].
+    """
+
+    distance: float
+    bearing: float
+    cross_track: float
+    heading_error: float
+    progress: float
+
+
+class WaypointCourse:
+    """A polyline from the start position through the scenario's waypoints.
+
+    The current segment ends at the next waypoint; it is reached when the body centre comes
+    within ``tolerance`` of it. Progress is the arc length of the projection onto the
+    current segment (clamped to it) plus the length of the completed segments.
+    """
+
+    def __init__(self, course: CourseConfig) -> None:
+        self.cfg = course
+        self.index = 0
+        self.points = np.zeros((1, 2))
+        self._cum = np.zeros(1)
+
+    def reset(self, start_xy: np.ndarray) -> None:
+        """Start a new episode from ``start_xy`` (world, [m])."""
+        self.points = np.vstack([np.asarray(start_xy, dtype=float)[None, :2],
+                                 np.asarray(self.cfg.waypoints, dtype=float)])
+        seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
+        self._cum = np.concatenate([[0.0], np.cumsum(seg)])
+        self.index = 0
+
+    @property
+    def num_waypoints(self) -> int:
+        """Number of waypoints of the course."""
+        return len(self.cfg.waypoints)
+
+    @property
+    def finished(self) -> bool:
+        """True once the last waypoint has been reached."""
+        return self.index >= self.num_waypoints
+
+    @property
+    def length(self) -> float:
+        """Course length from the start through all waypoints [m]."""
+        return float(self._cum[-1])
+
+    def update(self, xy: np.ndarray) -> bool:
+        """Advance past every waypoint within tolerance of ``xy``; True if one was reached."""
+        reached = False
+        while not self.finished and np.linalg.norm(self.points[self.index + 1] - xy) <= \
+                self.cfg.tolerance:
+            self.index += 1
+            reached = True
+        return reached
+
+    def features(self, xy: np.ndarray, yaw: float) -> CourseFeatures:
+        """Task features of a body at ``xy`` [m] heading ``yaw`` [rad] (world frame)."""
+        k = min(self.index, self.num_waypoints - 1)
+        a, b = self.points[k], self.points[k + 1]
+        seg = b - a
+        length = float(np.linalg.norm(seg))
+        tangent = seg / length if length > 1e-9 else np.array([math.cos(yaw), math.sin(yaw)])
+        rel = xy - a
+        along = float(np.clip(rel @ tangent, 0.0, length))
+        cross = float(tangent[0] * rel[1] - tangent[1] * rel[0])
+        to_wp = b - xy
+        dist = float(np.linalg.norm(to_wp))
+        bearing = wrap_angle(math.atan2(to_wp[1], to_wp[0]) - yaw)
+        heading_err = wrap_angle(math.atan2(tangent[1], tangent[0]) - yaw)
+        progress = float(self._cum[k]) + along if not self.finished else self.length
+        return CourseFeatures(dist, bearing, cross, heading_err, progress)
