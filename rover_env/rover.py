@@ -64,7 +64,7 @@ class Rover:
         self.body_id = client.loadURDF(
             str(urdf_file(geometry)),
             basePosition=[0, 0, 1],
-            flags=pb.URDF_USE_IMPLICIT_CYLINDER | pb.URDF_USE_INERTIA_FROM_FILE,
+            flags=pb.URDF_USE_INERTIA_FROM_FILE,
         )
         self.joint: dict[str, int] = {}
         self.link: dict[str, int] = {"body": -1}

@@ -127,6 +127,11 @@ def _atomic_write(path: Path, text: str) -> None:
 def build_urdf(geom: RoverGeometry) -> str:
     """The rover's URDF text for ``geom``.
 
+    Wheels collide as spheres of the wheel radius: a fully crowned tyre with one contact point
+    under the centre. A flat rigid cylinder on rigid ground flips its load between the tread
+    edges every few steps, which shows up as about 2 % of false slip in turns; the sphere rolls
+    as an exact circle. The wheel's visual is the textured cylinder.
+
     Link names: ``body``; per axle a in F, R: ``carriage_a``, ``axle_a``; per wheel w in
     FL, FR, RL, RR: ``knuckle_w``, ``wheel_w``. Joint names: ``travel_a`` (prismatic z),
     ``roll_a`` (revolute x), ``steer_w`` (revolute z), ``wheel_w`` (continuous y).
@@ -208,8 +213,8 @@ def build_urdf(geom: RoverGeometry) -> str:
                 f'<link name="wheel_{wheel}">{_inertial(geom.wheel_mass, wheel_inertia, s)}'
                 f'<visual><origin xyz="0 0 0" rpy="0 0 0"/><geometry><mesh filename="{mesh}" '
                 'scale="1 1 1"/></geometry></visual>'
-                f'<collision><origin xyz="0 0 0" rpy="{math.pi / 2:.9f} 0 0"/><geometry>'
-                f'<cylinder radius="{r:.6g}" length="{w:.6g}"/></geometry></collision></link>'
+                '<collision><origin xyz="0 0 0" rpy="0 0 0"/><geometry>'
+                f'<sphere radius="{r:.6g}"/></geometry></collision></link>'
             )
             parts.append(
                 f'<joint name="wheel_{wheel}" type="continuous"><parent link="knuckle_{wheel}"/>'
