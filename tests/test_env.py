@@ -1,0 +1,192 @@
+"""The Gymnasium environment: API conformance, determinism, isolation, vectorisation, bad input."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import rover_env
+from rover_env.envs import OBS_FIELDS, RoverEnv
+from rover_env.ground_truth import GROUND_TRUTH_KEYS
+
+
+def rollout(env, seed, actions):
+    obs, _ = env.reset(seed=seed)
+    out = [np.append(obs, 0.0)]
+    for a in actions:
+        obs, r, term, trunc, info = env.step(a)
+        out.append(np.append(obs, r))
+    return np.array(out)
+
+
+ACTIONS = [np.array([0.6, 0.3 * np.sin(k / 10), -0.2], dtype=np.float32) for k in range(40)]
+
+
+def test_registration_is_idempotent():
+    before = len(gym.registry)
+    rover_env.register_envs()
+    rover_env.register_envs()
+    assert len(gym.registry) == before
+    assert "Rover-v0" in rover_env.ENV_IDS
+    for env_id in rover_env.ENV_IDS:
+        assert env_id in gym.registry
+
+
+@pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
+@pytest.mark.parametrize("action_mode", ["drive", "wheels"])
+def test_check_env_passes_without_warnings(env_id, action_mode):
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make(env_id, action_mode=action_mode, render_mode="rgb_array")
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            check_env(env.unwrapped)
+            sb3_check_env(env.unwrapped)
+        messages = [str(w.message) for w in caught]
+        assert messages == []
+        n_act = 3 if action_mode == "drive" else 6
+        assert env.observation_space.shape == (len(OBS_FIELDS) + n_act,)
+        env.reset(seed=0)
+        frame = env.render()
+        assert frame.shape == (360, 480, 3) and frame.dtype == np.uint8
+        assert frame.std() > 5  # a real picture, not a blank frame
+    finally:
+        env.close()
+
+
+def test_same_seed_same_rollout_fresh_and_reused():
+    a = RoverEnv()
+    b = RoverEnv()
+    try:
+        ra = rollout(a, 7, ACTIONS)
+        rb = rollout(b, 7, ACTIONS)
+        np.testing.assert_array_equal(ra, rb)
+        rollout(a, 3, ACTIONS[:10])  # a different episode in between
+        np.testing.assert_array_equal(rollout(a, 7, ACTIONS), ra)
+        rc = rollout(b, 8, ACTIONS)
+        assert not np.array_equal(rc, ra)  # the seed matters (start jitter)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_two_envs_in_one_process_do_not_interfere():
+    ref_env = RoverEnv()
+    ref = rollout(ref_env, 1, ACTIONS)
+    ref_env.close()
+    a, b = RoverEnv(), RoverEnv(scenario="rough")
+    try:
+        a.reset(seed=1)
+        b.reset(seed=2)
+        out = [np.append(a.reset(seed=1)[0], 0.0)]
+        for act in ACTIONS:
+            b.step(np.array([1.0, -1.0, 1.0], dtype=np.float32))
+            obs, r, *_ = a.step(act)
+            out.append(np.append(obs, r))
+        np.testing.assert_array_equal(np.array(out), ref)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_reward_terms_sum_to_reward_and_info_keys():
+    env = RoverEnv()
+    try:
+        _, info = env.reset(seed=0)
+        assert tuple(info["ground_truth"]) == GROUND_TRUTH_KEYS
+        assert info["ground_truth"]["pose"].shape == (7,)
+        progress = 0.0
+        for k in range(60):
+            _, reward, term, trunc, info = env.step(np.array([0.5, 0.0, 0.0]))
+            assert reward == pytest.approx(sum(info["reward_terms"].values()), abs=1e-12)
+            progress += info["reward_terms"]["progress"]
+        assert set(info["wheel_contact"]) == {"friction", "normal_force", "in_contact",
+                                              "contact_point"}
+        assert info["t"] == pytest.approx(2.0)
+        # 2 s at half of 2 m/s toward the first waypoint: about 1.5-2 m of progress
+        assert 1.2 < progress < 2.1
+        assert info["ground_truth"]["twist"][0] == pytest.approx(1.0, abs=0.05)
+    finally:
+        env.close()
+
+
+def test_bad_actions_raise_and_out_of_range_is_clipped():
+    env = RoverEnv()
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="NaN or infinite"):
+            env.step(np.array([np.nan, 0.0, 0.0]))
+        with pytest.raises(ValueError, match="NaN or infinite"):
+            env.step(np.array([0.0, np.inf, 0.0]))
+        with pytest.raises(ValueError, match="shape"):
+            env.step(np.zeros(6))
+        obs, *_ = env.step(np.array([3.0, -7.0, 0.5]))
+        np.testing.assert_allclose(obs[-3:], [1.0, -1.0, 0.5])
+        assert env.sim.rover.steer_cmd[0] == pytest.approx(-env.geometry.steer_limit)
+    finally:
+        env.close()
+    env.close()  # closing twice is safe
+
+
+def test_bad_constructor_arguments_are_explained():
+    with pytest.raises(ValueError, match="action_mode"):
+        RoverEnv(action_mode="tank")
+    with pytest.raises(ValueError, match="estimated"):
+        RoverEnv(obs_source="estimated")
+    with pytest.raises(ValueError, match="control_hz"):
+        RoverEnv(control_hz=7.0)
+    with pytest.raises(rover_env.ConfigError, match="unknown scenario preset"):
+        RoverEnv(scenario="moon_base")
+
+
+def _make():
+    return gym.make("Rover-v0")
+
+
+def test_async_vector_env_and_subproc_vec_env():
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    venv = gym.make_vec("Rover-v0", num_envs=2, vectorization_mode="async")
+    try:
+        obs, _ = venv.reset(seed=[0, 1])
+        assert obs.shape == (2, len(OBS_FIELDS) + 3)
+        for _ in range(5):
+            obs, rew, term, trunc, info = venv.step(np.tile([0.5, 0.0, 0.0], (2, 1)))
+        assert np.all(np.isfinite(obs)) and obs[:, 0].min() > 0.1
+    finally:
+        venv.close()
+    sb3 = SubprocVecEnv([_make, _make])
+    try:
+        obs = sb3.reset()
+        for _ in range(5):
+            obs, rew, done, infos = sb3.step(np.tile([0.5, 0.0, 0.0], (2, 1)))
+        assert obs.shape == (2, len(OBS_FIELDS) + 3) and obs[:, 0].min() > 0.1
+        assert "ground_truth" in infos[0]
+    finally:
+        sb3.close()
+
+
+def test_episode_succeeds_when_the_last_waypoint_is_reached(tmp_path):
+    yaml_text = """
+name: short
+course: {waypoints: [[1.5, 0.0]], tolerance: 0.5}
+terrain: {kind: flat, size: [10.0, 10.0], texture: concrete, texture_px: 64}
+duration: 10.0
+"""
+    path = tmp_path / "short.yaml"
+    path.write_text(yaml_text)
+    env = RoverEnv(scenario=path)
+    try:
+        env.reset(seed=0)
+        for _ in range(300):
+            _, reward, term, trunc, info = env.step(np.array([0.4, 0.0, 0.0]))
+            if term or trunc:
+                break
+        assert term and info["is_success"] and info["termination"] == "success"
+        assert info["reward_terms"]["success"] == pytest.approx(10.0)
+        assert 0.9 < info["t"] < 3.0
+    finally:
+        env.close()
