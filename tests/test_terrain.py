@@ -1,0 +1,81 @@
+"""Terrain heights against Bullet's own ray casts, friction map, tiling textures."""
+
+import numpy as np
+import pybullet as pb
+import pytest
+from conftest import rough_scenario
+from pybullet_utils.bullet_client import BulletClient
+
+from rover_env.scenario import FrictionMapConfig, FrictionPatch, TerrainConfig
+from rover_env.terrain import FrictionMap, Terrain
+from rover_env.textures import ground_texture, tread_texture
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        rough_scenario().terrain,
+        TerrainConfig(kind="flat", size=(20.0, 20.0), slope_deg=10.0, slope_azimuth_deg=30.0,
+                      texture="sand", texture_px=64),
+        TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness=0.03,
+                      slope_deg=8.0, texture="gravel", texture_px=64),
+    ],
+)
+def test_height_at_matches_bullet_ray_casts(cfg):
+    client = BulletClient(connection_mode=pb.DIRECT)
+    try:
+        terrain = Terrain(client, cfg, FrictionMapConfig())
+        rng = np.random.default_rng(0)
+        pts = rng.uniform(-0.45, 0.45, (200, 2)) * np.array(cfg.size)
+        starts = np.column_stack([pts, np.full(len(pts), 50.0)])
+        ends = np.column_stack([pts, np.full(len(pts), -50.0)])
+        hits = client.rayTestBatch(starts.tolist(), ends.tolist())
+        z_ray = np.array([h[3][2] for h in hits])
+        assert all(h[0] == terrain.body_id for h in hits)
+        np.testing.assert_allclose(terrain.height_at(pts[:, 0], pts[:, 1]), z_ray, atol=1e-5)
+        if cfg.roughness > 0:
+            assert terrain.heights.std() > 0.5 * cfg.roughness
+    finally:
+        client.disconnect()
+
+
+def test_rough_terrain_relief_statistics():
+    from rover_env.terrain import make_heights
+
+    cfg = rough_scenario(roughness=0.04).terrain
+    _, _, h = make_heights(cfg)
+    assert h.std() == pytest.approx(0.04, rel=1e-6)
+    slope = np.hypot(*np.gradient(h, cfg.cell))
+    assert np.percentile(slope, 99) < np.tan(np.radians(25))  # drivable, wheels stay in contact
+
+
+def test_friction_map_patches_override_in_order():
+    fm = FrictionMap(FrictionMapConfig(default_mu=0.9, patches=(
+        FrictionPatch(mu=0.2, center=(0.0, 0.0), size=(4.0, 2.0), yaw_deg=90.0),
+        FrictionPatch(mu=0.5, center=(0.0, 1.5), shape="circle", radius=0.5),
+    )))
+    assert fm.mu_at(0.0, -1.8) == 0.2  # rotated rect: 4 m along y
+    assert fm.mu_at(1.5, 0.0) == 0.9  # only 2 m along x after the 90 deg turn
+    assert fm.mu_at(0.0, 1.5) == 0.5  # later patch wins
+    xs, ys = np.meshgrid(np.linspace(-3, 3, 31), np.linspace(-3, 3, 31))
+    grid = fm.mu_grid(xs, ys)
+    assert np.array_equal(grid, np.vectorize(fm.mu_at)(xs, ys))
+
+
+@pytest.mark.parametrize("name", ["regolith", "sand", "gravel", "concrete"])
+def test_ground_textures_tile_without_seams_and_have_detail(name):
+    img = ground_texture(name, px=256, seed=1).astype(np.float64).mean(axis=2)
+    interior = np.abs(np.diff(img, axis=1)).mean()
+    seam = np.abs(img[:, 0] - img[:, -1]).mean()
+    assert seam < 1.5 * interior
+    assert interior > 2.0  # pixel-scale detail for optical flow
+    assert ground_texture(name, px=256, seed=1).tobytes() == ground_texture(
+        name, px=256, seed=1).tobytes()
+
+
+def test_tread_texture_has_a_white_marker_at_u_half():
+    img = tread_texture(px_u=360, px_v=100, marker_arc=np.radians(16))
+    tread = img[:75].mean(axis=(0, 2))
+    white = np.where(tread > 240)[0]
+    assert white.min() >= 180 - 9 and white.max() <= 180 + 9
+    assert len(white) == pytest.approx(16, abs=2)
