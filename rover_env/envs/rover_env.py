@@ -50,6 +50,11 @@ OBS_FIELDS: tuple[str, ...] = (
 )  # fmt: skip
 
 
+def wheel_power(gt: GroundTruth) -> float:
+    """Mechanical power of the four drive motors, sum of |torque * rate| [W]."""
+    return float(np.sum(np.abs(gt.wheel_torque * gt.wheel_rate)))
+
+
 class RoverEnv(gym.Env):
     """Drive a four-wheel double-Ackermann rover through a waypoint course.
 
@@ -100,7 +105,8 @@ class RoverEnv(gym.Env):
 
     **Info**: ``ground_truth`` (exact state, keys of DESIGN.md), ``wheel_contact`` (friction,
     normal force, contact flag and point per wheel), ``reward_terms``, ``t`` [s],
-    ``waypoint_index``, ``progress`` [m], ``is_success``, ``termination``.
+    ``waypoint_index``, ``progress`` [m], ``is_success``, ``termination``, ``wheel_power``
+    (drive motors' mechanical power [W]).
 
     Args:
         scenario: Preset name, YAML path or :class:`ScenarioConfig`.
@@ -301,7 +307,7 @@ class RoverEnv(gym.Env):
                       failure: bool) -> dict[str, float]:
         w = self.reward_cfg
         dt = self.control_dt
-        power = float(np.sum(np.abs(gt.wheel_torque * gt.wheel_rate)))
+        power = wheel_power(gt)
         return {
             "progress": w.progress * (feats.progress - self._progress),
             "cross_track": -w.cross_track * abs(feats.cross_track) * dt,
@@ -321,6 +327,7 @@ class RoverEnv(gym.Env):
             "ground_truth": gt.as_dict(),
             "wheel_contact": gt.contact_dict(),
             "reward_terms": terms,
+            "wheel_power": wheel_power(gt),
             "t": gt.t,
             "waypoint_index": self.course.index,
             "progress": feats.progress,

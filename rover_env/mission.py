@@ -1,0 +1,259 @@
+"""Run a controller through a scenario and write a video, plots, metrics and a trajectory."""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from controllers.base import Controller
+from rover_env.envs.rover_env import RoverEnv
+
+log = logging.getLogger(__name__)
+
+SLIP_EVENT = 0.2  # |slip ratio| above which a wheel counts as slipping
+
+
+@dataclass(frozen=True)
+class MissionMetrics:
+    """Summary of one mission. Lengths [m], times [s], energy [J]."""
+
+    scenario: str
+    seed: int
+    success: bool
+    termination: str
+    time: float
+    path_length: float
+    course_length: float
+    progress: float
+    cross_track_rms: float
+    energy: float
+    mean_speed: float
+    max_abs_slip: float
+    time_in_slip: float
+    stuck_events: int
+    total_reward: float
+
+
+@dataclass
+class MissionLog:
+    """Per-step records of a mission (ground truth)."""
+
+    t: list[float]
+    pose: list[np.ndarray]
+    twist: list[np.ndarray]
+    slip: list[np.ndarray]
+    wheel_rate: list[np.ndarray]
+    axle_roll: list[np.ndarray]
+    steering: list[np.ndarray]
+    friction: list[np.ndarray]
+    cross_track: list[float]
+
+    @classmethod
+    def empty(cls) -> MissionLog:
+        return cls([], [], [], [], [], [], [], [], [])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {k: np.asarray(v) for k, v in asdict(self).items()}
+
+
+def run_mission(env: RoverEnv, controller: Controller, seed: int = 0,
+                video_path: Path | None = None, video_every: int = 2,
+                progress: Callable[[float], None] | None = None) -> tuple[MissionMetrics, MissionLog]:
+    """Drive one episode with ``controller`` and collect metrics and a log.
+
+    Args:
+        env: The environment (``render_mode="rgb_array"`` if a video is wanted).
+        controller: Acts on the environment's observations.
+        seed: Episode seed.
+        video_path: Where to write an MP4 of the rendered frames, or None.
+        video_every: Render every n-th control step into the video.
+        progress: Called with the fraction of the time limit elapsed.
+    """
+    import cv2
+
+    obs, info = env.reset(seed=seed)
+    controller.reset()
+    rec = MissionLog.empty()
+    writer = None
+    if video_path is not None:
+        fps = env.control_hz / video_every
+        w, h = env.render_size
+        writer = cv2.VideoWriter(str(video_path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+        if not writer.isOpened():
+            raise OSError(f"could not open a video writer for {video_path}")
+    energy = 0.0
+    total_reward = 0.0
+    stuck, stuck_time = 0, 0.0
+    step = 0
+    termination = "time_limit"
+    success = False
+    try:
+        while True:
+            action = controller.act(obs)
+            obs, reward, term, trunc, info = env.step(action)
+            total_reward += reward
+            gt = info["ground_truth"]
+            rec.t.append(info["t"])
+            rec.pose.append(gt["pose"])
+            rec.twist.append(gt["twist"])
+            rec.slip.append(gt["slip_ratio"])
+            rec.wheel_rate.append(gt["wheel_rate"])
+            rec.axle_roll.append(gt["axle_roll"])
+            rec.steering.append(gt["steering"])
+            rec.friction.append(info["wheel_contact"]["friction"])
+            rec.cross_track.append(float(obs[21]))
+            energy += info["wheel_power"] * env.control_dt
+            # stuck: commanding motion but the body barely moves for 2 s
+            commanded = abs(float(action[0])) > 0.05 if env.action_mode.value == "drive" else \
+                float(np.abs(action[:4]).max()) > 0.05
+            if commanded and abs(gt["twist"][0]) < 0.02:
+                stuck_time += env.control_dt
+                if abs(stuck_time - 2.0) < 0.5 * env.control_dt:
+                    stuck += 1
+            else:
+                stuck_time = 0.0
+            if writer is not None and step % video_every == 0:
+                frame = env.render()
+                writer.write(np.ascontiguousarray(frame[:, :, ::-1]))
+            step += 1
+            if progress is not None and step % 30 == 0:
+                progress(min(info["t"] / env.scenario.duration, 1.0))
+            if term or trunc:
+                termination = info["termination"] or "unknown"
+                success = bool(info["is_success"])
+                break
+    finally:
+        if writer is not None:
+            writer.release()
+    arr = rec.arrays()
+    xy = arr["pose"][:, :2]
+    path_len = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()) if len(xy) > 1 else 0.0
+    slip = np.abs(arr["slip"])
+    metrics = MissionMetrics(
+        scenario=env.scenario.name,
+        seed=seed,
+        success=success,
+        termination=termination,
+        time=float(arr["t"][-1]),
+        path_length=path_len,
+        course_length=env.course.length,
+        progress=float(info["progress"]),
+        cross_track_rms=float(np.sqrt(np.mean(arr["cross_track"] ** 2))),
+        energy=float(energy),
+        mean_speed=path_len / max(float(arr["t"][-1]), 1e-9),
+        max_abs_slip=float(slip.max()),
+        time_in_slip=float((slip.max(axis=1) > SLIP_EVENT).sum() * env.control_dt),
+        stuck_events=stuck,
+        total_reward=float(total_reward),
+    )
+    return metrics, rec
+
+
+def write_tum(path: Path, rec: MissionLog) -> None:
+    """Trajectory in TUM format: ``t x y z qx qy qz qw`` per line (world frame)."""
+    arr = rec.arrays()
+    data = np.column_stack([arr["t"], arr["pose"]])
+    np.savetxt(path, data, fmt="%.6f")
+
+
+def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:
+    """Trajectory, speed/slip and joint-angle plots (PNG); returns the written paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    arr = rec.arrays()
+    t = arr["t"]
+    paths = []
+    fig, ax = plt.subplots(figsize=(7, 6))
+    sc = env.scenario
+    half = np.array(sc.terrain.size) / 2
+    xs = np.linspace(-half[0], half[0], 400)
+    ys = np.linspace(-half[1], half[1], 400)
+    gx, gy = np.meshgrid(xs, ys)
+    mu = env.sim.terrain.friction.mu_grid(gx, gy)
+    im = ax.imshow(mu, origin="lower", extent=(-half[0], half[0], -half[1], half[1]),
+                   cmap="YlOrBr_r", vmin=0.0, vmax=1.2, alpha=0.6)
+    fig.colorbar(im, ax=ax, label="friction coefficient")
+    course = env.course.points
+    ax.plot(course[:, 0], course[:, 1], "k--o", label="course")
+    ax.plot(arr["pose"][:, 0], arr["pose"][:, 1], "b-", label="rover (ground truth)")
+    pad = 2.0
+    lo = np.minimum(course.min(0), arr["pose"][:, :2].min(0)) - pad
+    hi = np.maximum(course.max(0), arr["pose"][:, :2].max(0)) + pad
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{sc.name}: trajectory")
+    ax.legend(loc="best")
+    paths.append(out / "trajectory.png")
+    fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+    names = ("FL", "FR", "RL", "RR")
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    axes[0].plot(t, arr["twist"][:, 0], label="v_x [m/s]")
+    axes[0].plot(t, arr["twist"][:, 1], label="v_y [m/s]")
+    axes[0].plot(t, arr["twist"][:, 2], label="omega [rad/s]")
+    axes[0].legend(loc="upper right")
+    axes[0].set_title("body twist")
+    for i, n in enumerate(names):
+        axes[1].plot(t, arr["slip"][:, i], label=n)
+        axes[2].plot(t, arr["friction"][:, i], label=n)
+    axes[1].set_ylabel("slip ratio")
+    axes[1].legend(loc="upper right")
+    axes[2].set_ylabel("friction under wheel")
+    axes[2].set_xlabel("time [s]")
+    paths.append(out / "velocity_slip.png")
+    fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    axes[0].plot(t, np.degrees(arr["axle_roll"][:, 0]), label="psi_F")
+    axes[0].plot(t, np.degrees(arr["axle_roll"][:, 1]), label="psi_R")
+    axes[0].set_ylabel("axle roll [deg]")
+    axes[0].legend(loc="upper right")
+    axes[1].plot(t, np.degrees(arr["steering"][:, 0]), label="lambda_F")
+    axes[1].plot(t, np.degrees(arr["steering"][:, 1]), label="lambda_R")
+    axes[1].set_ylabel("steering [deg]")
+    axes[1].set_xlabel("time [s]")
+    axes[1].legend(loc="upper right")
+    paths.append(out / "joints.png")
+    fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return paths
+
+
+def run_demo(out: Path, scenario: str = "flat_patches", seed: int = 0, video: bool = True,
+             progress: Callable[[float], None] | None = None) -> MissionMetrics:
+    """The headless demo: pure pursuit through ``scenario``; writes everything into ``out``.
+
+    Writes ``demo.mp4`` (third-person view), ``trajectory.png``, ``velocity_slip.png``,
+    ``joints.png``, ``metrics.json`` and ``trajectory.tum``.
+    """
+    from controllers.pure_pursuit import PurePursuit, PurePursuitConfig
+    from rover_env.envs.rover_env import OBS_FIELDS
+
+    out.mkdir(parents=True, exist_ok=True)
+    env = RoverEnv(scenario=scenario, render_mode="rgb_array" if video else None)
+    try:
+        ctrl = PurePursuit(OBS_FIELDS, PurePursuitConfig(cruise_speed=env.scenario.course.speed,
+                                                         v_max=env.v_max))
+        metrics, rec = run_mission(env, ctrl, seed=seed,
+                                   video_path=out / "demo.mp4" if video else None,
+                                   progress=progress)
+        write_plots(out, env, rec)
+        write_tum(out / "trajectory.tum", rec)
+        (out / "metrics.json").write_text(json.dumps(asdict(metrics), indent=2) + "\n")
+    finally:
+        env.close()
+    log.info("demo finished: success=%s time=%.1f s", metrics.success, metrics.time)
+    return metrics
