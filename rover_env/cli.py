@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except (ValueError, OSError) as exc:
-        logging.getLogger("rover").error("%s", exc)
+        sys.stderr.write(f"rover {args.command}: error: {exc}\n")
         return 2
 
 

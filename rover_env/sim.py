@@ -72,7 +72,7 @@ class RoverSim:
         c.setGravity(0, 0, -9.81)
         self.terrain = Terrain(c, scenario.terrain, scenario.friction)
         self.rover = Rover(c, self.geometry)
-        self.t = 0.0
+        self._steps = 0
         self._state_id = c.saveState()
 
     # ------------------------------------------------------------------ episode
@@ -105,17 +105,21 @@ class RoverSim:
         clearance = g.wheel_radius - g.axle_z + 0.005
         pos = np.array([x, y, a0]) + rot[:, 2] * clearance
         self.rover.reset_pose(pos, quat)
-        self.t = 0.0
         for _ in range(int(round(self.settle_time / self.dt))):
             self._substep()
-        self.t = 0.0
+        self._steps = 0
         return self.ground_truth()
 
     def _substep(self) -> None:
         self.rover.apply_passive()
         self.rover.apply_friction(self.terrain)
         self.client.stepSimulation()
-        self.t += self.dt
+        self._steps += 1
+
+    @property
+    def t(self) -> float:
+        """Simulation time since the last reset [s] (whole physics steps times dt)."""
+        return self._steps * self.dt
 
     def step(self, duration: float) -> None:
         """Advance physics by ``duration`` seconds (rounded to whole physics steps)."""
