@@ -1,9 +1,9 @@
 """Drive the default course with the pure-pursuit controller and print what happened."""
 
+import gymnasium as gym
 import numpy as np
 
 import rover_env  # noqa: F401  (registers Rover-v0)
-import gymnasium as gym
 from controllers import PurePursuit
 from rover_env.envs import OBS_FIELDS
 

@@ -55,9 +55,11 @@ class MissionLog:
 
     @classmethod
     def empty(cls) -> MissionLog:
+        """A log with no records."""
         return cls([], [], [], [], [], [], [], [], [])
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """Every record stacked into an array, by field name."""
         return {k: np.asarray(v) for k, v in asdict(self).items()}
 
 

@@ -99,7 +99,7 @@ def test_reward_terms_sum_to_reward_and_info_keys():
         assert tuple(info["ground_truth"]) == GROUND_TRUTH_KEYS
         assert info["ground_truth"]["pose"].shape == (7,)
         progress = 0.0
-        for k in range(60):
+        for _ in range(60):
             _, reward, term, trunc, info = env.step(np.array([0.5, 0.0, 0.0]))
             assert reward == pytest.approx(sum(info["reward_terms"].values()), abs=1e-12)
             progress += info["reward_terms"]["progress"]

@@ -165,15 +165,9 @@ def test_fiducials_move_with_their_links(flat_sim):
         f = g.fiducial(name)
         st = c.getLinkState(body, sim.rover.link[f.link])
         p, _ = c.multiplyTransforms(st[4], st[5], f.position, [0, 0, 0, 1])
-        return np.array(p)
-
-    def marker_world(name):
-        f = g.fiducial(name)
-        st = c.getLinkState(body, sim.rover.link[f.link])
-        p, _ = c.multiplyTransforms(st[4], st[5], f.position, [0, 0, 0, 1])
         pos, quat = c.getBasePositionAndOrientation(body)
         inv_p, inv_q = c.invertTransform(pos, quat)
-        return np.array(c.multiplyTransforms(inv_p, inv_q, p, [0, 0, 0, 1])[0])  # body frame
+        return np.array(c.multiplyTransforms(inv_p, inv_q, p, [0, 0, 0, 1])[0])  # body
 
     a1, b1, b2 = marker_world("A1"), marker_world("B1"), marker_world("B2")
     a2 = marker_world("A2")
