@@ -11,7 +11,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from conftest import flat_scenario, rough_scenario  # noqa: E402
-from test_physics import drive, fit_circle  # noqa: E402
+from test_physics import drive, drive_slalom_integrating_twist, fit_circle  # noqa: E402
 
 from rover_env.scenario import FrictionPatch  # noqa: E402
 from rover_env.sim import RoverSim  # noqa: E402
@@ -73,25 +73,7 @@ sim.close()
 
 # integrated body twist against the true pose over a 20 m slalom
 sim = RoverSim(flat_scenario(mu=1.0))
-gt = sim.reset(-20.0, -5.0, 0.0)
-x, y = gt.pose[0], gt.pose[1]
-yaw = math.atan2(2 * (gt.pose[6] * gt.pose[5]), 1 - 2 * gt.pose[5] ** 2)
-prev, dist, k = gt, 0.0, 0
-while dist < 20.0:
-    lam = 0.15 * math.sin(0.4 * k / 30.0)
-    drive(sim, 1.0, lam, -lam)
-    sim.step(1 / 30)
-    gt = sim.ground_truth()
-    dt = gt.t - prev.t
-    w = 0.5 * (prev.twist[2] + gt.twist[2])
-    ym = yaw + 0.5 * w * dt
-    vx, vy = 0.5 * (prev.twist[0] + gt.twist[0]), 0.5 * (prev.twist[1] + gt.twist[1])
-    x += (vx * math.cos(ym) - vy * math.sin(ym)) * dt
-    y += (vx * math.sin(ym) + vy * math.cos(ym)) * dt
-    yaw += w * dt
-    dist += float(np.linalg.norm(gt.pose[:2] - prev.pose[:2]))
-    prev, k = gt, k + 1
-err = float(np.hypot(x - gt.pose[0], y - gt.pose[1]))
+err, dist, _, _ = drive_slalom_integrating_twist(sim)
 print(f"twist integrated at 30 Hz over {dist:.1f} m: end-point error {100 * err:.2f} cm "
       f"({100 * err / dist:.3f} % of distance)")
 sim.close()

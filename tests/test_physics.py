@@ -24,21 +24,24 @@ def flat_sim():
     sim.close()
 
 
-def test_twist_integrates_to_pose_over_20m(flat_sim):
-    sim = flat_sim
+def drive_slalom_integrating_twist(sim: RoverSim, distance: float = 20.0):
+    """Drive a slalom at 1 m/s, integrating the body twist at 30 Hz (trapezoidal).
+
+    Returns:
+        (end-point error [m], distance driven [m], yaw error [rad], displacement [m]).
+    """
     gt = sim.reset(-20.0, -5.0, 0.0)
     x, y, yaw = gt.pose[0], gt.pose[1], quat_to_yaw(gt.pose[3:])
-    start = np.array([x, y])
+    start = gt.pose[:2].copy()
     prev = gt
     dist = 0.0
     k = 0
-    while dist < 20.0:
+    while dist < distance:
         lam = 0.15 * math.sin(0.4 * k / 30.0)
         drive(sim, 1.0, lam, -lam)
         sim.step(1 / 30)
         gt = sim.ground_truth()
         dt = gt.t - prev.t
-        # trapezoidal integration of the body-frame twist
         w_mid = 0.5 * (prev.twist[2] + gt.twist[2])
         yaw_mid = yaw + 0.5 * w_mid * dt
         vx = 0.5 * (prev.twist[0] + gt.twist[0])
@@ -50,10 +53,16 @@ def test_twist_integrates_to_pose_over_20m(flat_sim):
         prev = gt
         k += 1
     err = float(np.linalg.norm(np.array([x, y]) - gt.pose[:2]))
+    yaw_err = abs(math.remainder(yaw - quat_to_yaw(gt.pose[3:]), 2 * math.pi))
+    return err, dist, yaw_err, float(np.linalg.norm(gt.pose[:2] - start))
+
+
+def test_twist_integrates_to_pose_over_20m(flat_sim):
+    err, dist, yaw_err, displacement = drive_slalom_integrating_twist(flat_sim)
     assert dist >= 20.0
     assert err < 0.01 * dist, f"integrated pose off by {err:.3f} m over {dist:.1f} m"
-    assert abs(math.remainder(yaw - quat_to_yaw(gt.pose[3:]), 2 * math.pi)) < 0.01
-    assert np.linalg.norm(gt.pose[:2] - start) > 8.0  # it really went somewhere
+    assert yaw_err < 0.01
+    assert displacement > 8.0  # it really went somewhere
 
 
 def test_constant_speed_high_friction_has_no_slip(flat_sim):
