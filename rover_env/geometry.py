@@ -236,38 +236,25 @@ class RoverGeometry:
         i.e. at +z of the wheel frame when the wheel angle is zero.
         """
         out: list[Fiducial] = []
-        s = self.fiducial_size
+
+        def magenta(name: str, link: str, p_link: np.ndarray, p_body: np.ndarray) -> Fiducial:
+            pos = (float(p_link[0]), float(p_link[1]), float(p_link[2]))
+            return Fiducial(name, link, pos, self._face_camera(p_body), self.fiducial_size,
+                            MAGENTA)
+
         for axle, plate, rod in (("F", "A", "B"), ("R", "C", "D")):
             inner = -1.0 if axle == "F" else 1.0
             for idx, side in ((1, 1.0), (2, -1.0)):
                 p_axle = np.array(
                     [inner * (self.axle_beam_size[0] / 2 + 0.002), side * self.plate_marker_y, 0.0]
                 )
-                p_body = self.axle_origin(axle) + p_axle
-                out.append(
-                    Fiducial(
-                        f"{plate}{idx}",
-                        f"axle_{axle}",
-                        tuple(float(v) for v in p_axle),  # type: ignore[arg-type]
-                        self._face_camera(p_body),
-                        s,
-                        MAGENTA,
-                    )
-                )
+                out.append(magenta(f"{plate}{idx}", f"axle_{axle}", p_axle,
+                                   self.axle_origin(axle) + p_axle))
             for idx, wheel_side in ((1, "L"), (2, "R")):
                 wheel = axle + wheel_side
                 tip = self.steering_arm_tip(wheel)
-                p_body = self.wheel_position_body(wheel) + tip
-                out.append(
-                    Fiducial(
-                        f"{rod}{idx}",
-                        f"knuckle_{wheel}",
-                        tuple(float(v) for v in tip),  # type: ignore[arg-type]
-                        self._face_camera(p_body),
-                        s,
-                        MAGENTA,
-                    )
-                )
+                out.append(magenta(f"{rod}{idx}", f"knuckle_{wheel}", tip,
+                                   self.wheel_position_body(wheel) + tip))
         arc = self.correction_marker_arc * self.wheel_radius
         for w in WHEELS:
             out.append(

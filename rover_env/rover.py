@@ -100,9 +100,6 @@ class Rover:
         self._mu = [-1.0] * 4
         self.wheel_rate_cmd = np.zeros(4)
         self.steer_cmd = np.zeros(2)
-        self._max_wheel_steer = float(
-            np.abs(geometry.ackermann_angles(g.steer_limit, g.steer_limit)).max()
-        )
 
     # ------------------------------------------------------------------ state
     def reset_pose(self, position, quat_xyzw) -> None:

@@ -6,7 +6,6 @@ of them coexist in one process. Nothing here renders; cameras attach to the clie
 
 from __future__ import annotations
 
-import logging
 import math
 
 import numpy as np
@@ -18,8 +17,6 @@ from rover_env.ground_truth import GroundTruth
 from rover_env.rover import Rover
 from rover_env.scenario import ScenarioConfig
 from rover_env.terrain import Terrain
-
-log = logging.getLogger(__name__)
 
 
 def yaw_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:

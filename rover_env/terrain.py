@@ -193,6 +193,7 @@ class Terrain:
             gx, gy = np.meshgrid(xs, ys)
             h = _slope_height(cfg, gx, gy)
         write_grid_obj(path, xs, ys, h, cfg.texture_tile)
+        log.debug("wrote terrain mesh %s (%d x %d vertices)", path, len(xs), len(ys))
         return path
 
 

@@ -139,7 +139,6 @@ def build_urdf(geom: RoverGeometry) -> str:
     s = geom.inertia_scale
     fid = {f.name: f for f in geom.fiducials()}
     parts = ['<?xml version="1.0"?>', '<robot name="rover">']
-    bx, by, bz = geom.body_size
     parts.append(
         f'<link name="body">{_inertial(geom.body_mass, _box_inertia(geom.body_mass, geom.body_size), s)}'
         + _visual_box((0, 0, 0), (0, 0, 0), geom.body_size, BODY_RGBA)

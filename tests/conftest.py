@@ -1,15 +1,12 @@
 import os
 import tempfile
 
-import pytest
-
 # Generated assets (textures, meshes, URDFs) go to a per-session cache, not the user's home.
 os.environ.setdefault("ROVER_CACHE_DIR", os.path.join(tempfile.gettempdir(), "rover_env_test"))
 
 from rover_env.scenario import (  # noqa: E402
     CourseConfig,
     FrictionMapConfig,
-    FrictionPatch,
     ScenarioConfig,
     TerrainConfig,
 )
@@ -33,8 +30,3 @@ def rough_scenario(roughness=0.04, wavelength=1.5, seed=3) -> ScenarioConfig:
                               texture_px=64),
         friction=FrictionMapConfig(default_mu=1.0),
     )
-
-
-@pytest.fixture
-def patch():
-    return FrictionPatch

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import enum
-import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -19,8 +18,6 @@ from rover_env.rover import ackermann_wheel_speeds
 from rover_env.scenario import ScenarioConfig, load_scenario
 from rover_env.sim import RoverSim, quat_to_yaw
 from rover_env.task import RewardConfig, WaypointCourse
-
-log = logging.getLogger(__name__)
 
 
 class ActionMode(str, enum.Enum):
