@@ -72,5 +72,4 @@ class PurePursuit:
         if abs(bearing) > math.pi / 2:  # waypoint behind: turn on the spot's tightest arc
             lam = math.copysign(c.steer_limit, bearing)
             speed = c.min_speed
-        return np.array([speed / c.v_max, lam / c.steer_limit, -lam / c.steer_limit],
-                        dtype=np.float32)
+        return np.array([speed / c.v_max, lam / c.steer_limit, -lam / c.steer_limit], dtype=np.float32)

@@ -19,8 +19,12 @@ def run(max_steps: int = 3000, seed: int = 0) -> dict:
         if terminated or truncated:
             break
     env.close()
-    return {"t": info["t"], "success": info["is_success"], "progress_m": info["progress"],
-            "max_slip": float(np.max(slip))}
+    return {
+        "t": info["t"],
+        "success": info["is_success"],
+        "progress_m": info["progress"],
+        "max_slip": float(np.max(slip)),
+    }
 
 
 if __name__ == "__main__":

@@ -16,8 +16,9 @@ import numpy as np
 SLIP_EPS = 0.01  # [m/s] speed below which slip is not resolvable; keeps s finite at standstill
 
 
-def slip_ratio(tread_speed: np.ndarray | float, ground_speed: np.ndarray | float,
-               eps: float = SLIP_EPS) -> np.ndarray:
+def slip_ratio(
+    tread_speed: np.ndarray | float, ground_speed: np.ndarray | float, eps: float = SLIP_EPS
+) -> np.ndarray:
     """Longitudinal slip ratio.
 
     Args:
@@ -39,8 +40,9 @@ def slip_angle(v_long: np.ndarray | float, v_lat: np.ndarray | float) -> np.ndar
     return np.arctan2(np.asarray(v_lat, dtype=np.float64), np.asarray(v_long, dtype=np.float64))
 
 
-def wheel_ground_velocity(twist: np.ndarray, wheel_xy: np.ndarray,
-                          steering: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def wheel_ground_velocity(
+    twist: np.ndarray, wheel_xy: np.ndarray, steering: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Planar body twist transported to wheel centres and rotated into each wheel's heading.
 
     Args:

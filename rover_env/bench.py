@@ -31,8 +31,9 @@ class PhysicsBenchResult:
     us_per_substep_python: float
 
 
-def bench_physics(scenario: str, steps: int = 600, control_hz: float = 30.0,
-                  seed: int = 0) -> PhysicsBenchResult:
+def bench_physics(
+    scenario: str, steps: int = 600, control_hz: float = 30.0, seed: int = 0
+) -> PhysicsBenchResult:
     """Time ``steps`` environment steps of physics only (no rendering) on one core.
 
     The rover drives a slalom at 1 m/s so that wheels, steering and suspension all work.
@@ -40,8 +41,9 @@ def bench_physics(scenario: str, steps: int = 600, control_hz: float = 30.0,
     env = RoverEnv(scenario=scenario, control_hz=control_hz)
     try:
         env.reset(seed=seed)
-        actions = [np.array([0.5, 0.5 * np.sin(k / 15), -0.5 * np.sin(k / 15)], np.float32)
-                   for k in range(steps)]
+        actions = [
+            np.array([0.5, 0.5 * np.sin(k / 15), -0.5 * np.sin(k / 15)], np.float32) for k in range(steps)
+        ]
         for a in actions[:30]:  # warm up
             env.step(a)
         t0 = time.perf_counter()
@@ -74,8 +76,7 @@ def bench_physics(scenario: str, steps: int = 600, control_hz: float = 30.0,
 def format_table(rows: list[PhysicsBenchResult]) -> str:
     """Markdown table of benchmark rows."""
     lines = [
-        "| scenario | env steps/s | real-time factor | ms/step | us/stepSimulation "
-        "| us/substep python |",
+        "| scenario | env steps/s | real-time factor | ms/step | us/stepSimulation | us/substep python |",
         "|---|---:|---:|---:|---:|---:|",
     ]
     for r in rows:

@@ -17,8 +17,7 @@ def _progress_bar(label: str):
     def show(frac: float) -> None:
         n = int(frac * 30)
         elapsed = time.perf_counter() - start
-        sys.stderr.write(f"\r{label} [{'#' * n}{'.' * (30 - n)}] {frac * 100:5.1f}% "
-                         f"{elapsed:6.1f} s")
+        sys.stderr.write(f"\r{label} [{'#' * n}{'.' * (30 - n)}] {frac * 100:5.1f}% {elapsed:6.1f} s")
         sys.stderr.flush()
 
     return show
@@ -29,8 +28,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     bar = _progress_bar(f"demo {args.scenario}")
-    metrics = run_demo(out, scenario=args.scenario, seed=args.seed, video=not args.no_video,
-                       progress=bar)
+    metrics = run_demo(out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar)
     bar(1.0)
     sys.stderr.write("\n")
     print(json.dumps(asdict(metrics), indent=2))
@@ -84,8 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rover`` command."""
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
     try:
         return int(args.func(args))
     except (ValueError, OSError) as exc:

@@ -137,17 +137,12 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
     dot = f"{prefix}." if prefix else ""
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise ConfigError(
-            f"unknown key '{dot}{unknown[0]}' (allowed keys: {', '.join(sorted(fields))})"
-        )
+        raise ConfigError(f"unknown key '{dot}{unknown[0]}' (allowed keys: {', '.join(sorted(fields))})")
     kwargs = {}
     for name, field in fields.items():
         key = f"{dot}{name}"
         if name not in data:
-            no_default = (
-                field.default is dataclasses.MISSING
-                and field.default_factory is dataclasses.MISSING
-            )
+            no_default = field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING
             if no_default:
                 raise ConfigError(f"missing required key '{key}'")
             continue

@@ -239,8 +239,7 @@ class RoverGeometry:
 
         def magenta(name: str, link: str, p_link: np.ndarray, p_body: np.ndarray) -> Fiducial:
             pos = (float(p_link[0]), float(p_link[1]), float(p_link[2]))
-            return Fiducial(name, link, pos, self._face_camera(p_body), self.fiducial_size,
-                            MAGENTA)
+            return Fiducial(name, link, pos, self._face_camera(p_body), self.fiducial_size, MAGENTA)
 
         for axle, plate, rod in (("F", "A", "B"), ("R", "C", "D")):
             inner = -1.0 if axle == "F" else 1.0
@@ -248,18 +247,17 @@ class RoverGeometry:
                 p_axle = np.array(
                     [inner * (self.axle_beam_size[0] / 2 + 0.002), side * self.plate_marker_y, 0.0]
                 )
-                out.append(magenta(f"{plate}{idx}", f"axle_{axle}", p_axle,
-                                   self.axle_origin(axle) + p_axle))
+                out.append(magenta(f"{plate}{idx}", f"axle_{axle}", p_axle, self.axle_origin(axle) + p_axle))
             for idx, wheel_side in ((1, "L"), (2, "R")):
                 wheel = axle + wheel_side
                 tip = self.steering_arm_tip(wheel)
-                out.append(magenta(f"{rod}{idx}", f"knuckle_{wheel}", tip,
-                                   self.wheel_position_body(wheel) + tip))
+                out.append(
+                    magenta(f"{rod}{idx}", f"knuckle_{wheel}", tip, self.wheel_position_body(wheel) + tip)
+                )
         arc = self.correction_marker_arc * self.wheel_radius
         for w in WHEELS:
             out.append(
-                Fiducial(f"W_{w}", f"wheel_{w}", (0.0, 0.0, self.wheel_radius), (0.0, 0.0, 1.0),
-                         arc, WHITE)
+                Fiducial(f"W_{w}", f"wheel_{w}", (0.0, 0.0, self.wheel_radius), (0.0, 0.0, 1.0), arc, WHITE)
             )
         return tuple(out)
 

@@ -63,9 +63,14 @@ class MissionLog:
         return {k: np.asarray(v) for k, v in asdict(self).items()}
 
 
-def run_mission(env: RoverEnv, controller: Controller, seed: int = 0,
-                video_path: Path | None = None, video_every: int = 2,
-                progress: Callable[[float], None] | None = None) -> tuple[MissionMetrics, MissionLog]:
+def run_mission(
+    env: RoverEnv,
+    controller: Controller,
+    seed: int = 0,
+    video_path: Path | None = None,
+    video_every: int = 2,
+    progress: Callable[[float], None] | None = None,
+) -> tuple[MissionMetrics, MissionLog]:
     """Drive one episode with ``controller`` and collect metrics and a log.
 
     Args:
@@ -111,8 +116,11 @@ def run_mission(env: RoverEnv, controller: Controller, seed: int = 0,
             rec.cross_track.append(float(obs[21]))
             energy += info["wheel_power"] * env.control_dt
             # stuck: commanding motion but the body barely moves for 2 s
-            commanded = abs(float(action[0])) > 0.05 if env.action_mode.value == "drive" else \
-                float(np.abs(action[:4]).max()) > 0.05
+            commanded = (
+                abs(float(action[0])) > 0.05
+                if env.action_mode.value == "drive"
+                else float(np.abs(action[:4]).max()) > 0.05
+            )
             if commanded and abs(gt["twist"][0]) < 0.02:
                 stuck_time += env.control_dt
                 if abs(stuck_time - 2.0) < 0.5 * env.control_dt:
@@ -180,8 +188,15 @@ def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:
     ys = np.linspace(-half[1], half[1], 400)
     gx, gy = np.meshgrid(xs, ys)
     mu = env.sim.terrain.friction.mu_grid(gx, gy)
-    im = ax.imshow(mu, origin="lower", extent=(-half[0], half[0], -half[1], half[1]),
-                   cmap="YlOrBr_r", vmin=0.0, vmax=1.2, alpha=0.6)
+    im = ax.imshow(
+        mu,
+        origin="lower",
+        extent=(-half[0], half[0], -half[1], half[1]),
+        cmap="YlOrBr_r",
+        vmin=0.0,
+        vmax=1.2,
+        alpha=0.6,
+    )
     fig.colorbar(im, ax=ax, label="friction coefficient")
     course = env.course.points
     ax.plot(course[:, 0], course[:, 1], "k--o", label="course")
@@ -234,8 +249,13 @@ def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:
     return paths
 
 
-def run_demo(out: Path, scenario: str = "flat_patches", seed: int = 0, video: bool = True,
-             progress: Callable[[float], None] | None = None) -> MissionMetrics:
+def run_demo(
+    out: Path,
+    scenario: str = "flat_patches",
+    seed: int = 0,
+    video: bool = True,
+    progress: Callable[[float], None] | None = None,
+) -> MissionMetrics:
     """The headless demo: pure pursuit through ``scenario``; writes everything into ``out``.
 
     Writes ``demo.mp4`` (third-person view), ``trajectory.png``, ``velocity_slip.png``,
@@ -247,11 +267,12 @@ def run_demo(out: Path, scenario: str = "flat_patches", seed: int = 0, video: bo
     out.mkdir(parents=True, exist_ok=True)
     env = RoverEnv(scenario=scenario, render_mode="rgb_array" if video else None)
     try:
-        ctrl = PurePursuit(OBS_FIELDS, PurePursuitConfig(cruise_speed=env.scenario.course.speed,
-                                                         v_max=env.v_max))
-        metrics, rec = run_mission(env, ctrl, seed=seed,
-                                   video_path=out / "demo.mp4" if video else None,
-                                   progress=progress)
+        ctrl = PurePursuit(
+            OBS_FIELDS, PurePursuitConfig(cruise_speed=env.scenario.course.speed, v_max=env.v_max)
+        )
+        metrics, rec = run_mission(
+            env, ctrl, seed=seed, video_path=out / "demo.mp4" if video else None, progress=progress
+        )
         write_plots(out, env, rec)
         write_tum(out / "trajectory.tum", rec)
         (out / "metrics.json").write_text(json.dumps(asdict(metrics), indent=2) + "\n")

@@ -22,8 +22,9 @@ if TYPE_CHECKING:
 GRAVITY = 9.81  # [m/s^2]
 
 
-def ackermann_wheel_speeds(geom: RoverGeometry, speed: float, steer_front: float,
-                           steer_rear: float) -> np.ndarray:
+def ackermann_wheel_speeds(
+    geom: RoverGeometry, speed: float, steer_front: float, steer_rear: float
+) -> np.ndarray:
     """Ground speed of each wheel centre for a body-centre speed and axle steering commands.
 
     The instantaneous centre of rotation (ICR) is where the normals of the two axles' virtual
@@ -84,19 +85,32 @@ class Rover:
         self._c = np.array([g.travel_damping, g.roll_damping] * 2)
         self._preload = np.array([-per_axle_load, 0.0] * 2)
         for link in [-1, *range(client.getNumJoints(self.body_id))]:
-            client.changeDynamics(self.body_id, link, linearDamping=0.0, angularDamping=0.0,
-                                  jointDamping=0.0, restitution=0.0, rollingFriction=0.0,
-                                  spinningFriction=0.0)
-        client.setJointMotorControlArray(self.body_id, self.passive_joints, pb.VELOCITY_CONTROL,
-                                         targetVelocities=[0.0] * 4, forces=[0.0] * 4)
+            client.changeDynamics(
+                self.body_id,
+                link,
+                linearDamping=0.0,
+                angularDamping=0.0,
+                jointDamping=0.0,
+                restitution=0.0,
+                rollingFriction=0.0,
+                spinningFriction=0.0,
+            )
+        client.setJointMotorControlArray(
+            self.body_id,
+            self.passive_joints,
+            pb.VELOCITY_CONTROL,
+            targetVelocities=[0.0] * 4,
+            forces=[0.0] * 4,
+        )
         tex = write_cached(
             f"tread:v1:{g.correction_marker_arc:.6f}",
             lambda: tread_texture(marker_arc=g.correction_marker_arc),
         )
         self._tread_tex = client.loadTexture(str(tex))
         for link in self.wheel_links:
-            client.changeVisualShape(self.body_id, link, textureUniqueId=self._tread_tex,
-                                     rgbaColor=[1, 1, 1, 1])
+            client.changeVisualShape(
+                self.body_id, link, textureUniqueId=self._tread_tex, rgbaColor=[1, 1, 1, 1]
+            )
         self._mu = [-1.0] * 4
         self.wheel_rate_cmd = np.zeros(4)
         self.steer_cmd = np.zeros(2)
@@ -121,21 +135,30 @@ class Rover:
             steer_rear: lambda_R [rad], clipped to the steering limit.
         """
         g = self.geom
-        rates = np.clip(np.asarray(wheel_rates, dtype=np.float64), -g.wheel_max_rate,
-                        g.wheel_max_rate)
+        rates = np.clip(np.asarray(wheel_rates, dtype=np.float64), -g.wheel_max_rate, g.wheel_max_rate)
         lf = float(np.clip(steer_front, -g.steer_limit, g.steer_limit))
         lr = float(np.clip(steer_rear, -g.steer_limit, g.steer_limit))
         self.wheel_rate_cmd = rates
         self.steer_cmd = np.array([lf, lr])
         c = self.client
-        c.setJointMotorControlArray(self.body_id, self.wheel_joints, pb.VELOCITY_CONTROL,
-                                    targetVelocities=rates.tolist(),
-                                    forces=[g.wheel_max_torque] * 4)
+        c.setJointMotorControlArray(
+            self.body_id,
+            self.wheel_joints,
+            pb.VELOCITY_CONTROL,
+            targetVelocities=rates.tolist(),
+            forces=[g.wheel_max_torque] * 4,
+        )
         for j, delta in zip(self.steer_joints, g.ackermann_angles(lf, lr)):
-            c.setJointMotorControl2(self.body_id, j, pb.POSITION_CONTROL,
-                                    targetPosition=float(delta), force=g.steer_max_torque,
-                                    maxVelocity=g.steer_max_rate, positionGain=0.2,
-                                    velocityGain=1.0)
+            c.setJointMotorControl2(
+                self.body_id,
+                j,
+                pb.POSITION_CONTROL,
+                targetPosition=float(delta),
+                force=g.steer_max_torque,
+                maxVelocity=g.steer_max_rate,
+                positionGain=0.2,
+                velocityGain=1.0,
+            )
 
     def apply_passive(self) -> None:
         """Spring-damper forces of the passive travel and roll joints (call every substep)."""
@@ -143,8 +166,9 @@ class Rover:
         q = np.fromiter((s[0] for s in states), float, 4)
         qd = np.fromiter((s[1] for s in states), float, 4)
         f = self._preload - self._k * q - self._c * qd
-        self.client.setJointMotorControlArray(self.body_id, self.passive_joints,
-                                              pb.TORQUE_CONTROL, forces=f.tolist())
+        self.client.setJointMotorControlArray(
+            self.body_id, self.passive_joints, pb.TORQUE_CONTROL, forces=f.tolist()
+        )
 
     def apply_friction(self, terrain: Terrain) -> None:
         """Set each wheel's friction from the map at its contact point (call every substep).

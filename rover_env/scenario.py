@@ -234,9 +234,7 @@ def _preset_dir() -> resources.abc.Traversable:
 
 def list_scenarios() -> list[str]:
     """Names of the shipped scenario presets."""
-    return sorted(
-        p.name[: -len(".yaml")] for p in _preset_dir().iterdir() if p.name.endswith(".yaml")
-    )
+    return sorted(p.name[: -len(".yaml")] for p in _preset_dir().iterdir() if p.name.endswith(".yaml"))
 
 
 def load_scenario(scenario: str | Path | ScenarioConfig) -> ScenarioConfig:

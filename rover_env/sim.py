@@ -24,12 +24,14 @@ def yaw_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return np.array([
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    ])
+    return np.array(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ]
+    )
 
 
 def quat_to_yaw(quat_xyzw) -> float:
@@ -50,9 +52,14 @@ class RoverSim:
             the step cost, and 20 keeps steady-state slip errors below 0.01 (see the tests).
     """
 
-    def __init__(self, scenario: ScenarioConfig, geometry: RoverGeometry | None = None,
-                 physics_hz: float = 240.0, settle_time: float = 0.5,
-                 solver_iterations: int = 20) -> None:
+    def __init__(
+        self,
+        scenario: ScenarioConfig,
+        geometry: RoverGeometry | None = None,
+        physics_hz: float = 240.0,
+        settle_time: float = 0.5,
+        solver_iterations: int = 20,
+    ) -> None:
         if not (60.0 <= physics_hz <= 2000.0):
             raise ValueError(f"physics_hz={physics_hz}: use 60 to 2000 Hz (240 recommended)")
         self.scenario = scenario
@@ -62,10 +69,14 @@ class RoverSim:
         self.client = BulletClient(connection_mode=pb.DIRECT)
         self._closed = False
         c = self.client
-        c.setPhysicsEngineParameter(fixedTimeStep=self.dt, numSubSteps=1,
-                                    enableConeFriction=1, deterministicOverlappingPairs=1,
-                                    numSolverIterations=solver_iterations,
-                                    contactBreakingThreshold=0.002)
+        c.setPhysicsEngineParameter(
+            fixedTimeStep=self.dt,
+            numSubSteps=1,
+            enableConeFriction=1,
+            deterministicOverlappingPairs=1,
+            numSolverIterations=solver_iterations,
+            contactBreakingThreshold=0.002,
+        )
         c.setGravity(0, 0, -9.81)
         self.terrain = Terrain(c, scenario.terrain, scenario.friction)
         self.rover = Rover(c, self.geometry)

@@ -80,8 +80,9 @@ class WaypointCourse:
 
     def reset(self, start_xy: np.ndarray) -> None:
         """Start a new episode from ``start_xy`` (world, [m])."""
-        self.points = np.vstack([np.asarray(start_xy, dtype=float)[None, :2],
-                                 np.asarray(self.cfg.waypoints, dtype=float)])
+        self.points = np.vstack(
+            [np.asarray(start_xy, dtype=float)[None, :2], np.asarray(self.cfg.waypoints, dtype=float)]
+        )
         seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
         self._cum = np.concatenate([[0.0], np.cumsum(seg)])
         self.index = 0
@@ -104,8 +105,7 @@ class WaypointCourse:
     def update(self, xy: np.ndarray) -> bool:
         """Advance past every waypoint within tolerance of ``xy``; True if one was reached."""
         reached = False
-        while not self.finished and np.linalg.norm(self.points[self.index + 1] - xy) <= \
-                self.cfg.tolerance:
+        while not self.finished and np.linalg.norm(self.points[self.index + 1] - xy) <= self.cfg.tolerance:
             self.index += 1
             reached = True
         return reached

@@ -34,8 +34,17 @@ class FrictionMap:
         for p in cfg.patches:
             yaw = math.radians(p.yaw_deg)
             self._patches.append(
-                (p.shape == "circle", p.center[0], p.center[1], math.cos(yaw), math.sin(yaw),
-                 p.size[0] / 2, p.size[1] / 2, p.radius * p.radius, p.mu)
+                (
+                    p.shape == "circle",
+                    p.center[0],
+                    p.center[1],
+                    math.cos(yaw),
+                    math.sin(yaw),
+                    p.size[0] / 2,
+                    p.size[1] / 2,
+                    p.radius * p.radius,
+                    p.mu,
+                )
             )
 
     def mu_at(self, x: float, y: float) -> float:
@@ -80,8 +89,13 @@ def make_heights(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
     if cfg.roughness > 0:
         n = int(2 ** math.ceil(math.log2(max(nx, ny))))
         rng = np.random.default_rng(cfg.seed)
-        noise = periodic_noise(n, rng, beta=2.0, min_period_px=cfg.wavelength / 2 / cfg.cell,
-                               max_period_px=4 * cfg.wavelength / cfg.cell)[:ny, :nx]
+        noise = periodic_noise(
+            n,
+            rng,
+            beta=2.0,
+            min_period_px=cfg.wavelength / 2 / cfg.cell,
+            max_period_px=4 * cfg.wavelength / cfg.cell,
+        )[:ny, :nx]
         noise = (noise - noise.mean()) / noise.std()
         h = h + cfg.roughness * noise
     return xs, ys, h
@@ -130,15 +144,20 @@ class Terrain:
             base_z = 0.0
         visual = client.createVisualShape(pb.GEOM_MESH, fileName=str(self._visual_mesh()))
         self.body_id = client.createMultiBody(0, shape, visual, basePosition=[0, 0, base_z])
-        client.changeDynamics(self.body_id, -1, lateralFriction=1.0, restitution=0.0,
-                              rollingFriction=0.0, spinningFriction=0.0)
-        tex_path = (texture_file(cfg.texture, cfg.texture_px, cfg.seed)
-                    if cfg.texture in TEXTURE_PRESETS else Path(cfg.texture))
+        client.changeDynamics(
+            self.body_id, -1, lateralFriction=1.0, restitution=0.0, rollingFriction=0.0, spinningFriction=0.0
+        )
+        tex_path = (
+            texture_file(cfg.texture, cfg.texture_px, cfg.seed)
+            if cfg.texture in TEXTURE_PRESETS
+            else Path(cfg.texture)
+        )
         self.texture_id = client.loadTexture(str(tex_path))
         if self.texture_id < 0:
             raise ValueError(f"terrain.texture: PyBullet could not load image {tex_path}")
-        client.changeVisualShape(self.body_id, -1, textureUniqueId=self.texture_id,
-                                 rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0])
+        client.changeVisualShape(
+            self.body_id, -1, textureUniqueId=self.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
+        )
 
     # ------------------------------------------------------------------ geometry queries
     def height_at(self, x: float | np.ndarray, y: float | np.ndarray) -> np.ndarray:

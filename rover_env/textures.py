@@ -20,8 +20,13 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def periodic_noise(n: int, rng: np.random.Generator, beta: float, min_period_px: float = 2.0,
-                   max_period_px: float | None = None) -> np.ndarray:
+def periodic_noise(
+    n: int,
+    rng: np.random.Generator,
+    beta: float,
+    min_period_px: float = 2.0,
+    max_period_px: float | None = None,
+) -> np.ndarray:
     """Zero-mean, unit-std periodic noise with power spectrum ~ 1/f^beta.
 
     Args:
@@ -49,9 +54,15 @@ def periodic_noise(n: int, rng: np.random.Generator, beta: float, min_period_px:
     return img / std if std > 0 else img
 
 
-def _stamp_stones(img: np.ndarray, rng: np.random.Generator, count: int, r_min: float,
-                  r_max: float, shade: tuple[float, float],
-                  light_dir: tuple[float, float] = (-0.6, -0.6)) -> None:
+def _stamp_stones(
+    img: np.ndarray,
+    rng: np.random.Generator,
+    count: int,
+    r_min: float,
+    r_max: float,
+    shade: tuple[float, float],
+    light_dir: tuple[float, float] = (-0.6, -0.6),
+) -> None:
     """Draw shaded elliptical stones into the float image ``img`` in place, wrapping around.
 
     A stone that crosses the border is drawn again at its periodic copies, so the tile stays
@@ -60,15 +71,24 @@ def _stamp_stones(img: np.ndarray, rng: np.random.Generator, count: int, r_min: 
     n = img.shape[0]
     pad = int(np.ceil(r_max)) + 2
     size = 2 * pad + 1
-    yy, xx = np.mgrid[-pad:pad + 1, -pad:pad + 1]
+    yy, xx = np.mgrid[-pad : pad + 1, -pad : pad + 1]
     lx, ly = light_dir
     for _ in range(count):
         cx, cy = rng.integers(0, n, 2)
         a = rng.uniform(r_min, r_max)
         b = a * rng.uniform(0.55, 1.0)
         mask = np.zeros((size, size), np.uint8)
-        cv2.ellipse(mask, (pad, pad), (max(1, round(a)), max(1, round(b))),
-                    rng.uniform(0, 180), 0, 360, 255, -1, cv2.LINE_AA)
+        cv2.ellipse(
+            mask,
+            (pad, pad),
+            (max(1, round(a)), max(1, round(b))),
+            rng.uniform(0, 180),
+            0,
+            360,
+            255,
+            -1,
+            cv2.LINE_AA,
+        )
         m = mask / 255.0
         stone = rng.uniform(*shade) * (1.0 + 0.35 * (-(xx * lx + yy * ly) / max(a, 1.0)).clip(-1.5, 1.5))
         for oy in (-n, 0, n):
@@ -78,8 +98,8 @@ def _stamp_stones(img: np.ndarray, rng: np.random.Generator, count: int, r_min: 
                 xb, yb = min(x0 + size, n), min(y0 + size, n)
                 if xa >= xb or ya >= yb:
                     continue
-                mm = m[ya - y0:yb - y0, xa - x0:xb - x0]
-                st = stone[ya - y0:yb - y0, xa - x0:xb - x0]
+                mm = m[ya - y0 : yb - y0, xa - x0 : xb - x0]
+                st = stone[ya - y0 : yb - y0, xa - x0 : xb - x0]
                 img[ya:yb, xa:xb] = img[ya:yb, xa:xb] * (1 - mm) + st * mm
 
 
@@ -129,13 +149,12 @@ def ground_texture(name: str, px: int = 1024, seed: int = 0) -> np.ndarray:
         yy, xx = np.mgrid[0:px, 0:px] * squares // px
         g = np.where((xx + yy) % 2 == 0, 235.0, 25.0)
         return _to_rgb(g, (1.0, 1.0, 1.0))
-    raise ValueError(
-        f"unknown texture preset {name!r}; use regolith, sand, gravel, concrete or checkerboard"
-    )
+    raise ValueError(f"unknown texture preset {name!r}; use regolith, sand, gravel, concrete or checkerboard")
 
 
-def tread_texture(px_u: int = 512, px_v: int = 128, marker_arc: float = 0.28,
-                  grousers: int = 16, seed: int = 0) -> np.ndarray:
+def tread_texture(
+    px_u: int = 512, px_v: int = 128, marker_arc: float = 0.28, grousers: int = 16, seed: int = 0
+) -> np.ndarray:
     """Wheel texture atlas: tread in rows [0, 0.75), sidewall grey in rows [0.75, 1].
 
     Texture u runs once around the wheel (u = 0.5 at wheel angle 0, where the white
@@ -169,9 +188,7 @@ def tread_texture(px_u: int = 512, px_v: int = 128, marker_arc: float = 0.28,
 
 def cache_dir() -> Path:
     """Folder for generated assets: ``$ROVER_CACHE_DIR`` or ``~/.cache/rover_env``."""
-    root = os.environ.get("ROVER_CACHE_DIR") or os.path.join(
-        os.path.expanduser("~"), ".cache", "rover_env"
-    )
+    root = os.environ.get("ROVER_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "rover_env")
     path = Path(root)
     path.mkdir(parents=True, exist_ok=True)
     return path

@@ -67,10 +67,12 @@ def _rpy_z_to(normal) -> tuple[float, float, float]:
 
 def max_wheel_steer(geom: RoverGeometry) -> float:
     """Largest per-wheel steering angle the Ackermann mapping can ask for [rad]."""
-    angles = np.concatenate([
-        np.abs(geom.ackermann_angles(geom.steer_limit, geom.steer_limit)),
-        np.abs(geom.ackermann_angles(-geom.steer_limit, -geom.steer_limit)),
-    ])
+    angles = np.concatenate(
+        [
+            np.abs(geom.ackermann_angles(geom.steer_limit, geom.steer_limit)),
+            np.abs(geom.ackermann_angles(-geom.steer_limit, -geom.steer_limit)),
+        ]
+    )
     return float(angles.max())
 
 
@@ -172,8 +174,7 @@ def build_urdf(geom: RoverGeometry) -> str:
         axle_visuals = _visual_box((0, 0, 0), (0, 0, 0), beam, METAL_RGBA)
         for idx in (1, 2):
             f = fid[f"{plate}{idx}"]
-            axle_visuals += _visual_box(f.position, _rpy_z_to(f.normal),
-                                        (f.size, f.size, 0.002), f.rgba)
+            axle_visuals += _visual_box(f.position, _rpy_z_to(f.normal), (f.size, f.size, 0.002), f.rgba)
         parts.append(
             f'<link name="axle_{axle}">'
             f"{_inertial(geom.axle_mass, _box_inertia(geom.axle_mass, beam), s)}"
@@ -191,10 +192,8 @@ def build_urdf(geom: RoverGeometry) -> str:
             tip = np.asarray(f.position)
             arm_len = float(np.linalg.norm(tip))
             arm_yaw = math.atan2(tip[1], tip[0])
-            knuckle_vis = _visual_box(tip / 2, (0, 0, arm_yaw), (arm_len, 0.015, 0.012),
-                                      METAL_RGBA)
-            knuckle_vis += _visual_box(f.position, _rpy_z_to(f.normal),
-                                       (f.size, f.size, 0.002), f.rgba)
+            knuckle_vis = _visual_box(tip / 2, (0, 0, arm_yaw), (arm_len, 0.015, 0.012), METAL_RGBA)
+            knuckle_vis += _visual_box(f.position, _rpy_z_to(f.normal), (f.size, f.size, 0.002), f.rgba)
             parts.append(
                 f'<link name="knuckle_{wheel}">'
                 f"{_inertial(geom.knuckle_mass, _box_inertia(geom.knuckle_mass, (0.05, 0.05, 0.05)), s)}"

@@ -25,8 +25,15 @@ def rough_scenario(roughness=0.04, wavelength=1.5, seed=3) -> ScenarioConfig:
     return ScenarioConfig(
         name="test_rough",
         course=CourseConfig(waypoints=((10.0, 0.0),)),
-        terrain=TerrainConfig(kind="rough", size=(30.0, 30.0), cell=0.1, roughness=roughness,
-                              wavelength=wavelength, seed=seed, texture="regolith",
-                              texture_px=64),
+        terrain=TerrainConfig(
+            kind="rough",
+            size=(30.0, 30.0),
+            cell=0.1,
+            roughness=roughness,
+            wavelength=wavelength,
+            seed=seed,
+            texture="regolith",
+            texture_px=64,
+        ),
         friction=FrictionMapConfig(default_mu=1.0),
     )

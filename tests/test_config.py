@@ -36,19 +36,26 @@ def test_presets_load_and_cover_the_required_cases():
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
-        ("name: x\ncourse: {waypoints: [[1, 0]]}\nsun: {azimuth_deg: 1, elevaton_deg: 5}\n",
-         "unknown key 'sun.elevaton_deg'"),
+        (
+            "name: x\ncourse: {waypoints: [[1, 0]]}\nsun: {azimuth_deg: 1, elevaton_deg: 5}\n",
+            "unknown key 'sun.elevaton_deg'",
+        ),
         ("name: x\n", "missing required key 'course'"),
         ("name: x\ncourse: {waypoints: [[1, 0]]}\nduration: fast\n", "duration: expected a number"),
-        ("name: x\ncourse: {waypoints: [[1, 0]]}\nfriction: {default_mu: 3.0}\n",
-         "friction.default_mu: 3.0 is out of range"),
-        ("name: x\ncourse: {waypoints: [[1, 0]]}\nfriction: {patches: [{mu: 0.2}]}\n",
-         "missing required key 'friction.patches[0].center'"),
+        (
+            "name: x\ncourse: {waypoints: [[1, 0]]}\nfriction: {default_mu: 3.0}\n",
+            "friction.default_mu: 3.0 is out of range",
+        ),
+        (
+            "name: x\ncourse: {waypoints: [[1, 0]]}\nfriction: {patches: [{mu: 0.2}]}\n",
+            "missing required key 'friction.patches[0].center'",
+        ),
         ("name: x\ncourse: {waypoints: [[100, 0]]}\n", "course.waypoints[0]"),
-        ("name: x\ncourse: {waypoints: [[1, 0]]}\nterrain: {texture: nothere.png}\n",
-         "neither a preset"),
-        ("name: x\ncourse: {waypoints: [[1, 0]]}\nterrain: {kind: bumpy}\n",
-         "terrain.kind: 'bumpy' is not one of"),
+        ("name: x\ncourse: {waypoints: [[1, 0]]}\nterrain: {texture: nothere.png}\n", "neither a preset"),
+        (
+            "name: x\ncourse: {waypoints: [[1, 0]]}\nterrain: {kind: bumpy}\n",
+            "terrain.kind: 'bumpy' is not one of",
+        ),
         ("name: [x\n", "not valid YAML"),
     ],
 )
@@ -104,8 +111,7 @@ def test_ackermann_wheels_share_one_turn_centre(lam_deg):
 def test_fiducials_are_complete_and_symmetric():
     g = RoverGeometry()
     names = {f.name for f in g.fiducials()}
-    assert names == {"A1", "A2", "B1", "B2", "C1", "C2", "D1", "D2",
-                     "W_FL", "W_FR", "W_RL", "W_RR"}
+    assert names == {"A1", "A2", "B1", "B2", "C1", "C2", "D1", "D2", "W_FL", "W_FR", "W_RL", "W_RR"}
     a1, a2 = g.fiducial("A1"), g.fiducial("A2")
     assert a1.position[1] == -a2.position[1] > 0
     assert a1.position[2] == 0.0  # on the roll axis height: stays in the axle's plane

@@ -103,8 +103,7 @@ def test_reward_terms_sum_to_reward_and_info_keys():
             _, reward, term, trunc, info = env.step(np.array([0.5, 0.0, 0.0]))
             assert reward == pytest.approx(sum(info["reward_terms"].values()), abs=1e-12)
             progress += info["reward_terms"]["progress"]
-        assert set(info["wheel_contact"]) == {"friction", "normal_force", "in_contact",
-                                              "contact_point"}
+        assert set(info["wheel_contact"]) == {"friction", "normal_force", "in_contact", "contact_point"}
         assert info["t"] == pytest.approx(2.0)
         # 2 s at half of 2 m/s toward the first waypoint: about 1.5-2 m of progress
         assert 1.2 < progress < 2.1

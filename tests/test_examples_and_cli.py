@@ -29,8 +29,14 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
     )
     out = tmp_path / "out"
     assert main(["demo", "--out", str(out), "--scenario", str(scenario)]) == 0
-    for name in ("demo.mp4", "trajectory.png", "velocity_slip.png", "joints.png",
-                 "metrics.json", "trajectory.tum"):
+    for name in (
+        "demo.mp4",
+        "trajectory.png",
+        "velocity_slip.png",
+        "joints.png",
+        "metrics.json",
+        "trajectory.tum",
+    ):
         assert (out / name).stat().st_size > 300, name
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["success"] is True

@@ -13,8 +13,7 @@ from rover_env.sim import RoverSim, quat_to_yaw
 
 def drive(sim: RoverSim, speed: float, lam_f: float, lam_r: float) -> None:
     g = sim.geometry
-    sim.rover.command(ackermann_wheel_speeds(g, speed, lam_f, lam_r) / g.wheel_radius,
-                      lam_f, lam_r)
+    sim.rover.command(ackermann_wheel_speeds(g, speed, lam_f, lam_r) / g.wheel_radius, lam_f, lam_r)
 
 
 @pytest.fixture(scope="module")
@@ -149,8 +148,7 @@ def test_axle_roll_follows_rough_terrain():
             rot = np.array(sim.client.getMatrixFromQuaternion(gt.pose[3:].tolist())).reshape(3, 3)
             states = sim.client.getLinkStates(sim.rover.body_id, sim.rover.wheel_links)
             centres = np.array([s[4] for s in states])
-            ground = np.column_stack([centres[:, :2],
-                                      sim.terrain.height_at(centres[:, 0], centres[:, 1])])
+            ground = np.column_stack([centres[:, :2], sim.terrain.height_at(centres[:, 0], centres[:, 1])])
             z_body = (ground - gt.pose[:3]) @ rot  # ground points in the body frame
             psi.append(gt.axle_roll.copy())
             dh.append([z_body[0, 2] - z_body[1, 2], z_body[2, 2] - z_body[3, 2]])

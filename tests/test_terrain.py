@@ -15,10 +15,23 @@ from rover_env.textures import ground_texture, tread_texture
     "cfg",
     [
         rough_scenario().terrain,
-        TerrainConfig(kind="flat", size=(20.0, 20.0), slope_deg=10.0, slope_azimuth_deg=30.0,
-                      texture="sand", texture_px=64),
-        TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness=0.03,
-                      slope_deg=8.0, texture="gravel", texture_px=64),
+        TerrainConfig(
+            kind="flat",
+            size=(20.0, 20.0),
+            slope_deg=10.0,
+            slope_azimuth_deg=30.0,
+            texture="sand",
+            texture_px=64,
+        ),
+        TerrainConfig(
+            kind="rough",
+            size=(12.0, 12.0),
+            cell=0.1,
+            roughness=0.03,
+            slope_deg=8.0,
+            texture="gravel",
+            texture_px=64,
+        ),
     ],
 )
 def test_height_at_matches_bullet_ray_casts(cfg):
@@ -50,10 +63,15 @@ def test_rough_terrain_relief_statistics():
 
 
 def test_friction_map_patches_override_in_order():
-    fm = FrictionMap(FrictionMapConfig(default_mu=0.9, patches=(
-        FrictionPatch(mu=0.2, center=(0.0, 0.0), size=(4.0, 2.0), yaw_deg=90.0),
-        FrictionPatch(mu=0.5, center=(0.0, 1.5), shape="circle", radius=0.5),
-    )))
+    fm = FrictionMap(
+        FrictionMapConfig(
+            default_mu=0.9,
+            patches=(
+                FrictionPatch(mu=0.2, center=(0.0, 0.0), size=(4.0, 2.0), yaw_deg=90.0),
+                FrictionPatch(mu=0.5, center=(0.0, 1.5), shape="circle", radius=0.5),
+            ),
+        )
+    )
     assert fm.mu_at(0.0, -1.8) == 0.2  # rotated rect: 4 m along y
     assert fm.mu_at(1.5, 0.0) == 0.9  # only 2 m along x after the 90 deg turn
     assert fm.mu_at(0.0, 1.5) == 0.5  # later patch wins
@@ -69,8 +87,7 @@ def test_ground_textures_tile_without_seams_and_have_detail(name):
     seam = np.abs(img[:, 0] - img[:, -1]).mean()
     assert seam < 1.5 * interior
     assert interior > 2.0  # pixel-scale detail for optical flow
-    assert ground_texture(name, px=256, seed=1).tobytes() == ground_texture(
-        name, px=256, seed=1).tobytes()
+    assert ground_texture(name, px=256, seed=1).tobytes() == ground_texture(name, px=256, seed=1).tobytes()
 
 
 def test_tread_texture_has_a_white_marker_at_u_half():

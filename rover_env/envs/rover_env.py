@@ -145,9 +145,7 @@ class RoverEnv(gym.Env):
         try:
             self.obs_source = ObsSource(obs_source)
         except ValueError:
-            raise ValueError(
-                f"obs_source={obs_source!r}: use 'ground_truth' or 'estimated'"
-            ) from None
+            raise ValueError(f"obs_source={obs_source!r}: use 'ground_truth' or 'estimated'") from None
         if self.obs_source is ObsSource.ESTIMATED:
             raise ValueError(
                 "obs_source='estimated' needs the camera estimators, which this version does "
@@ -157,9 +155,7 @@ class RoverEnv(gym.Env):
             raise ValueError(f"render_mode={render_mode!r}: use None or 'rgb_array'")
         substeps = physics_hz / control_hz
         if control_hz <= 0 or abs(substeps - round(substeps)) > 1e-9 or round(substeps) < 1:
-            raise ValueError(
-                f"control_hz={control_hz} must divide physics_hz={physics_hz} into whole steps"
-            )
+            raise ValueError(f"control_hz={control_hz} must divide physics_hz={physics_hz} into whole steps")
         if not (0.0 < v_max <= 5.0):
             raise ValueError(f"v_max={v_max}: use a speed in (0, 5] m/s")
         if len(render_size) != 2 or min(render_size) < 16 or max(render_size) > 4096:
@@ -173,14 +169,24 @@ class RoverEnv(gym.Env):
         self.control_dt = 1.0 / control_hz
         self.v_max = float(v_max)
         self.metadata = {**self.metadata, "render_fps": self.control_hz}
-        self.sim = RoverSim(self.scenario, self.geometry, physics_hz=physics_hz,
-                            solver_iterations=solver_iterations)
+        self.sim = RoverSim(
+            self.scenario, self.geometry, physics_hz=physics_hz, solver_iterations=solver_iterations
+        )
         self.course = WaypointCourse(self.scenario.course)
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
         # Finite bounds far outside anything physical; observations are clipped to them.
-        bound = [20.0, 20.0, 20.0] + [100.0] * 4 + [1.0] * 4 + [math.pi] * 2 + [1.0] * 2 \
-            + [math.pi / 2] * 2 + [1.0] * 2 + [1000.0, math.pi, 1000.0, math.pi] + [1.0] * n_act
+        bound = (
+            [20.0, 20.0, 20.0]
+            + [100.0] * 4
+            + [1.0] * 4
+            + [math.pi] * 2
+            + [1.0] * 2
+            + [math.pi / 2] * 2
+            + [1.0] * 2
+            + [1000.0, math.pi, 1000.0, math.pi]
+            + [1.0] * n_act
+        )
         high = np.asarray(bound, dtype=np.float32)
         low = -high
         low[17:19] = 0.0
@@ -238,11 +244,21 @@ class RoverEnv(gym.Env):
         self._progress = feats.progress
         terminated = success or failure
         truncated = (not terminated) and gt.t >= self.scenario.duration - 1e-9
-        reason = "success" if success else "tipped_over" if tipped else (
-            "left_terrain" if off else "time_limit" if truncated else None)
+        reason = (
+            "success"
+            if success
+            else "tipped_over"
+            if tipped
+            else ("left_terrain" if off else "time_limit" if truncated else None)
+        )
         obs = self._observation(feats)
-        return (obs, float(sum(terms.values())), terminated, truncated,
-                self._info(feats, terms, success, reason))
+        return (
+            obs,
+            float(sum(terms.values())),
+            terminated,
+            truncated,
+            self._info(feats, terms, success, reason),
+        )
 
     def render(self) -> np.ndarray | None:
         """Third-person chase view, RGB uint8 (H, W, 3), with the sun's shadows."""
@@ -251,15 +267,27 @@ class RoverEnv(gym.Env):
         c = self.sim.client
         pos, quat = c.getBasePositionAndOrientation(self.sim.rover.body_id)
         yaw = quat_to_yaw(quat)
-        eye = [pos[0] - 2.6 * math.cos(yaw) + 0.8 * math.sin(yaw),
-               pos[1] - 2.6 * math.sin(yaw) - 0.8 * math.cos(yaw), pos[2] + 1.6]
+        eye = [
+            pos[0] - 2.6 * math.cos(yaw) + 0.8 * math.sin(yaw),
+            pos[1] - 2.6 * math.sin(yaw) - 0.8 * math.cos(yaw),
+            pos[2] + 1.6,
+        ]
         w, h = self.render_size
         view = c.computeViewMatrix(eye, [pos[0], pos[1], pos[2] - 0.1], [0, 0, 1])
         proj = c.computeProjectionMatrixFOV(55.0, w / h, 0.05, 60.0)
         sun = self.scenario.sun.direction() * 100.0
-        img = c.getCameraImage(w, h, view, proj, shadow=1, lightDirection=sun.tolist(),
-                               lightAmbientCoeff=0.45, lightDiffuseCoeff=0.6,
-                               lightSpecularCoeff=0.05, renderer=pb.ER_TINY_RENDERER)
+        img = c.getCameraImage(
+            w,
+            h,
+            view,
+            proj,
+            shadow=1,
+            lightDirection=sun.tolist(),
+            lightAmbientCoeff=0.45,
+            lightDiffuseCoeff=0.6,
+            lightSpecularCoeff=0.05,
+            renderer=pb.ER_TINY_RENDERER,
+        )
         rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (h, w, 4))
         return np.ascontiguousarray(rgba[:, :, :3])
 
@@ -279,29 +307,33 @@ class RoverEnv(gym.Env):
             )
         if not np.all(np.isfinite(a)):
             raise ValueError(
-                f"action contains NaN or infinite values: {a.tolist()}; "
-                "send finite values in [-1, 1]"
+                f"action contains NaN or infinite values: {a.tolist()}; send finite values in [-1, 1]"
             )
         return np.clip(a, -1.0, 1.0).astype(np.float32)
 
     def _observation(self, feats) -> np.ndarray:
         gt = self._gt
         assert gt is not None
-        state = np.concatenate([
-            gt.twist, gt.wheel_rate, gt.slip_ratio, gt.axle_roll, gt.axle_height, gt.steering,
-            [1.0, 1.0],
-            [feats.distance, feats.bearing, feats.cross_track, feats.heading_error],
-        ])
+        state = np.concatenate(
+            [
+                gt.twist,
+                gt.wheel_rate,
+                gt.slip_ratio,
+                gt.axle_roll,
+                gt.axle_height,
+                gt.steering,
+                [1.0, 1.0],
+                [feats.distance, feats.bearing, feats.cross_track, feats.heading_error],
+            ]
+        )
         obs = np.concatenate([state, self._prev_action]).astype(np.float32)
         return np.clip(obs, self.observation_space.low, self.observation_space.high)
 
     @staticmethod
     def _term_names() -> tuple[str, ...]:
-        return ("progress", "cross_track", "heading", "slip", "energy", "time", "success",
-                "failure")
+        return ("progress", "cross_track", "heading", "slip", "energy", "time", "success", "failure")
 
-    def _reward_terms(self, gt: GroundTruth, feats, success: bool,
-                      failure: bool) -> dict[str, float]:
+    def _reward_terms(self, gt: GroundTruth, feats, success: bool, failure: bool) -> dict[str, float]:
         w = self.reward_cfg
         dt = self.control_dt
         power = wheel_power(gt)
@@ -316,8 +348,7 @@ class RoverEnv(gym.Env):
             "failure": -w.failure if failure else 0.0,
         }
 
-    def _info(self, feats, terms: dict[str, float], success: bool,
-              reason: str | None) -> dict[str, Any]:
+    def _info(self, feats, terms: dict[str, float], success: bool, reason: str | None) -> dict[str, Any]:
         gt = self._gt
         assert gt is not None
         return {
