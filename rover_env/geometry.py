@@ -186,14 +186,15 @@ class RoverGeometry:
             steer_front: Front axle command lambda_F [rad], positive turns left.
             steer_rear: Rear axle command lambda_R [rad].
         """
-        out = np.empty(4)
-        for i, w in enumerate(WHEELS):
-            lam = steer_front if w[0] == "F" else steer_rear
-            arm = (self.axle_x if w[0] == "F" else -self.axle_x) - self.ackermann_center_x
-            y = self.wheel_offset(w)[1]
+        half = self.track / 2.0
+        out = []
+        for lam, arm in (
+            (steer_front, self.axle_x - self.ackermann_center_x),
+            (steer_rear, -self.axle_x - self.ackermann_center_x),
+        ):
             t = math.tan(lam)
-            out[i] = math.atan(arm * t / (arm - y * t))
-        return out
+            out += [math.atan(arm * t / (arm - y * t)) for y in (half, -half)]  # left, right
+        return np.array(out)
 
     def turning_radius(self, steer: float) -> float:
         """Radius of the body-centre path for equal-and-opposite axle steering ``steer`` [m].

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
 import pybullet as pb
 
-from perception.wheel_kinematics import slip_angle, slip_ratio
+from perception.wheel_kinematics import SLIP_EPS
 from rover_env.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.ground_truth import GroundTruth
 from rover_env.textures import tread_texture, write_cached
@@ -20,6 +21,18 @@ if TYPE_CHECKING:
     from rover_env.terrain import Terrain
 
 GRAVITY = 9.81  # [m/s^2]
+
+
+def quat_to_matrix(quat_xyzw) -> np.ndarray:
+    """Rotation matrix (3, 3) of a unit quaternion (x, y, z, w); columns are the frame's axes."""
+    x, y, z, w = (float(v) for v in quat_xyzw)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def ackermann_wheel_speeds(
@@ -42,13 +55,15 @@ def ackermann_wheel_speeds(
     """
     tf, tr = math.tan(steer_front), math.tan(steer_rear)
     if abs(tf - tr) < 1e-9:
-        return np.full(4, speed)
+        return np.full(4, float(speed))
     yc = geom.wheelbase / (tf - tr)
     xc = geom.axle_x - yc * tf
-    icr = np.array([xc, yc])
     r_body = math.hypot(xc, yc)
-    r_wheels = np.linalg.norm(geom.wheel_positions_body()[:, :2] - icr, axis=1)
-    return speed * r_wheels / r_body
+    half = geom.track / 2.0
+    ax = geom.axle_x
+    # wheel centres FL, FR, RL, RR in the body x-y plane
+    r_wheels = [math.hypot(x - xc, y - yc) for x, y in ((ax, half), (ax, -half), (-ax, half), (-ax, -half))]
+    return np.array([speed * r / r_body for r in r_wheels])
 
 
 class Rover:
@@ -77,6 +92,8 @@ class Rover:
         self.steer_joints = [self.joint[f"steer_{w}"] for w in WHEELS]
         self.wheel_links = [self.link[f"wheel_{w}"] for w in WHEELS]
         self.knuckle_links = [self.link[f"knuckle_{w}"] for w in WHEELS]
+        self._roll_joints = [self.joint[f"roll_{a}"] for a in AXLES]
+        self._travel_joints = [self.joint[f"travel_{a}"] for a in AXLES]
         self.passive_joints = [self.joint[f"{k}_{a}"] for a in AXLES for k in ("travel", "roll")]
         g = geometry
         per_axle_load = g.sprung_mass * GRAVITY / 2.0
@@ -84,6 +101,47 @@ class Rover:
         self._k = np.array([g.travel_stiffness, g.roll_stiffness] * 2)
         self._c = np.array([g.travel_damping, g.roll_damping] * 2)
         self._preload = np.array([-per_axle_load, 0.0] * 2)
+        self._k_list = self._k.tolist()
+        self._c_list = self._c.tolist()
+        self._preload_list = self._preload.tolist()
+        # The per-substep calls, bound once: BulletClient's attribute lookup costs more than
+        # the calls themselves at 240 Hz.
+        cid = client._client
+        self._read_passive = partial(
+            pb.getJointStates, self.body_id, self.passive_joints, physicsClientId=cid
+        )
+        self._write_passive = partial(
+            pb.setJointMotorControlArray,
+            self.body_id,
+            self.passive_joints,
+            pb.TORQUE_CONTROL,
+            physicsClientId=cid,
+        )
+        self._read_base = partial(pb.getBasePositionAndOrientation, self.body_id, physicsClientId=cid)
+        self._read_wheels = partial(pb.getLinkStates, self.body_id, self.wheel_links, physicsClientId=cid)
+        self._read_wheels_with_velocity = partial(
+            pb.getLinkStates, self.body_id, self.wheel_links, computeLinkVelocity=1, physicsClientId=cid
+        )
+        self._read_knuckles = partial(pb.getLinkStates, self.body_id, self.knuckle_links, physicsClientId=cid)
+        self._read_base_velocity = partial(pb.getBaseVelocity, self.body_id, physicsClientId=cid)
+        self._read_all_joints = partial(
+            pb.getJointStates,
+            self.body_id,
+            list(range(client.getNumJoints(self.body_id))),
+            physicsClientId=cid,
+        )
+        self._write_wheels = partial(
+            pb.setJointMotorControlArray,
+            self.body_id,
+            self.wheel_joints,
+            pb.VELOCITY_CONTROL,
+            physicsClientId=cid,
+        )
+        self._write_steer = partial(
+            pb.setJointMotorControl2, self.body_id, controlMode=pb.POSITION_CONTROL, physicsClientId=cid
+        )
+        self._arms = _ackermann_arms(geometry)
+        self._wheel_index = {link: i for i, link in enumerate(self.wheel_links)}
         for link in [-1, *range(client.getNumJoints(self.body_id))]:
             client.changeDynamics(
                 self.body_id,
@@ -140,19 +198,10 @@ class Rover:
         lr = float(np.clip(steer_rear, -g.steer_limit, g.steer_limit))
         self.wheel_rate_cmd = rates
         self.steer_cmd = np.array([lf, lr])
-        c = self.client
-        c.setJointMotorControlArray(
-            self.body_id,
-            self.wheel_joints,
-            pb.VELOCITY_CONTROL,
-            targetVelocities=rates.tolist(),
-            forces=[g.wheel_max_torque] * 4,
-        )
+        self._write_wheels(targetVelocities=rates.tolist(), forces=[g.wheel_max_torque] * 4)
         for j, delta in zip(self.steer_joints, g.ackermann_angles(lf, lr)):
-            c.setJointMotorControl2(
-                self.body_id,
-                j,
-                pb.POSITION_CONTROL,
+            self._write_steer(
+                jointIndex=j,
                 targetPosition=float(delta),
                 force=g.steer_max_torque,
                 maxVelocity=g.steer_max_rate,
@@ -162,13 +211,11 @@ class Rover:
 
     def apply_passive(self) -> None:
         """Spring-damper forces of the passive travel and roll joints (call every substep)."""
-        states = self.client.getJointStates(self.body_id, self.passive_joints)
-        q = np.fromiter((s[0] for s in states), float, 4)
-        qd = np.fromiter((s[1] for s in states), float, 4)
-        f = self._preload - self._k * q - self._c * qd
-        self.client.setJointMotorControlArray(
-            self.body_id, self.passive_joints, pb.TORQUE_CONTROL, forces=f.tolist()
-        )
+        forces = [
+            p - k * st[0] - c * st[1]
+            for st, k, c, p in zip(self._read_passive(), self._k_list, self._c_list, self._preload_list)
+        ]
+        self._write_passive(forces=forces)
 
     def apply_friction(self, terrain: Terrain) -> None:
         """Set each wheel's friction from the map at its contact point (call every substep).
@@ -177,89 +224,107 @@ class Rover:
         multiplies the two bodies' coefficients and the ground's is 1, so the wheel's value is
         the contact's.
         """
-        c = self.client
-        _, q = c.getBasePositionAndOrientation(self.body_id)
-        m = c.getMatrixFromQuaternion(q)
+        x, y, z, w = self._read_base()[1]
         r = self.geom.wheel_radius
-        zx, zy = m[2] * r, m[5] * r  # body z axis (third column) times r
-        states = c.getLinkStates(self.body_id, self.wheel_links)
-        fmap = terrain.friction
-        for i, st in enumerate(states):
+        # body z axis (third column of the rotation matrix) times r, x and y components
+        zx = 2.0 * (x * z + w * y) * r
+        zy = 2.0 * (y * z - w * x) * r
+        mu_at = terrain.friction.mu_at
+        current = self._mu
+        for i, st in enumerate(self._read_wheels()):
             p = st[4]
-            mu = fmap.mu_at(p[0] - zx, p[1] - zy)
-            if mu != self._mu[i]:
-                c.changeDynamics(self.body_id, self.wheel_links[i], lateralFriction=mu)
-                self._mu[i] = mu
+            mu = mu_at(p[0] - zx, p[1] - zy)
+            if mu != current[i]:
+                self.client.changeDynamics(self.body_id, self.wheel_links[i], lateralFriction=mu)
+                current[i] = mu
 
     # ------------------------------------------------------------------ ground truth
     def ground_truth(self, t: float, terrain_id: int) -> GroundTruth:
         """Read the exact state (see :class:`GroundTruth` for frames and units)."""
-        c = self.client
         g = self.geom
-        pos, quat = c.getBasePositionAndOrientation(self.body_id)
-        lin, ang = c.getBaseVelocity(self.body_id)
-        rot = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        pos, quat = self._read_base()
+        lin, ang = self._read_base_velocity()
+        rot = quat_to_matrix(quat)
         v_body = rot.T @ np.asarray(lin)
         w_body = rot.T @ np.asarray(ang)
-        joints = c.getJointStates(self.body_id, list(range(c.getNumJoints(self.body_id))))
-        jq = {name: joints[j][0] for name, j in self.joint.items()}
-        wheel_rate = np.array([joints[j][1] for j in self.wheel_joints])
-        wheel_angle = np.array([joints[j][0] for j in self.wheel_joints])
-        wheel_steer = np.array([joints[j][0] for j in self.steer_joints])
-        wheel_states = c.getLinkStates(self.body_id, self.wheel_links, computeLinkVelocity=1)
-        knuckle_states = c.getLinkStates(self.body_id, self.knuckle_links)
-        v_long = np.empty(4)
-        v_lat = np.empty(4)
-        for i in range(4):
-            kr = np.array(c.getMatrixFromQuaternion(knuckle_states[i][5])).reshape(3, 3)
-            v = np.asarray(wheel_states[i][6])
-            v_long[i] = v @ kr[:, 0]
-            v_lat[i] = v @ kr[:, 1]
-        tread = wheel_rate * g.wheel_radius
-        normal_force = np.zeros(4)
-        contact_point = np.full((4, 3), np.nan)
-        for i, link in enumerate(self.wheel_links):
-            pts = c.getContactPoints(bodyA=self.body_id, bodyB=terrain_id, linkIndexA=link)
-            if pts:
-                normal_force[i] = sum(p[9] for p in pts)
-                deepest = min(pts, key=lambda p: p[8])
-                contact_point[i] = deepest[6]
+        joints = self._read_all_joints()
+        q = [s[0] for s in joints]
+        qd = [s[1] for s in joints]
+        wheel_steer = np.array([q[j] for j in self.steer_joints])
+        v_long_l, v_lat_l = [], []
+        for w_st, k_st in zip(self._read_wheels_with_velocity(), self._read_knuckles()):
+            vx, vy, vz = w_st[6]
+            kx, ky, kz, kw = k_st[5]
+            # wheel-centre velocity along the knuckle's x (rolling) and y (lateral) axes
+            v_long_l.append(
+                vx * (1 - 2 * (ky * ky + kz * kz))
+                + vy * 2 * (kx * ky + kz * kw)
+                + vz * 2 * (kx * kz - ky * kw)
+            )
+            v_lat_l.append(
+                vx * 2 * (kx * ky - kz * kw)
+                + vy * (1 - 2 * (kx * kx + kz * kz))
+                + vz * 2 * (ky * kz + kx * kw)
+            )
+        r = g.wheel_radius
+        slip = [_slip_ratio_scalar(qd[j] * r, v) for j, v in zip(self.wheel_joints, v_long_l)]
+        beta = [math.atan2(vy, vx) for vx, vy in zip(v_long_l, v_lat_l)]
+        normal_force = [0.0] * 4
+        contact_point = [[math.nan] * 3 for _ in range(4)]
+        depth = [math.inf] * 4
+        for p in self.client.getContactPoints(bodyA=self.body_id, bodyB=terrain_id):
+            i = self._wheel_index.get(p[3])
+            if i is None:
+                continue
+            normal_force[i] += p[9]
+            if p[8] < depth[i]:
+                depth[i] = p[8]
+                contact_point[i] = p[6]
         return GroundTruth(
             t=t,
             pose=np.array([*pos, *quat]),
             twist=np.array([v_body[0], v_body[1], w_body[2]]),
-            wheel_rate=wheel_rate,
-            wheel_angle=wheel_angle,
-            slip_ratio=slip_ratio(tread, v_long),
-            slip_angle=slip_angle(v_long, v_lat),
-            axle_roll=np.array([jq["roll_F"], jq["roll_R"]]),
-            axle_height=np.array([-(g.axle_z + jq["travel_F"]), -(g.axle_z + jq["travel_R"])]),
-            steering=axle_steering_from_wheels(g, wheel_steer),
+            wheel_rate=np.array([qd[j] for j in self.wheel_joints]),
+            wheel_angle=np.array([q[j] for j in self.wheel_joints]),
+            slip_ratio=np.array(slip),
+            slip_angle=np.array(beta),
+            axle_roll=np.array([q[j] for j in self._roll_joints]),
+            axle_height=np.array([-(g.axle_z + q[j]) for j in self._travel_joints]),
+            steering=axle_steering_from_wheels(g, wheel_steer, self._arms),
             wheel_steer=wheel_steer,
-            wheel_v_long=v_long,
-            wheel_v_lat=v_lat,
+            wheel_v_long=np.array(v_long_l),
+            wheel_v_lat=np.array(v_lat_l),
             wheel_torque=np.array([joints[j][3] for j in self.wheel_joints]),
             friction=np.array(self._mu, dtype=np.float64),
-            normal_force=normal_force,
-            contact_point=contact_point,
+            normal_force=np.array(normal_force),
+            contact_point=np.array(contact_point, dtype=np.float64),
         )
 
 
-def axle_steering_from_wheels(geom: RoverGeometry, wheel_steer: np.ndarray) -> np.ndarray:
+def _ackermann_arms(geom: RoverGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Per wheel: arm from the turn-centre line along x [m], lateral offset y [m] (read-only)."""
+    arm = np.array([geom.axle_x if w[0] == "F" else -geom.axle_x for w in WHEELS]) - geom.ackermann_center_x
+    y = np.array([geom.wheel_offset(w)[1] for w in WHEELS])
+    arm.flags.writeable = False
+    y.flags.writeable = False
+    return arm, y
+
+
+def _slip_ratio_scalar(tread: float, v: float) -> float:
+    """:func:`perception.wheel_kinematics.slip_ratio` for one wheel, without numpy overhead."""
+    den = max(abs(tread), abs(v), SLIP_EPS)
+    return min(1.0, max(-1.0, (tread - v) / den))
+
+
+def axle_steering_from_wheels(
+    geom: RoverGeometry, wheel_steer: np.ndarray, arms: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
     """Invert the per-axle Ackermann mapping: (lambda_F, lambda_R) from 4 wheel angles [rad].
 
     From tan(delta) = a t / (a - y t) with a the arm to the turn-centre line and t = tan(lambda):
     t = a tan(delta) / (a + y tan(delta)). The two wheels of an axle are averaged.
     """
-    out = np.zeros(2)
-    for k, axle in enumerate(AXLES):
-        arm = (geom.axle_x if axle == "F" else -geom.axle_x) - geom.ackermann_center_x
-        vals = []
-        for i, w in enumerate(WHEELS):
-            if w[0] != axle:
-                continue
-            y = geom.wheel_offset(w)[1]
-            td = math.tan(wheel_steer[i])
-            vals.append(math.atan(arm * td / (arm + y * td)))
-        out[k] = 0.5 * (vals[0] + vals[1])
-    return out
+    arm, y = arms if arms is not None else _ackermann_arms(geom)
+    td = np.tan(np.asarray(wheel_steer, dtype=np.float64))
+    lam = np.arctan(arm * td / (arm + y * td))
+    return lam.reshape(2, 2).mean(axis=1)  # (F, R): WHEELS is FL, FR, RL, RR

@@ -7,6 +7,7 @@ of them coexist in one process. Nothing here renders; cameras attach to the clie
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 import pybullet as pb
@@ -58,7 +59,7 @@ class RoverSim:
         geometry: RoverGeometry | None = None,
         physics_hz: float = 240.0,
         settle_time: float = 0.5,
-        solver_iterations: int = 20,
+        solver_iterations: int = 5,
     ) -> None:
         if not (60.0 <= physics_hz <= 2000.0):
             raise ValueError(f"physics_hz={physics_hz}: use 60 to 2000 Hz (240 recommended)")
@@ -75,12 +76,13 @@ class RoverSim:
             enableConeFriction=1,
             deterministicOverlappingPairs=1,
             numSolverIterations=solver_iterations,
-            contactBreakingThreshold=0.002,
+            contactBreakingThreshold=0.0001,
         )
         c.setGravity(0, 0, -9.81)
         self.terrain = Terrain(c, scenario.terrain, scenario.friction)
         self.rover = Rover(c, self.geometry)
         self._steps = 0
+        self._step_physics = partial(pb.stepSimulation, physicsClientId=c._client)
         self._state_id = c.saveState()
 
     # ------------------------------------------------------------------ episode
@@ -121,7 +123,7 @@ class RoverSim:
     def _substep(self) -> None:
         self.rover.apply_passive()
         self.rover.apply_friction(self.terrain)
-        self.client.stepSimulation()
+        self._step_physics()
         self._steps += 1
 
     @property
@@ -131,6 +133,8 @@ class RoverSim:
 
     def step(self, duration: float) -> None:
         """Advance physics by ``duration`` seconds (rounded to whole physics steps)."""
+        if self._closed:
+            raise RuntimeError("this RoverSim is closed; create a new one")
         for _ in range(max(1, int(round(duration / self.dt)))):
             self._substep()
 

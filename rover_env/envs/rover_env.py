@@ -236,8 +236,8 @@ class RoverEnv(gym.Env):
         self.course.update(xy)
         feats = self.course.features(xy, quat_to_yaw(gt.pose[3:]))
         success = self.course.finished
-        rot = np.array(self.sim.client.getMatrixFromQuaternion(gt.pose[3:].tolist())).reshape(3, 3)
-        tipped = rot[2, 2] < 0.5
+        qx, qy = gt.pose[3], gt.pose[4]
+        tipped = 1.0 - 2.0 * (qx * qx + qy * qy) < 0.5  # body z axis tilted more than 60 deg
         off = not self.sim.terrain.contains(xy[0], xy[1], margin=0.5)
         failure = tipped or off
         terms = self._reward_terms(gt, feats, success, failure)
