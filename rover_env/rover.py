@@ -194,8 +194,9 @@ class Rover:
         """
         g = self.geom
         rates = np.clip(np.asarray(wheel_rates, dtype=np.float64), -g.wheel_max_rate, g.wheel_max_rate)
-        lf = float(np.clip(steer_front, -g.steer_limit, g.steer_limit))
-        lr = float(np.clip(steer_rear, -g.steer_limit, g.steer_limit))
+        lim = g.steer_limit
+        lf = min(lim, max(-lim, float(steer_front)))
+        lr = min(lim, max(-lim, float(steer_rear)))
         self.wheel_rate_cmd = rates
         self.steer_cmd = np.array([lf, lr])
         self._write_wheels(targetVelocities=rates.tolist(), forces=[g.wheel_max_torque] * 4)
@@ -325,6 +326,8 @@ def axle_steering_from_wheels(
     t = a tan(delta) / (a + y tan(delta)). The two wheels of an axle are averaged.
     """
     arm, y = arms if arms is not None else _ackermann_arms(geom)
-    td = np.tan(np.asarray(wheel_steer, dtype=np.float64))
-    lam = np.arctan(arm * td / (arm + y * td))
-    return lam.reshape(2, 2).mean(axis=1)  # (F, R): WHEELS is FL, FR, RL, RR
+    lam = []
+    for a, yy, d in zip(arm.tolist(), y.tolist(), np.asarray(wheel_steer, dtype=np.float64).tolist()):
+        td = math.tan(d)
+        lam.append(math.atan(a * td / (a + yy * td)))
+    return np.array([0.5 * (lam[0] + lam[1]), 0.5 * (lam[2] + lam[3])])  # WHEELS: FL, FR, RL, RR

@@ -49,8 +49,9 @@ class RoverSim:
         geometry: Rover geometry.
         physics_hz: Physics rate [Hz].
         settle_time: Physics time spent at reset letting the suspension settle [s].
-        solver_iterations: Constraint-solver iterations per physics step; contacts dominate
-            the step cost, and 20 keeps steady-state slip errors below 0.01 (see the tests).
+        solver_iterations: Constraint-solver iterations per physics step. Cost grows with it
+            (contacts dominate a step); motor accuracy under load improves as its square: a
+            braked rover on an 8 deg slope creeps 19 mm in 5 s at 10, 4 mm at 20 (see the tests).
     """
 
     def __init__(
@@ -59,7 +60,7 @@ class RoverSim:
         geometry: RoverGeometry | None = None,
         physics_hz: float = 240.0,
         settle_time: float = 0.5,
-        solver_iterations: int = 5,
+        solver_iterations: int = 10,
     ) -> None:
         if not (60.0 <= physics_hz <= 2000.0):
             raise ValueError(f"physics_hz={physics_hz}: use 60 to 2000 Hz (240 recommended)")
@@ -76,6 +77,8 @@ class RoverSim:
             enableConeFriction=1,
             deterministicOverlappingPairs=1,
             numSolverIterations=solver_iterations,
+            # 0.1 mm: a rolling sphere's stale manifold points drop out at once (at 2 mm each
+            # wheel carried three, doubling the contact rows).
             contactBreakingThreshold=0.0001,
         )
         c.setGravity(0, 0, -9.81)

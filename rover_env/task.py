@@ -77,6 +77,9 @@ class WaypointCourse:
         self.index = 0
         self.points = np.zeros((1, 2))
         self._cum = np.zeros(1)
+        self._pts: list[tuple[float, float]] = [(0.0, 0.0)]
+        self._seg_len: list[float] = []
+        self._cum_list: list[float] = [0.0]
 
     def reset(self, start_xy: np.ndarray) -> None:
         """Start a new episode from ``start_xy`` (world, [m])."""
@@ -85,6 +88,10 @@ class WaypointCourse:
         )
         seg = np.linalg.norm(np.diff(self.points, axis=0), axis=1)
         self._cum = np.concatenate([[0.0], np.cumsum(seg)])
+        # plain-float copies for the per-step features
+        self._pts = [(float(px), float(py)) for px, py in self.points]
+        self._seg_len = seg.tolist()
+        self._cum_list = self._cum.tolist()
         self.index = 0
 
     @property
@@ -105,7 +112,8 @@ class WaypointCourse:
     def update(self, xy: np.ndarray) -> bool:
         """Advance past every waypoint within tolerance of ``xy``; True if one was reached."""
         reached = False
-        while not self.finished and np.linalg.norm(self.points[self.index + 1] - xy) <= self.cfg.tolerance:
+        x, y = float(xy[0]), float(xy[1])
+        while not self.finished and math.dist(self._pts[self.index + 1], (x, y)) <= self.cfg.tolerance:
             self.index += 1
             reached = True
         return reached
@@ -113,16 +121,19 @@ class WaypointCourse:
     def features(self, xy: np.ndarray, yaw: float) -> CourseFeatures:
         """Task features of a body at ``xy`` [m] heading ``yaw`` [rad] (world frame)."""
         k = min(self.index, self.num_waypoints - 1)
-        a, b = self.points[k], self.points[k + 1]
-        seg = b - a
-        length = float(np.linalg.norm(seg))
-        tangent = seg / length if length > 1e-9 else np.array([math.cos(yaw), math.sin(yaw)])
-        rel = xy - a
-        along = float(np.clip(rel @ tangent, 0.0, length))
-        cross = float(tangent[0] * rel[1] - tangent[1] * rel[0])
-        to_wp = b - xy
-        dist = float(np.linalg.norm(to_wp))
-        bearing = wrap_angle(math.atan2(to_wp[1], to_wp[0]) - yaw)
-        heading_err = wrap_angle(math.atan2(tangent[1], tangent[0]) - yaw)
-        progress = float(self._cum[k]) + along if not self.finished else self.length
+        ax, ay = self._pts[k]
+        bx, by = self._pts[k + 1]
+        x, y = float(xy[0]), float(xy[1])
+        length = self._seg_len[k]
+        if length > 1e-9:
+            tx, ty = (bx - ax) / length, (by - ay) / length
+        else:
+            tx, ty = math.cos(yaw), math.sin(yaw)
+        rx, ry = x - ax, y - ay
+        along = min(length, max(0.0, rx * tx + ry * ty))
+        cross = tx * ry - ty * rx
+        dist = math.hypot(bx - x, by - y)
+        bearing = wrap_angle(math.atan2(by - y, bx - x) - yaw)
+        heading_err = wrap_angle(math.atan2(ty, tx) - yaw)
+        progress = self._cum_list[k] + along if not self.finished else self.length
         return CourseFeatures(dist, bearing, cross, heading_err, progress)
