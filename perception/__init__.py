@@ -3,6 +3,8 @@
 This package depends on numpy, OpenCV and SciPy only; it never needs the simulator.
 """
 
+from perception.calib_io import CalibrationError
+from perception.cameras import OmniCamera, PinholeCamera
 from perception.wheel_kinematics import (
     SLIP_EPS,
     slip_angle,
@@ -10,5 +12,13 @@ from perception.wheel_kinematics import (
     wheel_ground_velocity,
 )
 
-__all__ = ["SLIP_EPS", "slip_angle", "slip_ratio", "wheel_ground_velocity"]
+__all__ = [
+    "SLIP_EPS",
+    "CalibrationError",
+    "OmniCamera",
+    "PinholeCamera",
+    "slip_angle",
+    "slip_ratio",
+    "wheel_ground_velocity",
+]
 __version__ = "0.1.0"

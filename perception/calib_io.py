@@ -1,0 +1,103 @@
+"""Strict reading and writing of camera calibration YAML files.
+
+Every error names the file and the key, and says what was expected, so that a user can fix a
+hand-edited calibration without reading the code.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+
+class CalibrationError(ValueError):
+    """A calibration file or value is missing, malformed or physically impossible."""
+
+
+def read_mapping(path: str | Path, required: set[str], optional: set[str]) -> dict[str, Any]:
+    """Load a YAML mapping and check its keys.
+
+    Raises:
+        CalibrationError: The file is missing or unreadable, is not a mapping, lacks a required
+            key or has an unknown one (the message names it and lists the accepted keys).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise CalibrationError(f"{p}: calibration file not found")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise CalibrationError(f"{p}: not readable as YAML ({exc})") from exc
+    if not isinstance(data, dict):
+        raise CalibrationError(f"{p}: expected a mapping of keys at the top level")
+    missing = sorted(required - data.keys())
+    if missing:
+        raise CalibrationError(f"{p}: missing key {missing[0]!r} (required: {sorted(required)})")
+    unknown = sorted(data.keys() - required - optional)
+    if unknown:
+        raise CalibrationError(f"{p}: unknown key {unknown[0]!r} (accepted: {sorted(required | optional)})")
+    return data
+
+
+def as_array(value: Any, shape: tuple[int, ...], key: str, where: str = "") -> np.ndarray:
+    """Convert ``value`` to a finite float array of ``shape`` or raise naming ``key``.
+
+    A dimension of -1 in ``shape`` accepts any length.
+    """
+    prefix = f"{where}: " if where else ""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{prefix}{key}: expected numbers, got {value!r}") from exc
+    ok = arr.ndim == len(shape) and all(s in (-1, n) for s, n in zip(shape, arr.shape))
+    if not ok:
+        want = "x".join("N" if s == -1 else str(s) for s in shape)
+        raise CalibrationError(f"{prefix}{key}: expected shape {want}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise CalibrationError(f"{prefix}{key}: contains NaN or infinite values")
+    return arr
+
+
+def check_image_size(value: Any, key: str = "image_size", where: str = "") -> tuple[int, int]:
+    """Validate ``[W, H]`` in pixels (16 to 8192 each)."""
+    prefix = f"{where}: " if where else ""
+    arr = as_array(value, (2,), key, where)
+    if not np.all(arr == np.round(arr)) or arr.min() < 16 or arr.max() > 8192:
+        raise CalibrationError(f"{prefix}{key}: expected two integers [W, H] in 16..8192, got {value!r}")
+    return int(arr[0]), int(arr[1])
+
+
+def check_rigid(T: np.ndarray, key: str, where: str = "") -> np.ndarray:
+    """Validate a 4x4 rigid transform: orthonormal rotation with det +1 and last row 0 0 0 1."""
+    prefix = f"{where}: " if where else ""
+    T = as_array(T, (4, 4), key, where)
+    R = T[:3, :3]
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+        raise CalibrationError(f"{prefix}{key}: last row must be [0, 0, 0, 1]")
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or not math.isclose(
+        np.linalg.det(R), 1.0, abs_tol=1e-6
+    ):
+        raise CalibrationError(f"{prefix}{key}: the 3x3 block is not a rotation (orthonormal, det +1)")
+    return T
+
+
+def write_mapping(path: str | Path, data: dict[str, Any]) -> Path:
+    """Write ``data`` as block-style YAML (numpy arrays become nested lists)."""
+
+    def plain(v: Any) -> Any:
+        if isinstance(v, np.ndarray):
+            return v.tolist()
+        if isinstance(v, (np.floating, np.integer)):
+            return v.item()
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return v
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(yaml.safe_dump({k: plain(v) for k, v in data.items()}, sort_keys=False))
+    return p

@@ -1,0 +1,469 @@
+"""Camera models shared by the simulator and the estimators: pinhole and omnidirectional.
+
+Frames (DESIGN.md): the camera optical frame has z along the optical axis, x right and y down
+in the image; pixel coordinates are (x = column, y = row) with the centre of the top-left pixel at
+(0, 0). ``T_body_cam`` maps camera-frame coordinates into the body frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from perception.calib_io import (
+    CalibrationError,
+    as_array,
+    check_image_size,
+    check_rigid,
+    read_mapping,
+    write_mapping,
+)
+
+__all__ = ["CalibrationError", "OmniCamera", "PinholeCamera"]
+
+
+def _points(a, n_cols: int, name: str) -> tuple[np.ndarray, tuple[int, ...]]:
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.shape[-1:] != (n_cols,):
+        raise ValueError(f"{name}: expected shape (..., {n_cols}), got {arr.shape}")
+    return arr.reshape(-1, n_cols), arr.shape[:-1]
+
+
+# ---------------------------------------------------------------------------------------- pinhole
+@dataclass(frozen=True, eq=False)
+class PinholeCamera:
+    """Pinhole camera with OpenCV's radial-tangential distortion (k1, k2, p1, p2, k3).
+
+    Attributes:
+        K: 3x3 intrinsic matrix [px].
+        distortion: (k1, k2, p1, p2, k3).
+        image_size: (W, H) [px].
+        T_body_cam: 4x4 transform from the camera optical frame to the body frame [m].
+        ground_plane: (a, b, c): the ground is z = a x + b y + c in the body frame [m]; None
+            means "not given" (callers use flat ground under the wheels).
+    """
+
+    K: np.ndarray
+    distortion: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    image_size: tuple[int, int] = (640, 480)
+    T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    ground_plane: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        K = as_array(self.K, (3, 3), "K")
+        w, h = check_image_size(self.image_size)
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise CalibrationError(f"K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+        if not (0 <= K[0, 2] <= w and 0 <= K[1, 2] <= h):
+            raise CalibrationError(
+                f"K: principal point ({K[0, 2]}, {K[1, 2]}) lies outside the {w}x{h} image"
+            )
+        if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise CalibrationError("K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+        dist = as_array(self.distortion, (5,), "distortion")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "distortion", dist)
+        object.__setattr__(self, "image_size", (w, h))
+        object.__setattr__(self, "T_body_cam", check_rigid(self.T_body_cam, "T_body_cam"))
+        if self.ground_plane is not None:
+            gp = as_array(self.ground_plane, (3,), "ground_plane")
+            object.__setattr__(self, "ground_plane", tuple(float(v) for v in gp))
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_fov(
+        cls,
+        image_size: tuple[int, int],
+        hfov: float,
+        vfov: float | None = None,
+        T_body_cam: np.ndarray | None = None,
+        ground_plane: tuple[float, float, float] | None = None,
+    ) -> PinholeCamera:
+        """Distortion-free camera with the principal point at the image centre.
+
+        Args:
+            image_size: (W, H) [px].
+            hfov: Horizontal field of view [rad], in (0, pi).
+            vfov: Vertical field of view [rad]; default gives square pixels.
+            T_body_cam: Camera-to-body transform (default identity).
+            ground_plane: See the class attributes.
+        """
+        w, h = check_image_size(image_size)
+        for name, v in (("hfov", hfov), ("vfov", vfov)):
+            if v is not None and not (0.0 < v < math.pi):
+                raise CalibrationError(f"{name}: {v!r} rad is impossible for a pinhole; use (0, pi)")
+        fx = (w / 2.0) / math.tan(hfov / 2.0)
+        fy = fx if vfov is None else (h / 2.0) / math.tan(vfov / 2.0)
+        # pixel centres at integer coordinates: the image spans [-0.5, W - 0.5]
+        K = np.array([[fx, 0.0, (w - 1) / 2.0], [0.0, fy, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return cls(
+            K=K,
+            image_size=(w, h),
+            T_body_cam=np.eye(4) if T_body_cam is None else T_body_cam,
+            ground_plane=ground_plane,
+        )
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def fov(self) -> tuple[float, float]:
+        """Horizontal and vertical field of view of the undistorted model [rad]."""
+        w, h = self.image_size
+        return 2 * math.atan(w / 2 / self.K[0, 0]), 2 * math.atan(h / 2 / self.K[1, 1])
+
+    def project(self, points_cam) -> np.ndarray:
+        """Project camera-frame points (..., 3) [m] to distorted pixels (..., 2).
+
+        Points at or behind the camera (z <= 0) give NaN.
+        """
+        p, lead = _points(points_cam, 3, "points_cam")
+        z = p[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = np.where(z > 0, p[:, 0] / z, np.nan)
+            y = np.where(z > 0, p[:, 1] / z, np.nan)
+        xd, yd = self._distort(x, y)
+        K = self.K
+        u = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
+        v = K[1, 1] * yd + K[1, 2]
+        return np.stack([u, v], -1).reshape(*lead, 2)
+
+    def _distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        k1, k2, p1, p2, k3 = self.distortion
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return xd, yd
+
+    def normalized(self, pixels) -> np.ndarray:
+        """Undistorted normalized image coordinates (x/z, y/z) of pixels (..., 2)."""
+        p, lead = _points(pixels, 2, "pixels")
+        if not np.any(self.distortion):
+            K = self.K
+            y = (p[:, 1] - K[1, 2]) / K[1, 1]
+            x = (p[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+            return np.stack([x, y], -1).reshape(*lead, 2)
+        K = self.K
+        yd = (p[:, 1] - K[1, 2]) / K[1, 1]
+        xd = (p[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+        x, y = xd.copy(), yd.copy()
+        # Gauss-Newton on distort(x, y) = (xd, yd) with the analytic 2x2 Jacobian
+        k1, k2, p1, p2, k3 = self.distortion
+        for _ in range(20):
+            fx, fy = self._distort(x, y)
+            ex, ey = fx - xd, fy - yd
+            r2 = x * x + y * y
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            drad = 2 * (k1 + r2 * (2 * k2 + 3 * r2 * k3))  # d(radial)/d(r2) * 2
+            jxx = radial + x * x * drad + 2 * p1 * y + 6 * p2 * x
+            jxy = x * y * drad + 2 * p1 * x + 2 * p2 * y
+            jyx = x * y * drad + 2 * p1 * x + 2 * p2 * y
+            jyy = radial + y * y * drad + 6 * p1 * y + 2 * p2 * x
+            det = jxx * jyy - jxy * jyx
+            x = x - (jyy * ex - jxy * ey) / det
+            y = y - (-jyx * ex + jxx * ey) / det
+            if max(np.abs(ex).max(initial=0.0), np.abs(ey).max(initial=0.0)) < 1e-14:
+                break
+        return np.stack([x, y], -1).reshape(*lead, 2)
+
+    def unproject(self, pixels) -> np.ndarray:
+        """Unit rays (..., 3) in the camera frame through pixels (..., 2)."""
+        n = self.normalized(pixels)
+        rays = np.concatenate([n, np.ones(n.shape[:-1] + (1,))], -1)
+        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+    def undistort_points(self, pixels) -> np.ndarray:
+        """Pixels (..., 2) as an ideal (distortion-free) camera with the same K would see them."""
+        n = self.normalized(pixels)
+        K = self.K
+        u = K[0, 0] * n[..., 0] + K[0, 1] * n[..., 1] + K[0, 2]
+        v = K[1, 1] * n[..., 1] + K[1, 2]
+        return np.stack([u, v], -1)
+
+    # ------------------------------------------------------------------ ground homography
+    def ground_homography(self, ground_plane: tuple[float, float, float] | None = None) -> np.ndarray:
+        """H = K M* of the odometry paper: body-frame ground (x, y, 1) -> undistorted pixels.
+
+        With M = [R | t] the body frame expressed in the camera frame and the ground
+        z = a x + b y + c (body frame), M* = [r1 + a r3, r2 + b r3, t + c r3] (paper eq. 6-8).
+
+        Args:
+            ground_plane: (a, b, c) [-, -, m]; default :attr:`ground_plane`.
+        """
+        plane = ground_plane if ground_plane is not None else self.ground_plane
+        if plane is None:
+            raise CalibrationError("ground_plane: not set; pass (a, b, c) with the ground z = a x + b y + c")
+        a, b, c = plane
+        T_cam_body = np.linalg.inv(self.T_body_cam)
+        R, t = T_cam_body[:3, :3], T_cam_body[:3, 3]
+        m_star = np.column_stack([R[:, 0] + a * R[:, 2], R[:, 1] + b * R[:, 2], t + c * R[:, 2]])
+        return self.K @ m_star
+
+    def pixels_to_ground(self, pixels, ground_plane: tuple[float, float, float] | None = None) -> np.ndarray:
+        """Body-frame ground coordinates (x, y) [m] of distorted pixels (..., 2), via H^-1."""
+        p, lead = _points(pixels, 2, "pixels")
+        und = self.undistort_points(p)
+        h_inv = np.linalg.inv(self.ground_homography(ground_plane))
+        q = np.column_stack([und, np.ones(len(und))]) @ h_inv.T
+        return (q[:, :2] / q[:, 2:3]).reshape(*lead, 2)
+
+    # ------------------------------------------------------------------ YAML
+    _REQUIRED = frozenset({"image_size", "K", "distortion", "T_body_cam"})
+    _OPTIONAL = frozenset({"ground_plane"})
+
+    @classmethod
+    def load(cls, path: str | Path) -> PinholeCamera:
+        """Read the downward-camera calibration YAML of DESIGN.md.
+
+        Keys: ``image_size: [W, H]``, ``K`` (3x3), ``distortion: [k1, k2, p1, p2, k3]``,
+        ``T_body_cam`` (4x4, camera optical frame to body frame), optional ``ground_plane: [a, b, c]``.
+
+        Raises:
+            CalibrationError: Missing file, missing or unknown key, wrong shape or impossible value;
+                the message names the file and the key.
+        """
+        d = read_mapping(path, set(cls._REQUIRED), set(cls._OPTIONAL))
+        try:
+            return cls(
+                K=as_array(d["K"], (3, 3), "K"),
+                distortion=as_array(d["distortion"], (5,), "distortion"),
+                image_size=check_image_size(d["image_size"]),
+                T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),
+                ground_plane=d.get("ground_plane"),
+            )
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {exc}") from exc
+
+    def save(self, path: str | Path) -> Path:
+        """Write this calibration in the format :meth:`load` reads."""
+        data = {
+            "image_size": list(self.image_size),
+            "K": self.K,
+            "distortion": self.distortion,
+            "T_body_cam": self.T_body_cam,
+        }
+        if self.ground_plane is not None:
+            data["ground_plane"] = list(self.ground_plane)
+        return write_mapping(path, data)
+
+
+# ---------------------------------------------------------------------------------------- omni
+@dataclass(frozen=True, eq=False)
+class OmniCamera:
+    """Scaramuzza's omnidirectional camera model (the fisheye paper's calibration model).
+
+    A pixel p = (x, y) maps to sensor coordinates (u, v) through the affine stretch
+    ``p - center = [[c, d], [e, 1]] (u, v)``; the viewing ray is (u, v, f(rho)) with
+    rho = sqrt(u^2 + v^2) and f(rho) = a0 + a1 rho + ... + aN rho^N, normalised to the unit sphere.
+
+    Sign convention: rays are in the OpenCV optical frame (z along the optical axis), so a0 > 0.
+    OCamCalib's files use a0 < 0 with the camera looking along -z and (row, column) pixel order:
+    negate the polynomial and swap the centre's coordinates to convert.
+
+    Attributes:
+        image_size: (W, H) [px].
+        center: (cx, cy) distortion centre [px].
+        affine: (c, d, e) of the stretch matrix.
+        poly: (a0, ..., aN), N >= 2 [px^(1-k)].
+        max_fov: Full field of view [rad] (rays further than max_fov / 2 from the axis are invalid).
+        T_body_cam: 4x4 transform from the camera optical frame to the body frame [m].
+    """
+
+    image_size: tuple[int, int]
+    center: tuple[float, float]
+    affine: tuple[float, float, float]
+    poly: tuple[float, ...]
+    max_fov: float
+    T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    _inv: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        w, h = check_image_size(self.image_size)
+        center = as_array(self.center, (2,), "center")
+        affine = as_array(self.affine, (3,), "affine")
+        poly = as_array(self.poly, (-1,), "poly")
+        if len(poly) < 3:
+            raise CalibrationError(f"poly: need at least a0, a1, a2, got {len(poly)} coefficients")
+        if poly[0] <= 0:
+            raise CalibrationError(f"poly: a0 must be positive in this convention (got {poly[0]})")
+        det = affine[0] - affine[1] * affine[2]
+        if not (0.5 < det < 2.0):
+            raise CalibrationError(
+                f"affine: stretch [[c, d], [e, 1]] has determinant {det:.3g}; expected near 1"
+            )
+        if not (0 < center[0] < w and 0 < center[1] < h):
+            raise CalibrationError(f"center: ({center[0]}, {center[1]}) lies outside the {w}x{h} image")
+        if not (0.0 < self.max_fov < 2 * math.pi):
+            raise CalibrationError(f"max_fov: {self.max_fov!r} rad is impossible; use (0, 2 pi)")
+        object.__setattr__(self, "image_size", (w, h))
+        object.__setattr__(self, "center", (float(center[0]), float(center[1])))
+        object.__setattr__(self, "affine", tuple(float(v) for v in affine))
+        object.__setattr__(self, "poly", tuple(float(v) for v in poly))
+        object.__setattr__(self, "T_body_cam", check_rigid(self.T_body_cam, "T_body_cam"))
+        # f(rho) must fall monotonically relative to rho up to the edge of the field of view
+        rho_max = self._rho_limit()
+        if rho_max is None:
+            raise CalibrationError(
+                f"poly: the model does not reach the field of view {math.degrees(self.max_fov):.1f} deg "
+                "with a one-to-one mapping; check the coefficients or lower max_fov"
+            )
+        object.__setattr__(self, "_inv", self._fit_inverse(rho_max))
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def equidistant(
+        cls,
+        image_size: tuple[int, int],
+        fov: float,
+        radius: float,
+        degree: int = 4,
+        T_body_cam: np.ndarray | None = None,
+    ) -> OmniCamera:
+        """Fit the polynomial model to an ideal equidistant fisheye (rho = k * angle from axis).
+
+        Args:
+            image_size: (W, H) [px], centre at the image centre, no stretch.
+            fov: Full field of view [rad] that maps to ``radius``.
+            radius: Image-circle radius at fov / 2 [px].
+            degree: Polynomial degree (4 as in the paper).
+            T_body_cam: Camera-to-body transform.
+        """
+        w, h = check_image_size(image_size)
+        if not (0.0 < fov < 2 * math.pi):
+            raise CalibrationError(f"fov: {fov!r} rad is impossible; use (0, 2 pi)")
+        k = radius / (fov / 2.0)
+        rho = np.linspace(1e-3, radius * 1.02, 400)
+        alpha = rho / k  # angle from the optical axis
+        f = rho / np.tan(np.where(np.abs(alpha - math.pi / 2) < 1e-9, math.pi / 2 + 1e-9, alpha))
+        # f = rho * cot(alpha); least squares with a1 free
+        A = np.vander(rho, degree + 1, increasing=True)
+        coef = np.linalg.lstsq(A, f, rcond=None)[0]
+        return cls(
+            image_size=(w, h),
+            center=((w - 1) / 2.0, (h - 1) / 2.0),
+            affine=(1.0, 0.0, 0.0),
+            poly=tuple(coef),
+            max_fov=fov,
+            T_body_cam=np.eye(4) if T_body_cam is None else T_body_cam,
+        )
+
+    # ------------------------------------------------------------------ model
+    def _f(self, rho: np.ndarray) -> np.ndarray:
+        return np.polynomial.polynomial.polyval(rho, self.poly)
+
+    def _df(self, rho: np.ndarray) -> np.ndarray:
+        return np.polynomial.polynomial.polyval(rho, np.polynomial.polynomial.polyder(self.poly))
+
+    def _rho_limit(self) -> float | None:
+        """Sensor radius at the edge of the field of view, or None if never reached one-to-one."""
+        half = self.max_fov / 2.0
+        rho = np.linspace(0.0, 4.0 * max(self.image_size), 20001)
+        alpha = np.arctan2(rho, self._f(rho))  # angle from the optical axis
+        rising = np.diff(alpha) > 0
+        if not rising[0]:
+            return None
+        stop = int(np.argmin(rising)) if not rising.all() else len(rising)
+        alpha, rho = alpha[: stop + 1], rho[: stop + 1]
+        if alpha[-1] < half:
+            return None
+        return float(np.interp(half, alpha, rho))
+
+    def _fit_inverse(self, rho_max: float) -> np.ndarray:
+        """Chebyshev fit of rho(alpha) over the field of view (Newton's start in world2cam)."""
+        rho = np.linspace(0.0, rho_max * 1.02, 2000)
+        alpha = np.arctan2(rho, self._f(rho))
+        return np.polynomial.chebyshev.chebfit(alpha, rho, 12)
+
+    def cam2world(self, pixels) -> np.ndarray:
+        """Unit rays (..., 3) in the camera frame through pixels (..., 2).
+
+        Pixels outside the field of view give NaN rays.
+        """
+        p, lead = _points(pixels, 2, "pixels")
+        c, d, e = self.affine
+        det = c - d * e
+        dx = p[:, 0] - self.center[0]
+        dy = p[:, 1] - self.center[1]
+        u = (dx - d * dy) / det
+        v = (-e * dx + c * dy) / det
+        rho = np.hypot(u, v)
+        z = self._f(rho)
+        rays = np.stack([u, v, z], -1)
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        outside = np.arccos(np.clip(rays[:, 2], -1, 1)) > self.max_fov / 2 + 1e-12
+        rays[outside] = np.nan
+        return rays.reshape(*lead, 3)
+
+    def world2cam(self, points_cam) -> np.ndarray:
+        """Pixels (..., 2) of camera-frame points or rays (..., 3); NaN outside the field of view.
+
+        rho starts from the inverse polynomial and is refined by Newton's method on
+        r f(rho) - z rho = 0 (r = sqrt(x^2 + y^2)), so the round trip is exact to ~1e-12 rad.
+        """
+        p, lead = _points(points_cam, 3, "points_cam")
+        r = np.hypot(p[:, 0], p[:, 1])
+        alpha = np.arctan2(r, p[:, 2])
+        valid = (alpha <= self.max_fov / 2 + 1e-12) & np.isfinite(alpha)
+        rho = np.polynomial.chebyshev.chebval(alpha, self._inv)
+        for _ in range(8):
+            g = r * self._f(rho) - p[:, 2] * rho
+            dg = r * self._df(rho) - p[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                step = np.where(np.abs(dg) > 0, g / dg, 0.0)
+            rho = rho - step
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ux = np.where(r > 0, p[:, 0] / r, 0.0) * rho
+            vy = np.where(r > 0, p[:, 1] / r, 0.0) * rho
+        c, d, e = self.affine
+        x = c * ux + d * vy + self.center[0]
+        y = e * ux + vy + self.center[1]
+        out = np.stack([x, y], -1)
+        out[~valid] = np.nan
+        return out.reshape(*lead, 2)
+
+    # aliases with the names of the rest of the package
+    project = world2cam
+    unproject = cam2world
+
+    # ------------------------------------------------------------------ YAML
+    _REQUIRED = frozenset({"model", "image_size", "center", "affine", "poly", "max_fov_deg", "T_body_cam"})
+
+    @classmethod
+    def load(cls, path: str | Path) -> OmniCamera:
+        """Read an omnidirectional calibration YAML (see :meth:`save` for the keys).
+
+        Raises:
+            CalibrationError: Missing file, missing or unknown key, or an impossible value.
+        """
+        d = read_mapping(path, set(cls._REQUIRED), set())
+        if d["model"] != "scaramuzza":
+            raise CalibrationError(f"{path}: model: expected 'scaramuzza', got {d['model']!r}")
+        try:
+            fov = float(as_array(d["max_fov_deg"], (), "max_fov_deg"))
+            return cls(
+                image_size=check_image_size(d["image_size"]),
+                center=tuple(as_array(d["center"], (2,), "center")),
+                affine=tuple(as_array(d["affine"], (3,), "affine")),
+                poly=tuple(as_array(d["poly"], (-1,), "poly")),
+                max_fov=math.radians(fov),
+                T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),
+            )
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {exc}") from exc
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``model, image_size, center, affine (c, d, e), poly (a0..aN), max_fov_deg, T_body_cam``."""
+        return write_mapping(
+            path,
+            {
+                "model": "scaramuzza",
+                "image_size": list(self.image_size),
+                "center": list(self.center),
+                "affine": list(self.affine),
+                "poly": list(self.poly),
+                "max_fov_deg": math.degrees(self.max_fov),
+                "T_body_cam": self.T_body_cam,
+            },
+        )
