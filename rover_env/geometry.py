@@ -90,12 +90,21 @@ class RoverGeometry:
     plate_marker_y: float = 0.15  # |y| of the axle-plate markers A, C in the axle frame [m]
     correction_marker_arc: float = math.radians(16.0)  # angular width of the white marker [rad]
     fisheye_origin: tuple[float, float, float] = (0.0, 0.0, -0.09)  # markers face this point [m]
+    # Downward camera on a mast: a vertical post at x = mast_x and a boom forward to the camera,
+    # whose optical centre is at mast_camera_position (body frame), 0.8 m above flat ground.
+    mast_x: float = 0.40  # [m]
+    mast_thickness: float = 0.04  # square section of post and boom [m]
+    mast_camera_position: tuple[float, float, float] = (0.95, 0.0, 0.535)  # [m]
 
     inertia_scale: float = field(default=1.0, repr=False)  # multiplies link inertias (tests)
 
     def __post_init__(self) -> None:
         for i, v in enumerate(self.body_size):
             check_range(f"body_size[{i}]", v, 0.05, 5.0)
+        check_range("mast_thickness", self.mast_thickness, 0.005, 0.2)
+        check_range(
+            "mast_camera_position[2]", self.mast_camera_position[2], self.body_size[2] / 2 + 0.05, 3.0
+        )
         for name in (
             "body_mass",
             "wheel_mass",

@@ -19,6 +19,7 @@ from rover_env.geometry import AXLES, RoverGeometry
 from rover_env.textures import cache_dir
 
 BODY_RGBA = (0.78, 0.64, 0.32, 1.0)
+MAST_RGBA = (0.25, 0.25, 0.27, 1.0)
 METAL_RGBA = (0.35, 0.35, 0.38, 1.0)
 DARK_RGBA = (0.18, 0.18, 0.2, 1.0)
 
@@ -126,6 +127,24 @@ def _atomic_write(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+def _mast_visuals(geom: RoverGeometry) -> str:
+    """Post, boom and camera housing of the downward camera (visual only: they cast the shadow)."""
+    t = geom.mast_thickness
+    top = geom.body_size[2] / 2
+    cx, cy, cz = geom.mast_camera_position
+    housing = (0.07, 0.09, 0.05)
+    boom_z = cz + housing[2] + t / 2  # above the housing, out of the camera's view
+    post_h = boom_z + t / 2 - top
+    boom_len = cx - geom.mast_x + t / 2
+    return (
+        _visual_box((geom.mast_x, cy, top + post_h / 2), (0, 0, 0), (t, t, post_h), MAST_RGBA)
+        + _visual_box(
+            (geom.mast_x - t / 2 + boom_len / 2, cy, boom_z), (0, 0, 0), (boom_len, t, t), MAST_RGBA
+        )
+        + _visual_box((cx, cy, cz + 0.005 + housing[2] / 2), (0, 0, 0), housing, MAST_RGBA)
+    )
+
+
 def build_urdf(geom: RoverGeometry) -> str:
     """The rover's URDF text for ``geom``.
 
@@ -144,6 +163,7 @@ def build_urdf(geom: RoverGeometry) -> str:
     parts.append(
         f'<link name="body">{_inertial(geom.body_mass, _box_inertia(geom.body_mass, geom.body_size), s)}'
         + _visual_box((0, 0, 0), (0, 0, 0), geom.body_size, BODY_RGBA)
+        + _mast_visuals(geom)
         + f'<collision><origin xyz="0 0 0" rpy="0 0 0"/><geometry><box size="{_fmt(geom.body_size)}"/>'
         "</geometry></collision></link>"
     )
