@@ -1,0 +1,125 @@
+"""Rendered images against geometry: pinhole projection of known points, sun shadows vs ray casting."""
+
+import math
+
+import numpy as np
+import pybullet as pb
+import pytest
+from conftest import flat_scenario
+from pybullet_utils.bullet_client import BulletClient
+
+from perception.cameras import PinholeCamera
+from rover_env.rendering import Lighting, render_pinhole
+from rover_env.sim import RoverSim, quat_to_yaw
+
+
+def mast_camera(sim: RoverSim, size=(640, 480)) -> PinholeCamera:
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    T[:3, 3] = sim.geometry.mast_camera_position
+    return PinholeCamera.from_fov(size, math.radians(77.0), math.radians(57.0), T_body_cam=T)
+
+
+def body_pose(sim: RoverSim) -> np.ndarray:
+    pos, quat = sim.client.getBasePositionAndOrientation(sim.rover.body_id)
+    T = np.eye(4)
+    T[:3, :3] = np.array(sim.client.getMatrixFromQuaternion(quat)).reshape(3, 3)
+    T[:3, 3] = pos
+    return T
+
+
+def sun_behind(sim: RoverSim, elevation_deg: float) -> tuple[float, float, float]:
+    _, quat = sim.client.getBasePositionAndOrientation(sim.rover.body_id)
+    az = quat_to_yaw(quat) + math.pi
+    el = math.radians(elevation_deg)
+    return (math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el))
+
+
+def caster_world(sim: RoverSim) -> BulletClient:
+    """A separate client holding the rover's visual shapes as static collision primitives."""
+    src, body = sim.client, sim.rover.body_id
+    oc = BulletClient(connection_mode=pb.DIRECT)
+    wheels = set(sim.rover.wheel_links)
+    g = sim.geometry
+    for vs in src.getVisualShapeData(body):
+        link, gtype, dims, lpos, lorn = vs[1], vs[2], vs[3], vs[5], vs[6]
+        if link == -1:
+            wpos, worn = src.getBasePositionAndOrientation(body)
+        else:
+            st = src.getLinkState(body, link)
+            wpos, worn = st[0], st[1]
+        pos, orn = src.multiplyTransforms(wpos, worn, lpos, lorn)
+        if link in wheels:
+            shape = oc.createCollisionShape(pb.GEOM_CYLINDER, radius=g.wheel_radius, height=g.wheel_width)
+            orn = src.multiplyTransforms(
+                [0, 0, 0], worn, [0, 0, 0], src.getQuaternionFromEuler([math.pi / 2, 0, 0])
+            )[1]
+            pos = src.getLinkState(body, link)[4]
+        elif gtype == pb.GEOM_BOX:
+            shape = oc.createCollisionShape(pb.GEOM_BOX, halfExtents=[d / 2 for d in dims])
+        elif gtype == pb.GEOM_CYLINDER:
+            shape = oc.createCollisionShape(pb.GEOM_CYLINDER, radius=dims[1], height=dims[0])
+        else:
+            continue
+        oc.createMultiBody(0, shape, -1, pos, orn)
+    return oc
+
+
+@pytest.fixture(scope="module")
+def parked_sim():
+    sim = RoverSim(flat_scenario(mu=1.0))
+    sim.reset(7.3, -4.1, math.radians(35.0))  # far from the world origin, at an angle
+    yield sim
+    sim.close()
+
+
+def test_downward_camera_sees_known_ground_points_where_the_model_says(parked_sim):
+    sim = parked_sim
+    cam = mast_camera(sim)
+    T_wc = body_pose(sim) @ cam.T_body_cam
+    view = render_pinhole(sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False))
+    ground = view.segmentation == sim.terrain.body_id
+    # depth buffer points lie on the ground plane z = 0 ...
+    assert np.abs(view.points_world[ground][:, 2]).max() < 2e-3
+    # ... and project back to their own pixels through the camera model
+    rows, cols = np.nonzero(ground)
+    sel = np.random.default_rng(0).choice(len(rows), 500, replace=False)
+    pw = view.points_world[rows[sel], cols[sel]]
+    pc = (np.linalg.inv(T_wc) @ np.column_stack([pw, np.ones(500)]).T).T[:, :3]
+    px = cam.project(pc)
+    assert np.abs(px - np.column_stack([cols[sel], rows[sel]])).max() < 1e-6
+
+
+def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
+    sim = parked_sim
+    cam = mast_camera(sim)
+    T_wc = body_pose(sim) @ cam.T_body_cam
+    sun = sun_behind(sim, 30.0)
+    on = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=True))
+    off = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False))
+    ground = on.segmentation == sim.terrain.body_id
+    # geometric prediction: ray from each ground point toward the sun hits the rover
+    oc = caster_world(sim)
+    try:
+        rows, cols = np.nonzero(ground)
+        keep = (rows % 3 == 0) & (cols % 3 == 0)
+        rows, cols = rows[keep], cols[keep]
+        p = on.points_world[rows, cols]
+        s = np.asarray(sun)
+        pred = np.zeros(len(p), dtype=bool)
+        for k in range(0, len(p), 8000):
+            hits = oc.rayTestBatch((p[k : k + 8000] + 1e-4 * s).tolist(), (p[k : k + 8000] + 10 * s).tolist())
+            pred[k : k + 8000] = [h[0] >= 0 for h in hits]
+    finally:
+        oc.disconnect()
+    assert 0.1 < pred.mean() < 0.9, "the rover's shadow should fill part of the view"
+    g_on = on.rgb.astype(float).mean(axis=2)[rows, cols]
+    g_off = off.rgb.astype(float).mean(axis=2)[rows, cols]
+    ratio = g_off[pred].mean() / g_on[pred].mean()
+    rendered = g_on < 0.7 * g_off
+    iou = (rendered & pred).sum() / (rendered | pred).sum()
+    acne = np.abs(g_on[~pred] - g_off[~pred]).mean()
+    print(f"shadow: lit/shadow ratio {ratio:.2f}, IoU {iou:.3f}, lit-ground change {acne:.3f} grey levels")
+    assert ratio >= 2.5
+    assert iou >= 0.9
+    assert acne < 2.0  # no acne on lit ground
