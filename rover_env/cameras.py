@@ -1,0 +1,169 @@
+"""Simulated cameras on the rover: the downward mast camera (odometry paper).
+
+A camera turns the simulator state into timestamped images and nothing else; the estimators get
+the images and the camera model (:class:`perception.PinholeCamera`), never the simulator.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from perception.cameras import PinholeCamera
+from rover_env.config_io import ConfigError, check_range
+from rover_env.rendering import Lighting, RenderedView, render_pinhole
+from rover_env.sim import RoverSim
+
+# image up = body forward, image right = body right, optical axis = body down
+R_BODY_DOWNCAM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+DOWNWARD_PRESETS: dict[str, tuple[int, int]] = {"full": (640, 480), "half": (320, 240), "train": (160, 120)}
+
+
+@dataclass(frozen=True)
+class DownwardCameraConfig:
+    """Downward pinhole camera on the mast.
+
+    Attributes:
+        width: Image width [px].
+        height: Image height [px].
+        hfov_deg: Horizontal field of view (across the rover) [deg].
+        vfov_deg: Vertical field of view (along the rover) [deg].
+        rate_hz: Frame rate; a frame pair is one period apart [Hz].
+        shadows: Render the sun's cast shadows.
+        ambient: Shadowed share of the sunlit brightness at normal incidence (see :class:`Lighting`).
+    """
+
+    width: int = 640
+    height: int = 480
+    hfov_deg: float = 77.0
+    vfov_deg: float = 57.0
+    rate_hz: float = 60.0
+    shadows: bool = True
+    ambient: float = 0.25
+
+    def __post_init__(self) -> None:
+        for key in ("width", "height"):
+            v = getattr(self, key)
+            if not isinstance(v, int) or not 16 <= v <= 4096:
+                raise ConfigError(f"{key}: {v!r} px is not a usable image size; use an integer in 16..4096")
+        check_range("hfov_deg", self.hfov_deg, 1.0, 170.0)
+        check_range("vfov_deg", self.vfov_deg, 1.0, 170.0)
+        check_range("rate_hz", self.rate_hz, 1.0, 1000.0)
+        check_range("ambient", self.ambient, 0.0, 1.0, lo_open=True)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> DownwardCameraConfig:
+        """A resolution preset: ``full`` 640x480, ``half`` 320x240, ``train`` 160x120."""
+        if name not in DOWNWARD_PRESETS:
+            raise ConfigError(f"preset: unknown {name!r}; choose one of {sorted(DOWNWARD_PRESETS)}")
+        w, h = DOWNWARD_PRESETS[name]
+        return cls(width=w, height=h, **overrides)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A timestamped image.
+
+    Attributes:
+        image: (H, W, 3) uint8 RGB.
+        t: Simulation time of the exposure [s].
+        shadow: (H, W) bool, where the sun was blocked (simulator knowledge, for evaluation only).
+    """
+
+    image: np.ndarray
+    t: float
+    shadow: np.ndarray
+
+
+class DownwardCamera:
+    """The mast camera of ``sim``'s rover: renders frames and frame pairs.
+
+    Args:
+        sim: The simulation (its rover and sun).
+        config: Camera configuration.
+    """
+
+    def __init__(self, sim: RoverSim, config: DownwardCameraConfig | None = None) -> None:
+        self.sim = sim
+        self.config = cfg = config or DownwardCameraConfig()
+        g = sim.geometry
+        T = np.eye(4)
+        T[:3, :3] = R_BODY_DOWNCAM
+        T[:3, 3] = g.mast_camera_position
+        nominal_height = g.wheel_radius - g.axle_z  # body origin above flat ground at rest [m]
+        self.model = PinholeCamera.from_fov(
+            (cfg.width, cfg.height),
+            math.radians(cfg.hfov_deg),
+            math.radians(cfg.vfov_deg),
+            T_body_cam=T,
+            ground_plane=(0.0, 0.0, -nominal_height),
+        )
+        steps = self.period / sim.dt
+        if abs(steps - round(steps)) > 1e-6:
+            raise ConfigError(
+                f"rate_hz: {cfg.rate_hz:g} Hz does not divide the physics rate {1 / sim.dt:g} Hz; "
+                "frame pairs must be whole physics steps apart (e.g. 30, 60, 80, 120 Hz at 240 Hz)"
+            )
+        self._last: Frame | None = None
+
+    @property
+    def period(self) -> float:
+        """Time between the two frames of a pair [s]."""
+        return 1.0 / self.config.rate_hz
+
+    @property
+    def lighting(self) -> Lighting:
+        """Sun lighting from the scenario."""
+        sun = self.sim.scenario.sun.direction()
+        return Lighting(
+            tuple(float(v) for v in sun), ambient=self.config.ambient, shadows=self.config.shadows
+        )
+
+    def T_world_cam(self) -> np.ndarray:
+        """Pose of the camera optical frame in the world now [m]."""
+        c = self.sim.client
+        pos, quat = c.getBasePositionAndOrientation(self.sim.rover.body_id)
+        T = np.eye(4)
+        T[:3, :3] = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        T[:3, 3] = pos
+        return T @ self.model.T_body_cam
+
+    def render_view(self) -> RenderedView:
+        """Render now, with depth and segmentation (for tests and evaluation)."""
+        return render_pinhole(self.sim.client, self.model, self.T_world_cam(), self.lighting)
+
+    def capture(self) -> Frame:
+        """Render one frame at the current simulation time."""
+        v = self.render_view()
+        frame = Frame(image=v.rgb, t=self.sim.t, shadow=v.shadow)
+        self._last = frame
+        return frame
+
+    def capture_pair(
+        self,
+        on_prev: Callable[[Frame], None] | None = None,
+        chained: bool = False,
+    ) -> tuple[Frame, Frame]:
+        """I_prev now, then physics advances one camera period, then I_curr (odometry paper, Alg. 1).
+
+        Args:
+            on_prev: Called with I_prev before I_curr is rendered (feature selection goes here).
+            chained: Reuse the last captured frame as I_prev if it was taken now (the previous
+                pair's I_curr), which halves the rendering cost.
+
+        Returns:
+            (I_prev, I_curr), exactly one period apart in simulation time.
+        """
+        last = self._last
+        if chained and last is not None and abs(last.t - self.sim.t) < 1e-9:
+            prev = last
+        else:
+            prev = self.capture()
+        if on_prev is not None:
+            on_prev(prev)
+        self.sim.step(self.period)
+        return prev, self.capture()
