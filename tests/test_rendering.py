@@ -156,3 +156,30 @@ def test_homography_turns_image_motion_of_a_known_displacement_into_metres(parke
     measured = a - b
     print(f"homography: moved {move_body[:2]} m, measured {measured.round(5)} m")
     assert np.linalg.norm(measured - move_body[:2]) < 0.01 * np.linalg.norm(move_body[:2])
+
+
+def test_frame_pairs_are_one_period_apart_with_the_hook_in_between(parked_sim):
+    from rover_env.cameras import DownwardCamera, DownwardCameraConfig
+
+    cam = DownwardCamera(parked_sim, DownwardCameraConfig.preset("train", shadows=False))
+    seen = []
+    prev, curr = cam.capture_pair(on_prev=lambda f: seen.append((f.t, parked_sim.t)))
+    assert curr.t - prev.t == pytest.approx(1 / 60, abs=1e-12)
+    assert seen == [(prev.t, prev.t)]  # the hook ran before physics advanced to I_curr
+    assert prev.image.shape == (120, 160, 3)
+    prev2, curr2 = cam.capture_pair(chained=True)
+    assert prev2 is curr and curr2.t == pytest.approx(curr.t + 1 / 60, abs=1e-12)
+
+
+def test_impossible_camera_configurations_fail_clearly(parked_sim):
+    from rover_env.cameras import DownwardCamera, DownwardCameraConfig
+    from rover_env.config_io import ConfigError
+
+    with pytest.raises(ConfigError, match="width"):
+        DownwardCameraConfig(width=0)
+    with pytest.raises(ConfigError, match="hfov_deg"):
+        DownwardCameraConfig(hfov_deg=200.0)
+    with pytest.raises(ConfigError, match="preset"):
+        DownwardCameraConfig.preset("huge")
+    with pytest.raises(ConfigError, match="does not divide"):
+        DownwardCamera(parked_sim, DownwardCameraConfig(rate_hz=50.0))
