@@ -9,15 +9,13 @@ from conftest import flat_scenario
 from pybullet_utils.bullet_client import BulletClient
 
 from perception.cameras import PinholeCamera
+from rover_env.cameras import DownwardCamera, DownwardCameraConfig
 from rover_env.rendering import Lighting, render_pinhole
 from rover_env.sim import RoverSim, quat_to_yaw
 
 
-def mast_camera(sim: RoverSim, size=(640, 480)) -> PinholeCamera:
-    T = np.eye(4)
-    T[:3, :3] = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-    T[:3, 3] = sim.geometry.mast_camera_position
-    return PinholeCamera.from_fov(size, math.radians(77.0), math.radians(57.0), T_body_cam=T)
+def mast_camera(sim: RoverSim) -> PinholeCamera:
+    return DownwardCamera(sim, DownwardCameraConfig(shadows=False)).model
 
 
 def body_pose(sim: RoverSim) -> np.ndarray:
@@ -130,8 +128,6 @@ def test_homography_turns_image_motion_of_a_known_displacement_into_metres(parke
     correlation and convert both ends through H^-1 into body-frame metres."""
     import cv2
 
-    from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-
     sim = parked_sim
     cam = DownwardCamera(sim, DownwardCameraConfig(shadows=False))
     c, body = sim.client, sim.rover.body_id
@@ -159,8 +155,6 @@ def test_homography_turns_image_motion_of_a_known_displacement_into_metres(parke
 
 
 def test_frame_pairs_are_one_period_apart_with_the_hook_in_between(parked_sim):
-    from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-
     cam = DownwardCamera(parked_sim, DownwardCameraConfig.preset("train", shadows=False))
     seen = []
     prev, curr = cam.capture_pair(on_prev=lambda f: seen.append((f.t, parked_sim.t)))
@@ -172,7 +166,6 @@ def test_frame_pairs_are_one_period_apart_with_the_hook_in_between(parked_sim):
 
 
 def test_impossible_camera_configurations_fail_clearly(parked_sim):
-    from rover_env.cameras import DownwardCamera, DownwardCameraConfig
     from rover_env.config_io import ConfigError
 
     with pytest.raises(ConfigError, match="width"):
