@@ -52,18 +52,6 @@ def gl_projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far:
     return P.T.reshape(-1).tolist()
 
 
-def gl_ortho(left: float, right: float, bottom: float, top: float, near: float, far: float) -> list[float]:
-    """Column-major OpenGL orthographic projection."""
-    P = np.eye(4)
-    P[0, 0] = 2 / (right - left)
-    P[0, 3] = -(right + left) / (right - left)
-    P[1, 1] = 2 / (top - bottom)
-    P[1, 3] = -(top + bottom) / (top - bottom)
-    P[2, 2] = -2 / (far - near)
-    P[2, 3] = -(far + near) / (far - near)
-    return P.T.reshape(-1).tolist()
-
-
 @dataclass(frozen=True)
 class Lighting:
     """Sun lighting of a rendered view.

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pybullet as pb
 
-from perception.wheel_kinematics import SLIP_EPS
+from perception.wheel_kinematics import slip_ratio
 from rover_env.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.ground_truth import GroundTruth
 from rover_env.textures import tread_texture, write_cached
@@ -268,7 +268,8 @@ class Rover:
                 + vz * 2 * (ky * kz + kx * kw)
             )
         r = g.wheel_radius
-        slip = [_slip_ratio_scalar(qd[j] * r, v) for j, v in zip(self.wheel_joints, v_long_l)]
+        wheel_rate = np.array([qd[j] for j in self.wheel_joints])
+        v_long = np.array(v_long_l)
         beta = [math.atan2(vy, vx) for vx, vy in zip(v_long_l, v_lat_l)]
         normal_force = [0.0] * 4
         contact_point = [[math.nan] * 3 for _ in range(4)]
@@ -285,15 +286,15 @@ class Rover:
             t=t,
             pose=np.array([*pos, *quat]),
             twist=np.array([v_body[0], v_body[1], w_body[2]]),
-            wheel_rate=np.array([qd[j] for j in self.wheel_joints]),
+            wheel_rate=wheel_rate,
             wheel_angle=np.array([q[j] for j in self.wheel_joints]),
-            slip_ratio=np.array(slip),
+            slip_ratio=slip_ratio(wheel_rate * r, v_long),
             slip_angle=np.array(beta),
             axle_roll=np.array([q[j] for j in self._roll_joints]),
             axle_height=np.array([-(g.axle_z + q[j]) for j in self._travel_joints]),
             steering=axle_steering_from_wheels(g, wheel_steer, self._arms),
             wheel_steer=wheel_steer,
-            wheel_v_long=np.array(v_long_l),
+            wheel_v_long=v_long,
             wheel_v_lat=np.array(v_lat_l),
             wheel_torque=np.array([joints[j][3] for j in self.wheel_joints]),
             friction=np.array(self._mu, dtype=np.float64),
@@ -309,12 +310,6 @@ def _ackermann_arms(geom: RoverGeometry) -> tuple[np.ndarray, np.ndarray]:
     arm.flags.writeable = False
     y.flags.writeable = False
     return arm, y
-
-
-def _slip_ratio_scalar(tread: float, v: float) -> float:
-    """:func:`perception.wheel_kinematics.slip_ratio` for one wheel, without numpy overhead."""
-    den = max(abs(tread), abs(v), SLIP_EPS)
-    return min(1.0, max(-1.0, (tread - v) / den))
 
 
 def axle_steering_from_wheels(
