@@ -134,7 +134,9 @@ class DownwardCamera:
 
     def render_view(self) -> RenderedView:
         """Render now, with depth and segmentation (for tests and evaluation)."""
-        return render_pinhole(self.sim.client, self.model, self.T_world_cam(), self.lighting)
+        lighting = self.lighting
+        caster = self.sim.shadow_caster if lighting.shadows else None
+        return render_pinhole(self.sim.client, self.model, self.T_world_cam(), lighting, caster=caster)
 
     def capture(self) -> Frame:
         """Render one frame at the current simulation time."""

@@ -2,23 +2,21 @@
 
 TinyRenderer's built-in shadow only scales the diffuse term by 0.8 and its shadow map is aimed at
 the world origin, so a rover 10 m away casts no shadow and a shadowed patch is at most 1.25x
-darker. Real sunlight gives 2.5x and more. So shadows are computed here, by shadow mapping:
-an orthographic depth image from the sun covering exactly the ground the camera sees, and a depth
-comparison for every camera pixel's 3-D point (from the camera's depth buffer). Shadowed pixels
-keep only the ambient share of their lit brightness.
+darker. Real sunlight gives 2.5x and more. So shadows are computed here: every camera pixel's 3-D
+point (from the depth buffer) is tested against the rover's convex shapes along the sun direction
+(:class:`rover_env.shadows.ShadowCaster`), and shadowed pixels keep only the ambient share of their
+lit brightness.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
 
 from perception.cameras import PinholeCamera
-
-SUN_DISTANCE = 300.0  # [m] eye distance of the shadow-map camera
+from rover_env.shadows import ShadowCaster
 
 # camera optical frame (x right, y down, z forward) -> OpenGL eye frame (x right, y up, z back)
 _OPTICAL_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -61,14 +59,12 @@ class Lighting:
         ambient: Share of the albedo seen in full shadow (sky light).
         diffuse: Sunlit share at normal incidence; lit/shadow = (ambient + diffuse cos i) / ambient.
         shadows: Compute cast shadows.
-        shadow_map_size: Shadow-map resolution along its longer side [px].
     """
 
     sun_direction: tuple[float, float, float]
     ambient: float = 0.25
     diffuse: float = 1.0
     shadows: bool = True
-    shadow_map_size: int = 768
 
 
 @dataclass
@@ -118,6 +114,7 @@ def render_pinhole(
     lighting: Lighting,
     near: float = 0.05,
     far: float = 20.0,
+    caster: ShadowCaster | None = None,
 ) -> RenderedView:
     """Render an ideal pinhole view (distortion is not rendered) with sun shadows.
 
@@ -128,6 +125,7 @@ def render_pinhole(
         lighting: Sun and shadow settings.
         near: Near clipping distance [m].
         far: Far clipping distance [m].
+        caster: The shadow-casting body; required when ``lighting.shadows`` is on.
     """
     if np.any(camera.distortion):
         raise ValueError("render_pinhole renders ideal pinhole images; use a camera with zero distortion")
@@ -135,20 +133,23 @@ def render_pinhole(
     rgb, zbuf, seg = _camera_image(
         client, size, gl_view_matrix(T_world_cam), gl_projection_from_K(camera.K, size, near, far), lighting
     )
-    depth = far * near / (far - (far - near) * zbuf.astype(np.float64))
+    depth = (far * near / (far - (far - near) * zbuf.astype(np.float64))).astype(np.float32)
     w, h = size
     K = camera.K
-    xs = (np.arange(w) - K[0, 2]) / K[0, 0]
-    ys = (np.arange(h) - K[1, 2]) / K[1, 1]
-    pts_cam = np.empty((h, w, 3))
-    pts_cam[:, :, 0] = xs[None, :] * depth
-    pts_cam[:, :, 1] = ys[:, None] * depth
-    pts_cam[:, :, 2] = depth
-    pts = pts_cam @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+    R = T_world_cam[:3, :3].astype(np.float32)
+    xs = ((np.arange(w) - K[0, 2]) / K[0, 0]).astype(np.float32)
+    ys = ((np.arange(h) - K[1, 2]) / K[1, 1]).astype(np.float32)
+    # world direction of each pixel's ray, scaled to unit optical-axis depth
+    rays = xs[None, :, None] * R[:, 0] + (ys[:, None, None] * R[:, 1] + R[:, 2])
+    pts = rays * depth[:, :, None] + T_world_cam[:3, 3].astype(np.float32)
     shadow = np.zeros((h, w), dtype=bool)
     if lighting.shadows:
+        if caster is None:
+            raise ValueError("lighting.shadows is on: pass the shadow caster (the rover's ShadowCaster)")
         hit = seg >= 0
-        shadow[hit] = sun_shadow_mask(client, pts[hit], lighting)
+        if hit.any():
+            texel = float(np.median(depth[hit])) / K[0, 0]  # ground size of a pixel [m]
+            shadow = caster.mask(pts, lighting.sun_direction, texel) & hit
         if shadow.any():
             rgb = _darken(rgb, shadow, pts, lighting)
     return RenderedView(rgb=rgb, depth=depth, segmentation=seg, shadow=shadow, points_world=pts)
@@ -159,72 +160,16 @@ def _darken(rgb: np.ndarray, shadow: np.ndarray, pts: np.ndarray, lighting: Ligh
 
     The incidence cosine comes from surface normals estimated from neighbouring 3-D points.
     """
-    du = np.gradient(pts, axis=1)
-    dv = np.gradient(pts, axis=0)
-    n = np.cross(du, dv)
-    n /= np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-12)
+    h, w = shadow.shape
+    r, c = np.nonzero(shadow)
+    du = pts[r, np.minimum(c + 1, w - 1)] - pts[r, np.maximum(c - 1, 0)]
+    dv = pts[np.minimum(r + 1, h - 1), c] - pts[np.maximum(r - 1, 0), c]
     # the optical frame has y down, so du x dv points away from the camera: flip toward it
-    n = -n
-    cos_i = np.clip(n @ np.asarray(lighting.sun_direction), 0.0, 1.0)
+    n = -np.cross(du, dv)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    cos_i = np.clip(n @ np.asarray(lighting.sun_direction, dtype=np.float32), 0.0, 1.0)
     a, d = lighting.ambient, lighting.diffuse
-    factor = np.where(shadow, a / (a + d * cos_i), 1.0)
-    return np.clip(rgb.astype(np.float32) * factor[:, :, None] + 0.5, 0, 255).astype(np.uint8)
-
-
-def sun_shadow_mask(client, points_world: np.ndarray, lighting: Lighting) -> np.ndarray:
-    """For each world point (N, 3) [m], whether the sun is blocked (shadow mapping).
-
-    One orthographic depth image is rendered looking down the sun direction over the box that
-    holds the points; a point is in shadow if something lies more than ``bias`` closer to the sun.
-    The bias is one shadow-map texel stretched by the grazing angle plus 2 mm, which removes
-    self-shadowing stripes (acne) on lit surfaces.
-    """
-    s = np.asarray(lighting.sun_direction, dtype=np.float64)
-    s /= np.linalg.norm(s)
-    up = np.array([0.0, 0.0, 1.0]) if abs(s[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
-    x_axis = np.cross(up, s)
-    x_axis /= np.linalg.norm(x_axis)
-    y_axis = np.cross(s, x_axis)
-    centre = points_world.mean(axis=0)
-    rel = points_world - centre
-    u, v, w = rel @ x_axis, rel @ y_axis, rel @ s
-    margin = 0.02
-    u0, u1 = u.min() - margin, u.max() + margin
-    v0, v1 = v.min() - margin, v.max() + margin
-    span = max(u1 - u0, v1 - v0)
-    n = lighting.shadow_map_size
-    texel = span / n
-    nu = max(8, int(math.ceil((u1 - u0) / texel)))
-    nv = max(8, int(math.ceil((v1 - v0) / texel)))
-    u1, v1 = u0 + nu * texel, v0 + nv * texel
-    # Sun camera: a narrow perspective frustum from SUN_DISTANCE away along s (TinyRenderer
-    # draws nothing through an orthographic matrix). Over a 2 m patch its rays diverge by
-    # < 0.2 deg from the true sun direction: < 1.5 mm of shadow displacement for a caster 0.4 m up.
-    L = SUN_DISTANCE
-    eye = centre + s * L
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x_axis, y_axis, s, eye  # GL eye frame: z toward sun
-    view = np.linalg.inv(T).T.reshape(-1).tolist()
-    reach = 5.0  # casters up to this far sunward of the points [m]
-    near, far = L - w.max() - reach, L - w.min() + 1.0
-    # frustum through the box's extents at the plane of the centre (distance L)
-    k = near / L
-    P = np.zeros((4, 4))
-    P[0, 0] = 2 * near / ((u1 - u0) * k)
-    P[0, 2] = (u1 + u0) / (u1 - u0)
-    P[1, 1] = 2 * near / ((v1 - v0) * k)
-    P[1, 2] = (v1 + v0) / (v1 - v0)
-    P[2, 2] = -(far + near) / (far - near)
-    P[2, 3] = -2 * far * near / (far - near)
-    P[3, 2] = -1.0
-    proj = P.T.reshape(-1).tolist()
-    _, zbuf, _ = _camera_image(client, (nu, nv), view, proj, lighting, flags=pb.ER_NO_SEGMENTATION_MASK)
-    occluder = far * near / (far - (far - near) * zbuf.astype(np.float64))  # eye-space depth
-    depth = L - w  # eye-space depth of each point
-    col = ((u / depth * L) - u0) / texel - 0.5
-    row = (v1 - (v / depth * L)) / texel - 0.5
-    ci = np.clip(np.rint(col).astype(int), 0, nu - 1)
-    ri = np.clip(np.rint(row).astype(int), 0, nv - 1)
-    cos_elev = float(np.sqrt(max(0.0, 1 - s[2] ** 2)))
-    bias = 0.002 + 2.0 * texel * cos_elev / max(1e-3, abs(s[2]))
-    return occluder[ri, ci] < depth - bias
+    factor = a / (a + d * cos_i)
+    out = rgb.copy()
+    out[r, c] = np.clip(rgb[r, c] * factor[:, None] + 0.5, 0, 255).astype(np.uint8)
+    return out

@@ -6,6 +6,7 @@ of them coexist in one process. Nothing here renders; cameras attach to the clie
 
 from __future__ import annotations
 
+import functools
 import math
 from functools import partial
 
@@ -17,6 +18,7 @@ from rover_env.geometry import RoverGeometry
 from rover_env.ground_truth import GroundTruth
 from rover_env.rover import Rover
 from rover_env.scenario import ScenarioConfig
+from rover_env.shadows import ShadowCaster
 from rover_env.terrain import Terrain
 
 
@@ -140,6 +142,11 @@ class RoverSim:
             raise RuntimeError("this RoverSim is closed; create a new one")
         for _ in range(max(1, int(round(duration / self.dt)))):
             self._substep()
+
+    @functools.cached_property
+    def shadow_caster(self) -> ShadowCaster:
+        """The rover's sun-shadow caster (built on first use)."""
+        return ShadowCaster(self.client, self.rover.body_id)
 
     def ground_truth(self) -> GroundTruth:
         """Exact state of the rover now."""

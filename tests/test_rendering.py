@@ -85,7 +85,7 @@ def test_downward_camera_sees_known_ground_points_where_the_model_says(parked_si
     pw = view.points_world[rows[sel], cols[sel]]
     pc = (np.linalg.inv(T_wc) @ np.column_stack([pw, np.ones(500)]).T).T[:, :3]
     px = cam.project(pc)
-    assert np.abs(px - np.column_stack([cols[sel], rows[sel]])).max() < 1e-6
+    assert np.abs(px - np.column_stack([cols[sel], rows[sel]])).max() < 1e-3  # float32 points
 
 
 def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
@@ -93,7 +93,7 @@ def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
     cam = mast_camera(sim)
     T_wc = body_pose(sim) @ cam.T_body_cam
     sun = sun_behind(sim, 30.0)
-    on = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=True))
+    on = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=True), caster=sim.shadow_caster)
     off = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False))
     ground = on.segmentation == sim.terrain.body_id
     # geometric prediction: ray from each ground point toward the sun hits the rover

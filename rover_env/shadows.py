@@ -1,0 +1,231 @@
+"""Sun shadows cast by the rover, computed exactly from its convex visual shapes.
+
+Every visual shape of the rover is convex (boxes, the wheel cylinder), so it is an intersection of
+half-spaces n . x <= d. Along a sun ray x = o + u x_s + v y_s + w s (s toward the sun), each
+half-space bounds w from above (faces toward the sun) or from below (faces away), and the shape's
+sun-facing surface is w_front(u, v) = min over sun-facing planes. A shadow map of w_front over the
+rover's sun-view footprint is therefore a handful of vectorised plane evaluations per shape, with
+no rasterisation and no depth quantisation. A point is in shadow when a shape's sun-facing surface
+lies above it along its sun ray.
+
+TinyRenderer's own shadow pass cannot be used: it only scales the diffuse term by 0.8, its light
+map is aimed at the world origin, and a sun-view depth render costs 60-150 ms per frame.
+
+Only the rover casts shadows; terrain self-shadowing is not modelled (slopes facing away from the
+sun are still darkened by the renderer's diffuse term).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pybullet as pb
+from scipy.spatial import ConvexHull
+
+_MIN_THICKNESS = 0.005  # [m] thinner shapes (surface markers) cast no shadow of their own
+
+
+@dataclass(frozen=True)
+class ConvexShape:
+    """A convex shadow caster fixed to one link.
+
+    Attributes:
+        link: PyBullet link index (-1 for the base).
+        normals: (P, 3) outward plane normals in the link frame.
+        offsets: (P,) plane offsets: inside is normals @ x <= offsets [m].
+        vertices: (V, 3) hull vertices in the link frame [m].
+    """
+
+    link: int
+    normals: np.ndarray
+    offsets: np.ndarray
+    vertices: np.ndarray
+
+
+def _obj_vertices(path: Path) -> np.ndarray:
+    verts = []
+    with open(path) as fh:
+        for line in fh:
+            if line.startswith("v "):
+                verts.append([float(t) for t in line.split()[1:4]])
+    if not verts:
+        raise ValueError(f"{path}: no vertices in this OBJ mesh; shadows need a convex mesh")
+    return np.asarray(verts)
+
+
+def convex_shape(link: int, vertices: np.ndarray) -> ConvexShape:
+    """Half-space form of the convex hull of ``vertices`` (link frame) [m]."""
+    hull = ConvexHull(vertices)
+    eq = hull.equations  # n . x + c <= 0 inside
+    # Qhull triangulates facets: merge coplanar duplicates
+    key = np.round(eq, 6)
+    _, keep = np.unique(key, axis=0, return_index=True)
+    eq = eq[np.sort(keep)]
+    return ConvexShape(link, eq[:, :3].copy(), -eq[:, 3].copy(), vertices[hull.vertices].copy())
+
+
+def body_shapes(client, body_id: int) -> list[ConvexShape]:
+    """Convex casters of every visual shape of ``body_id`` (boxes, spheres, cylinders, meshes).
+
+    Meshes are replaced by their convex hull. Shapes thinner than 5 mm (surface markers) are
+    skipped: they lie on other shapes and add nothing to the shadow.
+    """
+    shapes = []
+    for vs in client.getVisualShapeData(body_id):
+        link, gtype, dims, fname, lpos, lorn = vs[1], vs[2], vs[3], vs[4], vs[5], vs[6]
+        if gtype == pb.GEOM_BOX:
+            h = np.asarray(dims) / 2
+            corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * h
+            verts = corners
+        elif gtype == pb.GEOM_SPHERE:
+            tt, pp = np.meshgrid(np.linspace(0, math.pi, 9), np.linspace(0, 2 * math.pi, 16, endpoint=False))
+            verts = dims[0] * np.stack([np.sin(tt) * np.cos(pp), np.sin(tt) * np.sin(pp), np.cos(tt)], -1)
+            verts = np.unique(np.round(verts.reshape(-1, 3), 12), axis=0)
+        elif gtype in (pb.GEOM_CYLINDER, pb.GEOM_CAPSULE):
+            length, r = dims[0], dims[1]
+            phi = np.linspace(0, 2 * math.pi, 32, endpoint=False)
+            circle = np.stack([r * np.cos(phi), r * np.sin(phi)], 1)
+            half = length / 2 + (r if gtype == pb.GEOM_CAPSULE else 0.0)
+            verts = np.concatenate([np.c_[circle, np.full(32, z)] for z in (-half, half)])
+        elif gtype == pb.GEOM_MESH:
+            verts = _obj_vertices(Path(fname.decode() if isinstance(fname, bytes) else fname))
+            verts = verts * np.asarray(dims)
+        else:
+            continue
+        extent = verts.max(axis=0) - verts.min(axis=0)
+        if extent.min() < _MIN_THICKNESS:
+            continue
+        R = np.array(pb.getMatrixFromQuaternion(lorn)).reshape(3, 3)
+        shapes.append(convex_shape(link, verts @ R.T + np.asarray(lpos)))
+    return shapes
+
+
+def sun_frame(sun_direction) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orthonormal (x_s, y_s, s): s toward the sun, x_s horizontal."""
+    s = np.asarray(sun_direction, dtype=np.float64)
+    s = s / np.linalg.norm(s)
+    up = np.array([0.0, 0.0, 1.0]) if abs(s[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(up, s)
+    x /= np.linalg.norm(x)
+    return x, np.cross(s, x), s
+
+
+def _lowest(p: np.ndarray, q: np.ndarray, r: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """Min over k of p_k - q_k U - r_k V on the grid U (1, 1, nu) x V (1, nv, 1), float32."""
+    p, q, r = (x.astype(np.float32)[:, None, None] for x in (p, q, r))
+    out = p - r * V
+    out = out - q * U
+    return out.min(axis=0)
+
+
+class ShadowCaster:
+    """Shadows of one multibody (the rover) on any surface, from its convex visual shapes.
+
+    Args:
+        client: The BulletClient holding the body.
+        body_id: The casting body.
+    """
+
+    def __init__(self, client, body_id: int) -> None:
+        self.client = client
+        self.body_id = body_id
+        self.shapes = body_shapes(client, body_id)
+        self._links = sorted({s.link for s in self.shapes if s.link >= 0})
+
+    def _link_poses(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        c = self.client
+        out = {}
+        pos, quat = c.getBasePositionAndOrientation(self.body_id)
+        out[-1] = (np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3), np.asarray(pos))
+        for link, st in zip(self._links, c.getLinkStates(self.body_id, self._links), strict=True):
+            out[link] = (np.array(c.getMatrixFromQuaternion(st[5])).reshape(3, 3), np.asarray(st[4]))
+        return out
+
+    def mask(self, points_world: np.ndarray, sun_direction, texel: float) -> np.ndarray:
+        """Whether the body blocks the sun at each world point.
+
+        Args:
+            points_world: (..., 3) surface points, world frame [m].
+            sun_direction: Vector toward the sun, world frame.
+            texel: Shadow-map cell size across the sun direction [m]; about the ground size of a
+                camera pixel.
+
+        Returns:
+            (...) bool, True in shadow.
+        """
+        pts = np.asarray(points_world, dtype=np.float32)
+        if pts.shape[-1] != 3:
+            raise ValueError(f"points_world: shape {pts.shape}; expected (..., 3)")
+        out_shape = pts.shape[:-1]
+        if pts.size == 0 or not self.shapes:
+            return np.zeros(out_shape, dtype=bool)
+        if not texel > 0:
+            raise ValueError(f"texel: {texel!r} m must be > 0")
+        xs, ys, s = sun_frame(sun_direction)
+        poses = self._link_poses()
+        o = poses[-1][1]
+        world = []
+        for sh in self.shapes:
+            R, t = poses[sh.link]
+            n = sh.normals @ R.T
+            d = sh.offsets + n @ t - n @ o
+            v = (sh.vertices @ R.T + t - o) @ np.stack([xs, ys], 1)
+            world.append((n, d, v))
+        allv = np.concatenate([w[2] for w in world])
+        # the map covers the body's cross-section seen along the sun: bounded by its size
+        u0, v0 = allv.min(axis=0) - texel
+        u1, v1 = allv.max(axis=0) + texel
+        nu = int(math.ceil((u1 - u0) / texel))
+        nv = int(math.ceil((v1 - v0) / texel))
+        if nu * nv > 16_000_000:
+            raise ValueError(f"texel: {texel:g} m makes a {nu}x{nv} shadow map; use a coarser texel")
+        front = np.full((nv, nu), -np.inf, dtype=np.float32)
+        for n, d, v in world:
+            i0 = max(0, int(math.floor((v[:, 0].min() - u0) / texel)))
+            i1 = min(nu, int(math.ceil((v[:, 0].max() - u0) / texel)) + 1)
+            j0 = max(0, int(math.floor((v[:, 1].min() - v0) / texel)))
+            j1 = min(nv, int(math.ceil((v[:, 1].max() - v0) / texel)) + 1)
+            if i1 <= i0 or j1 <= j0:
+                continue
+            U = (u0 + (np.arange(i0, i1) + 0.5) * texel).astype(np.float32)[None, None, :]
+            V = (v0 + (np.arange(j0, j1) + 0.5) * texel).astype(np.float32)[None, :, None]
+            a, b, c = n @ xs, n @ ys, n @ s
+            # plane k: a u + b v + c w <= d, so w <= (d - a u - b v) / c where c > 0 (faces the
+            # sun) and w >= ... where c < 0; the shape's sun-facing surface is the lowest bound
+            up, down, side = c > 1e-9, c < -1e-9, np.abs(c) <= 1e-9
+            w_hi = _lowest(d[up] / c[up], a[up] / c[up], b[up] / c[up], U, V)
+            inside = np.ones(w_hi.shape, dtype=bool)
+            if down.any():
+                inside &= -_lowest(-d[down] / c[down], -a[down] / c[down], -b[down] / c[down], U, V) <= w_hi
+            if side.any():
+                inside &= _lowest(d[side], a[side], b[side], U, V) >= 0
+            crop = front[j0:j1, i0:i1]
+            np.maximum(crop, np.where(inside, w_hi, -np.inf), out=crop)
+        # world point -> (map column, map row, height toward the sun); cell centres at integers
+        M = np.zeros((3, 4))
+        M[0, :3], M[1, :3], M[2, :3] = xs / texel, ys / texel, s
+        M[:, 3] = -(M[:, :3] @ o)
+        M[0, 3] -= u0 / texel + 0.5
+        M[1, 3] -= v0 / texel + 0.5
+        flat = pts.reshape(-1, 3)
+        n_pts = len(flat)
+        cols = 1024  # cv2.remap takes images under 32767 rows: lay the points out in rows
+        flat = np.concatenate([flat, np.zeros((-n_pts % cols, 3), np.float32)])
+        uvw = cv2.transform(flat.reshape(-1, cols, 3), M)
+        caster_w = cv2.remap(
+            front,
+            np.ascontiguousarray(uvw[:, :, :2]),
+            None,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=-np.inf,
+        )
+        # bias: the map is sampled at cell centres, so a receiver on a sloped sun-facing surface
+        # may sit up to half a cell's slope below its own cell value
+        cos_elev = math.sqrt(max(0.0, 1.0 - s[2] ** 2))
+        bias = 0.002 + texel * cos_elev / max(1e-3, abs(s[2]))
+        return (caster_w > uvw[:, :, 2] + bias).reshape(-1)[:n_pts].reshape(out_shape)
