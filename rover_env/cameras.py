@@ -1,4 +1,4 @@
-"""Simulated cameras on the rover: the downward mast camera (odometry paper).
+"""Simulated cameras on the rover: the downward mast camera and the fisheye under the body.
 
 A camera turns the simulator state into timestamped images and nothing else; the estimators get
 the images and the camera model (:class:`perception.PinholeCamera`), never the simulator.
@@ -14,6 +14,7 @@ import numpy as np
 
 from perception.cameras import PinholeCamera
 from rover_env.config_io import ConfigError, check_range
+from rover_env.fisheye import R_BODY_FISHEYE, CubemapRemap, FisheyeCameraConfig, FisheyeView, render_fisheye
 from rover_env.rendering import Lighting, RenderedView, render_pinhole
 from rover_env.sim import RoverSim
 
@@ -71,48 +72,33 @@ class Frame:
     Attributes:
         image: (H, W, 3) uint8 RGB.
         t: Simulation time of the exposure [s].
-        shadow: (H, W) bool, where the sun was blocked (simulator knowledge, for evaluation only).
+        shadow: (H, W) bool, where the sun was blocked (simulator knowledge, for evaluation only);
+            None for fisheye frames.
     """
 
     image: np.ndarray
     t: float
-    shadow: np.ndarray
+    shadow: np.ndarray | None = None
 
 
-class DownwardCamera:
-    """The mast camera of ``sim``'s rover: renders frames and frame pairs.
+class _RoverCamera:
+    """A camera fixed to the rover body: pose, sun lighting, frames and frame pairs."""
 
-    Args:
-        sim: The simulation (its rover and sun).
-        config: Camera configuration.
-    """
-
-    def __init__(self, sim: RoverSim, config: DownwardCameraConfig | None = None) -> None:
+    def __init__(self, sim: RoverSim, config, T_body_cam: np.ndarray) -> None:
         self.sim = sim
-        self.config = cfg = config or DownwardCameraConfig()
-        g = sim.geometry
-        T = np.eye(4)
-        T[:3, :3] = R_BODY_DOWNCAM
-        T[:3, 3] = g.mast_camera_position
-        nominal_height = g.wheel_radius - g.axle_z  # body origin above flat ground at rest [m]
-        self.model = PinholeCamera.from_fov(
-            (cfg.width, cfg.height),
-            math.radians(cfg.hfov_deg),
-            math.radians(cfg.vfov_deg),
-            T_body_cam=T,
-            ground_plane=(0.0, 0.0, -nominal_height),
-        )
+        self.config = config
+        self.T_body_cam = T_body_cam
         steps = self.period / sim.dt
         if abs(steps - round(steps)) > 1e-6:
             raise ConfigError(
-                f"rate_hz: {cfg.rate_hz:g} Hz does not divide the physics rate {1 / sim.dt:g} Hz; "
+                f"rate_hz: {config.rate_hz:g} Hz does not divide the physics rate {1 / sim.dt:g} Hz; "
                 "frame pairs must be whole physics steps apart (e.g. 30, 60, 80, 120 Hz at 240 Hz)"
             )
         self._last: Frame | None = None
 
     @property
     def period(self) -> float:
-        """Time between the two frames of a pair [s]."""
+        """Time between frames [s]."""
         return 1.0 / self.config.rate_hz
 
     @property
@@ -130,17 +116,18 @@ class DownwardCamera:
         T = np.eye(4)
         T[:3, :3] = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
         T[:3, 3] = pos
-        return T @ self.model.T_body_cam
+        return T @ self.T_body_cam
 
-    def render_view(self) -> RenderedView:
-        """Render now, with depth and segmentation (for tests and evaluation)."""
-        lighting = self.lighting
-        caster = self.sim.shadow_caster if lighting.shadows else None
-        return render_pinhole(self.sim.client, self.model, self.T_world_cam(), lighting, caster=caster)
+    def render_view(self):
+        """Render now, with per-pixel ground truth (for tests and evaluation)."""
+        raise NotImplementedError
+
+    def _render_frame(self):
+        return self.render_view()
 
     def capture(self) -> Frame:
         """Render one frame at the current simulation time."""
-        v = self.render_view()
+        v = self._render_frame()
         frame = Frame(image=v.rgb, t=self.sim.t, shadow=v.shadow)
         self._last = frame
         return frame
@@ -169,3 +156,74 @@ class DownwardCamera:
             on_prev(prev)
         self.sim.step(self.period)
         return prev, self.capture()
+
+    def _caster(self, lighting: Lighting):
+        return self.sim.shadow_caster if lighting.shadows else None
+
+
+class DownwardCamera(_RoverCamera):
+    """The mast camera of ``sim``'s rover: renders frames and frame pairs.
+
+    Args:
+        sim: The simulation (its rover and sun).
+        config: Camera configuration.
+    """
+
+    def __init__(self, sim: RoverSim, config: DownwardCameraConfig | None = None) -> None:
+        cfg = config or DownwardCameraConfig()
+        g = sim.geometry
+        T = np.eye(4)
+        T[:3, :3] = R_BODY_DOWNCAM
+        T[:3, 3] = g.mast_camera_position
+        super().__init__(sim, cfg, T)
+        nominal_height = g.wheel_radius - g.axle_z  # body origin above flat ground at rest [m]
+        self.model = PinholeCamera.from_fov(
+            (cfg.width, cfg.height),
+            math.radians(cfg.hfov_deg),
+            math.radians(cfg.vfov_deg),
+            T_body_cam=T,
+            ground_plane=(0.0, 0.0, -nominal_height),
+        )
+
+    def render_view(self) -> RenderedView:
+        """Render now, with depth and segmentation (for tests and evaluation)."""
+        lighting = self.lighting
+        return render_pinhole(
+            self.sim.client, self.model, self.T_world_cam(), lighting, caster=self._caster(lighting)
+        )
+
+
+class FisheyeCamera(_RoverCamera):
+    """The fisheye under ``sim``'s rover body, looking down (kinematics paper).
+
+    Args:
+        sim: The simulation (its rover and sun).
+        config: Camera configuration.
+    """
+
+    def __init__(self, sim: RoverSim, config: FisheyeCameraConfig | None = None) -> None:
+        cfg = config or FisheyeCameraConfig()
+        T = np.eye(4)
+        T[:3, :3] = R_BODY_FISHEYE
+        T[:3, 3] = sim.geometry.fisheye_origin
+        super().__init__(sim, cfg, T)
+        self.model = cfg.model(T)
+        self.remapper = CubemapRemap(self.model, oversample=cfg.oversample)
+
+    def render_view(self) -> FisheyeView:
+        """Render now, with segmentation, shadow and 3-D points (for tests and evaluation)."""
+        return self._render(labels=True)
+
+    def _render_frame(self) -> FisheyeView:
+        return self._render(labels=False)
+
+    def _render(self, labels: bool) -> FisheyeView:
+        lighting = self.lighting
+        return render_fisheye(
+            self.sim.client,
+            self.remapper,
+            self.T_world_cam(),
+            lighting,
+            self._caster(lighting),
+            labels=labels,
+        )

@@ -16,7 +16,7 @@ import numpy as np
 import pybullet as pb
 
 from perception.cameras import PinholeCamera
-from rover_env.shadows import ShadowCaster
+from rover_env.shadows import ShadowCaster, ShadowMap
 
 # camera optical frame (x right, y down, z forward) -> OpenGL eye frame (x right, y up, z back)
 _OPTICAL_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -115,6 +115,7 @@ def render_pinhole(
     near: float = 0.05,
     far: float = 20.0,
     caster: ShadowCaster | None = None,
+    shadow_map: ShadowMap | None = None,
 ) -> RenderedView:
     """Render an ideal pinhole view (distortion is not rendered) with sun shadows.
 
@@ -125,7 +126,8 @@ def render_pinhole(
         lighting: Sun and shadow settings.
         near: Near clipping distance [m].
         far: Far clipping distance [m].
-        caster: The shadow-casting body; required when ``lighting.shadows`` is on.
+        caster: The shadow-casting body; with ``lighting.shadows`` on, this or ``shadow_map``.
+        shadow_map: A shadow map already built for this instant (several views of one frame).
     """
     if np.any(camera.distortion):
         raise ValueError("render_pinhole renders ideal pinhole images; use a camera with zero distortion")
@@ -144,12 +146,14 @@ def render_pinhole(
     pts = rays * depth[:, :, None] + T_world_cam[:3, 3].astype(np.float32)
     shadow = np.zeros((h, w), dtype=bool)
     if lighting.shadows:
-        if caster is None:
-            raise ValueError("lighting.shadows is on: pass the shadow caster (the rover's ShadowCaster)")
         hit = seg >= 0
-        if hit.any():
+        if shadow_map is None and hit.any():
+            if caster is None:
+                raise ValueError("lighting.shadows is on: pass the rover's ShadowCaster or a ShadowMap")
             texel = float(np.median(depth[hit])) / K[0, 0]  # ground size of a pixel [m]
-            shadow = caster.mask(pts, lighting.sun_direction, texel) & hit
+            shadow_map = caster.shadow_map(lighting.sun_direction, texel)
+        if shadow_map is not None:
+            shadow = shadow_map.lookup(pts) & hit
         if shadow.any():
             rgb = _darken(rgb, shadow, pts, lighting)
     return RenderedView(rgb=rgb, depth=depth, segmentation=seg, shadow=shadow, points_world=pts)
@@ -160,16 +164,27 @@ def _darken(rgb: np.ndarray, shadow: np.ndarray, pts: np.ndarray, lighting: Ligh
 
     The incidence cosine comes from surface normals estimated from neighbouring 3-D points.
     """
-    h, w = shadow.shape
-    r, c = np.nonzero(shadow)
-    du = pts[r, np.minimum(c + 1, w - 1)] - pts[r, np.maximum(c - 1, 0)]
-    dv = pts[np.minimum(r + 1, h - 1), c] - pts[np.maximum(r - 1, 0), c]
-    # the optical frame has y down, so du x dv points away from the camera: flip toward it
-    n = -np.cross(du, dv)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    cos_i = np.clip(n @ np.asarray(lighting.sun_direction, dtype=np.float32), 0.0, 1.0)
+    rows = np.flatnonzero(shadow.any(axis=1))
+    r0, r1 = int(rows[0]), int(rows[-1]) + 1
+    p = np.pad(
+        pts[max(r0 - 1, 0) : r1 + 1], ((int(r0 == 0), int(r1 == len(pts))), (1, 1), (0, 0)), mode="edge"
+    )
+    du = p[1:-1, 2:] - p[1:-1, :-2]
+    dv = p[2:, 1:-1] - p[:-2, 1:-1]
+    # n = dv x du points toward the camera (the optical frame has y down); only n . sun is needed
+    sx, sy, sz = (np.float32(v) for v in lighting.sun_direction)
+    ns = (
+        sx * (dv[..., 1] * du[..., 2] - dv[..., 2] * du[..., 1])
+        + sy * (dv[..., 2] * du[..., 0] - dv[..., 0] * du[..., 2])
+        + sz * (dv[..., 0] * du[..., 1] - dv[..., 1] * du[..., 0])
+    )
+    n2 = (
+        np.einsum("ijk,ijk->ij", du, du) * np.einsum("ijk,ijk->ij", dv, dv)
+        - np.einsum("ijk,ijk->ij", du, dv) ** 2
+    )
+    cos_i = np.clip(ns / np.sqrt(np.maximum(n2, 1e-30)), 0.0, 1.0)
     a, d = lighting.ambient, lighting.diffuse
-    factor = a / (a + d * cos_i)
+    factor = np.where(shadow[r0:r1], np.float32(a) / (np.float32(a) + np.float32(d) * cos_i), np.float32(1.0))
     out = rgb.copy()
-    out[r, c] = np.clip(rgb[r, c] * factor[:, None] + 0.5, 0, 255).astype(np.uint8)
+    out[r0:r1] = np.clip(rgb[r0:r1] * factor[:, :, None] + 0.5, 0, 255).astype(np.uint8)
     return out

@@ -146,7 +146,7 @@ class ShadowCaster:
         return out
 
     def mask(self, points_world: np.ndarray, sun_direction, texel: float) -> np.ndarray:
-        """Whether the body blocks the sun at each world point.
+        """Whether the body blocks the sun at each world point (builds a map, then looks up).
 
         Args:
             points_world: (..., 3) surface points, world frame [m].
@@ -157,12 +157,15 @@ class ShadowCaster:
         Returns:
             (...) bool, True in shadow.
         """
-        pts = np.asarray(points_world, dtype=np.float32)
-        if pts.shape[-1] != 3:
-            raise ValueError(f"points_world: shape {pts.shape}; expected (..., 3)")
-        out_shape = pts.shape[:-1]
-        if pts.size == 0 or not self.shapes:
-            return np.zeros(out_shape, dtype=bool)
+        return self.shadow_map(sun_direction, texel).lookup(points_world)
+
+    def shadow_map(self, sun_direction, texel: float) -> ShadowMap:
+        """The body's sun-facing surface over its cross-section seen along the sun, now.
+
+        Args:
+            sun_direction: Vector toward the sun, world frame.
+            texel: Cell size across the sun direction [m].
+        """
         if not texel > 0:
             raise ValueError(f"texel: {texel!r} m must be > 0")
         xs, ys, s = sun_frame(sun_direction)
@@ -175,7 +178,7 @@ class ShadowCaster:
             d = sh.offsets + n @ t - n @ o
             v = (sh.vertices @ R.T + t - o) @ np.stack([xs, ys], 1)
             world.append((n, d, v))
-        allv = np.concatenate([w[2] for w in world])
+        allv = np.concatenate([w[2] for w in world]) if world else np.zeros((1, 2))
         # the map covers the body's cross-section seen along the sun: bounded by its size
         u0, v0 = allv.min(axis=0) - texel
         u1, v1 = allv.max(axis=0) + texel
@@ -211,21 +214,50 @@ class ShadowCaster:
         M[:, 3] = -(M[:, :3] @ o)
         M[0, 3] -= u0 / texel + 0.5
         M[1, 3] -= v0 / texel + 0.5
-        flat = pts.reshape(-1, 3)
-        n_pts = len(flat)
-        cols = 1024  # cv2.remap takes images under 32767 rows: lay the points out in rows
-        flat = np.concatenate([flat, np.zeros((-n_pts % cols, 3), np.float32)])
-        uvw = cv2.transform(flat.reshape(-1, cols, 3), M)
+        # bias: the map is sampled at cell centres, so a receiver on a sloped sun-facing surface
+        # may sit up to half a cell's slope below its own cell value
+        cos_elev = math.sqrt(max(0.0, 1.0 - s[2] ** 2))
+        bias = 0.002 + texel * cos_elev / max(1e-3, abs(s[2]))
+        return ShadowMap(front=front, M=M, bias=bias)
+
+
+@dataclass(frozen=True)
+class ShadowMap:
+    """A body's sun-facing surface sampled across the sun direction.
+
+    Attributes:
+        front: (rows, cols) float32 height toward the sun of the body's sun-facing surface
+            (-inf where the body is absent) [m].
+        M: (3, 4) world point -> (column, row, height toward the sun).
+        bias: Height margin of the shadow test [m].
+    """
+
+    front: np.ndarray
+    M: np.ndarray
+    bias: float
+
+    def lookup(self, points_world: np.ndarray) -> np.ndarray:
+        """(...) bool: True where the body lies sunward of the points (..., 3) [m]."""
+        pts = np.asarray(points_world, dtype=np.float32)
+        if pts.shape[-1] != 3:
+            raise ValueError(f"points_world: shape {pts.shape}; expected (..., 3)")
+        out_shape = pts.shape[:-1]
+        if pts.size == 0:
+            return np.zeros(out_shape, dtype=bool)
+        if pts.ndim == 3 and pts.shape[0] < 32767 and pts.shape[1] < 32767:
+            grid = pts
+        else:  # cv2.remap takes images under 32767 rows: lay the points out in rows
+            flat = pts.reshape(-1, 3)
+            cols = 1024
+            grid = np.concatenate([flat, np.zeros((-len(flat) % cols, 3), np.float32)]).reshape(-1, cols, 3)
+        uvw = cv2.transform(grid, self.M)
         caster_w = cv2.remap(
-            front,
+            self.front,
             np.ascontiguousarray(uvw[:, :, :2]),
             None,
             cv2.INTER_NEAREST,
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=-np.inf,
         )
-        # bias: the map is sampled at cell centres, so a receiver on a sloped sun-facing surface
-        # may sit up to half a cell's slope below its own cell value
-        cos_elev = math.sqrt(max(0.0, 1.0 - s[2] ** 2))
-        bias = 0.002 + texel * cos_elev / max(1e-3, abs(s[2]))
-        return (caster_w > uvw[:, :, 2] + bias).reshape(-1)[:n_pts].reshape(out_shape)
+        hit = caster_w > uvw[:, :, 2] + self.bias
+        return hit.reshape(-1)[: math.prod(out_shape)].reshape(out_shape)

@@ -1,0 +1,276 @@
+"""The fisheye under the body (kinematics paper): cubemap faces rendered as pinhole views, one remap.
+
+PyBullet renders only pinhole views, so a >180 deg fisheye is assembled from cube faces: the face
+along the optical axis and the four side faces, each rendered only over the part of it that the
+fisheye image uses (plus a 2-pixel margin, so that bilinear sampling never reads across a face
+edge; that is what keeps the image free of seams). The faces are packed into one atlas image and
+every fisheye pixel is looked up through one precomputed fixed-point ``cv2.remap``, using the
+exact :class:`perception.OmniCamera` model that the estimators receive.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from perception.cameras import OmniCamera, PinholeCamera
+from rover_env.config_io import ConfigError, check_range
+from rover_env.rendering import Lighting, render_pinhole
+
+# image right = body forward, image down = body right, optical axis = body down
+R_BODY_FISHEYE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+
+SHADOW_DETAIL_RANGE = 0.5  # [m] about the distance of wheels and markers from the fisheye
+
+SHADOW_DETAIL_RANGE = 0.5  # [m] about the distance of wheels and markers from the fisheye
+
+FISHEYE_PRESETS: dict[str, tuple[int, int]] = {"full": (640, 480), "half": (320, 240), "train": (160, 120)}
+
+# cube faces in the camera optical frame: (name, face optical axis, face image "down" direction)
+_FACES = (
+    ("axis", (0.0, 0.0, 1.0), (0.0, 1.0, 0.0)),
+    ("+x", (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    ("-x", (-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    ("+y", (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    ("-y", (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
+)
+
+
+@dataclass(frozen=True)
+class CubeFace:
+    """One rendered face of the cubemap.
+
+    Attributes:
+        name: ``axis``, ``+x``, ``-x``, ``+y`` or ``-y`` (direction in the fisheye optical frame).
+        R_cam_face: Rotation from the face's optical frame to the fisheye's optical frame.
+        camera: The face's pinhole model, cropped to the region the fisheye uses.
+        atlas_row: First row of this face in the atlas [px].
+    """
+
+    name: str
+    R_cam_face: np.ndarray
+    camera: PinholeCamera
+    atlas_row: int
+
+
+class CubemapRemap:
+    """Face layout and the fixed-point remap from a cube-face atlas to an :class:`OmniCamera` image.
+
+    Args:
+        model: The fisheye model; the output image has its size.
+        margin: Extra face pixels around the used region [px] (>= 2 for seamless bilinear sampling).
+        oversample: Face focal length relative to the fisheye's finest angular resolution.
+    """
+
+    def __init__(self, model: OmniCamera, margin: int = 2, oversample: float = 1.0) -> None:
+        if margin < 1:
+            raise ValueError(f"margin: {margin} px; use >= 1 (2 recommended) so faces can be interpolated")
+        if not oversample > 0:
+            raise ValueError(f"oversample: {oversample!r} must be > 0")
+        self.model = model
+        w, h = model.image_size
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        rays = model.cam2world(np.stack([xs, ys], -1)).reshape(-1, 3)
+        valid = np.isfinite(rays[:, 0])
+        self.valid = valid.reshape(h, w)
+        # focal length of the faces: the fisheye's finest angular resolution [px/rad]
+        alpha = np.arccos(np.clip(rays[valid, 2], -1.0, 1.0))
+        pix = np.stack([xs.reshape(-1)[valid], ys.reshape(-1)[valid]], 1)
+        dist = np.hypot(pix[:, 0] - model.center[0], pix[:, 1] - model.center[1])
+        ring = alpha > 0.05
+        k = float(np.max(dist[ring] / alpha[ring])) if ring.any() else float(max(w, h))
+        f = math.ceil(k * oversample)
+        self.focal = f
+
+        comps = np.full((w * h, 3), np.nan)
+        comps[valid] = rays[valid]
+        faces: list[CubeFace] = []
+        map_x = np.full(w * h, -10.0, dtype=np.float32)
+        map_y = np.full(w * h, -10.0, dtype=np.float32)
+        row = 0
+        width = 0
+        owner = np.full(w * h, -1)
+        for i, (_, axis, _) in enumerate(_FACES):
+            a = np.asarray(axis)
+            sel = valid & (comps @ a >= np.abs(comps).max(axis=1) - 1e-12) & (owner < 0)
+            owner[sel] = i
+        for i, (name, axis, down) in enumerate(_FACES):
+            sel = owner == i
+            if not sel.any():
+                continue
+            z = np.asarray(axis)
+            y = np.asarray(down)
+            R = np.stack([np.cross(y, z), y, z], 1)  # columns: face x, y, z in the camera frame
+            local = rays[sel] @ R  # face optical-frame rays
+            u = f * local[:, 0] / local[:, 2]
+            v = f * local[:, 1] / local[:, 2]
+            u0 = int(math.floor(u.min())) - margin
+            v0 = int(math.floor(v.min())) - margin
+            u1 = int(math.ceil(u.max())) + margin
+            v1 = int(math.ceil(v.max())) + margin
+            K = np.array([[f, 0.0, -u0], [0.0, f, -v0], [0.0, 0.0, 1.0]], dtype=np.float64)
+            size = (u1 - u0 + 1, v1 - v0 + 1)
+            faces.append(CubeFace(name, R, PinholeCamera(K=K, distortion=np.zeros(5), image_size=size), row))
+            map_x[sel] = u - u0
+            map_y[sel] = v - v0 + row
+            row += size[1]
+            width = max(width, size[0])
+        self.faces: tuple[CubeFace, ...] = tuple(faces)
+        self.atlas_size = (width, row)
+        self._map1, self._map2 = cv2.convertMaps(
+            map_x.reshape(h, w), map_y.reshape(h, w), cv2.CV_16SC2, nninterpolation=False
+        )
+        # nearest atlas pixel of every output pixel (labels and points), -1 outside the field of view
+        near_x = np.clip(np.rint(map_x).astype(np.int64), 0, width - 1)
+        near_y = np.clip(np.rint(map_y).astype(np.int64), 0, row - 1)
+        self._nearest = np.where(valid, near_y * width + near_x, -1).reshape(h, w)
+
+    @property
+    def face_pixels(self) -> int:
+        """Total number of rendered face pixels per fisheye frame."""
+        return sum(fc.camera.image_size[0] * fc.camera.image_size[1] for fc in self.faces)
+
+    def atlas(self, face_images, fill=0) -> np.ndarray:
+        """Pack face images (in ``faces`` order) into one atlas image."""
+        first = np.asarray(face_images[0])
+        W, H = self.atlas_size
+        out = np.full((H, W) + first.shape[2:], fill, dtype=first.dtype)
+        for fc, img in zip(self.faces, face_images, strict=True):
+            fw, fh = fc.camera.image_size
+            if img.shape[:2] != (fh, fw):
+                raise ValueError(
+                    f"face {fc.name}: image is {img.shape[1]}x{img.shape[0]}, expected {fw}x{fh}"
+                )
+            out[fc.atlas_row : fc.atlas_row + fh, :fw] = img
+        return out
+
+    def remap(self, atlas: np.ndarray) -> np.ndarray:
+        """The fisheye image from an atlas image, bilinear; 0 outside the field of view."""
+        return cv2.remap(atlas, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+    def lookup(self, atlas: np.ndarray, outside) -> np.ndarray:
+        """Labels or points in the fisheye image (nearest atlas pixel; ``outside`` beyond the view)."""
+        flat = atlas.reshape((-1,) + atlas.shape[2:])
+        out = flat[np.maximum(self._nearest, 0)]
+        out[self._nearest < 0] = outside
+        return out
+
+
+@dataclass(frozen=True)
+class FisheyeCameraConfig:
+    """Downward fisheye under the body (kinematics paper).
+
+    Attributes:
+        width: Image width [px] (along the body's x axis).
+        height: Image height [px] (across the body).
+        rate_hz: Frame rate [Hz].
+        fov_deg: Full field of view of the image circle [deg] (>= 185).
+        radius_frac: Radius of the image circle at fov_deg / 2, as a share of the image width
+            (0.47: the circle spans the width and is cut by the top and bottom edges).
+        shadows: Render the sun's cast shadows.
+        ambient: Shadowed share of the sunlit brightness at normal incidence.
+        oversample: Cube-face resolution relative to the fisheye's finest angular resolution.
+    """
+
+    width: int = 640
+    height: int = 480
+    rate_hz: float = 30.0
+    fov_deg: float = 190.0
+    radius_frac: float = 0.47
+    shadows: bool = True
+    ambient: float = 0.25
+    oversample: float = 1.0
+
+    def __post_init__(self) -> None:
+        for key in ("width", "height"):
+            v = getattr(self, key)
+            if not isinstance(v, int) or not 16 <= v <= 4096:
+                raise ConfigError(f"{key}: {v!r} px is not a usable image size; use an integer in 16..4096")
+        check_range("rate_hz", self.rate_hz, 1.0, 1000.0)
+        check_range("fov_deg", self.fov_deg, 185.0, 250.0)
+        check_range("radius_frac", self.radius_frac, 0.1, 1.0)
+        check_range("ambient", self.ambient, 0.0, 1.0, lo_open=True)
+        check_range("oversample", self.oversample, 0.25, 4.0)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> FisheyeCameraConfig:
+        """A resolution preset: ``full`` 640x480, ``half`` 320x240, ``train`` 160x120."""
+        if name not in FISHEYE_PRESETS:
+            raise ConfigError(f"preset: unknown {name!r}; choose one of {sorted(FISHEYE_PRESETS)}")
+        w, h = FISHEYE_PRESETS[name]
+        return cls(width=w, height=h, **overrides)
+
+    def model(self, T_body_cam: np.ndarray) -> OmniCamera:
+        """The ideal (equidistant, 4th-order polynomial) model of this configuration."""
+        return OmniCamera.equidistant(
+            (self.width, self.height),
+            math.radians(self.fov_deg),
+            self.radius_frac * self.width,
+            degree=4,
+            T_body_cam=T_body_cam,
+        )
+
+
+@dataclass
+class FisheyeView:
+    """One rendered fisheye frame with per-pixel ground truth.
+
+    Attributes:
+        rgb: (H, W, 3) uint8, black outside the field of view.
+        segmentation: (H, W) int: body id + ((link + 1) << 24), -1 for background or outside.
+        shadow: (H, W) bool, True where the sun is blocked.
+        points_world: (H, W, 3) float32 world position of each pixel's surface point [m] (NaN
+            outside the field of view).
+
+    The last three are None unless rendered with ``labels=True``.
+    """
+
+    rgb: np.ndarray
+    segmentation: np.ndarray | None = None
+    shadow: np.ndarray | None = None
+    points_world: np.ndarray | None = None
+
+
+def render_fisheye(
+    client,
+    remapper: CubemapRemap,
+    T_world_cam: np.ndarray,
+    lighting: Lighting,
+    caster=None,
+    labels: bool = False,
+    near: float = 0.01,
+    far: float = 20.0,
+) -> FisheyeView:
+    """Render the fisheye image of the camera at ``T_world_cam`` (optical frame, world) [m].
+
+    Args:
+        client: The environment's BulletClient.
+        remapper: Face layout and remap of the fisheye model.
+        T_world_cam: Pose of the fisheye optical frame in the world.
+        lighting: Sun and shadow settings.
+        caster: The shadow-casting body (required when ``lighting.shadows`` is on).
+        labels: Also remap segmentation, shadow and 3-D points (for tests and evaluation).
+        near: Near clipping distance [m].
+        far: Far clipping distance [m].
+    """
+    shadow_map = None
+    if lighting.shadows:
+        if caster is None:
+            raise ValueError("lighting.shadows is on: pass the rover's ShadowCaster")
+        # one map for all faces, resolved like the image at the distance of the wheels
+        shadow_map = caster.shadow_map(lighting.sun_direction, SHADOW_DETAIL_RANGE / remapper.focal)
+    views = []
+    for fc in remapper.faces:
+        T_face = T_world_cam.copy()
+        T_face[:3, :3] = T_world_cam[:3, :3] @ fc.R_cam_face
+        views.append(render_pinhole(client, fc.camera, T_face, lighting, near, far, shadow_map=shadow_map))
+    rgb = remapper.remap(remapper.atlas([v.rgb for v in views]))
+    if not labels:
+        return FisheyeView(rgb=rgb)
+    seg = remapper.lookup(remapper.atlas([v.segmentation for v in views], fill=-1), outside=-1)
+    shadow = remapper.lookup(remapper.atlas([v.shadow for v in views], fill=False), outside=False)
+    pts = remapper.lookup(remapper.atlas([v.points_world for v in views], fill=np.nan), outside=np.nan)
+    return FisheyeView(rgb=rgb, segmentation=seg, shadow=shadow, points_world=pts)
