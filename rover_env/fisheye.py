@@ -63,9 +63,13 @@ class CubemapRemap:
         model: The fisheye model; the output image has its size.
         margin: Extra face pixels around the used region [px] (>= 2 for seamless bilinear sampling).
         oversample: Face focal length relative to the fisheye's finest angular resolution.
+        cube_roll: Rotation of the cube about the optical axis [rad] (moves the face edges; the
+            image must not change, which is how the seam test works).
     """
 
-    def __init__(self, model: OmniCamera, margin: int = 2, oversample: float = 1.0) -> None:
+    def __init__(
+        self, model: OmniCamera, margin: int = 2, oversample: float = 1.0, cube_roll: float = 0.0
+    ) -> None:
         if margin < 1:
             raise ValueError(f"margin: {margin} px; use >= 1 (2 recommended) so faces can be interpolated")
         if not oversample > 0:
@@ -85,8 +89,10 @@ class CubemapRemap:
         f = math.ceil(k * oversample)
         self.focal = f
 
+        cr, sr = math.cos(cube_roll), math.sin(cube_roll)
+        R_cam_cube = np.array([[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]])
         comps = np.full((w * h, 3), np.nan)
-        comps[valid] = rays[valid]
+        comps[valid] = rays[valid] @ R_cam_cube  # ray components along the cube axes
         faces: list[CubeFace] = []
         map_x = np.full(w * h, -10.0, dtype=np.float32)
         map_y = np.full(w * h, -10.0, dtype=np.float32)
@@ -103,7 +109,7 @@ class CubemapRemap:
                 continue
             z = np.asarray(axis)
             y = np.asarray(down)
-            R = np.stack([np.cross(y, z), y, z], 1)  # columns: face x, y, z in the camera frame
+            R = R_cam_cube @ np.stack([np.cross(y, z), y, z], 1)  # face x, y, z in the camera frame
             local = rays[sel] @ R  # face optical-frame rays
             u = f * local[:, 0] / local[:, 2]
             v = f * local[:, 1] / local[:, 2]
@@ -119,6 +125,10 @@ class CubemapRemap:
             row += size[1]
             width = max(width, size[0])
         self.faces: tuple[CubeFace, ...] = tuple(faces)
+        face_of = np.full(w * h, -1)
+        for k, fc in enumerate(faces):
+            face_of[owner == [i for i, f in enumerate(_FACES) if f[0] == fc.name][0]] = k
+        self.face_index = face_of.reshape(h, w)  # index into faces of each pixel, -1 outside
         self.atlas_size = (width, row)
         self._map1, self._map2 = cv2.convertMaps(
             map_x.reshape(h, w), map_y.reshape(h, w), cv2.CV_16SC2, nninterpolation=False

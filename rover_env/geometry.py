@@ -81,7 +81,8 @@ class RoverGeometry:
     steer_max_torque: float = 30.0  # [N m]
     steer_max_rate: float = 2.0  # [rad/s]
     ackermann_center_x: float = 0.0  # x of the turn centre line the tie rods are designed for [m]
-    steering_arm_length: float = 0.08  # kingpin to tie-rod end [m]
+    steering_arm_length: float = 0.12  # kingpin to tie-rod end, horizontal [m]
+    tie_rod_drop: float = 0.045  # tie-rod plane below the roll axis, clear of the beam [m]
 
     wheel_max_torque: float = 8.0  # drive motor torque limit [N m]
     wheel_max_rate: float = 20.0  # drive motor speed limit [rad/s]
@@ -89,7 +90,9 @@ class RoverGeometry:
     fiducial_size: float = 0.035  # edge of the magenta squares [m]
     plate_marker_y: float = 0.15  # |y| of the axle-plate markers A, C in the axle frame [m]
     correction_marker_arc: float = math.radians(16.0)  # angular width of the white marker [rad]
-    fisheye_origin: tuple[float, float, float] = (0.0, 0.0, -0.09)  # markers face this point [m]
+    # Fisheye optical centre, on a short mount 4.5 cm under the body: a camera right at the body's
+    # underside would lose markers raised by roll and travel behind the body's bottom plane.
+    fisheye_origin: tuple[float, float, float] = (0.0, 0.0, -0.12)  # tie-rod markers face it [m]
     # Downward camera on a mast: a vertical post at x = mast_x and a boom forward to the camera,
     # whose optical centre is at mast_camera_position (body frame), 0.8 m above flat ground.
     mast_x: float = 0.40  # [m]
@@ -121,6 +124,7 @@ class RoverGeometry:
             "wheel_max_rate",
             "fiducial_size",
             "steering_arm_length",
+            "tie_rod_drop",
             "inertia_scale",
         ):
             check_range(name, getattr(self, name), 0.0, None, lo_open=True)
@@ -226,30 +230,36 @@ class RoverGeometry:
 
         The arms point inward toward the Ackermann turn-centre line (classic Ackermann
         trapezoid), so the tie rod of the front axle lies behind it and that of the rear
-        axle in front of it.
+        axle in front of it. They sit ``tie_rod_drop`` below the roll axis, so that the tips
+        pass under the axle beam at full lock, and are long enough that the inner wheel at
+        full lock does not hide the tip from the fisheye.
         """
         sign_x = -1.0 if wheel[0] == "F" else 1.0
         sign_y = -1.0 if wheel[1] == "L" else 1.0
         arm = abs(self.axle_x - self.ackermann_center_x)
         beta = math.atan2(self.track / 2.0, arm)
         length = self.steering_arm_length
-        return np.array([sign_x * length * math.cos(beta), sign_y * length * math.sin(beta), 0.0])
+        return np.array(
+            [sign_x * length * math.cos(beta), sign_y * length * math.sin(beta), -self.tie_rod_drop]
+        )
 
     def fiducials(self) -> tuple[Fiducial, ...]:
         """All markers with their link and position in the link frame.
 
-        Plate markers A (front), C (rear) lie on the inner face of the axle beam at the height of
-        the roll axis, so they stay in the axle's vertical plane (the kinematics paper's eq. 2).
-        Tie-rod markers B (front), D (rear) sit on the steering-arm tips in the axle's plane
-        through the roll centre (eqs. 3-4). Marker faces point to the nominal fisheye origin.
+        Plate markers A (front), C (rear) lie flat on the inner face of the axle beam at the
+        height of the roll axis, so they stay in the axle's vertical plane (the kinematics
+        paper's eq. 2). Tie-rod markers B (front), D (rear) sit on the steering-arm tips, in the
+        plane parallel to the axle's plane through the roll centre and ``tie_rod_drop`` below it
+        (eqs. 3-4 with r_o moved down by that distance); their faces point to the nominal
+        fisheye origin.
         The white correction marker of each wheel is centred on the tread at wheel angle 0,
         i.e. at +z of the wheel frame when the wheel angle is zero.
         """
         out: list[Fiducial] = []
 
-        def magenta(name: str, link: str, p_link: np.ndarray, p_body: np.ndarray) -> Fiducial:
+        def magenta(name: str, link: str, p_link: np.ndarray, normal) -> Fiducial:
             pos = (float(p_link[0]), float(p_link[1]), float(p_link[2]))
-            return Fiducial(name, link, pos, self._face_camera(p_body), self.fiducial_size, MAGENTA)
+            return Fiducial(name, link, pos, normal, self.fiducial_size, MAGENTA)
 
         for axle, plate, rod in (("F", "A", "B"), ("R", "C", "D")):
             inner = -1.0 if axle == "F" else 1.0
@@ -257,13 +267,12 @@ class RoverGeometry:
                 p_axle = np.array(
                     [inner * (self.axle_beam_size[0] / 2 + 0.002), side * self.plate_marker_y, 0.0]
                 )
-                out.append(magenta(f"{plate}{idx}", f"axle_{axle}", p_axle, self.axle_origin(axle) + p_axle))
+                out.append(magenta(f"{plate}{idx}", f"axle_{axle}", p_axle, (inner, 0.0, 0.0)))
             for idx, wheel_side in ((1, "L"), (2, "R")):
                 wheel = axle + wheel_side
                 tip = self.steering_arm_tip(wheel)
-                out.append(
-                    magenta(f"{rod}{idx}", f"knuckle_{wheel}", tip, self.wheel_position_body(wheel) + tip)
-                )
+                normal = self._face_camera(self.wheel_position_body(wheel) + tip)
+                out.append(magenta(f"{rod}{idx}", f"knuckle_{wheel}", tip, normal))
         arc = self.correction_marker_arc * self.wheel_radius
         for w in WHEELS:
             out.append(

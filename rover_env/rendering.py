@@ -35,10 +35,13 @@ def gl_projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far:
     """
     w, h = size
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    left = -(cx + 0.5) * near / fx
-    right = (w - 0.5 - cx) * near / fx
-    top = (cy + 0.5) * near / fy
-    bottom = -(h - 0.5 - cy) * near / fy
+    # TinyRenderer samples pixel (i, j) at viewport point (i, H - j) of a frustum spanning
+    # [0, W] x [0, H] (no half-pixel offset), which was measured with boxes at known points: so
+    # for pixel centres at integers the frustum spans [0, W] across and [-1, H - 1] down.
+    left = -cx * near / fx
+    right = (w - cx) * near / fx
+    top = (cy + 1.0) * near / fy
+    bottom = -(h - 1.0 - cy) * near / fy
     P = np.zeros((4, 4))
     P[0, 0] = 2 * near / (right - left)
     P[0, 2] = (right + left) / (right - left)
@@ -86,7 +89,9 @@ class RenderedView:
     points_world: np.ndarray
 
 
-def _camera_image(client, size, view, proj, lighting: Lighting, flags: int = 0):
+def _camera_image(
+    client, size, view, proj, lighting: Lighting, flags: int = pb.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX
+):
     w, h = size
     img = client.getCameraImage(
         w,
@@ -99,7 +104,7 @@ def _camera_image(client, size, view, proj, lighting: Lighting, flags: int = 0):
         lightDiffuseCoeff=lighting.diffuse,
         lightSpecularCoeff=0.0,
         renderer=pb.ER_TINY_RENDERER,
-        flags=flags,
+        flags=pb.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
     )
     rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (h, w, 4))
     depth = np.reshape(np.asarray(img[3], dtype=np.float32), (h, w))

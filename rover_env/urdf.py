@@ -10,6 +10,7 @@ import hashlib
 import math
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +63,9 @@ def _rpy_z_to(normal) -> tuple[float, float, float]:
         rot = Rotation.identity() if n[2] > 0 else Rotation.from_rotvec([math.pi, 0, 0])
     else:
         rot = Rotation.from_rotvec(axis / s * math.atan2(s, float(z @ n)))
-    r, p, y = rot.as_euler("xyz")
+    with warnings.catch_warnings():  # gimbal lock (normal along +-x) still gives the right rotation
+        warnings.simplefilter("ignore", UserWarning)
+        r, p, y = rot.as_euler("xyz")
     return (r, p, y)
 
 
@@ -210,9 +213,11 @@ def build_urdf(geom: RoverGeometry) -> str:
             wheel = axle + side
             f = fid[f"{rod}{idx}"]
             tip = np.asarray(f.position)
-            arm_len = float(np.linalg.norm(tip))
+            # horizontal arm from the kingpin to just short of the tip, under the marker plate
+            arm_len = float(np.hypot(tip[0], tip[1])) - 0.012
             arm_yaw = math.atan2(tip[1], tip[0])
-            knuckle_vis = _visual_box(tip / 2, (0, 0, arm_yaw), (arm_len, 0.015, 0.012), METAL_RGBA)
+            arm_mid = (arm_len / 2 * math.cos(arm_yaw), arm_len / 2 * math.sin(arm_yaw), tip[2])
+            knuckle_vis = _visual_box(arm_mid, (0, 0, arm_yaw), (arm_len, 0.015, 0.012), METAL_RGBA)
             knuckle_vis += _visual_box(f.position, _rpy_z_to(f.normal), (f.size, f.size, 0.002), f.rgba)
             parts.append(
                 f'<link name="knuckle_{wheel}">'

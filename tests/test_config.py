@@ -117,7 +117,8 @@ def test_fiducials_are_complete_and_symmetric():
     assert a1.position[2] == 0.0  # on the roll axis height: stays in the axle's plane
     b1 = np.array(g.fiducial("B1").position)
     assert b1[0] < 0 and b1[1] < 0  # front tie-rod end behind and inside the kingpin
-    assert np.linalg.norm(b1) == pytest.approx(g.steering_arm_length)
+    assert np.hypot(b1[0], b1[1]) == pytest.approx(g.steering_arm_length)
+    assert b1[2] == -g.tie_rod_drop  # the tie-rod plane lies below the beam
 
 
 def test_course_features_and_progress():
