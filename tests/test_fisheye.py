@@ -1,0 +1,166 @@
+"""The rendered fisheye against its OmniCamera model: geometry, seams, fiducials and treads in view."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from conftest import flat_scenario
+
+from rover_env.cameras import FisheyeCamera
+from rover_env.config_io import ConfigError
+from rover_env.fisheye import CubemapRemap, FisheyeCameraConfig, render_fisheye
+from rover_env.geometry import AXLES, WHEELS
+from rover_env.sim import RoverSim
+
+
+@pytest.fixture(scope="module")
+def lifted_sim():
+    """A parked rover lifted 8 cm so that any joint state can be set without touching the ground."""
+    sim = RoverSim(flat_scenario(mu=1.0))
+    sim.reset(7.3, -4.1, math.radians(35.0))
+    c, body = sim.client, sim.rover.body_id
+    pos, quat = c.getBasePositionAndOrientation(body)
+    c.resetBasePositionAndOrientation(body, [pos[0], pos[1], pos[2] + 0.08], quat)
+    yield sim
+    sim.close()
+
+
+def set_joints(sim, lam, psi, travel, wheel_angles) -> None:
+    """Kinematic joint state: axle steering lam (2), roll psi (2), travel (2), wheel angles (4)."""
+    c, rv, g = sim.client, sim.rover, sim.geometry
+    delta = g.ackermann_angles(lam[0], lam[1])
+    for i, a in enumerate(AXLES):
+        c.resetJointState(rv.body_id, rv.joint[f"roll_{a}"], psi[i])
+        c.resetJointState(rv.body_id, rv.joint[f"travel_{a}"], travel[i])
+    for i, w in enumerate(WHEELS):
+        c.resetJointState(rv.body_id, rv.joint[f"steer_{w}"], delta[i])
+        c.resetJointState(rv.body_id, rv.joint[f"wheel_{w}"], wheel_angles[i])
+
+
+def link_pose(sim, link_name):
+    st = sim.client.getLinkState(sim.rover.body_id, sim.rover.link[link_name], computeForwardKinematics=1)
+    return np.array(sim.client.getMatrixFromQuaternion(st[5])).reshape(3, 3), np.asarray(st[4])
+
+
+def feasible_states(g, n, rng):
+    """Random joint states over the full steering and roll range; travel where the axle beam
+    stays below the body (the simulator does not collide them, a real rover cannot pass)."""
+    corners = [
+        (np.array([sf, sr]) * g.steer_limit, np.array([pf, pr]) * g.roll_limit, np.full(2, -0.03))
+        for sf, sr, pf, pr in [(1, -1, 1, -1), (-1, 1, -1, 1), (1, 1, -1, -1), (-1, -1, 1, 1)]
+    ]
+    out = list(corners)
+    body_bottom = -g.body_size[2] / 2
+    while len(out) < n:
+        lam = rng.uniform(-g.steer_limit, g.steer_limit, 2)
+        psi = rng.uniform(-g.roll_limit, g.roll_limit, 2)
+        d = rng.uniform(-g.travel_limit, g.travel_limit, 2)
+        beam_top = g.axle_z + d + g.axle_beam_size[2] / 2 + g.axle_beam_size[1] / 2 * np.abs(np.sin(psi))
+        if np.all(beam_top < body_bottom):
+            out.append((lam, psi, d))
+    return out
+
+
+def test_fisheye_pixels_see_what_the_model_projects_there(lifted_sim):
+    sim = lifted_sim
+    set_joints(sim, (0.2, -0.1), (0.1, -0.05), (0.0, 0.0), (0.0,) * 4)
+    cam = FisheyeCamera(sim)
+    view = cam.render_view()
+    T_cam_world = np.linalg.inv(cam.T_world_cam())
+    hit = view.segmentation >= 0
+    rows, cols = np.nonzero(hit)
+    p = view.points_world[hit].astype(np.float64)
+    px = cam.model.world2cam(p @ T_cam_world[:3, :3].T + T_cam_world[:3, 3])
+    ok = np.isfinite(px[:, 0])  # the few rim pixels whose face sample lies just beyond 95 deg
+    err = np.hypot(px[ok, 0] - cols[ok], px[ok, 1] - rows[ok])
+    print(f"fisheye reprojection: median {np.median(err):.2f} px, max {err.max():.2f} px on {ok.sum()} px")
+    assert ok.mean() > 0.999
+    # points are looked up at the nearest face pixel (face pixels are no larger than image pixels)
+    assert err.max() < 1.0 and np.median(err) < 0.4
+    # the image circle: 190 deg, cut by the top and bottom edges
+    assert cam.model.max_fov == pytest.approx(math.radians(190.0))
+    valid = cam.remapper.valid
+    assert valid[240, 25] and valid[240, 614] and not valid[240, 15] and not valid[0, 0]
+    assert valid[0, 320] and valid[479, 320]
+
+
+def test_fisheye_has_no_seams(lifted_sim):
+    """Turning the cube 45 deg about the optical axis moves every face edge; the image must not care."""
+    sim = lifted_sim
+    set_joints(sim, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0,) * 4)
+    cam = FisheyeCamera(sim)
+    other = CubemapRemap(cam.model, cube_roll=math.pi / 4)
+    a = cam.capture().image.astype(np.float32)
+    b = render_fisheye(sim.client, other, cam.T_world_cam(), cam.lighting, sim.shadow_caster).rgb
+    diff = np.abs(a - b.astype(np.float32)).mean(axis=2)
+
+    def seam_band(face_index, r=2):
+        k = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+        f = (face_index + 1).astype(np.uint8)
+        return (cv2.dilate(f, k) != cv2.erode(f, k)) & (face_index >= 0)
+
+    inner = cv2.erode(cam.remapper.valid.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    sa, sb = seam_band(cam.remapper.face_index), seam_band(other.face_index)
+    on_seams = diff[inner & (sa | sb)].mean()
+    elsewhere = diff[inner & ~sa & ~sb].mean()
+    print(f"seams: mean |difference| {on_seams:.2f} grey levels on face edges, {elsewhere:.2f} elsewhere")
+    assert on_seams < 1.25 * elsewhere + 0.5
+    assert elsewhere < 4.0  # the two cubes resample the same scene
+
+
+def magenta_blobs(rgb):
+    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+    mask = (hsv[..., 0] > 140) & (hsv[..., 0] < 160) & (hsv[..., 1] > 120) & (hsv[..., 2] > 25)
+    _, _, stats, centroids = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return stats[1:], centroids[1:]
+
+
+def test_fiducials_and_treads_in_view_and_where_the_model_says_over_50_states(lifted_sim):
+    sim = lifted_sim
+    g = sim.geometry
+    cam = FisheyeCamera(sim)
+    fids = [f for f in g.fiducials() if f.name[0] in "ABCD"]
+    assert len(fids) == 8
+    rng = np.random.default_rng(20261122)
+    errors, tread_px = [], []
+    for lam, psi, d in feasible_states(g, 54, rng):
+        set_joints(sim, lam, psi, d, rng.uniform(-math.pi, math.pi, 4))
+        view = cam.render_view()
+        stats, centroids = magenta_blobs(view.rgb)
+        T = np.linalg.inv(cam.T_world_cam())
+        for f in fids:
+            R, t = link_pose(sim, f.link)
+            face_centre = R @ (np.asarray(f.position) + 0.001 * np.asarray(f.normal)) + t  # 2 mm plate
+            px = cam.model.world2cam(T[:3, :3] @ face_centre + T[:3, 3])
+            dist = np.hypot(centroids[:, 0] - px[0], centroids[:, 1] - px[1])
+            j = int(np.argmin(dist))
+            assert stats[j, cv2.CC_STAT_AREA] > 100, f"{f.name} mostly hidden at lam={lam}, psi={psi}"
+            errors.append(dist[j])
+        for w in WHEELS:
+            link = sim.rover.link[f"wheel_{w}"]
+            R, t = link_pose(sim, f"wheel_{w}")
+            mine = view.segmentation == sim.rover.body_id + ((link + 1) << 24)
+            local = (view.points_world[mine] - t) @ R  # wheel frame, axis y
+            on_tread = (np.hypot(local[:, 0], local[:, 2]) > g.wheel_radius - 0.002) & (
+                np.abs(local[:, 1]) < g.wheel_width / 2 - 0.002
+            )
+            tread_px.append(int(on_tread.sum()))
+    errors = np.asarray(errors)
+    print(
+        f"fiducial centroids over {len(errors) // 8} states: mean {errors.mean():.2f} px, "
+        f"p95 {np.percentile(errors, 95):.2f} px, max {errors.max():.2f} px; "
+        f"tread pixels per wheel: min {min(tread_px)}, median {int(np.median(tread_px))}"
+    )
+    assert errors.max() <= 1.5
+    assert min(tread_px) >= 250  # about 300 px at full lock and full roll, ~1900 typical
+
+
+def test_fisheye_config_errors():
+    with pytest.raises(ConfigError, match="fov_deg"):
+        FisheyeCameraConfig(fov_deg=170.0)
+    with pytest.raises(ConfigError, match="width"):
+        FisheyeCameraConfig(width=8)
+    with pytest.raises(ConfigError, match="preset"):
+        FisheyeCameraConfig.preset("huge")
+    assert FisheyeCameraConfig.preset("train").width == 160
