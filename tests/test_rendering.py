@@ -88,6 +88,39 @@ def test_downward_camera_sees_known_ground_points_where_the_model_says(parked_si
     assert np.abs(px - np.column_stack([cols[sel], rows[sel]])).max() < 1e-3  # float32 points
 
 
+def test_small_squares_on_the_ground_appear_where_the_model_projects_them(parked_sim):
+    """Not circular: the squares' image centroids come from the rasteriser alone."""
+    sim = parked_sim
+    c = sim.client
+    cam = mast_camera(sim)
+    T_wc = body_pose(sim) @ cam.T_body_cam
+    rng = np.random.default_rng(7)
+    shape = c.createVisualShape(pb.GEOM_BOX, halfExtents=[0.015, 0.015, 0.0005], rgbaColor=[1, 0, 0, 1])
+    centres = []
+    grid = np.stack(np.meshgrid(np.linspace(50, 590, 8), np.linspace(50, 430, 5)), -1).reshape(-1, 2)
+    for px in grid + rng.uniform(-10, 10, grid.shape):  # apart, at random sub-pixel positions
+        ray = np.linalg.inv(cam.K) @ np.array([px[0], px[1], 1.0])
+        d = T_wc[:3, :3] @ ray
+        p = T_wc[:3, 3] - d * (T_wc[2, 3] / d[2])  # on z = 0
+        centres.append(p + [0.0, 0.0, 0.001])  # top face of the 1 mm plate
+    ids = [c.createMultiBody(0, -1, shape, p.tolist()) for p in centres]
+    try:
+        view = render_pinhole(sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False))
+    finally:
+        for b in ids:
+            c.removeBody(b)
+    T_cw = np.linalg.inv(T_wc)
+    err = []
+    for b, p in zip(ids, centres, strict=True):
+        rows, cols = np.nonzero(view.segmentation == b)
+        assert len(rows) > 150
+        err.append([cols.mean(), rows.mean()] - cam.project(T_cw[:3, :3] @ p + T_cw[:3, 3]))
+    err = np.asarray(err)
+    print(f"ground squares: bias {err.mean(axis=0).round(3)} px, max {np.abs(err).max():.2f} px")
+    assert np.abs(err).max() < 0.25
+    assert np.abs(err.mean(axis=0)).max() < 0.05  # no half-pixel convention error
+
+
 def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
     sim = parked_sim
     cam = mast_camera(sim)
