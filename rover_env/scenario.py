@@ -17,6 +17,7 @@ from typing import Literal
 import numpy as np
 
 from rover_env.config_io import ConfigError, check_range, load_yaml_dataclass, replace
+from rover_env.textures import CHECKER_SQUARES_PER_TILE
 
 TEXTURE_PRESETS: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete", "checkerboard")
 
@@ -52,6 +53,17 @@ class TerrainConfig:
     texture: str = "regolith"
     texture_tile: float = 2.0
     texture_px: int = 1024
+
+    @property
+    def checker_square(self) -> float | None:
+        """Edge of one square of the ``checkerboard`` texture [m], else None.
+
+        On flat ground without slope the board's corners lie exactly at integer multiples of
+        this length in world x and y, at z = 0.
+        """
+        if self.texture != "checkerboard":
+            return None
+        return self.texture_tile / CHECKER_SQUARES_PER_TILE
 
     def __post_init__(self) -> None:
         for i, v in enumerate(self.size):

@@ -108,6 +108,9 @@ def _to_rgb(gray: np.ndarray, tint: tuple[float, float, float]) -> np.ndarray:
     return rgb.astype(np.uint8)
 
 
+CHECKER_SQUARES_PER_TILE = 8  # squares along one edge of the checkerboard texture tile
+
+
 def ground_texture(name: str, px: int = 1024, seed: int = 0) -> np.ndarray:
     """A seamlessly tiling ground texture.
 
@@ -145,7 +148,7 @@ def ground_texture(name: str, px: int = 1024, seed: int = 0) -> np.ndarray:
         _stamp_stones(g, rng, int(300 * s * s), 0.8 * s, 1.6 * s, (60, 90))  # pores
         return _to_rgb(g, (0.97, 0.97, 0.95))
     if name == "checkerboard":
-        squares = 8
+        squares = CHECKER_SQUARES_PER_TILE
         yy, xx = np.mgrid[0:px, 0:px] * squares // px
         g = np.where((xx + yy) % 2 == 0, 235.0, 25.0)
         return _to_rgb(g, (1.0, 1.0, 1.0))

@@ -140,3 +140,41 @@ def test_omni_affine_stretch_round_trip_and_yaml(omni, tmp_path):
         OmniCamera((640, 480), (320, 240), (1, 0, 0), tuple(-np.asarray(omni.poly)), omni.max_fov)
     with pytest.raises(CalibrationError, match="does not reach"):
         OmniCamera((640, 480), (320, 240), (1, 0, 0), (141.0, 0.0, 0.001), omni.max_fov)
+
+
+def test_omni_fit_recovers_a_known_model_from_noisy_corners():
+    from perception.calibration import fit_omni_camera
+
+    base = OmniCamera.equidistant((640, 480), math.radians(190), 300.8)
+    true = OmniCamera(
+        image_size=(640, 480),
+        center=(322.3, 236.1),
+        affine=(1.002, 0.001, -0.0015),
+        poly=base.poly,
+        max_fov=base.max_fov,
+    )
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(400, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d[:, 2] = np.abs(d[:, 2]) - 0.05  # up to ~93 deg from the axis
+    px = true.world2cam(d)
+    ok = np.isfinite(px[:, 0]) & (px[:, 1] > 0) & (px[:, 1] < 479)
+    px = px[ok] + rng.normal(scale=0.1, size=(ok.sum(), 2))
+    px[:5] += 8.0  # five mismatched corners
+    fit = fit_omni_camera(px, d[ok], (640, 480), true.max_fov)
+    assert fit.inliers.sum() == ok.sum() - 5 and not fit.inliers[:5].any()
+    assert fit.rms_px == pytest.approx(0.1 * math.sqrt(2), rel=0.15)  # the pixel noise
+    np.testing.assert_allclose(fit.camera.center, true.center, atol=0.05)
+    rays = rng.normal(size=(2000, 3))
+    rays[:, 2] = np.abs(rays[:, 2])
+    gap = np.hypot(*(fit.camera.world2cam(rays) - true.world2cam(rays)).T)
+    assert np.nanmax(gap) < 0.1
+
+
+def test_omni_fit_rejects_too_few_corners():
+    from perception.calibration import fit_omni_camera
+
+    with pytest.raises(CalibrationError, match="usable corners"):
+        fit_omni_camera(np.ones((10, 2)), np.ones((10, 3)), (640, 480), math.radians(190))
+    with pytest.raises(CalibrationError, match="differ in number"):
+        fit_omni_camera(np.ones((10, 2)), np.ones((9, 3)), (640, 480), math.radians(190))

@@ -164,3 +164,77 @@ def test_fisheye_config_errors():
     with pytest.raises(ConfigError, match="preset"):
         FisheyeCameraConfig.preset("huge")
     assert FisheyeCameraConfig.preset("train").width == 160
+
+
+def checkerboard_corners(cam, view, square, reach=1.5, min_square_px=16.0):
+    """Sub-pixel corners of the checkerboard ground seen by ``cam`` and their camera-frame points.
+
+    The corner search starts at each grid corner's model projection; ``cv2.cornerSubPix`` then
+    moves it to the saddle point the image actually shows.
+    """
+    T_wc = cam.T_world_cam()
+    T_cw = np.linalg.inv(T_wc)
+    cx, cy = T_wc[0, 3], T_wc[1, 3]
+    n = int(reach / square)
+    i, j = np.meshgrid(np.arange(-n, n + 1), np.arange(-n, n + 1))
+    gx = (np.round(cx / square) + i.ravel()) * square
+    gy = (np.round(cy / square) + j.ravel()) * square
+
+    def project(x, y):
+        p = np.stack([x, y, np.zeros_like(x)], 1)
+        return cam.model.world2cam(p @ T_cw[:3, :3].T + T_cw[:3, 3]), p @ T_cw[:3, :3].T + T_cw[:3, 3]
+
+    px, pc = project(gx, gy)
+    side = np.minimum(
+        np.hypot(*(project(gx + square, gy)[0] - px).T), np.hypot(*(project(gx, gy + square)[0] - px).T)
+    )
+    w, h = cam.model.image_size
+    ok = np.isfinite(px).all(axis=1) & (side >= min_square_px)
+    ok &= (px[:, 0] > 8) & (px[:, 0] < w - 9) & (px[:, 1] > 8) & (px[:, 1] < h - 9)
+    ground = (view.segmentation == cam.sim.terrain.body_id).astype(np.uint8)
+    clear = cv2.erode(ground, np.ones((15, 15), np.uint8)) > 0  # no rover part within 7 px
+    idx = np.flatnonzero(ok)
+    idx = idx[clear[np.rint(px[idx, 1]).astype(int), np.rint(px[idx, 0]).astype(int)]]
+    gray = cv2.cvtColor(view.rgb, cv2.COLOR_RGB2GRAY)
+    start = px[idx].astype(np.float32).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+    found = cv2.cornerSubPix(gray, start.copy(), (5, 5), (-1, -1), crit).reshape(-1, 2)
+    return found, pc[idx], px[idx]
+
+
+def test_omni_model_refits_from_rendered_checkerboard_corners():
+    from perception.calibration import fit_omni_camera
+    from rover_env.scenario import load_scenario
+
+    scenario = load_scenario("calibration")
+    square = scenario.terrain.checker_square
+    assert square == pytest.approx(0.05)
+    sim = RoverSim(scenario)
+    try:
+        # 2x supersampled faces: the remap then averages the rasteriser's aliased edges
+        cam = FisheyeCamera(sim, FisheyeCameraConfig(shadows=False, oversample=2.0))
+        found, points, predicted = [], [], []
+        for x, y, yaw in [(0.013, 0.021, 0.1), (0.31, -0.22, 0.75), (-0.17, 0.4, 1.9)]:
+            sim.reset(x, y, yaw)
+            f, p, pred = checkerboard_corners(cam, cam.render_view(), square)
+            found.append(f)
+            points.append(p)
+            predicted.append(pred)
+    finally:
+        sim.close()
+    found, points, predicted = (np.concatenate(v) for v in (found, points, predicted))
+    moved = np.hypot(*(found - predicted).T)
+    fit = fit_omni_camera(found, points, cam.model.image_size, cam.model.max_fov)
+    # the fitted model against the rendering model, over the directions the corners cover
+    alpha = np.arccos(points[:, 2] / np.linalg.norm(points, axis=1))
+    grid_a, grid_p = np.meshgrid(np.linspace(0.05, alpha.max(), 40), np.linspace(-np.pi, np.pi, 72))
+    rays = np.stack([np.sin(grid_a) * np.cos(grid_p), np.sin(grid_a) * np.sin(grid_p), np.cos(grid_a)], -1)
+    model_gap = np.hypot(*(fit.camera.world2cam(rays) - cam.model.world2cam(rays)).reshape(-1, 2).T)
+    print(
+        f"checkerboard: {fit.inliers.sum()} of {len(found)} corners up to {np.degrees(alpha.max()):.0f} deg, "
+        f"detected {np.median(moved):.2f} px (median) from the rendering model; fit RMS {fit.rms_px:.3f} px, "
+        f"max {fit.max_px:.2f} px; fitted vs rendering model: max {np.nanmax(model_gap):.2f} px"
+    )
+    assert fit.inliers.sum() >= 200 and fit.inliers.mean() > 0.9
+    assert fit.rms_px <= 0.3
+    assert np.nanmax(model_gap) < 0.5
