@@ -95,6 +95,11 @@ class _RoverCamera:
                 "frame pairs must be whole physics steps apart (e.g. 30, 60, 80, 120 Hz at 240 Hz)"
             )
         self._last: Frame | None = None
+        if sim.renderer == "egl" and config.shadows:
+            raise ConfigError(
+                "shadows: the simulation renders with EGL, which ignores the sun and draws no "
+                "shadows; use shadows=False or RoverSim(renderer='tiny')"
+            )
 
     @property
     def period(self) -> float:
@@ -189,7 +194,12 @@ class DownwardCamera(_RoverCamera):
         """Render now, with depth and segmentation (for tests and evaluation)."""
         lighting = self.lighting
         return render_pinhole(
-            self.sim.client, self.model, self.T_world_cam(), lighting, caster=self._caster(lighting)
+            self.sim.client,
+            self.model,
+            self.T_world_cam(),
+            lighting,
+            caster=self._caster(lighting),
+            renderer=self.sim.renderer,
         )
 
 

@@ -253,6 +253,7 @@ def render_fisheye(
     labels: bool = False,
     near: float = 0.01,
     far: float = 20.0,
+    renderer: str = "tiny",
 ) -> FisheyeView:
     """Render the fisheye image of the camera at ``T_world_cam`` (optical frame, world) [m].
 
@@ -265,6 +266,7 @@ def render_fisheye(
         labels: Also remap segmentation, shadow and 3-D points (for tests and evaluation).
         near: Near clipping distance [m].
         far: Far clipping distance [m].
+        renderer: ``"tiny"`` or ``"egl"`` (see :func:`rover_env.rendering.render_pinhole`).
     """
     shadow_map = None
     if lighting.shadows:
@@ -276,7 +278,11 @@ def render_fisheye(
     for fc in remapper.faces:
         T_face = T_world_cam.copy()
         T_face[:3, :3] = T_world_cam[:3, :3] @ fc.R_cam_face
-        views.append(render_pinhole(client, fc.camera, T_face, lighting, near, far, shadow_map=shadow_map))
+        views.append(
+            render_pinhole(
+                client, fc.camera, T_face, lighting, near, far, shadow_map=shadow_map, renderer=renderer
+            )
+        )
     rgb = remapper.remap(remapper.atlas([v.rgb for v in views]))
     if not labels:
         return FisheyeView(rgb=rgb)

@@ -28,20 +28,24 @@ def gl_view_matrix(T_world_cam: np.ndarray) -> list[float]:
     return view.T.reshape(-1).tolist()
 
 
-def gl_projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far: float) -> list[float]:
+def gl_projection_from_K(
+    K: np.ndarray, size: tuple[int, int], near: float, far: float, renderer: str = "tiny"
+) -> list[float]:
     """Column-major OpenGL frustum that renders exactly the pinhole ``K`` at ``size`` = (W, H).
 
-    Pixel centres are at integer coordinates, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5].
+    Pixel centres are at integer coordinates. The two renderers sample pixels differently, which
+    was measured with boxes at known points: EGL (OpenGL) samples pixel centres, so the frustum
+    spans [-0.5, W - 0.5] x [-0.5, H - 0.5]; TinyRenderer samples pixel (i, j) at viewport point
+    (i, H - j), so the frustum spans [0, W] across and [-1, H - 1] down.
     """
     w, h = size
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    # TinyRenderer samples pixel (i, j) at viewport point (i, H - j) of a frustum spanning
-    # [0, W] x [0, H] (no half-pixel offset), which was measured with boxes at known points: so
-    # for pixel centres at integers the frustum spans [0, W] across and [-1, H - 1] down.
-    left = -cx * near / fx
-    right = (w - cx) * near / fx
-    top = (cy + 1.0) * near / fy
-    bottom = -(h - 1.0 - cy) * near / fy
+    # image coordinates of the frustum's left and top edges
+    x0, y0 = (0.0, -1.0) if renderer == "tiny" else (-0.5, -0.5)
+    left = (x0 - cx) * near / fx
+    right = (x0 + w - cx) * near / fx
+    top = (cy - y0) * near / fy
+    bottom = -(y0 + h - cy) * near / fy
     P = np.zeros((4, 4))
     P[0, 0] = 2 * near / (right - left)
     P[0, 2] = (right + left) / (right - left)
@@ -89,9 +93,32 @@ class RenderedView:
     points_world: np.ndarray
 
 
-def _camera_image(
-    client, size, view, proj, lighting: Lighting, flags: int = pb.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX
-):
+RENDERERS: dict[str, int] = {"tiny": pb.ER_TINY_RENDERER, "egl": pb.ER_BULLET_HARDWARE_OPENGL}
+
+
+def load_egl(client) -> int:
+    """Load PyBullet's EGL renderer plugin into ``client``; returns the plugin id.
+
+    Once loaded, the plugin renders every ``getCameraImage`` of that client (TinyRenderer is
+    no longer used, even after unloading), it ignores the light direction and coefficients, and
+    it draws no shadows. Use it only for simulations whose views need neither sun nor shadows.
+
+    Raises:
+        RuntimeError: The plugin does not load on this machine.
+    """
+    import pkgutil
+
+    loader = pkgutil.get_loader("eglRenderer")
+    plugin = client.loadPlugin(loader.get_filename(), "_eglRendererPlugin") if loader else -1
+    if plugin < 0:
+        raise RuntimeError(
+            "PyBullet's EGL renderer plugin did not load (it needs libEGL, e.g. Debian's libegl1 with "
+            "Mesa); use renderer='tiny'"
+        )
+    return plugin
+
+
+def _camera_image(client, size, view, proj, lighting: Lighting, renderer: str = "tiny"):
     w, h = size
     img = client.getCameraImage(
         w,
@@ -103,7 +130,7 @@ def _camera_image(
         lightAmbientCoeff=lighting.ambient,
         lightDiffuseCoeff=lighting.diffuse,
         lightSpecularCoeff=0.0,
-        renderer=pb.ER_TINY_RENDERER,
+        renderer=RENDERERS[renderer],
         flags=pb.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
     )
     rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (h, w, 4))
@@ -121,6 +148,7 @@ def render_pinhole(
     far: float = 20.0,
     caster: ShadowCaster | None = None,
     shadow_map: ShadowMap | None = None,
+    renderer: str = "tiny",
 ) -> RenderedView:
     """Render an ideal pinhole view (distortion is not rendered) with sun shadows.
 
@@ -133,13 +161,20 @@ def render_pinhole(
         far: Far clipping distance [m].
         caster: The shadow-casting body; with ``lighting.shadows`` on, this or ``shadow_map``.
         shadow_map: A shadow map already built for this instant (several views of one frame).
+        renderer: ``"tiny"`` (TinyRenderer, sun lighting) or ``"egl"`` (the EGL plugin must be
+            loaded into ``client``; no sun direction, so no shadows: ``lighting.shadows`` must be off).
     """
+    if renderer not in RENDERERS:
+        raise ValueError(f"renderer={renderer!r}: use 'tiny' or 'egl'")
+    if renderer == "egl" and lighting.shadows:
+        raise ValueError(
+            "the EGL renderer ignores the sun direction, so it cannot draw shadows; turn shadows off"
+        )
     if np.any(camera.distortion):
         raise ValueError("render_pinhole renders ideal pinhole images; use a camera with zero distortion")
     size = camera.image_size
-    rgb, zbuf, seg = _camera_image(
-        client, size, gl_view_matrix(T_world_cam), gl_projection_from_K(camera.K, size, near, far), lighting
-    )
+    view, proj = gl_view_matrix(T_world_cam), gl_projection_from_K(camera.K, size, near, far, renderer)
+    rgb, zbuf, seg = _camera_image(client, size, view, proj, lighting, renderer)
     depth = (far * near / (far - (far - near) * zbuf.astype(np.float64))).astype(np.float32)
     w, h = size
     K = camera.K

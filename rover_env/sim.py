@@ -16,6 +16,7 @@ from pybullet_utils.bullet_client import BulletClient
 
 from rover_env.geometry import RoverGeometry
 from rover_env.ground_truth import GroundTruth
+from rover_env.rendering import RENDERERS, load_egl
 from rover_env.rover import Rover
 from rover_env.scenario import ScenarioConfig
 from rover_env.shadows import ShadowCaster
@@ -54,6 +55,9 @@ class RoverSim:
         solver_iterations: Constraint-solver iterations per physics step. Cost grows with it
             (contacts dominate a step); motor accuracy under load improves as its square: a
             braked rover on an 8 deg slope creeps 19 mm in 5 s at 10, 4 mm at 20 (see the tests).
+        renderer: ``"tiny"`` (TinyRenderer: sun direction, shadows; the default) or ``"egl"``
+            (PyBullet's EGL plugin: faster where a GPU or Mesa is present, but it ignores the sun
+            and draws no shadows, so every camera of this simulation must have shadows off).
     """
 
     def __init__(
@@ -63,6 +67,7 @@ class RoverSim:
         physics_hz: float = 240.0,
         settle_time: float = 0.5,
         solver_iterations: int = 10,
+        renderer: str = "tiny",
     ) -> None:
         if not (60.0 <= physics_hz <= 2000.0):
             raise ValueError(f"physics_hz={physics_hz}: use 60 to 2000 Hz (240 recommended)")
@@ -70,8 +75,13 @@ class RoverSim:
         self.geometry = geometry or RoverGeometry()
         self.dt = 1.0 / physics_hz
         self.settle_time = settle_time
+        if renderer not in RENDERERS:
+            raise ValueError(f"renderer={renderer!r}: use 'tiny' (sun and shadows) or 'egl' (neither)")
         self.client = BulletClient(connection_mode=pb.DIRECT)
         self._closed = False
+        self.renderer = renderer
+        if renderer == "egl":
+            load_egl(self.client)
         c = self.client
         c.setPhysicsEngineParameter(
             fixedTimeStep=self.dt,

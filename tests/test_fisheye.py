@@ -238,3 +238,23 @@ def test_omni_model_refits_from_rendered_checkerboard_corners():
     assert fit.inliers.sum() >= 200 and fit.inliers.mean() > 0.9
     assert fit.rms_px <= 0.3
     assert np.nanmax(model_gap) < 0.5
+
+
+def test_egl_simulations_refuse_shadowed_cameras():
+    from rover_env.cameras import DownwardCamera
+
+    try:
+        sim = RoverSim(flat_scenario(mu=1.0), renderer="egl")
+    except RuntimeError as exc:
+        pytest.skip(str(exc))
+    try:
+        with pytest.raises(ConfigError, match="shadows"):
+            FisheyeCamera(sim)
+        with pytest.raises(ConfigError, match="shadows"):
+            DownwardCamera(sim)
+        image = FisheyeCamera(sim, FisheyeCameraConfig(shadows=False)).capture().image
+        assert image.shape == (480, 640, 3) and image[240, 320].any()
+    finally:
+        sim.close()
+    with pytest.raises(ValueError, match="renderer"):
+        RoverSim(flat_scenario(mu=1.0), renderer="vulkan")
