@@ -22,6 +22,20 @@ from rover_env.shadows import ShadowCaster, ShadowMap
 _OPTICAL_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Pose (4x4, world) of a camera optical frame at ``eye`` looking at ``target`` [m]."""
+    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError("look_at: the viewing direction is parallel to 'up'")
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, eye
+    return T
+
+
 def gl_view_matrix(T_world_cam: np.ndarray) -> list[float]:
     """PyBullet (column-major) view matrix of a camera whose optical frame pose is ``T_world_cam``."""
     view = np.linalg.inv(T_world_cam @ _OPTICAL_TO_GL)

@@ -2,6 +2,7 @@
 
 import warnings
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -51,7 +52,7 @@ def test_check_env_passes_without_warnings(env_id, action_mode):
         assert env.observation_space.shape == (len(OBS_FIELDS) + n_act,)
         env.reset(seed=0)
         frame = env.render()
-        assert frame.shape == (360, 480, 3) and frame.dtype == np.uint8
+        assert frame.shape == (480, 960, 3) and frame.dtype == np.uint8
         assert frame.std() > 5  # a real picture, not a blank frame
     finally:
         env.close()
@@ -189,3 +190,34 @@ duration: 10.0
         assert 0.9 < info["t"] < 3.0
     finally:
         env.close()
+
+
+def test_composite_render_records_with_gymnasium_record_video(tmp_path):
+    """The composite frame (chase view, downward image, fisheye) goes through RecordVideo."""
+    from gymnasium.wrappers import RecordVideo
+
+    env = RecordVideo(
+        gym.make("Rover-v0", render_mode="rgb_array", render_size=(480, 240)),
+        video_folder=str(tmp_path / "videos"),
+        episode_trigger=lambda _: True,
+        disable_logger=True,
+    )
+    try:
+        env.reset(seed=1)
+        for _ in range(12):
+            env.step(np.array([0.6, 0.2, -0.2], dtype=np.float32))
+        frame = env.render()
+    finally:
+        env.close()
+    assert frame.shape == (240, 480, 3)
+    # right column: the downward image (top) and the fisheye circle with black corners (bottom)
+    fisheye = frame[120:, 320:]
+    assert fisheye[2:6, 2:6].max() < 10 and fisheye[55:65, 75:85].std() > 2
+    assert frame[:120, 320:].std() > 5
+    videos = list((tmp_path / "videos").glob("*.mp4"))
+    assert len(videos) == 1
+    cap = cv2.VideoCapture(str(videos[0]))
+    ok, first = cap.read()
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    assert ok and first.shape == (240, 480, 3) and n >= 12

@@ -7,13 +7,17 @@ import math
 from pathlib import Path
 from typing import Any
 
+import cv2
 import gymnasium as gym
 import numpy as np
-import pybullet as pb
 from gymnasium import spaces
 
+from perception.cameras import PinholeCamera
+from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
+from rover_env.fisheye import FisheyeCameraConfig
 from rover_env.geometry import RoverGeometry
 from rover_env.ground_truth import GroundTruth
+from rover_env.rendering import Lighting, look_at, render_pinhole
 from rover_env.rover import ackermann_wheel_speeds
 from rover_env.scenario import ScenarioConfig, load_scenario
 from rover_env.sim import RoverSim, quat_to_yaw
@@ -111,7 +115,8 @@ class RoverEnv(gym.Env):
             camera estimators, needs the perception estimators, which this version does not
             ship yet; asking for it raises ``ValueError``.)
         action_mode: ``"drive"`` or ``"wheels"``.
-        render_mode: None or ``"rgb_array"`` (a third-person chase view).
+        render_mode: None or ``"rgb_array"`` (a composite of a third-person chase view, the
+            downward camera and the fisheye; see :meth:`render`).
         control_hz: Agent rate [Hz]; must divide ``physics_hz``.
         physics_hz: Physics rate [Hz].
         v_max: Speed that action 1.0 commands [m/s].
@@ -134,7 +139,7 @@ class RoverEnv(gym.Env):
         v_max: float = 2.0,
         geometry: RoverGeometry | None = None,
         reward: RewardConfig | None = None,
-        render_size: tuple[int, int] = (480, 360),
+        render_size: tuple[int, int] = (960, 480),
         solver_iterations: int = 20,
     ) -> None:
         super().__init__()
@@ -158,8 +163,8 @@ class RoverEnv(gym.Env):
             raise ValueError(f"control_hz={control_hz} must divide physics_hz={physics_hz} into whole steps")
         if not (0.0 < v_max <= 5.0):
             raise ValueError(f"v_max={v_max}: use a speed in (0, 5] m/s")
-        if len(render_size) != 2 or min(render_size) < 16 or max(render_size) > 4096:
-            raise ValueError(f"render_size={render_size}: use (width, height) of 16 to 4096 px")
+        if len(render_size) != 2 or min(render_size) < 96 or max(render_size) > 4096:
+            raise ValueError(f"render_size={render_size}: use (width, height) of 96 to 4096 px")
         self.scenario = load_scenario(scenario)
         self.geometry = geometry or RoverGeometry()
         self.reward_cfg = reward or RewardConfig()
@@ -196,6 +201,7 @@ class RoverEnv(gym.Env):
         self._gt: GroundTruth | None = None
         self._progress = 0.0
         self._closed = False
+        self._views: dict | None = None
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -261,9 +267,18 @@ class RoverEnv(gym.Env):
         )
 
     def render(self) -> np.ndarray | None:
-        """Third-person chase view, RGB uint8 (H, W, 3), with the sun's shadows."""
+        """Composite frame, RGB uint8 (H, W, 3) of ``render_size``.
+
+        A third-person chase view on the left, the downward camera's image top right and the
+        fisheye image bottom right. The insets show the simulated cameras at the inset's
+        resolution, with the sun's shadows; everything is rendered now, at the current
+        simulation time.
+        """
         if self.render_mode != "rgb_array":
             return None
+        w, h = self.render_size
+        side = w // 3
+        left = w - side
         c = self.sim.client
         pos, quat = c.getBasePositionAndOrientation(self.sim.rover.body_id)
         yaw = quat_to_yaw(quat)
@@ -272,24 +287,41 @@ class RoverEnv(gym.Env):
             pos[1] - 2.6 * math.sin(yaw) - 0.8 * math.cos(yaw),
             pos[2] + 1.6,
         ]
-        w, h = self.render_size
-        view = c.computeViewMatrix(eye, [pos[0], pos[1], pos[2] - 0.1], [0, 0, 1])
-        proj = c.computeProjectionMatrixFOV(55.0, w / h, 0.05, 60.0)
-        sun = self.scenario.sun.direction() * 100.0
-        img = c.getCameraImage(
-            w,
-            h,
-            view,
-            proj,
-            shadow=1,
-            lightDirection=sun.tolist(),
-            lightAmbientCoeff=0.45,
-            lightDiffuseCoeff=0.6,
-            lightSpecularCoeff=0.05,
-            renderer=pb.ER_TINY_RENDERER,
-        )
-        rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (h, w, 4))
-        return np.ascontiguousarray(rgba[:, :, :3])
+        views = self._render_views(left, h, side, h // 2)
+        chase = render_pinhole(
+            c,
+            views["chase"],
+            look_at(eye, [pos[0], pos[1], pos[2] - 0.1]),
+            views["lighting"],
+            far=60.0,
+            caster=self.sim.shadow_caster if views["lighting"].shadows else None,
+            renderer=self.sim.renderer,
+        ).rgb
+        frame = np.zeros((h, w, 3), dtype=np.uint8)
+        frame[:, :left] = chase
+        for row, cam, label in ((0, views["downward"], "downward camera"), (1, views["fisheye"], "fisheye")):
+            img = cv2.resize(cam.capture().image, (side, h // 2), interpolation=cv2.INTER_AREA)
+            cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1, cv2.LINE_AA)
+            frame[row * (h // 2) : (row + 1) * (h // 2), left:] = img
+        return frame
+
+    def _render_views(self, left: int, h: int, inset_w: int, inset_h: int) -> dict:
+        """Cameras of the composite frame, built on first use (the fisheye precomputes its remap)."""
+        if self._views is None:
+            shadows = self.sim.renderer == "tiny"
+            sun = tuple(float(v) for v in self.scenario.sun.direction())
+            # insets at about their display size (even sizes, the camera's 4:3 aspect)
+            iw = max(16, 2 * (inset_w // 2))
+            ih = max(16, 2 * (iw * 3 // 8))
+            self._views = {
+                "chase": PinholeCamera.from_fov((left, h), math.radians(55.0 * left / h), math.radians(55.0)),
+                "lighting": Lighting(sun, ambient=0.35, shadows=shadows),
+                "downward": DownwardCamera(
+                    self.sim, DownwardCameraConfig(width=iw, height=ih, shadows=shadows)
+                ),
+                "fisheye": FisheyeCamera(self.sim, FisheyeCameraConfig(width=iw, height=ih, shadows=shadows)),
+            }
+        return self._views
 
     def close(self) -> None:
         """Release the physics client; safe to call more than once."""
