@@ -258,7 +258,7 @@ def run_demo(
 ) -> MissionMetrics:
     """The headless demo: pure pursuit through ``scenario``; writes everything into ``out``.
 
-    Writes ``demo.mp4`` (third-person view), ``trajectory.png``, ``velocity_slip.png``,
+    Writes ``demo.mp4`` (chase view, downward and fisheye images), ``trajectory.png``, ``velocity_slip.png``,
     ``joints.png``, ``metrics.json`` and ``trajectory.tum``.
     """
     from controllers.pure_pursuit import PurePursuit, PurePursuitConfig

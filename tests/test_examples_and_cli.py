@@ -48,7 +48,7 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
 
     cap = cv2.VideoCapture(str(out / "demo.mp4"))
     ok, frame = cap.read()
-    assert ok and frame.shape == (360, 480, 3) and frame.std() > 5
+    assert ok and frame.shape == (480, 960, 3) and frame.std() > 5  # chase view + both cameras
 
 
 def test_cli_reports_bad_scenario(capsys):
