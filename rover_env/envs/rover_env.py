@@ -140,7 +140,7 @@ class RoverEnv(gym.Env):
         geometry: RoverGeometry | None = None,
         reward: RewardConfig | None = None,
         render_size: tuple[int, int] = (960, 480),
-        solver_iterations: int = 20,
+        solver_iterations: int = 10,
     ) -> None:
         super().__init__()
         try:
