@@ -1,4 +1,4 @@
-"""Benchmarks of the simulation: physics-only environment steps per second, real-time factor."""
+"""Benchmarks of the simulation: physics-only real-time factor, and milliseconds per camera frame."""
 
 from __future__ import annotations
 
@@ -95,5 +95,122 @@ def format_table(rows: list[PhysicsBenchResult]) -> str:
             f"| {r.scenario} | {r.steps_per_s:.0f} | {r.real_time_factor:.1f}x | "
             f"{r.ms_per_step:.2f} | {r.us_per_physics_step:.0f} | {100 * r.physics_share:.0f} % | "
             f"{r.physics_bound_rtf:.1f}x |"
+        )
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class CameraBenchResult:
+    """One row of the camera benchmark (median over the frames).
+
+    Attributes:
+        camera: ``downward`` or ``fisheye``.
+        preset: Resolution preset (``full`` 640x480, ``half`` 320x240, ``train`` 160x120).
+        renderer: ``tiny`` (TinyRenderer) or ``egl``.
+        shadows: Sun shadows on.
+        ms_per_frame: Wall-clock milliseconds per captured frame.
+        ms_remap: Fisheye only: the atlas-to-image remap alone [ms] (NaN for the pinhole).
+        face_pixels: Pixels rendered per frame (the fisheye renders cube faces).
+    """
+
+    camera: str
+    preset: str
+    renderer: str
+    shadows: bool
+    ms_per_frame: float
+    ms_remap: float
+    face_pixels: int
+
+
+def bench_cameras(
+    scenario: str = "flat_patches",
+    presets: tuple[str, ...] = ("full", "half", "train"),
+    frames: int = 8,
+    egl: bool = True,
+) -> list[CameraBenchResult]:
+    """Time frame capture of both cameras at each preset, with and without shadows.
+
+    The rover drives between frames so that every frame sees a new scene. EGL rows are added
+    (shadows off: EGL ignores the sun) when the plugin loads on this machine.
+    """
+    import logging
+    import math
+
+    from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
+    from rover_env.fisheye import FisheyeCameraConfig
+    from rover_env.scenario import load_scenario
+    from rover_env.sim import RoverSim
+
+    rows: list[CameraBenchResult] = []
+    renderers = ["tiny"]
+    if egl:
+        renderers.append("egl")
+    for renderer in renderers:
+        try:
+            sim = RoverSim(load_scenario(scenario), renderer=renderer)
+        except RuntimeError as exc:
+            logging.getLogger(__name__).warning("no EGL rows: %s", exc)
+            continue
+        try:
+            sim.reset(0.0, 0.0, 0.3)
+            sim.rover.command(np.full(4, 5.0), 0.2, -0.2)
+            for preset in presets:
+                for shadows in (True, False) if renderer == "tiny" else (False,):
+                    down = DownwardCamera(sim, DownwardCameraConfig.preset(preset, shadows=shadows))
+                    fish = FisheyeCamera(sim, FisheyeCameraConfig.preset(preset, shadows=shadows))
+                    for name, cam in (("downward", down), ("fisheye", fish)):
+                        cam.capture()  # warm-up
+                        times = []
+                        for _ in range(frames):
+                            sim.step(1 / 30)
+                            t = time.perf_counter()
+                            cam.capture()
+                            times.append(time.perf_counter() - t)
+                        remap_ms = math.nan
+                        if name == "fisheye":
+                            rm = fish.remapper
+                            atlas = rm.atlas(
+                                [np.zeros((*fc.camera.image_size[::-1], 3), np.uint8) + 90 for fc in rm.faces]
+                            )
+                            rt = []
+                            for _ in range(30):
+                                t = time.perf_counter()
+                                rm.remap(atlas)
+                                rt.append(time.perf_counter() - t)
+                            remap_ms = float(np.median(rt)) * 1e3
+                            pixels = rm.face_pixels
+                        else:
+                            pixels = down.config.width * down.config.height
+                        rows.append(
+                            CameraBenchResult(
+                                name,
+                                preset,
+                                renderer,
+                                shadows,
+                                float(np.median(times)) * 1e3,
+                                remap_ms,
+                                pixels,
+                            )
+                        )
+        finally:
+            sim.close()
+    return rows
+
+
+def format_camera_table(rows: list[CameraBenchResult]) -> str:
+    """Markdown table of camera rows, with fisheye/downward ratios measured in the same run."""
+    down = {(r.preset, r.renderer, r.shadows): r.ms_per_frame for r in rows if r.camera == "downward"}
+    lines = [
+        "| camera | preset | renderer | shadows | ms/frame | rendered px | remap ms | fisheye / downward |",
+        "|---|---|---|---|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        ratio = ""
+        if r.camera == "fisheye" and (r.preset, r.renderer, r.shadows) in down:
+            ratio = f"{r.ms_per_frame / down[(r.preset, r.renderer, r.shadows)]:.2f}"
+        remap = "" if r.camera == "downward" else f"{r.ms_remap:.2f}"
+        lines.append(
+            f"| {r.camera} | {r.preset} | {r.renderer} | {'on' if r.shadows else 'off'} | "
+            f"{r.ms_per_frame:.1f} | {r.face_pixels} | {remap} | {ratio} |"
         )
     return "\n".join(lines)

@@ -37,7 +37,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from rover_env.bench import bench_physics, format_table
+    from rover_env.bench import bench_cameras, bench_physics, format_camera_table, format_table
 
     rows = []
     for name in args.scenarios:
@@ -45,8 +45,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         sys.stderr.write(f"benchmarked {name}\n")
     print("Physics only (no rendering), one process, control 30 Hz, physics 240 Hz:")
     print(format_table(rows))
+    cam_rows = []
+    if not args.no_cameras:
+        cam_rows = bench_cameras(args.scenarios[0], frames=args.frames, egl=not args.no_egl)
+        print(f"\nCameras ({args.scenarios[0]}), one process, median of {args.frames} frames:")
+        print(format_camera_table(cam_rows))
     if args.json:
-        Path(args.json).write_text(json.dumps([asdict(r) for r in rows], indent=2) + "\n")
+        data = {"physics": [asdict(r) for r in rows], "cameras": [asdict(r) for r in cam_rows]}
+        Path(args.json).write_text(json.dumps(data, indent=2) + "\n")
     return 0
 
 
@@ -72,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="simulation speed benchmarks")
     b.add_argument("--scenarios", nargs="+", default=["flat_patches", "rough"])
     b.add_argument("--steps", type=int, default=600, help="environment steps per scenario")
+    b.add_argument("--frames", type=int, default=8, help="frames per camera row")
+    b.add_argument("--no-cameras", action="store_true", help="physics only")
+    b.add_argument("--no-egl", action="store_true", help="skip the EGL renderer rows")
     b.add_argument("--json", help="also write the results to this JSON file")
     b.set_defaults(func=_cmd_bench)
     s = sub.add_parser("scenarios", help="list the shipped scenario presets")

@@ -54,3 +54,19 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
 def test_cli_reports_bad_scenario(capsys):
     assert main(["demo", "--out", "/tmp/never", "--scenario", "no_such_preset"]) == 2
     assert "unknown scenario preset" in capsys.readouterr().err
+
+
+def test_camera_bench_rows_and_table():
+    from rover_env.bench import bench_cameras, format_camera_table
+
+    rows = bench_cameras("flat_patches", presets=("train",), frames=1, egl=False)
+    assert [(r.camera, r.shadows) for r in rows] == [
+        ("downward", True),
+        ("fisheye", True),
+        ("downward", False),
+        ("fisheye", False),
+    ]
+    fish = rows[1]
+    assert fish.face_pixels > 160 * 120 and 0 < fish.ms_remap < fish.ms_per_frame
+    table = format_camera_table(rows)
+    assert table.count("\n") == 5 and "| fisheye | train | tiny | on |" in table
