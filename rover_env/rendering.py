@@ -10,7 +10,7 @@ lit brightness.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pybullet as pb
@@ -94,17 +94,34 @@ class RenderedView:
 
     Attributes:
         rgb: (H, W, 3) uint8.
-        depth: (H, W) distance along the optical axis [m] (far plane where nothing was hit).
+        depth: (H, W) float32 distance along the optical axis [m] (far plane where nothing was hit).
         segmentation: (H, W) int: PyBullet's body id + ((link + 1) << 24), -1 for background.
         shadow: (H, W) bool, True where the sun is blocked (all False without shadows).
-        points_world: (H, W, 3) world position of each pixel's surface point [m].
+        K: Intrinsics of the view.
+        T_world_cam: Pose of the view's optical frame in the world [m].
     """
 
     rgb: np.ndarray
     depth: np.ndarray
     segmentation: np.ndarray
     shadow: np.ndarray
-    points_world: np.ndarray
+    K: np.ndarray
+    T_world_cam: np.ndarray
+    _points: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def points_world(self) -> np.ndarray:
+        """(H, W, 3) float32 world position of each pixel's surface point [m] (computed on first use)."""
+        if self._points is None:
+            h, w = self.depth.shape
+            K, T = self.K, self.T_world_cam
+            R = T[:3, :3].astype(np.float32)
+            xs = ((np.arange(w) - K[0, 2]) / K[0, 0]).astype(np.float32)
+            ys = ((np.arange(h) - K[1, 2]) / K[1, 1]).astype(np.float32)
+            # world direction of each pixel's ray, scaled to unit optical-axis depth
+            rays = xs[None, :, None] * R[:, 0] + (ys[:, None, None] * R[:, 1] + R[:, 2])
+            self._points = rays * self.depth[:, :, None] + T[:3, 3].astype(np.float32)
+        return self._points
 
 
 RENDERERS: dict[str, int] = {"tiny": pb.ER_TINY_RENDERER, "egl": pb.ER_BULLET_HARDWARE_OPENGL}
@@ -192,13 +209,7 @@ def render_pinhole(
     depth = (far * near / (far - (far - near) * zbuf.astype(np.float64))).astype(np.float32)
     w, h = size
     K = camera.K
-    R = T_world_cam[:3, :3].astype(np.float32)
-    xs = ((np.arange(w) - K[0, 2]) / K[0, 0]).astype(np.float32)
-    ys = ((np.arange(h) - K[1, 2]) / K[1, 1]).astype(np.float32)
-    # world direction of each pixel's ray, scaled to unit optical-axis depth
-    rays = xs[None, :, None] * R[:, 0] + (ys[:, None, None] * R[:, 1] + R[:, 2])
-    pts = rays * depth[:, :, None] + T_world_cam[:3, 3].astype(np.float32)
-    shadow = np.zeros((h, w), dtype=bool)
+    view = RenderedView(rgb, depth, seg, np.zeros((h, w), dtype=bool), K, np.asarray(T_world_cam))
     if lighting.shadows:
         hit = seg >= 0
         if shadow_map is None and hit.any():
@@ -207,10 +218,10 @@ def render_pinhole(
             texel = float(np.median(depth[hit])) / K[0, 0]  # ground size of a pixel [m]
             shadow_map = caster.shadow_map(lighting.sun_direction, texel)
         if shadow_map is not None:
-            shadow = shadow_map.lookup(pts) & hit
-        if shadow.any():
-            rgb = _darken(rgb, shadow, pts, lighting)
-    return RenderedView(rgb=rgb, depth=depth, segmentation=seg, shadow=shadow, points_world=pts)
+            view.shadow = shadow_map.lookup(view.points_world) & hit
+        if view.shadow.any():
+            view.rgb = _darken(rgb, view.shadow, view.points_world, lighting)
+    return view
 
 
 def _darken(rgb: np.ndarray, shadow: np.ndarray, pts: np.ndarray, lighting: Lighting) -> np.ndarray:
