@@ -109,6 +109,52 @@ def test_fisheye_has_no_seams(lifted_sim):
     assert elsewhere < 4.0  # the two cubes resample the same scene
 
 
+def test_no_step_across_cube_face_borders_on_a_smooth_texture(tmp_path):
+    """Along every face border, the step between the two sides is no larger than the image's
+    own gradient next to it (a seam would show as a step where the texture has none)."""
+    from rover_env.scenario import ScenarioConfig, TerrainConfig
+    from rover_env.task import CourseConfig
+
+    yy, xx = np.mgrid[0:512, 0:512] / 512.0
+    smooth = 128 + 50 * np.sin(2 * np.pi * (2 * xx + yy)) * np.cos(2 * np.pi * 3 * yy)
+    cv2.imwrite(str(tmp_path / "smooth.png"), np.repeat(smooth[..., None], 3, axis=2).astype(np.uint8))
+    scenario = ScenarioConfig(
+        name="smooth",
+        course=CourseConfig(waypoints=((3.0, 0.0),)),
+        terrain=TerrainConfig(size=(20.0, 20.0), texture=str(tmp_path / "smooth.png"), texture_tile=1.5),
+    )
+    sim = RoverSim(scenario)
+    try:
+        sim.reset(0.3, -0.2, 0.4)
+        cam = FisheyeCamera(sim, FisheyeCameraConfig(shadows=False))
+        view = cam.render_view()
+    finally:
+        sim.close()
+    img = cv2.cvtColor(view.rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    ground = view.segmentation == 0  # the terrain is body 0
+    ground = cv2.erode(ground.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    face = cam.remapper.face_index
+    worst, pairs = 0.0, 0
+    for axis in (0, 1):  # vertical and horizontal neighbours
+        a = [slice(2, -3), slice(2, -3)]
+        b = list(a)
+        b[axis] = slice(3, -2)
+        across = (face[tuple(a)] != face[tuple(b)]) & ground[tuple(a)] & ground[tuple(b)]
+        step = np.abs(img[tuple(a)] - img[tuple(b)])
+        # the image's own gradient: the largest same-direction step within the face, 3 px around
+        # (the renderer samples texels by nearest neighbour, so the texture itself steps)
+        within = np.where(face[tuple(a)] == face[tuple(b)], step, 0.0).astype(np.float32)
+        own = cv2.dilate(within, np.ones((7, 7), np.uint8))
+        excess = step[across] - own[across]
+        pairs += int(across.sum())
+        worst = max(worst, float(excess.max()))
+    print(
+        f"face borders: {pairs} pixel pairs on the ground; largest step above the local gradient {worst:.1f}"
+    )
+    assert pairs > 500
+    assert worst <= 1.0  # one grey level of rounding
+
+
 def magenta_blobs(rgb):
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     mask = (hsv[..., 0] > 140) & (hsv[..., 0] < 160) & (hsv[..., 1] > 120) & (hsv[..., 2] > 25)
