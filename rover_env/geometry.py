@@ -108,6 +108,21 @@ class RoverGeometry:
         check_range(
             "mast_camera_position[2]", self.mast_camera_position[2], self.body_size[2] / 2 + 0.05, 3.0
         )
+        if not self.body_size[0] / 2 < self.mast_camera_position[0] <= 3.0:
+            raise ConfigError(
+                f"mast_camera_position[0]: {self.mast_camera_position[0]!r} m; the downward camera must "
+                f"look at the ground ahead of the body (x > {self.body_size[0] / 2:g} m, at most 3 m)"
+            )
+        fx, fy, fz = self.fisheye_origin
+        if not (abs(fx) < self.body_size[0] / 2 and abs(fy) < self.body_size[1] / 2):
+            raise ConfigError(
+                f"fisheye_origin: ({fx:g}, {fy:g}) m is not under the body; keep it inside its footprint"
+            )
+        if not (self.axle_z < fz < -self.body_size[2] / 2):
+            raise ConfigError(
+                f"fisheye_origin[2]: {fz!r} m; the fisheye hangs under the body, between its bottom "
+                f"({-self.body_size[2] / 2:g} m) and the axle roll centres ({self.axle_z:g} m)"
+            )
         for name in (
             "body_mass",
             "wheel_mass",

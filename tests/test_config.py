@@ -89,6 +89,15 @@ def test_geometry_validation():
         RoverGeometry(wheel_radius=-0.1)
     with pytest.raises(ConfigError, match="steer_limit"):
         RoverGeometry(steer_limit=math.radians(59))
+    # camera mounts
+    with pytest.raises(ConfigError, match="fisheye_origin: .* not under the body"):
+        RoverGeometry(fisheye_origin=(0.6, 0.0, -0.12))
+    with pytest.raises(ConfigError, match=r"fisheye_origin\[2\]"):
+        RoverGeometry(fisheye_origin=(0.0, 0.0, 0.05))  # inside the body
+    with pytest.raises(ConfigError, match=r"mast_camera_position\[0\]"):
+        RoverGeometry(mast_camera_position=(0.2, 0.0, 0.535))  # above the body, not the ground
+    with pytest.raises(ConfigError, match=r"mast_camera_position\[2\]"):
+        RoverGeometry(mast_camera_position=(0.95, 0.0, 0.05))
 
 
 @pytest.mark.parametrize("lam_deg", [-30.0, -12.0, 5.0, 30.0])
