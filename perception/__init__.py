@@ -4,6 +4,7 @@ This package depends on numpy, OpenCV and SciPy only; it never needs the simulat
 """
 
 from perception.calib_io import CalibrationError
+from perception.calibration import OmniFit, fit_omni_camera
 from perception.cameras import OmniCamera, PinholeCamera
 from perception.wheel_kinematics import (
     SLIP_EPS,
@@ -16,7 +17,9 @@ __all__ = [
     "SLIP_EPS",
     "CalibrationError",
     "OmniCamera",
+    "OmniFit",
     "PinholeCamera",
+    "fit_omni_camera",
     "slip_angle",
     "slip_ratio",
     "wheel_ground_velocity",
