@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from perception.cameras import PinholeCamera
-from rover_env.config_io import ConfigError, check_range
+from rover_env.config_io import ConfigError, camera_preset, check_camera_config, check_range
 from rover_env.fisheye import R_BODY_FISHEYE, CubemapRemap, FisheyeCameraConfig, FisheyeView, render_fisheye
 from rover_env.rendering import Lighting, RenderedView, render_pinhole
 from rover_env.sim import RoverSim
@@ -47,22 +47,14 @@ class DownwardCameraConfig:
     ambient: float = 0.25
 
     def __post_init__(self) -> None:
-        for key in ("width", "height"):
-            v = getattr(self, key)
-            if not isinstance(v, int) or not 16 <= v <= 4096:
-                raise ConfigError(f"{key}: {v!r} px is not a usable image size; use an integer in 16..4096")
+        check_camera_config(self)
         check_range("hfov_deg", self.hfov_deg, 1.0, 170.0)
         check_range("vfov_deg", self.vfov_deg, 1.0, 170.0)
-        check_range("rate_hz", self.rate_hz, 1.0, 1000.0)
-        check_range("ambient", self.ambient, 0.0, 1.0, lo_open=True)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> DownwardCameraConfig:
         """A resolution preset: ``full`` 640x480, ``half`` 320x240, ``train`` 160x120."""
-        if name not in DOWNWARD_PRESETS:
-            raise ConfigError(f"preset: unknown {name!r}; choose one of {sorted(DOWNWARD_PRESETS)}")
-        w, h = DOWNWARD_PRESETS[name]
-        return cls(width=w, height=h, **overrides)
+        return camera_preset(cls, name, DOWNWARD_PRESETS, overrides)
 
 
 @dataclass(frozen=True)

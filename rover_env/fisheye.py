@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from perception.cameras import OmniCamera, PinholeCamera
-from rover_env.config_io import ConfigError, check_range
+from rover_env.config_io import camera_preset, check_camera_config, check_range
 from rover_env.rendering import Lighting, render_pinhole
 
 # image right = body forward, image down = body right, optical axis = body down
@@ -195,23 +195,15 @@ class FisheyeCameraConfig:
     oversample: float = 1.0
 
     def __post_init__(self) -> None:
-        for key in ("width", "height"):
-            v = getattr(self, key)
-            if not isinstance(v, int) or not 16 <= v <= 4096:
-                raise ConfigError(f"{key}: {v!r} px is not a usable image size; use an integer in 16..4096")
-        check_range("rate_hz", self.rate_hz, 1.0, 1000.0)
+        check_camera_config(self)
         check_range("fov_deg", self.fov_deg, 185.0, 250.0)
         check_range("radius_frac", self.radius_frac, 0.1, 1.0)
-        check_range("ambient", self.ambient, 0.0, 1.0, lo_open=True)
         check_range("oversample", self.oversample, 0.25, 4.0)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> FisheyeCameraConfig:
         """A resolution preset: ``full`` 640x480, ``half`` 320x240, ``train`` 160x120."""
-        if name not in FISHEYE_PRESETS:
-            raise ConfigError(f"preset: unknown {name!r}; choose one of {sorted(FISHEYE_PRESETS)}")
-        w, h = FISHEYE_PRESETS[name]
-        return cls(width=w, height=h, **overrides)
+        return camera_preset(cls, name, FISHEYE_PRESETS, overrides)
 
     def model(self, T_body_cam: np.ndarray) -> OmniCamera:
         """The ideal (equidistant, 4th-order polynomial) model of this configuration."""
