@@ -91,22 +91,20 @@ class CubemapRemap:
 
         cr, sr = math.cos(cube_roll), math.sin(cube_roll)
         R_cam_cube = np.array([[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]])
-        comps = np.full((w * h, 3), np.nan)
-        comps[valid] = rays[valid] @ R_cam_cube  # ray components along the cube axes
+        # each ray belongs to the face whose axis it is closest to
+        axes = np.array([axis for _, axis, _ in _FACES])
+        owner = np.where(valid, np.argmax(np.nan_to_num(rays @ R_cam_cube) @ axes.T, axis=1), -1)
         faces: list[CubeFace] = []
+        face_of = np.full(w * h, -1)
         map_x = np.full(w * h, -10.0, dtype=np.float32)
         map_y = np.full(w * h, -10.0, dtype=np.float32)
         row = 0
         width = 0
-        owner = np.full(w * h, -1)
-        for i, (_, axis, _) in enumerate(_FACES):
-            a = np.asarray(axis)
-            sel = valid & (comps @ a >= np.abs(comps).max(axis=1) - 1e-12) & (owner < 0)
-            owner[sel] = i
         for i, (name, axis, down) in enumerate(_FACES):
             sel = owner == i
             if not sel.any():
                 continue
+            face_of[sel] = len(faces)
             z = np.asarray(axis)
             y = np.asarray(down)
             R = R_cam_cube @ np.stack([np.cross(y, z), y, z], 1)  # face x, y, z in the camera frame
@@ -125,9 +123,6 @@ class CubemapRemap:
             row += size[1]
             width = max(width, size[0])
         self.faces: tuple[CubeFace, ...] = tuple(faces)
-        face_of = np.full(w * h, -1)
-        for k, fc in enumerate(faces):
-            face_of[owner == [i for i, f in enumerate(_FACES) if f[0] == fc.name][0]] = k
         self.face_index = face_of.reshape(h, w)  # index into faces of each pixel, -1 outside
         self.atlas_size = (width, row)
         self._map1, self._map2 = cv2.convertMaps(
