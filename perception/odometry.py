@@ -1,0 +1,604 @@
+"""Optical-flow odometry from a downward camera, robust to the robot's own shadow.
+
+Seegmiller and Wettergreen, "Optical Flow Odometry with Robustness to Self-shadowing" (Algorithm 1):
+
+1. ``I_prev``; an image pyramid whose smallest level (>= 80 x 60) is used for the mask.
+2. Shadow presence: two-cluster K-means on the smallest level's intensities and the bimodality
+   test |c1 - c2| > lambda (sigma1 + sigma2) (eq. 3).
+3. Shadow edges: Canny with thresholds proportional to |c1 - c2|; the K-means label image with
+   shadow segments that do not touch the image border removed (4-connected growth from border
+   seeds); the gradient of that image, unthinned and dilated 3 x 3, masks the Canny output; the
+   masked edges, dilated by the radius of eq. (4), are where features may not be selected.
+4. Harris features under the mask, inside a central region of interest, a minimum distance apart.
+5. ``I_curr``; pyramidal Lucas-Kanade, kept only where tracking back from ``I_curr`` returns to
+   the start (forward-backward check).
+6. Undistortion and the ground homography H = K M* into the body frame (eqs. 5-8).
+7. RANSAC over 3-point samples: centroid normalisation, the SVD rotation and the rigid-motion
+   error of eqs. (10)-(17); inlier threshold in metres.
+8. Velocity (v_x, v_y, omega) by least squares over the inliers (eqs. 18-19), with a quality
+   value and a validity decision that gives its reason when invalid. An invalid estimate has
+   NaN velocities: the estimator never reports a confident zero.
+
+Frames: body x forward, y left, z up; velocities are of the body origin in the body frame [m/s],
+omega about body z [rad/s].
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from perception.cameras import PinholeCamera
+
+log = logging.getLogger(__name__)
+
+
+# ---------------------------------------------------------------------------------------- steps
+def build_pyramid(gray: np.ndarray, min_size: tuple[int, int] = (80, 60)) -> list[np.ndarray]:
+    """Gaussian pyramid of ``gray``: level 0 is the image, each level half the last.
+
+    Levels are added while the next one would still be at least ``min_size`` (W, H).
+    """
+    levels = [gray]
+    while levels[-1].shape[1] // 2 >= min_size[0] and levels[-1].shape[0] // 2 >= min_size[1]:
+        levels.append(cv2.pyrDown(levels[-1]))
+    return levels
+
+
+def kmeans_1d(values: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two-cluster K-means of intensities.
+
+    Returns:
+        labels (same shape as ``values``; 0 = dark cluster, 1 = bright), centres (c_dark,
+        c_bright) and standard deviations (sigma_dark, sigma_bright).
+    """
+    v = np.asarray(values, dtype=np.float32).ravel()
+    c = np.percentile(v, [10.0, 90.0]).astype(np.float64)
+    if c[1] - c[0] < 1e-6:
+        c = np.array([v.min() - 0.5, v.max() + 0.5])
+    for _ in range(iterations):
+        bright = v > 0.5 * (c[0] + c[1])
+        new = np.array(
+            [v[~bright].mean() if (~bright).any() else c[0], v[bright].mean() if bright.any() else c[1]]
+        )
+        if np.allclose(new, c, atol=1e-3):
+            c = new
+            break
+        c = new
+    bright = v > 0.5 * (c[0] + c[1])
+    sig = np.array([v[~bright].std() if (~bright).any() else 0.0, v[bright].std() if bright.any() else 0.0])
+    return bright.reshape(np.shape(values)).astype(np.uint8), c, sig
+
+
+def shadow_detected(centres: np.ndarray, sigmas: np.ndarray, lam: float) -> bool:
+    """Bimodality test of eq. (3): |c1 - c2| > lambda (sigma1 + sigma2)."""
+    return bool(abs(centres[1] - centres[0]) > lam * (sigmas[0] + sigmas[1]))
+
+
+def keep_border_segments(shadow: np.ndarray) -> np.ndarray:
+    """Shadow pixels (nonzero) whose 4-connected segment touches the image border.
+
+    The robot's shadow reaches the image border; isolated dark spots are ground texture.
+    """
+    mask = (np.asarray(shadow) > 0).astype(np.uint8)
+    n, labels = cv2.connectedComponents(mask, connectivity=4)
+    if n <= 1:
+        return mask.astype(bool)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    keep = np.zeros(n, dtype=bool)
+    keep[border] = True
+    keep[0] = False
+    return keep[labels]
+
+
+def shadow_edge_mask(clean_shadow: np.ndarray) -> np.ndarray:
+    """Edges of the cleaned label image: morphological gradient (no thinning), dilated 3 x 3."""
+    img = np.asarray(clean_shadow, dtype=np.uint8)
+    k = np.ones((3, 3), np.uint8)
+    grad = cv2.morphologyEx(img, cv2.MORPH_GRADIENT, k)
+    return cv2.dilate(grad, k) > 0
+
+
+def mask_radius(max_disp: float, window: int, level: int) -> int:
+    """Dilation radius of eq. (4), in pixels of pyramid level ``level``: (maxDisp + win/2) / 2^L."""
+    return int(math.ceil((max_disp + window / 2.0) / 2**level))
+
+
+def rigid_ransac(
+    P: np.ndarray,
+    C: np.ndarray,
+    threshold: float,
+    iterations: int = 100,
+    rng: np.random.Generator | None = None,
+    sample_size: int = 3,
+) -> np.ndarray:
+    """Largest set of 2-D points that move as one rigid pattern from ``P`` to ``C`` (eqs. 10-17).
+
+    Each iteration samples ``sample_size`` pairs, subtracts their centroids, takes the rotation
+    R = U V^T from the SVD of the covariance c' p'^T / n_s, and counts the points whose error
+    C' - R P' (all points about the sample centroids) is under ``threshold``.
+
+    Args:
+        P: (n, 2) positions in the first frame [m].
+        C: (n, 2) positions in the second frame [m].
+        threshold: Inlier distance [m].
+        iterations: RANSAC iterations.
+        rng: Random generator (fixed seed by default, so results repeat).
+        sample_size: Points per sample (3 in the paper).
+
+    Returns:
+        (n,) bool inlier mask (all False if there are fewer points than a sample).
+    """
+    P = np.asarray(P, dtype=np.float64)
+    C = np.asarray(C, dtype=np.float64)
+    n = len(P)
+    best = np.zeros(n, dtype=bool)
+    if n < sample_size:
+        return best
+    rng = rng or np.random.default_rng(0)
+    thr2 = threshold**2
+    for _ in range(iterations):
+        s = rng.choice(n, sample_size, replace=False)
+        p_bar, c_bar = P[s].mean(axis=0), C[s].mean(axis=0)
+        p_s, c_s = P[s] - p_bar, C[s] - c_bar
+        sigma = c_s.T @ p_s / sample_size  # eq. 14
+        U, _, Vt = np.linalg.svd(sigma)
+        R = U @ Vt  # eq. 16
+        if np.linalg.det(R) < 0:  # a reflection is not a motion
+            U[:, -1] *= -1
+            R = U @ Vt
+        err = (C - c_bar) - (P - p_bar) @ R.T  # eq. 17
+        inl = np.einsum("ij,ij->i", err, err) < thr2
+        if inl.sum() > best.sum():
+            best = inl
+    return best
+
+
+def velocity_from_points(P: np.ndarray, C: np.ndarray, dt: float) -> tuple[np.ndarray, float]:
+    """(v_x, v_y, omega) of the body from ground points seen at P then C (body frame, m), eqs. 18-19.
+
+    Point velocity is the negative of the displacement over ``dt``; each point gives the rows
+    [1, 0, -r_y; 0, 1, r_x] with r its position. r is the midpoint of P and C, which makes the
+    linear model exact to second order in omega dt.
+
+    Returns:
+        (3,) velocity [m/s, m/s, rad/s] and the RMS residual of the fit [m/s].
+    """
+    P = np.asarray(P, dtype=np.float64)
+    C = np.asarray(C, dtype=np.float64)
+    v = -(C - P) / dt
+    r = 0.5 * (P + C)
+    n = len(P)
+    A = np.zeros((2 * n, 3))
+    A[0::2, 0] = 1.0
+    A[0::2, 2] = -r[:, 1]
+    A[1::2, 1] = 1.0
+    A[1::2, 2] = r[:, 0]
+    b = v.reshape(-1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    res = A @ sol - b
+    return sol, float(np.sqrt(np.mean(res**2)))
+
+
+# ---------------------------------------------------------------------------------------- estimator
+@dataclass(frozen=True)
+class FlowOdometryConfig:
+    """Parameters of :class:`FlowOdometry` (pixel sizes are at full resolution).
+
+    Attributes:
+        min_level_size: Smallest pyramid level used for the mask, (W, H) [px] (>= 80 x 60).
+        bimodality_lambda: lambda of eq. (3); low so that shadows are never missed (false
+            positives only exclude a few edges).
+        canny_high: Canny high threshold as a multiple of |c1 - c2| (Sobel magnitude units).
+        canny_low: Canny low threshold as a share of the high one.
+        max_disp: Largest feature displacement between frames [px] (eq. 4).
+        window: Lucas-Kanade window [px].
+        lk_levels: Lucas-Kanade pyramid levels above the base.
+        max_features: Harris features selected per frame.
+        min_distance: Minimum distance between features [px].
+        quality_level: Harris quality level (share of the strongest corner).
+        roi_margin: Share of the width and height kept clear of features at each border.
+        fb_threshold: Largest forward-backward tracking error [px].
+        ransac_threshold: RANSAC inlier distance [m].
+        ransac_iterations: RANSAC iterations.
+        min_inliers: Fewest inliers for a valid estimate.
+        min_inlier_ratio: Smallest inlier share of the tracked features for a valid estimate.
+        max_residual: Largest RMS residual of the velocity fit for a valid estimate [m/s].
+        use_mask: Ablation switch: the shadow-edge feature mask.
+        use_ransac: Ablation switch: RANSAC (off: every tracked feature is used).
+    """
+
+    min_level_size: tuple[int, int] = (80, 60)
+    bimodality_lambda: float = 1.5
+    canny_high: float = 2.0
+    canny_low: float = 0.5
+    max_disp: float = 25.0
+    window: int = 21
+    lk_levels: int = 3
+    max_features: int = 50
+    min_distance: float = 20.0
+    quality_level: float = 0.01
+    roi_margin: float = 0.15
+    fb_threshold: float = 0.5
+    ransac_threshold: float = 0.003
+    ransac_iterations: int = 100
+    min_inliers: int = 8
+    min_inlier_ratio: float = 0.3
+    max_residual: float = 0.05
+    use_mask: bool = True
+    use_ransac: bool = True
+
+    def __post_init__(self) -> None:
+        w, h = self.min_level_size
+        if w < 80 or h < 60:
+            raise ValueError(f"min_level_size: {self.min_level_size} is below the paper's 80 x 60 minimum")
+        for name in ("bimodality_lambda", "canny_high", "max_disp", "ransac_threshold", "max_residual"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: {getattr(self, name)!r} must be > 0")
+        if not (self.window >= 5 and self.window % 2 == 1):
+            raise ValueError(f"window: {self.window} px; use an odd size >= 5")
+        if not 0.0 <= self.roi_margin < 0.5:
+            raise ValueError(f"roi_margin: {self.roi_margin}; use a share in [0, 0.5)")
+        if self.min_inliers < 2:
+            raise ValueError("min_inliers: at least 2 features are needed for (v_x, v_y, omega)")
+
+
+@dataclass
+class MaskDiagnostics:
+    """Intermediate images of the feature-selection mask (the paper's Fig. 3), at pyramid ``level``.
+
+    Attributes:
+        level: Pyramid level of the images.
+        small: The grey image at that level.
+        centres: K-means centres (dark, bright).
+        sigmas: K-means standard deviations.
+        shadow: Whether eq. (3) detected a shadow.
+        labels: K-means labels (1 = shadow).
+        clean: Labels with shadow segments not touching the border removed.
+        edge_mask: Shadow-edge mask (gradient of ``clean``, dilated 3 x 3).
+        canny: Raw Canny output.
+        parsed: Canny output inside the shadow-edge mask.
+        forbidden: Parsed edges dilated by the radius of eq. (4).
+    """
+
+    level: int
+    small: np.ndarray
+    centres: np.ndarray
+    sigmas: np.ndarray
+    shadow: bool
+    labels: np.ndarray
+    clean: np.ndarray
+    edge_mask: np.ndarray
+    canny: np.ndarray
+    parsed: np.ndarray
+    forbidden: np.ndarray
+
+
+@dataclass
+class Selection:
+    """Features chosen on ``I_prev`` before ``I_curr`` exists (Algorithm 1, lines 2-4).
+
+    Attributes:
+        gray: ``I_prev`` as grey levels.
+        features: (n, 2) float32 pixel positions.
+        mask: (H, W) bool, where features were allowed.
+        t: Time of ``I_prev`` [s] (None if not given).
+        diagnostics: Intermediate images of the mask.
+    """
+
+    gray: np.ndarray
+    features: np.ndarray
+    mask: np.ndarray
+    t: float | None = None
+    diagnostics: MaskDiagnostics | None = None
+
+
+@dataclass
+class OdometryEstimate:
+    """One velocity estimate from a frame pair.
+
+    Attributes:
+        v_x: Forward velocity of the body origin [m/s] (NaN when invalid).
+        v_y: Leftward velocity [m/s] (NaN when invalid).
+        omega: Yaw rate [rad/s] (NaN when invalid).
+        valid: Whether the estimate can be trusted.
+        reason: Why it is invalid ("" when valid).
+        quality: 0 (invalid) to 1: inlier count against ``2 * min_inliers`` times inlier ratio.
+        n_features: Features selected on ``I_prev``.
+        n_tracked: Features that passed the forward-backward check.
+        n_inliers: RANSAC inliers.
+        inlier_ratio: n_inliers / n_tracked.
+        residual: RMS residual of the velocity fit [m/s].
+        dt: Time between the frames [s].
+        t: Time of ``I_curr`` [s] (None if not given).
+        prev_px: (n_tracked, 2) tracked features in ``I_prev`` [px].
+        curr_px: (n_tracked, 2) their positions in ``I_curr`` [px].
+        inliers: (n_tracked,) bool.
+        selection: The selection the estimate started from (its diagnostics included).
+    """
+
+    v_x: float
+    v_y: float
+    omega: float
+    valid: bool
+    reason: str
+    quality: float
+    n_features: int
+    n_tracked: int
+    n_inliers: int
+    inlier_ratio: float
+    residual: float
+    dt: float
+    t: float | None = None
+    prev_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    curr_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
+    selection: Selection | None = field(default=None, repr=False)
+
+    @property
+    def twist(self) -> np.ndarray:
+        """(v_x, v_y, omega)."""
+        return np.array([self.v_x, self.v_y, self.omega])
+
+
+def to_gray(image: np.ndarray, size: tuple[int, int] | None = None) -> np.ndarray:
+    """uint8 grey image from an (H, W) or (H, W, 3) RGB uint8 image, checked against ``size`` (W, H)."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        raise ValueError(f"image: dtype {img.dtype}; expected uint8 grey or RGB")
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    elif img.ndim != 2:
+        raise ValueError(f"image: shape {img.shape}; expected (H, W) or (H, W, 3)")
+    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+        raise ValueError(
+            f"image: {img.shape[1]}x{img.shape[0]} px, but the camera calibration is {size[0]}x{size[1]} px; "
+            "use the calibration of this camera and resolution"
+        )
+    return img
+
+
+class FlowOdometry:
+    """Shadow-robust optical-flow odometry (Algorithm 1 of the odometry paper).
+
+    Use :meth:`select` on ``I_prev`` (before ``I_curr`` is captured), then :meth:`track` with
+    ``I_curr``; or :meth:`estimate` for a pair; or :meth:`update` for a chained stream in which
+    each frame is ``I_curr`` of one pair and ``I_prev`` of the next.
+
+    Args:
+        camera: Calibrated downward camera (intrinsics, distortion, ``T_body_cam`` and the ground
+            plane in the body frame).
+        config: Parameters.
+    """
+
+    def __init__(self, camera: PinholeCamera, config: FlowOdometryConfig | None = None) -> None:
+        if camera.ground_plane is None:
+            raise ValueError("camera.ground_plane: not set; the homography needs the ground plane (a, b, c)")
+        self.camera = camera
+        self.config = cfg = config or FlowOdometryConfig()
+        w, h = camera.image_size
+        self._H_inv = np.linalg.inv(camera.ground_homography())
+        mx, my = int(cfg.roi_margin * w), int(cfg.roi_margin * h)
+        self._roi = np.zeros((h, w), dtype=bool)
+        self._roi[my : h - my, mx : w - mx] = True
+        self._last: Selection | None = None
+        self._rng = np.random.default_rng(0)
+
+    # ------------------------------------------------------------------ Algorithm 1, lines 3-4
+    def feature_mask(self, gray: np.ndarray) -> tuple[np.ndarray, MaskDiagnostics]:
+        """Where features may be selected (full resolution, bool) and the intermediate images."""
+        cfg = self.config
+        pyr = build_pyramid(gray, cfg.min_level_size)
+        level = len(pyr) - 1
+        small = pyr[level]
+        labels_bright, centres, sigmas = kmeans_1d(small)
+        shadow = shadow_detected(centres, sigmas, cfg.bimodality_lambda)
+        labels = (labels_bright == 0).astype(np.uint8)  # 1 = shadow (dark cluster)
+        h0, w0 = small.shape
+        empty = np.zeros((h0, w0), dtype=bool)
+        if shadow:
+            clean = keep_border_segments(labels)
+            edge_mask = shadow_edge_mask(clean)
+            delta = abs(centres[1] - centres[0])
+            hi = cfg.canny_high * delta
+            canny = cv2.Canny(small, cfg.canny_low * hi, hi, L2gradient=True) > 0
+            parsed = canny & edge_mask
+            r = mask_radius(cfg.max_disp, cfg.window, level)
+            forbidden = cv2.dilate(parsed.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+        else:
+            clean, edge_mask, canny, parsed, forbidden = empty, empty, empty, empty, empty
+        diag = MaskDiagnostics(
+            level,
+            small,
+            centres,
+            sigmas,
+            shadow,
+            labels.astype(bool),
+            clean,
+            edge_mask,
+            canny,
+            parsed,
+            forbidden,
+        )
+        h, w = gray.shape
+        full = cv2.resize(forbidden.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+        allowed = self._roi & ~full if cfg.use_mask else self._roi.copy()
+        return allowed, diag
+
+    def select(self, image: np.ndarray, t: float | None = None) -> Selection:
+        """Choose features on ``I_prev`` (call before ``I_curr`` is captured).
+
+        Args:
+            image: ``I_prev``, uint8 grey or RGB at the camera's resolution.
+            t: Its time [s].
+        """
+        cfg = self.config
+        gray = to_gray(image, self.camera.image_size)
+        mask, diag = self.feature_mask(gray)
+        pts = cv2.goodFeaturesToTrack(
+            gray,
+            maxCorners=cfg.max_features,
+            qualityLevel=cfg.quality_level,
+            minDistance=cfg.min_distance,
+            mask=mask.astype(np.uint8),
+            blockSize=7,
+            useHarrisDetector=True,
+            k=0.04,
+        )
+        feats = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
+        # Harris on a textureless or saturated image returns corners of noise-free flat areas: drop
+        # features whose neighbourhood has no contrast
+        if len(feats):
+            std = cv2.blur((gray.astype(np.float32) - cv2.blur(gray.astype(np.float32), (7, 7))) ** 2, (7, 7))
+            xi = np.clip(np.rint(feats[:, 0]).astype(int), 0, gray.shape[1] - 1)
+            yi = np.clip(np.rint(feats[:, 1]).astype(int), 0, gray.shape[0] - 1)
+            feats = feats[std[yi, xi] > 1.0]
+        return Selection(gray=gray, features=feats, mask=mask, t=t, diagnostics=diag)
+
+    # ------------------------------------------------------------------ lines 5-10
+    def track(
+        self, selection: Selection, image: np.ndarray, dt: float, t: float | None = None
+    ) -> OdometryEstimate:
+        """Track the selected features into ``I_curr`` and estimate the body velocity.
+
+        Args:
+            selection: From :meth:`select` on ``I_prev``.
+            image: ``I_curr``.
+            dt: Time from ``I_prev`` to ``I_curr`` [s].
+            t: Time of ``I_curr`` [s].
+        """
+        cfg = self.config
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt: {dt!r} s; frames must be a positive, finite time apart")
+        gray = to_gray(image, self.camera.image_size)
+        n_feat = len(selection.features)
+
+        def invalid(reason: str, **kw) -> OdometryEstimate:
+            base = dict(n_features=n_feat, n_tracked=0, n_inliers=0, inlier_ratio=0.0, residual=math.nan)
+            base.update(kw)
+            return OdometryEstimate(
+                math.nan, math.nan, math.nan, False, reason, 0.0, dt=dt, t=t, selection=selection, **base
+            )
+
+        if n_feat < cfg.min_inliers:
+            return invalid(f"too few features ({n_feat}): dark, saturated or textureless image")
+        p0 = selection.features.reshape(-1, 1, 2)
+        lk = dict(
+            winSize=(cfg.window, cfg.window),
+            maxLevel=cfg.lk_levels,
+            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+        )
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(selection.gray, gray, p0, None, **lk)
+        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(gray, selection.gray, p1, None, **lk)
+        fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
+        ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_threshold)
+        prev_px = p0.reshape(-1, 2)[ok].astype(np.float64)
+        curr_px = p1.reshape(-1, 2)[ok].astype(np.float64)
+        n_tr = len(prev_px)
+        if n_tr < cfg.min_inliers:
+            return invalid(f"too few tracked features ({n_tr} of {n_feat})", n_tracked=n_tr)
+        P = self._to_ground(prev_px)
+        C = self._to_ground(curr_px)
+        if cfg.use_ransac:
+            inl = rigid_ransac(P, C, cfg.ransac_threshold, cfg.ransac_iterations, self._rng)
+        else:
+            inl = np.ones(n_tr, dtype=bool)
+        n_in = int(inl.sum())
+        ratio = n_in / n_tr
+        common = dict(n_tracked=n_tr, n_inliers=n_in, inlier_ratio=ratio)
+        if n_in < cfg.min_inliers:
+            return invalid(f"too few inliers ({n_in} of {n_tr})", **common)
+        vel, residual = velocity_from_points(P[inl], C[inl], dt)
+        reason = ""
+        if ratio < cfg.min_inlier_ratio:
+            reason = f"inlier ratio {ratio:.2f} below {cfg.min_inlier_ratio}"
+        elif residual > cfg.max_residual:
+            reason = f"velocity fit residual {residual:.3f} m/s above {cfg.max_residual}"
+        valid = reason == ""
+        quality = min(1.0, n_in / (2.0 * cfg.min_inliers)) * ratio if valid else 0.0
+        if not valid:
+            vel = np.full(3, math.nan)
+        return OdometryEstimate(
+            float(vel[0]),
+            float(vel[1]),
+            float(vel[2]),
+            valid,
+            reason,
+            quality,
+            n_features=n_feat,
+            residual=residual,
+            dt=dt,
+            t=t,
+            prev_px=prev_px,
+            curr_px=curr_px,
+            inliers=inl,
+            selection=selection,
+            **common,
+        )
+
+    def _to_ground(self, px: np.ndarray) -> np.ndarray:
+        und = self.camera.undistort_points(px)
+        q = np.column_stack([und, np.ones(len(und))]) @ self._H_inv.T
+        return q[:, :2] / q[:, 2:3]
+
+    # ------------------------------------------------------------------ conveniences
+    def estimate(self, prev: np.ndarray, curr: np.ndarray, dt: float) -> OdometryEstimate:
+        """Velocity from one frame pair (``I_prev``, ``I_curr``) ``dt`` seconds apart."""
+        return self.track(self.select(prev), curr, dt)
+
+    def update(self, image: np.ndarray, t: float) -> OdometryEstimate | None:
+        """Chained mode: ``image`` is ``I_curr`` of the last pair and ``I_prev`` of the next.
+
+        Returns:
+            The estimate from the previous frame to this one (None for the first frame).
+        """
+        out = None
+        if self._last is not None:
+            out = self.track(self._last, image, t - self._last.t, t)
+        self._last = self.select(image, t)
+        return out
+
+    def reset(self) -> None:
+        """Forget the chained stream's last frame."""
+        self._last = None
+
+
+def integrate_twist(t: np.ndarray, twist: np.ndarray, pose0=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Planar poses (x, y, yaw) from body twists (v_x, v_y, omega) held between samples.
+
+    Each interval [t_k, t_{k+1}] uses the twist at t_{k+1} (the estimate over that interval),
+    integrated exactly as a constant-curvature arc. NaN twists (invalid estimates) hold the
+    previous valid twist.
+
+    Args:
+        t: (n,) times [s].
+        twist: (n, 3) body twists [m/s, m/s, rad/s].
+        pose0: Pose at t[0] (x [m], y [m], yaw [rad]).
+
+    Returns:
+        (n, 3) poses.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    tw = np.asarray(twist, dtype=np.float64)
+    out = np.zeros((len(t), 3))
+    out[0] = pose0
+    last = np.zeros(3)
+    for k in range(1, len(t)):
+        if np.all(np.isfinite(tw[k])):
+            last = tw[k]
+        dt = t[k] - t[k - 1]
+        x, y, th = out[k - 1]
+        vx, vy, w = last
+        dth = w * dt
+        if abs(dth) < 1e-9:
+            a, b = dt * (1 - dth**2 / 6), dt * dth / 2
+        else:
+            a, b = math.sin(dth) / w, (1 - math.cos(dth)) / w
+        dx, dy = a * vx - b * vy, b * vx + a * vy  # body-frame displacement over the arc
+        c, s = math.cos(th), math.sin(th)
+        out[k] = (x + c * dx - s * dy, y + s * dx + c * dy, th + dth)
+    return out

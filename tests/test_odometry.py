@@ -1,0 +1,238 @@
+"""Optical-flow odometry on synthetic images: a textured ground seen by the mast camera, warped by
+known planar motions, with and without a shadow fixed to the camera. No simulator."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from perception.cameras import PinholeCamera
+from perception.odometry import (
+    FlowOdometry,
+    FlowOdometryConfig,
+    build_pyramid,
+    integrate_twist,
+    keep_border_segments,
+    kmeans_1d,
+    rigid_ransac,
+    shadow_detected,
+    velocity_from_points,
+)
+
+MM = 0.001  # texture resolution [m/px]
+
+
+def mast_camera(size=(640, 480)) -> PinholeCamera:
+    """The rover's mast camera: 0.8 m above flat ground, looking down, image up = body forward."""
+    T = np.eye(4)
+    T[:3, :3] = [[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]
+    T[:3, 3] = (0.95, 0.0, 0.535)
+    return PinholeCamera.from_fov(
+        size, math.radians(77.0), math.radians(57.0), T_body_cam=T, ground_plane=(0.0, 0.0, -0.265)
+    )
+
+
+@pytest.fixture(scope="module")
+def ground():
+    """A 3 m x 3 m ground texture at 1 mm/px: blobs at several scales, grey 30..230."""
+    rng = np.random.default_rng(5)
+    n = 3000
+    img = np.zeros((n, n), np.float32)
+    for sigma, weight in ((2.0, 1.0), (6.0, 1.4), (20.0, 1.6)):
+        layer = cv2.GaussianBlur(rng.normal(size=(n, n)).astype(np.float32), (0, 0), sigma)
+        img += weight * layer / layer.std()
+    img = 130 + 30 * img / img.std()
+    return np.clip(img, 30, 230).astype(np.float32)
+
+
+def render(cam, texture, pose, shadow=None, noise=1.0, rng=None):
+    """Image of the ground texture (centred on the world origin) from body pose (x, y, yaw)."""
+    w, h = cam.image_size
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    body = cam.pixels_to_ground(np.stack([xs, ys], -1).reshape(-1, 2))
+    x, y, th = pose
+    c, s = math.cos(th), math.sin(th)
+    wx = x + c * body[:, 0] - s * body[:, 1]
+    wy = y + s * body[:, 0] + c * body[:, 1]
+    n = texture.shape[0]
+    mx = (wx / MM + n / 2).reshape(h, w).astype(np.float32)
+    my = (n / 2 - wy / MM).reshape(h, w).astype(np.float32)
+    img = cv2.remap(texture, mx, my, cv2.INTER_LINEAR)
+    if shadow is not None:
+        img = np.where(shadow, img * 0.33, img)
+    if noise:
+        img = img + (rng or np.random.default_rng(0)).normal(scale=noise, size=img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def body_shadow(size=(640, 480)):
+    """A sharp-edged dark region fixed in the image: the rover's body and mast, from the bottom edge."""
+    w, h = size
+    m = np.zeros((h, w), np.uint8)
+    cv2.rectangle(m, (int(0.3 * w), int(0.45 * h)), (int(0.7 * w), h), 1, -1)  # body
+    cv2.rectangle(m, (int(0.47 * w), 0), (int(0.53 * w), h), 1, -1)  # mast and boom
+    cv2.fillPoly(
+        m, [np.array([[0, int(0.7 * h)], [int(0.3 * w), int(0.55 * h)], [int(0.3 * w), h], [0, h]])], 1
+    )
+    return m.astype(bool)
+
+
+def pose_after(pose, twist, dt):
+    (x, y, th), (vx, vy, w) = pose, twist
+    out = integrate_twist(np.array([0.0, dt]), np.array([[0, 0, 0], [vx, vy, w]]), pose0=(x, y, th))
+    return tuple(out[1])
+
+
+START = (-0.95, 0.0, 0.0)  # the camera's view centred on the texture
+
+
+@pytest.mark.parametrize("twist", [(2.0, 0.0, 0.4), (0.8, -0.25, -0.3), (1.2, 0.4, 0.0)])
+@pytest.mark.parametrize("shadowed", [False, True])
+def test_known_planar_motion_is_recovered(ground, twist, shadowed):
+    cam = mast_camera()
+    dt = 1 / 60
+    shadow = body_shadow() if shadowed else None
+    prev = render(cam, ground, START, shadow, rng=np.random.default_rng(1))
+    curr = render(cam, ground, pose_after(START, twist, dt), shadow, rng=np.random.default_rng(2))
+    est = FlowOdometry(cam).estimate(prev, curr, dt)
+    assert est.valid, est.reason
+    speed = math.hypot(twist[0], twist[1])
+    err_v = math.hypot(est.v_x - twist[0], est.v_y - twist[1])
+    print(
+        f"twist {twist} shadow={shadowed}: est {est.twist.round(4)}, {est.n_inliers}/{est.n_tracked} inliers"
+    )
+    assert err_v <= 0.01 * speed
+    assert abs(est.omega - twist[2]) <= math.radians(0.5)
+    if shadowed:
+        assert est.selection.diagnostics.shadow
+
+
+def test_shadow_edges_are_masked_and_features_avoid_them(ground):
+    cam = mast_camera()
+    shadow = body_shadow()
+    img = render(cam, ground, START, shadow)
+    odo = FlowOdometry(cam)
+    sel = odo.select(img)
+    d = sel.diagnostics
+    assert d.small.shape[1] >= 80 and d.small.shape[0] >= 60 and d.small.shape[1] // 2 < 80
+    assert d.shadow
+    # no selected feature within the LK window's reach of the true shadow edge
+    edge = cv2.morphologyEx(shadow.astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
+    dist = cv2.distanceTransform((1 - edge).astype(np.uint8), cv2.DIST_L2, 5)
+    xi, yi = np.rint(sel.features).astype(int).T
+    assert len(sel.features) >= 20
+    assert dist[yi, xi].min() > 10.0
+    # the mask forbids a band around the edge only: much of the region of interest stays usable
+    print(f"mask: {sel.mask.mean():.2f} of the image, {len(sel.features)} features")
+    assert 0.2 < sel.mask.mean() < 0.45
+
+
+def test_bimodality_true_with_shadow_false_on_evenly_lit_texture(ground):
+    cam = mast_camera()
+    cfg = FlowOdometryConfig()
+    for th in (0.0, 0.7, -1.1, 2.5):  # the view centred on the texture, heading th
+        pose = (-0.95 * math.cos(th), -0.95 * math.sin(th), th)
+        lit = build_pyramid(render(cam, ground, pose))[-1]
+        dark = build_pyramid(render(cam, ground, pose, body_shadow()))[-1]
+        _, c, s = kmeans_1d(lit)
+        assert not shadow_detected(c, s, cfg.bimodality_lambda)
+        _, c, s = kmeans_1d(dark)
+        assert shadow_detected(c, s, cfg.bimodality_lambda)
+
+
+def test_border_filter_removes_isolated_dark_spots():
+    m = np.zeros((60, 80), np.uint8)
+    m[40:, 20:50] = 1  # reaches the bottom edge: the robot's shadow
+    m[10:15, 10:14] = 1  # isolated spots: dark texture
+    m[20:24, 60:70] = 1
+    m[30, 0:3] = 1  # touches the left edge
+    kept = keep_border_segments(m)
+    assert kept[45, 30] and kept[30, 1]
+    assert not kept[12, 12] and not kept[22, 65]
+    assert kept.sum() == 20 * 30 + 3
+
+
+def test_ransac_returns_the_ground_set_when_45_percent_of_tracks_are_locked_to_the_shadow():
+    rng = np.random.default_rng(3)
+    n = 60
+    P = rng.uniform([0.5, -0.6], [1.4, 0.6], size=(n, 2))
+    th, t = 0.01, np.array([-0.033, 0.004])
+    R = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+    C = P @ R.T + t + rng.normal(scale=0.0003, size=P.shape)
+    locked = rng.permutation(n)[: int(0.45 * n)]
+    C[locked] = P[locked]  # features on the shadow edge do not move
+    inl = rigid_ransac(P, C, threshold=0.003, iterations=100)
+    truth = np.ones(n, bool)
+    truth[locked] = False
+    assert np.array_equal(inl, truth)
+
+
+def test_velocity_least_squares_is_exact_for_a_rigid_motion():
+    rng = np.random.default_rng(4)
+    P = rng.uniform([0.5, -0.6], [1.4, 0.6], size=(30, 2))
+    vx, vy, w, dt = 1.5, -0.2, 0.6, 1 / 60
+    # ground points seen from the body: moved by the inverse of the body's motion over dt
+    end = integrate_twist(np.array([0.0, dt]), np.array([[0, 0, 0], [vx, vy, w]]))[1]
+    c, s = math.cos(end[2]), math.sin(end[2])
+    C = (P - end[:2]) @ np.array([[c, -s], [s, c]])
+    vel, res = velocity_from_points(P, C, dt)
+    np.testing.assert_allclose(vel, [vx, vy, w], rtol=2e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["black", "saturated", "flat grey", "noise only"])
+def test_unusable_frames_are_invalid_never_a_confident_zero(ground, kind):
+    cam = mast_camera()
+    rng = np.random.default_rng(9)
+    if kind == "black":
+        img = np.zeros((480, 640), np.uint8)
+    elif kind == "saturated":
+        img = np.full((480, 640, 3), 255, np.uint8)
+    elif kind == "flat grey":
+        img = np.full((480, 640), 128, np.uint8)
+    else:  # no ground texture, only sensor noise that changes between frames
+        img = rng.integers(120, 124, size=(480, 640)).astype(np.uint8)
+    other = img if kind != "noise only" else rng.integers(120, 124, size=(480, 640)).astype(np.uint8)
+    est = FlowOdometry(cam).estimate(img, other, 1 / 60)
+    assert not est.valid and est.quality == 0.0 and est.reason
+    assert math.isnan(est.v_x) and math.isnan(est.omega)
+
+
+def test_bad_inputs_raise_clear_errors(ground):
+    cam = mast_camera()
+    odo = FlowOdometry(cam)
+    with pytest.raises(ValueError, match="calibration is 640x480"):
+        odo.select(np.zeros((240, 320), np.uint8))
+    with pytest.raises(ValueError, match="uint8"):
+        odo.select(np.zeros((480, 640), np.float32))
+    img = render(cam, ground, START)
+    with pytest.raises(ValueError, match="dt"):
+        odo.estimate(img, img, 0.0)
+    no_plane = PinholeCamera(
+        K=cam.K, distortion=np.zeros(5), image_size=(640, 480), T_body_cam=cam.T_body_cam
+    )
+    with pytest.raises(ValueError, match="ground_plane"):
+        FlowOdometry(no_plane)
+    with pytest.raises(ValueError, match="80 x 60"):
+        FlowOdometryConfig(min_level_size=(40, 30))
+
+
+def test_chained_mode_matches_pairs_and_integrates_an_arc(ground):
+    """A 0.5 s arc at 1 m/s, 0.5 rad/s: chained estimates integrate to the true end pose."""
+    cam = mast_camera()
+    odo = FlowOdometry(cam)
+    twist, dt = (1.0, 0.0, 0.5), 1 / 60
+    pose, t, poses, est_t, est_tw = START, 0.0, [], [0.0], [(0.0, 0.0, 0.0)]
+    for k in range(31):
+        e = odo.update(render(cam, ground, pose, rng=np.random.default_rng(k)), t)
+        if e is not None:
+            assert e.valid, e.reason
+            est_t.append(t)
+            est_tw.append(e.twist)
+        poses.append(pose)
+        pose, t = pose_after(pose, twist, dt), t + dt
+    path = integrate_twist(np.array(est_t), np.array(est_tw), pose0=START)
+    true_end = poses[-1]
+    dist = 1.0 * 30 * dt
+    assert math.hypot(path[-1, 0] - true_end[0], path[-1, 1] - true_end[1]) < 0.01 * dist
+    assert abs(path[-1, 2] - true_end[2]) < math.radians(0.5)
