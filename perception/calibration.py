@@ -1,4 +1,7 @@
-"""Fitting the omnidirectional (Scaramuzza) camera model to corner correspondences.
+"""Calibration of the omnidirectional model and of the downward camera's pose on the body.
+
+The downward camera's 6-DOF pose minimises the reprojection error of ground points known in the
+body frame (odometry paper, eq. 9): :func:`calibrate_ground_camera`.
 
 The fisheye paper calibrates with Scaramuzza's toolbox. Here the model is fitted to pixels whose
 viewing directions are known in the camera frame (corners of a board at a known pose, such as
@@ -20,11 +23,12 @@ import logging
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
 from perception.calib_io import CalibrationError
-from perception.cameras import OmniCamera
+from perception.cameras import OmniCamera, PinholeCamera
 
 log = logging.getLogger(__name__)
 
@@ -175,3 +179,85 @@ def _fit_once(px, dirs, image_size, max_fov, degree, T_body_cam, fit_center, fit
     except CalibrationError as exc:
         raise CalibrationError(f"the fitted model is unusable ({exc}); add corners near the rim") from exc
     return camera
+
+
+@dataclass(frozen=True)
+class ExtrinsicFit:
+    """Result of :func:`calibrate_ground_camera`.
+
+    Attributes:
+        camera: The camera with the fitted ``T_body_cam`` and the ground plane fitted to the
+            body-frame points (when they are coplanar).
+        rms_px: Root-mean-square reprojection error [px].
+        residuals_px: (N,) reprojection error of each correspondence [px].
+    """
+
+    camera: PinholeCamera
+    rms_px: float
+    residuals_px: np.ndarray
+
+
+def calibrate_ground_camera(
+    camera: PinholeCamera,
+    pixels,
+    points_body,
+    T_body_cam_init: np.ndarray | None = None,
+    fit_plane: bool = True,
+) -> ExtrinsicFit:
+    """The camera's 6-DOF pose on the body by least squares on reprojection error (odometry paper eq. 9).
+
+    Args:
+        camera: Intrinsics and distortion (its ``T_body_cam`` is the default start).
+        pixels: (N, 2) measured (distorted) pixel positions [px].
+        points_body: (N, 3) the same points in the body frame [m], e.g. checkerboard corners on
+            the ground with the rover parked at a known pose.
+        T_body_cam_init: Start of the search (default ``camera.T_body_cam``; if that is the
+            identity, a PnP solution).
+        fit_plane: Also fit the ground plane z = a x + b y + c through ``points_body``.
+
+    Raises:
+        CalibrationError: Fewer than 6 correspondences, mismatched arrays, or a degenerate fit.
+    """
+    px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    P = np.asarray(points_body, dtype=np.float64).reshape(-1, 3)
+    if len(px) != len(P):
+        raise CalibrationError(f"pixels ({len(px)}) and points_body ({len(P)}) differ in number")
+    if len(px) < 6:
+        raise CalibrationError(f"{len(px)} correspondences; the 6-DOF pose needs at least 6")
+    T0 = camera.T_body_cam if T_body_cam_init is None else np.asarray(T_body_cam_init, dtype=np.float64)
+    if np.allclose(T0, np.eye(4)):
+        ok, rvec, tvec = cv2.solvePnP(P, px, camera.K, camera.distortion, flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            raise CalibrationError("no initial pose: PnP failed; pass T_body_cam_init")
+        x0 = np.concatenate([rvec.ravel(), tvec.ravel()])
+    else:
+        T_cb = np.linalg.inv(T0)
+        x0 = np.concatenate([cv2.Rodrigues(T_cb[:3, :3])[0].ravel(), T_cb[:3, 3]])
+
+    def project(x: np.ndarray) -> np.ndarray:
+        R = cv2.Rodrigues(x[:3])[0]
+        return camera.project(P @ R.T + x[3:])
+
+    sol = least_squares(lambda x: (project(x) - px).ravel(), x0, method="lm")
+    R = cv2.Rodrigues(sol.x[:3])[0]
+    T_cb = np.eye(4)
+    T_cb[:3, :3], T_cb[:3, 3] = R, sol.x[3:]
+    T_bc = np.linalg.inv(T_cb)
+    plane = camera.ground_plane
+    if fit_plane:
+        A = np.column_stack([P[:, 0], P[:, 1], np.ones(len(P))])
+        coef, *_ = np.linalg.lstsq(A, P[:, 2], rcond=None)
+        if np.abs(A @ coef - P[:, 2]).max() > 0.01:
+            raise CalibrationError("points_body are not on one plane (> 1 cm off); pass fit_plane=False")
+        plane = tuple(float(v) for v in coef)
+    fitted = PinholeCamera(
+        K=camera.K,
+        distortion=camera.distortion,
+        image_size=camera.image_size,
+        T_body_cam=T_bc,
+        ground_plane=plane,
+    )
+    err = np.hypot(*(project(sol.x) - px).T)
+    rms = float(math.sqrt(np.mean(err**2)))
+    log.info("ground camera calibration: %d points, RMS %.3f px", len(px), rms)
+    return ExtrinsicFit(camera=fitted, rms_px=rms, residuals_px=err)

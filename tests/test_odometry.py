@@ -236,3 +236,36 @@ def test_chained_mode_matches_pairs_and_integrates_an_arc(ground):
     dist = 1.0 * 30 * dt
     assert math.hypot(path[-1, 0] - true_end[0], path[-1, 1] - true_end[1]) < 0.01 * dist
     assert abs(path[-1, 2] - true_end[2]) < math.radians(0.5)
+
+
+def test_ground_camera_pose_calibration_recovers_a_tilted_mount():
+    """Eq. (9): the 6-DOF camera pose from ground correspondences, off-normal like Zoe's camera."""
+    from perception.calibration import calibrate_ground_camera
+
+    true = mast_camera()
+    tilt = cv2.Rodrigues(np.array([math.radians(15.0), math.radians(-2.0), math.radians(1.0)]))[0]
+    T = true.T_body_cam.copy()
+    T[:3, :3] = T[:3, :3] @ tilt
+    T[:3, 3] += (0.012, -0.008, 0.02)
+    true = PinholeCamera(
+        K=true.K, distortion=np.array([-0.12, 0.03, 0.001, -0.0005, 0.0]), image_size=(640, 480), T_body_cam=T
+    )
+    rng = np.random.default_rng(2)
+    g = np.stack(np.meshgrid(np.arange(0.4, 1.6, 0.05), np.arange(-0.7, 0.7, 0.05)), -1).reshape(-1, 2)
+    P = np.column_stack([g, np.full(len(g), -0.265)])
+    T_cb = np.linalg.inv(T)
+    px = true.project(P @ T_cb[:3, :3].T + T_cb[:3, 3])
+    inside = (
+        np.isfinite(px).all(axis=1) & (px[:, 0] > 0) & (px[:, 0] < 639) & (px[:, 1] > 0) & (px[:, 1] < 479)
+    )
+    px = px[inside] + rng.normal(scale=0.2, size=(inside.sum(), 2))
+    nominal = PinholeCamera(
+        K=true.K, distortion=true.distortion, image_size=(640, 480), T_body_cam=mast_camera().T_body_cam
+    )
+    fit = calibrate_ground_camera(nominal, px, P[inside])
+    got = fit.camera.T_body_cam
+    angle = np.degrees(np.arccos(np.clip((np.trace(got[:3, :3].T @ T[:3, :3]) - 1) / 2, -1, 1)))
+    assert inside.sum() > 200
+    assert np.abs(got[:3, 3] - T[:3, 3]).max() < 0.002 and angle < 0.05
+    assert fit.rms_px == pytest.approx(0.2 * math.sqrt(2), rel=0.2)
+    np.testing.assert_allclose(fit.camera.ground_plane, (0.0, 0.0, -0.265), atol=1e-9)
