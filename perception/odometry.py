@@ -461,7 +461,12 @@ class FlowOdometry:
 
     # ------------------------------------------------------------------ lines 5-10
     def track(
-        self, selection: Selection, image: np.ndarray, dt: float, t: float | None = None
+        self,
+        selection: Selection,
+        image: np.ndarray,
+        dt: float,
+        t: float | None = None,
+        ground_plane: tuple[float, float, float] | None = None,
     ) -> OdometryEstimate:
         """Track the selected features into ``I_curr`` and estimate the body velocity.
 
@@ -470,6 +475,9 @@ class FlowOdometry:
             image: ``I_curr``.
             dt: Time from ``I_prev`` to ``I_curr`` [s].
             t: Time of ``I_curr`` [s].
+            ground_plane: The ground z = a x + b y + c in the body frame now, if known (a body on
+                soft suspension rolls and pitches over the ground; see
+                :func:`ground_plane_from_wheels`). Default: the camera's calibrated plane.
         """
         cfg = self.config
         if not (dt > 0 and math.isfinite(dt)):
@@ -501,8 +509,13 @@ class FlowOdometry:
         n_tr = len(prev_px)
         if n_tr < cfg.min_inliers:
             return invalid(f"too few tracked features ({n_tr} of {n_feat})", n_tracked=n_tr)
-        P = self._to_ground(prev_px)
-        C = self._to_ground(curr_px)
+        H_inv = (
+            self._H_inv
+            if ground_plane is None
+            else np.linalg.inv(self.camera.ground_homography(ground_plane))
+        )
+        P = self._to_ground(prev_px, H_inv)
+        C = self._to_ground(curr_px, H_inv)
         if cfg.use_ransac:
             inl = rigid_ransac(P, C, cfg.ransac_threshold, cfg.ransac_iterations, self._rng)
         else:
@@ -540,31 +553,55 @@ class FlowOdometry:
             **common,
         )
 
-    def _to_ground(self, px: np.ndarray) -> np.ndarray:
+    def _to_ground(self, px: np.ndarray, H_inv: np.ndarray) -> np.ndarray:
         und = self.camera.undistort_points(px)
-        q = np.column_stack([und, np.ones(len(und))]) @ self._H_inv.T
+        q = np.column_stack([und, np.ones(len(und))]) @ H_inv.T
         return q[:, :2] / q[:, 2:3]
 
     # ------------------------------------------------------------------ conveniences
-    def estimate(self, prev: np.ndarray, curr: np.ndarray, dt: float) -> OdometryEstimate:
+    def estimate(self, prev: np.ndarray, curr: np.ndarray, dt: float, ground_plane=None) -> OdometryEstimate:
         """Velocity from one frame pair (``I_prev``, ``I_curr``) ``dt`` seconds apart."""
-        return self.track(self.select(prev), curr, dt)
+        return self.track(self.select(prev), curr, dt, ground_plane=ground_plane)
 
-    def update(self, image: np.ndarray, t: float) -> OdometryEstimate | None:
+    def update(self, image: np.ndarray, t: float, ground_plane=None) -> OdometryEstimate | None:
         """Chained mode: ``image`` is ``I_curr`` of the last pair and ``I_prev`` of the next.
+
+        Args:
+            image: The new frame.
+            t: Its time [s].
+            ground_plane: See :meth:`track`.
 
         Returns:
             The estimate from the previous frame to this one (None for the first frame).
         """
         out = None
         if self._last is not None:
-            out = self.track(self._last, image, t - self._last.t, t)
+            out = self.track(self._last, image, t - self._last.t, t, ground_plane)
         self._last = self.select(image, t)
         return out
 
     def reset(self) -> None:
         """Forget the chained stream's last frame."""
         self._last = None
+
+
+def ground_plane_from_wheels(wheel_centres_body, wheel_radius: float) -> tuple[float, float, float]:
+    """The ground under the wheels, z = a x + b y + c in the body frame [-, -, m].
+
+    The plane through the wheel centres (least squares for four wheels), moved one wheel radius
+    along its normal toward the ground. The wheel centres come from the axle roll, axle height
+    and steering (the fisheye kinematics estimator, or the simulator).
+
+    Args:
+        wheel_centres_body: (n >= 3, 3) wheel centres in the body frame [m].
+        wheel_radius: [m].
+    """
+    W = np.asarray(wheel_centres_body, dtype=np.float64).reshape(-1, 3)
+    if len(W) < 3:
+        raise ValueError(f"wheel_centres_body: {len(W)} wheels; a plane needs at least 3")
+    A = np.column_stack([W[:, 0], W[:, 1], np.ones(len(W))])
+    (a, b, c), *_ = np.linalg.lstsq(A, W[:, 2], rcond=None)
+    return float(a), float(b), float(c - wheel_radius * math.sqrt(1.0 + a * a + b * b))
 
 
 def integrate_twist(t: np.ndarray, twist: np.ndarray, pose0=(0.0, 0.0, 0.0)) -> np.ndarray:
