@@ -1,4 +1,4 @@
-"""The ``rover`` command line: ``rover demo``, ``rover bench``, ``rover scenarios``."""
+"""The ``rover`` command line: ``rover demo``, ``rover bench``, ``rover odometry``, ``rover scenarios``."""
 
 from __future__ import annotations
 
@@ -56,6 +56,19 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_odometry(args: argparse.Namespace) -> int:
+    from perception.offline import run_folder_odometry
+
+    bar = _progress_bar("odometry")
+    res = run_folder_odometry(args.images, args.calib, args.fps, args.out, progress=bar)
+    sys.stderr.write("\n")
+    print(
+        f"{res.frames} images, {res.valid} of {res.pairs} pairs valid, path {res.distance:.2f} m; "
+        f"wrote {res.csv_path} and {res.tum_path}"
+    )
+    return 0
+
+
 def _cmd_scenarios(args: argparse.Namespace) -> int:
     from rover_env.scenario import list_scenarios, load_scenario
 
@@ -83,6 +96,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-egl", action="store_true", help="skip the EGL renderer rows")
     b.add_argument("--json", help="also write the results to this JSON file")
     b.set_defaults(func=_cmd_bench)
+    o = sub.add_parser("odometry", help="optical-flow odometry on a folder of downward-camera images")
+    o.add_argument("images", help="folder of images, in name order")
+    o.add_argument(
+        "--calib", required=True, help="calibration YAML (K, distortion, T_body_cam, ground_plane)"
+    )
+    o.add_argument("--fps", type=float, required=True, help="frame rate of the images [Hz]")
+    o.add_argument("--out", required=True, help="output folder (odometry.csv, trajectory.tum)")
+    o.set_defaults(func=_cmd_odometry)
     s = sub.add_parser("scenarios", help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
     return p
@@ -96,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return int(args.func(args))
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError) as exc:  # includes CalibrationError and ConfigError
         sys.stderr.write(f"rover {args.command}: error: {exc}\n")
         return 2
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from controllers.base import Controller
+from perception import trajectory as tum
 from rover_env.envs.rover_env import RoverEnv
 
 log = logging.getLogger(__name__)
@@ -167,8 +168,7 @@ def run_mission(
 def write_tum(path: Path, rec: MissionLog) -> None:
     """Trajectory in TUM format: ``t x y z qx qy qz qw`` per line (world frame)."""
     arr = rec.arrays()
-    data = np.column_stack([arr["t"], arr["pose"]])
-    np.savetxt(path, data, fmt="%.6f")
+    tum.write_tum(path, arr["t"], arr["pose"][:, :3], arr["pose"][:, 3:7])
 
 
 def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:

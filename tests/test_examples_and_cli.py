@@ -70,3 +70,23 @@ def test_camera_bench_rows_and_table():
     assert fish.face_pixels > 160 * 120 and 0 < fish.ms_remap < fish.ms_per_frame
     table = format_camera_table(rows)
     assert table.count("\n") == 5 and "| fisheye | train | tiny | on |" in table
+
+
+def test_rover_odometry_cli_on_a_folder_of_images(tmp_path):
+    from test_odometry import make_ground, mast_camera, write_arc_images
+
+    ground = make_ground()
+    write_arc_images(tmp_path / "imgs", ground, (0.8, 0.0, 0.2), 8, 1 / 30)
+    calib = mast_camera().save(tmp_path / "calib.yaml")
+    out = tmp_path / "out"
+    code = main(["odometry", str(tmp_path / "imgs"), "--calib", str(calib), "--fps", "30", "--out", str(out)])
+    assert code == 0
+    rows = np.genfromtxt(out / "odometry.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    assert len(rows) == 7 and rows["valid"].all()
+    np.testing.assert_allclose(rows["v_x"], 0.8, rtol=0.01)
+    assert np.loadtxt(out / "trajectory.tum").shape == (8, 8)
+    # errors are reported, not raised
+    assert (
+        main(["odometry", str(tmp_path / "nowhere"), "--calib", str(calib), "--fps", "30", "--out", str(out)])
+        == 2
+    )

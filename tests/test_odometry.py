@@ -35,6 +35,10 @@ def mast_camera(size=(640, 480)) -> PinholeCamera:
 
 @pytest.fixture(scope="module")
 def ground():
+    return make_ground()
+
+
+def make_ground():
     """A 3 m x 3 m ground texture at 1 mm/px: blobs at several scales, grey 30..230."""
     rng = np.random.default_rng(5)
     n = 3000
@@ -269,3 +273,66 @@ def test_ground_camera_pose_calibration_recovers_a_tilted_mount():
     assert np.abs(got[:3, 3] - T[:3, 3]).max() < 0.002 and angle < 0.05
     assert fit.rms_px == pytest.approx(0.2 * math.sqrt(2), rel=0.2)
     np.testing.assert_allclose(fit.camera.ground_plane, (0.0, 0.0, -0.265), atol=1e-9)
+
+
+def write_arc_images(folder, ground, twist, n, dt, start=START, bad=()):
+    folder.mkdir(parents=True, exist_ok=True)
+    """Frames of a constant-twist drive from ``start``; returns the pose of the last frame."""
+    pose = start
+    for k in range(n):
+        if k:
+            pose = pose_after(pose, twist, dt)
+        name = folder / f"frame_{k:04d}.png"
+        if k in bad:
+            name.write_bytes(b"not an image")
+        else:
+            cv2.imwrite(str(name), render(mast_camera(), ground, pose, rng=np.random.default_rng(k)))
+    return pose
+
+
+def test_folder_odometry_writes_csv_and_tum_of_the_true_path(ground, tmp_path):
+    from perception.offline import run_folder_odometry
+
+    twist, fps, n = (1.2, 0.1, 0.3), 60.0, 31
+    end = write_arc_images(tmp_path / "imgs", ground, twist, n, 1 / fps, bad=(12,))
+    calib = mast_camera().save(tmp_path / "calib.yaml")
+    res = run_folder_odometry(tmp_path / "imgs", calib, fps, tmp_path / "out")
+    rows = np.genfromtxt(res.csv_path, delimiter=",", names=True, dtype=None, encoding=None)
+    assert res.frames == n and res.pairs == n - 2  # the unreadable frame costs one pair
+    bad = rows[rows["valid"] == 0]
+    assert len(bad) == 1 and "not a readable image" in bad["reason"][0]
+    good = rows[rows["valid"] == 1]
+    np.testing.assert_allclose(good["v_x"], twist[0], rtol=0.01)
+    np.testing.assert_allclose(good["omega"], twist[2], atol=math.radians(0.5))
+    tum = np.loadtxt(res.tum_path)
+    assert tum.shape == (n - 1, 8)
+    # the path starts at the origin of the first frame's body frame
+    c, s = math.cos(-START[2]), math.sin(-START[2])
+    dx, dy = end[0] - START[0], end[1] - START[1]
+    true_end = (c * dx - s * dy, s * dx + c * dy)
+    dist = math.hypot(twist[0], twist[1]) * (n - 1) / fps
+    assert math.hypot(tum[-1, 1] - true_end[0], tum[-1, 2] - true_end[1]) < 0.01 * dist
+
+
+def test_folder_odometry_bad_inputs(ground, tmp_path):
+    from perception.calib_io import CalibrationError
+    from perception.offline import run_folder_odometry
+
+    write_arc_images(tmp_path / "imgs", ground, (1.0, 0.0, 0.0), 3, 1 / 60)
+    calib = mast_camera().save(tmp_path / "calib.yaml")
+    with pytest.raises(FileNotFoundError, match="no images"):
+        (tmp_path / "empty").mkdir()
+        run_folder_odometry(tmp_path / "empty", calib, 60, tmp_path / "out")
+    with pytest.raises(CalibrationError, match="missing.yaml"):
+        run_folder_odometry(tmp_path / "imgs", tmp_path / "missing.yaml", 60, tmp_path / "out")
+    text = calib.read_text().replace("ground_plane", "ground_plain")
+    (tmp_path / "typo.yaml").write_text(text)
+    with pytest.raises(CalibrationError, match="ground_plain"):
+        run_folder_odometry(tmp_path / "imgs", tmp_path / "typo.yaml", 60, tmp_path / "out")
+    small = PinholeCamera.from_fov(
+        (320, 240), 1.3, 1.0, T_body_cam=mast_camera().T_body_cam, ground_plane=(0, 0, -0.265)
+    )
+    with pytest.raises(ValueError, match="calibration is for 320x240"):
+        run_folder_odometry(tmp_path / "imgs", small, 60, tmp_path / "out")
+    with pytest.raises(ValueError, match="fps"):
+        run_folder_odometry(tmp_path / "imgs", calib, 0, tmp_path / "out")

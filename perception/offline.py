@@ -1,0 +1,151 @@
+"""Odometry on a folder of images from a real (or simulated) downward camera.
+
+``run_folder_odometry`` reads the images in name order, runs :class:`FlowOdometry` in chained mode
+at a fixed frame rate, and writes ``odometry.csv`` (one row per frame pair: t, v_x, v_y, omega,
+quality, valid, inliers, reason) and ``trajectory.tum`` (the integrated planar pose).
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from perception.cameras import PinholeCamera
+from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
+from perception.trajectory import write_planar_tum
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+
+
+@dataclass(frozen=True)
+class FolderOdometryResult:
+    """Summary of :func:`run_folder_odometry`.
+
+    Attributes:
+        frames: Images found.
+        pairs: Frame pairs estimated.
+        valid: Pairs with a valid estimate.
+        distance: Length of the integrated path [m].
+        csv_path: The per-pair CSV.
+        tum_path: The integrated trajectory.
+    """
+
+    frames: int
+    pairs: int
+    valid: int
+    distance: float
+    csv_path: Path
+    tum_path: Path
+
+
+def list_images(folder: str | Path) -> list[Path]:
+    """Image files of ``folder`` in name order.
+
+    Raises:
+        FileNotFoundError: The folder does not exist or holds no images.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such folder of images")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise FileNotFoundError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
+    return files
+
+
+def run_folder_odometry(
+    images: str | Path,
+    calibration: str | Path | PinholeCamera,
+    fps: float,
+    out: str | Path,
+    config: FlowOdometryConfig | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> FolderOdometryResult:
+    """Chained optical-flow odometry over a folder of downward-camera images.
+
+    Args:
+        images: Folder of images (name order is time order).
+        calibration: Calibration YAML (schema of DESIGN.md, with ``ground_plane``) or a camera.
+        fps: Frame rate of the images [Hz].
+        out: Output folder (created).
+        config: Estimator parameters.
+        progress: Called with the finished share (0..1).
+
+    Raises:
+        FileNotFoundError: Missing folder or no images.
+        CalibrationError: Missing or malformed calibration (the message names the key).
+        ValueError: A bad frame rate, or a first image whose size differs from the calibration.
+
+    Unreadable images and later images of another size do not stop the run: their rows are
+    marked invalid with the reason, and the chain restarts at the next good image.
+    """
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps: {fps!r}; give the camera's frame rate in Hz (> 0)")
+    camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
+    odo = FlowOdometry(camera, config)
+    files = list_images(images)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    first = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
+    if first is None:
+        raise ValueError(f"{files[0]}: not a readable image")
+    if (first.shape[1], first.shape[0]) != camera.image_size:
+        w, h = camera.image_size
+        raise ValueError(
+            f"{files[0]}: {first.shape[1]}x{first.shape[0]} px, but the calibration is for {w}x{h} px; "
+            "use the calibration of this camera and resolution"
+        )
+    rows = []
+    times, twists = [0.0], [np.zeros(3)]
+    for k, path in enumerate(files):
+        t = k / fps
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        reason = ""
+        if img is None:
+            reason = f"{path.name}: not a readable image"
+        elif img.ndim == 3 and img.shape[2] == 4:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+        elif img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        if img is not None and img.dtype != np.uint8:  # 16-bit cameras: scale to 8 bits
+            img = cv2.convertScaleAbs(img, alpha=255.0 / max(1.0, float(img.max())))
+        if not reason and (img.shape[1], img.shape[0]) != camera.image_size:
+            reason = f"{path.name}: {img.shape[1]}x{img.shape[0]} px differs from the calibration"
+        if reason:
+            log.warning("%s; the chain restarts at the next image", reason)
+            odo.reset()
+            if k > 0:
+                rows.append([t, math.nan, math.nan, math.nan, 0.0, 0, 0, reason])
+                times.append(t)
+                twists.append(np.full(3, math.nan))
+            continue
+        est = odo.update(img, t)
+        if est is not None:
+            rows.append(
+                [t, est.v_x, est.v_y, est.omega, est.quality, int(est.valid), est.n_inliers, est.reason]
+            )
+            times.append(t)
+            twists.append(est.twist)
+        if progress is not None:
+            progress((k + 1) / len(files))
+    csv_path = out / "odometry.csv"
+    with open(csv_path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "v_x", "v_y", "omega", "quality", "valid", "inliers", "reason"])
+        for r in rows:
+            w.writerow([f"{r[0]:.6f}", *(f"{v:.6f}" for v in r[1:5]), r[5], r[6], r[7]])
+    poses = integrate_twist(np.array(times), np.array(twists))
+    tum_path = write_planar_tum(out / "trajectory.tum", times, poses)
+    distance = float(np.sum(np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))))
+    n_valid = sum(r[5] for r in rows)
+    log.info("odometry: %d frames, %d of %d pairs valid, %.2f m", len(files), n_valid, len(rows), distance)
+    return FolderOdometryResult(len(files), len(rows), n_valid, distance, csv_path, tum_path)
