@@ -188,13 +188,15 @@ class ExtrinsicFit:
     Attributes:
         camera: The camera with the fitted ``T_body_cam`` and the ground plane fitted to the
             body-frame points (when they are coplanar).
-        rms_px: Root-mean-square reprojection error [px].
+        rms_px: Root-mean-square reprojection error of the inliers [px].
         residuals_px: (N,) reprojection error of each correspondence [px].
+        inliers: (N,) bool, the correspondences the final fit used.
     """
 
     camera: PinholeCamera
     rms_px: float
     residuals_px: np.ndarray
+    inliers: np.ndarray
 
 
 def calibrate_ground_camera(
@@ -203,8 +205,12 @@ def calibrate_ground_camera(
     points_body,
     T_body_cam_init: np.ndarray | None = None,
     fit_plane: bool = True,
+    reject_sigma: float = 4.0,
 ) -> ExtrinsicFit:
     """The camera's 6-DOF pose on the body by least squares on reprojection error (odometry paper eq. 9).
+
+    Correspondences whose error exceeds ``reject_sigma`` robust standard deviations (at least
+    0.5 px) are dropped and the pose refitted, up to three times.
 
     Args:
         camera: Intrinsics and distortion (its ``T_body_cam`` is the default start).
@@ -214,6 +220,7 @@ def calibrate_ground_camera(
         T_body_cam_init: Start of the search (default ``camera.T_body_cam``; if that is the
             identity, a PnP solution).
         fit_plane: Also fit the ground plane z = a x + b y + c through ``points_body``.
+        reject_sigma: Outlier threshold; ``inf`` keeps every correspondence.
 
     Raises:
         CalibrationError: Fewer than 6 correspondences, mismatched arrays, or a degenerate fit.
@@ -229,35 +236,46 @@ def calibrate_ground_camera(
         ok, rvec, tvec = cv2.solvePnP(P, px, camera.K, camera.distortion, flags=cv2.SOLVEPNP_ITERATIVE)
         if not ok:
             raise CalibrationError("no initial pose: PnP failed; pass T_body_cam_init")
-        x0 = np.concatenate([rvec.ravel(), tvec.ravel()])
+        x = np.concatenate([rvec.ravel(), tvec.ravel()])
     else:
         T_cb = np.linalg.inv(T0)
-        x0 = np.concatenate([cv2.Rodrigues(T_cb[:3, :3])[0].ravel(), T_cb[:3, 3]])
+        x = np.concatenate([cv2.Rodrigues(T_cb[:3, :3])[0].ravel(), T_cb[:3, 3]])
 
-    def project(x: np.ndarray) -> np.ndarray:
+    def project(x: np.ndarray, pts: np.ndarray) -> np.ndarray:
         R = cv2.Rodrigues(x[:3])[0]
-        return camera.project(P @ R.T + x[3:])
+        return camera.project(pts @ R.T + x[3:])
 
-    sol = least_squares(lambda x: (project(x) - px).ravel(), x0, method="lm")
-    R = cv2.Rodrigues(sol.x[:3])[0]
+    inliers = np.ones(len(px), dtype=bool)
+    for _ in range(4):
+        if inliers.sum() < 6:
+            raise CalibrationError("fewer than 6 correspondences agree with one pose; check the matches")
+        P_in, px_in = P[inliers], px[inliers]
+        x = least_squares(
+            lambda z, P_in=P_in, px_in=px_in: (project(z, P_in) - px_in).ravel(), x, method="lm"
+        ).x
+        err = np.hypot(*(project(x, P) - px).T)
+        limit = max(0.5, reject_sigma * 1.4826 * float(np.median(err[inliers])))
+        keep = err <= limit
+        if np.array_equal(keep, inliers):
+            break
+        inliers = keep
     T_cb = np.eye(4)
-    T_cb[:3, :3], T_cb[:3, 3] = R, sol.x[3:]
-    T_bc = np.linalg.inv(T_cb)
+    T_cb[:3, :3], T_cb[:3, 3] = cv2.Rodrigues(x[:3])[0], x[3:]
     plane = camera.ground_plane
     if fit_plane:
-        A = np.column_stack([P[:, 0], P[:, 1], np.ones(len(P))])
-        coef, *_ = np.linalg.lstsq(A, P[:, 2], rcond=None)
-        if np.abs(A @ coef - P[:, 2]).max() > 0.01:
+        Q = P[inliers]
+        A = np.column_stack([Q[:, 0], Q[:, 1], np.ones(len(Q))])
+        coef, *_ = np.linalg.lstsq(A, Q[:, 2], rcond=None)
+        if np.abs(A @ coef - Q[:, 2]).max() > 0.01:
             raise CalibrationError("points_body are not on one plane (> 1 cm off); pass fit_plane=False")
         plane = tuple(float(v) for v in coef)
     fitted = PinholeCamera(
         K=camera.K,
         distortion=camera.distortion,
         image_size=camera.image_size,
-        T_body_cam=T_bc,
+        T_body_cam=np.linalg.inv(T_cb),
         ground_plane=plane,
     )
-    err = np.hypot(*(project(sol.x) - px).T)
-    rms = float(math.sqrt(np.mean(err**2)))
-    log.info("ground camera calibration: %d points, RMS %.3f px", len(px), rms)
-    return ExtrinsicFit(camera=fitted, rms_px=rms, residuals_px=err)
+    rms = float(math.sqrt(np.mean(err[inliers] ** 2)))
+    log.info("ground camera calibration: %d of %d points, RMS %.3f px", inliers.sum(), len(px), rms)
+    return ExtrinsicFit(camera=fitted, rms_px=rms, residuals_px=err, inliers=inliers)
