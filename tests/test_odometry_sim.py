@@ -80,7 +80,8 @@ def test_downward_camera_pose_calibrated_on_the_checkerboard_scenario():
     offset = np.abs(got[:3, 3] - want[:3, 3]).max()
     n = int(fit.inliers.sum())
     print(
-        f"calibration: {n} of {len(found)} corners, RMS {fit.rms_px:.3f} px, off {1000 * offset:.2f} mm, {angle:.3f} deg"
+        f"calibration: {n} of {len(found)} corners, RMS {fit.rms_px:.3f} px, "
+        f"off {1000 * offset:.2f} mm, {angle:.3f} deg"
     )
     assert n > 300 and fit.rms_px < 0.2
     assert offset < 0.002 and angle < 0.05
