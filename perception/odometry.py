@@ -120,7 +120,8 @@ def rigid_ransac(
 
     Each iteration samples ``sample_size`` pairs, subtracts their centroids, takes the rotation
     R = U V^T from the SVD of the covariance c' p'^T / n_s, and counts the points whose error
-    C' - R P' (all points about the sample centroids) is under ``threshold``.
+    C' - R P' (all points about the sample centroids) is under ``threshold``. The iterations are
+    evaluated together as arrays; the first sample with the most inliers wins.
 
     Args:
         P: (n, 2) positions in the first frame [m].
@@ -136,26 +137,24 @@ def rigid_ransac(
     P = np.asarray(P, dtype=np.float64)
     C = np.asarray(C, dtype=np.float64)
     n = len(P)
-    best = np.zeros(n, dtype=bool)
     if n < sample_size:
-        return best
+        return np.zeros(n, dtype=bool)
     rng = rng or np.random.default_rng(0)
-    thr2 = threshold**2
-    for _ in range(iterations):
-        s = rng.choice(n, sample_size, replace=False)
-        p_bar, c_bar = P[s].mean(axis=0), C[s].mean(axis=0)
-        p_s, c_s = P[s] - p_bar, C[s] - c_bar
-        sigma = c_s.T @ p_s / sample_size  # eq. 14
-        U, _, Vt = np.linalg.svd(sigma)
-        R = U @ Vt  # eq. 16
-        if np.linalg.det(R) < 0:  # a reflection is not a motion
-            U[:, -1] *= -1
-            R = U @ Vt
-        err = (C - c_bar) - (P - p_bar) @ R.T  # eq. 17
-        inl = np.einsum("ij,ij->i", err, err) < thr2
-        if inl.sum() > best.sum():
-            best = inl
-    return best
+    # all iterations at once: (iterations, sample_size) indices, distinct within a sample
+    s = np.argsort(rng.random((iterations, n)), axis=1)[:, :sample_size]
+    p_bar, c_bar = P[s].mean(axis=1), C[s].mean(axis=1)  # eqs. 10-11
+    p_s = P[s] - p_bar[:, None]  # eq. 12
+    c_s = C[s] - c_bar[:, None]
+    sigma = np.einsum("kia,kib->kab", c_s, p_s) / sample_size  # eq. 14: c' p'^T / n_s
+    U, _, Vt = np.linalg.svd(sigma)  # eq. 15
+    R = U @ Vt  # eq. 16
+    flip = np.linalg.det(R) < 0  # a reflection is not a motion
+    U[flip, :, -1] *= -1
+    R[flip] = U[flip] @ Vt[flip]
+    # eq. 17: C' - R P', all points about the sample centroids
+    err = (C[None] - c_bar[:, None]) - np.einsum("kab,knb->kna", R, P[None] - p_bar[:, None])
+    inl = np.einsum("kna,kna->kn", err, err) < threshold**2
+    return inl[int(np.argmax(inl.sum(axis=1)))]
 
 
 def velocity_from_points(P: np.ndarray, C: np.ndarray, dt: float) -> tuple[np.ndarray, float]:
