@@ -4,8 +4,9 @@ This package depends on numpy, OpenCV and SciPy only; it never needs the simulat
 """
 
 from perception.calib_io import CalibrationError
-from perception.calibration import OmniFit, fit_omni_camera
+from perception.calibration import ExtrinsicFit, OmniFit, calibrate_ground_camera, fit_omni_camera
 from perception.cameras import OmniCamera, PinholeCamera
+from perception.odometry import FlowOdometry, FlowOdometryConfig, OdometryEstimate
 from perception.wheel_kinematics import (
     SLIP_EPS,
     slip_angle,
@@ -16,9 +17,14 @@ from perception.wheel_kinematics import (
 __all__ = [
     "SLIP_EPS",
     "CalibrationError",
+    "ExtrinsicFit",
+    "FlowOdometry",
+    "FlowOdometryConfig",
+    "OdometryEstimate",
     "OmniCamera",
     "OmniFit",
     "PinholeCamera",
+    "calibrate_ground_camera",
     "fit_omni_camera",
     "slip_angle",
     "slip_ratio",
