@@ -41,6 +41,7 @@ class Fiducial:
     rgba: tuple[float, float, float, float]
 
 
+MARKER_THICKNESS = 0.002  # [m] magenta plates are boxes this thick, centred on their position
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
 WHITE = (1.0, 1.0, 1.0, 1.0)
 
@@ -280,7 +281,7 @@ class RoverGeometry:
             inner = -1.0 if axle == "F" else 1.0
             for idx, side in ((1, 1.0), (2, -1.0)):
                 p_axle = np.array(
-                    [inner * (self.axle_beam_size[0] / 2 + 0.002), side * self.plate_marker_y, 0.0]
+                    [inner * (self.axle_beam_size[0] / 2 + MARKER_THICKNESS), side * self.plate_marker_y, 0.0]
                 )
                 out.append(magenta(f"{plate}{idx}", f"axle_{axle}", p_axle, (inner, 0.0, 0.0)))
             for idx, wheel_side in ((1, "L"), (2, "R")):
@@ -294,6 +295,34 @@ class RoverGeometry:
                 Fiducial(f"W_{w}", f"wheel_{w}", (0.0, 0.0, self.wheel_radius), (0.0, 0.0, 1.0), arc, WHITE)
             )
         return tuple(out)
+
+    def marker_face_centre(self, f: Fiducial) -> np.ndarray:
+        """Centre of the visible face of magenta marker ``f`` in its link frame [m]."""
+        return np.asarray(f.position) + 0.5 * MARKER_THICKNESS * np.asarray(f.normal)
+
+    def kinematic_model(self, T_body_fisheye: np.ndarray):
+        """The geometry the fisheye estimator needs, as a :class:`perception.kinematics.RoverKinematicModel`.
+
+        Marker positions are the centres of their visible faces.
+        """
+        from perception.kinematics import RoverKinematicModel
+
+        a1 = self.marker_face_centre(self.fiducial("A1"))  # front-left plate marker, axle frame
+        b1 = self.marker_face_centre(self.fiducial("B1"))  # front-left tie-rod end, knuckle frame
+        return RoverKinematicModel(
+            axle_x=self.axle_x,
+            nominal_depth=-self.axle_z,
+            track=self.track,
+            wheel_radius=self.wheel_radius,
+            wheel_width=self.wheel_width,
+            plate_offset=float(-a1[0]),
+            plate_marker_y=float(a1[1]),
+            arm_tip=tuple(float(v) for v in b1),
+            marker_size=self.fiducial_size,
+            correction_marker_arc=self.correction_marker_arc,
+            ackermann_center_x=self.ackermann_center_x,
+            T_body_cam=T_body_fisheye,
+        )
 
     def fiducial(self, name: str) -> Fiducial:
         """The fiducial called ``name`` (see :meth:`fiducials`)."""

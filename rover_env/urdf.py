@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rover_env.geometry import AXLES, RoverGeometry
+from rover_env.geometry import AXLES, MARKER_THICKNESS, RoverGeometry
 from rover_env.textures import cache_dir
 
 BODY_RGBA = (0.78, 0.64, 0.32, 1.0)
@@ -197,7 +197,9 @@ def build_urdf(geom: RoverGeometry) -> str:
         axle_visuals = _visual_box((0, 0, 0), (0, 0, 0), beam, METAL_RGBA)
         for idx in (1, 2):
             f = fid[f"{plate}{idx}"]
-            axle_visuals += _visual_box(f.position, _rpy_z_to(f.normal), (f.size, f.size, 0.002), f.rgba)
+            axle_visuals += _visual_box(
+                f.position, _rpy_z_to(f.normal), (f.size, f.size, MARKER_THICKNESS), f.rgba
+            )
         parts.append(
             f'<link name="axle_{axle}">'
             f"{_inertial(geom.axle_mass, _box_inertia(geom.axle_mass, beam), s)}"
@@ -218,7 +220,9 @@ def build_urdf(geom: RoverGeometry) -> str:
             arm_yaw = math.atan2(tip[1], tip[0])
             arm_mid = (arm_len / 2 * math.cos(arm_yaw), arm_len / 2 * math.sin(arm_yaw), tip[2])
             knuckle_vis = _visual_box(arm_mid, (0, 0, arm_yaw), (arm_len, 0.015, 0.012), METAL_RGBA)
-            knuckle_vis += _visual_box(f.position, _rpy_z_to(f.normal), (f.size, f.size, 0.002), f.rgba)
+            knuckle_vis += _visual_box(
+                f.position, _rpy_z_to(f.normal), (f.size, f.size, MARKER_THICKNESS), f.rgba
+            )
             parts.append(
                 f'<link name="knuckle_{wheel}">'
                 f"{_inertial(geom.knuckle_mass, _box_inertia(geom.knuckle_mass, (0.05, 0.05, 0.05)), s)}"

@@ -1,0 +1,198 @@
+"""The rover's kinematic geometry as the fisheye estimator needs it (no simulator).
+
+Frames (REP-103): body x forward, y left, z up. Per axle a in (F, R): the roll centre at
+(x_a, 0, -d_a) in the body frame (d_a: depth below the body origin, the axle-body distance), the
+axle frame rotated by the roll psi_a about body x. Each wheel's kingpin lies at (0, +-track/2, 0)
+in its axle frame; its knuckle frame is rotated by the wheel steering angle delta about the axle's
+z. Wheel order FL, FR, RL, RR; marker names as in the kinematics paper: A1, A2 on the front axle
+plate, B1, B2 on the front tie-rod ends, C1, C2 and D1, D2 on the rear (index 1 on the left).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from perception.calib_io import CalibrationError, as_array, check_rigid, read_mapping, write_mapping
+
+WHEELS = ("FL", "FR", "RL", "RR")
+AXLES = ("F", "R")
+PLATE = {"F": ("A1", "A2"), "R": ("C1", "C2")}
+ROD = {"F": ("B1", "B2"), "R": ("D1", "D2")}
+MARKERS = ("A1", "A2", "B1", "B2", "C1", "C2", "D1", "D2")
+
+
+def rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class RoverKinematicModel:
+    """Geometry of the axles, markers and wheels [m], and the fisheye's pose on the body.
+
+    Attributes:
+        axle_x: Roll centres at x = +axle_x (front) and -axle_x (rear), body frame.
+        nominal_depth: Axle-body distance d at rest (roll centre below the body origin).
+        track: Lateral distance between wheel centres.
+        wheel_radius: Tread radius.
+        wheel_width: Tread width.
+        plate_offset: Plate markers' distance from the roll axis along x, toward the body centre
+            (their plane, paper eq. 2, is x = +-(axle_x - plate_offset)).
+        plate_marker_y: |y| of the plate markers in the axle frame.
+        arm_tip: Front-left tie-rod end in its knuckle frame (x, y, z); the others mirror it.
+        marker_size: Edge of the magenta squares.
+        correction_marker_arc: Angular width of the white tread marker [rad].
+        ackermann_center_x: x of the turn-centre line each axle's tie rod is designed for.
+        T_body_cam: Fisheye optical frame in the body frame.
+    """
+
+    axle_x: float
+    nominal_depth: float
+    track: float
+    wheel_radius: float
+    wheel_width: float
+    plate_offset: float
+    plate_marker_y: float
+    arm_tip: tuple[float, float, float]
+    marker_size: float
+    correction_marker_arc: float
+    ackermann_center_x: float = 0.0
+    T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __post_init__(self) -> None:
+        for name in ("axle_x", "nominal_depth", "track", "wheel_radius", "wheel_width", "marker_size"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise CalibrationError(f"{name}: {v!r} must be a positive length in metres")
+        object.__setattr__(self, "arm_tip", tuple(float(v) for v in as_array(self.arm_tip, (3,), "arm_tip")))
+        object.__setattr__(self, "T_body_cam", check_rigid(self.T_body_cam, "T_body_cam"))
+
+    # ------------------------------------------------------------------ forward kinematics
+    def axle_sign(self, axle: str) -> float:
+        return 1.0 if axle == "F" else -1.0
+
+    def roll_centre(self, axle: str, depth: float) -> np.ndarray:
+        """Roll centre of ``axle`` at axle-body distance ``depth`` (body frame)."""
+        return np.array([self.axle_sign(axle) * self.axle_x, 0.0, -depth])
+
+    def axle_pose(self, axle: str, psi: float, depth: float) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t): axle frame -> body frame."""
+        return rot_x(psi), self.roll_centre(axle, depth)
+
+    def plate_marker_local(self, name: str) -> np.ndarray:
+        """Plate marker centre in its axle frame."""
+        axle = "F" if name[0] == "A" else "R"
+        side = 1.0 if name[1] == "1" else -1.0
+        return np.array([-self.axle_sign(axle) * self.plate_offset, side * self.plate_marker_y, 0.0])
+
+    def kingpin_local(self, wheel: str) -> np.ndarray:
+        """Kingpin (wheel centre) in its axle frame."""
+        return np.array([0.0, (1.0 if wheel[1] == "L" else -1.0) * self.track / 2.0, 0.0])
+
+    def tip_knuckle(self, wheel: str) -> np.ndarray:
+        """Tie-rod end of ``wheel`` in its knuckle frame (front tips behind the kingpin, rear in front)."""
+        x, y, z = self.arm_tip
+        sx = 1.0 if wheel[0] == "F" else -1.0
+        sy = 1.0 if wheel[1] == "L" else -1.0
+        return np.array([sx * x, sy * y, z])
+
+    def marker_positions(self, psi, depth, delta) -> dict[str, np.ndarray]:
+        """Body-frame centres of the 8 magenta markers.
+
+        Args:
+            psi: (psi_F, psi_R) axle roll [rad].
+            depth: (d_F, d_R) axle-body distance [m].
+            delta: (4,) wheel steering angles FL, FR, RL, RR [rad].
+        """
+        out = {}
+        for i, axle in enumerate(AXLES):
+            R, t = self.axle_pose(axle, psi[i], depth[i])
+            for name in PLATE[axle]:
+                out[name] = R @ self.plate_marker_local(name) + t
+            for name, wheel in zip(ROD[axle], (axle + "L", axle + "R"), strict=True):
+                k = WHEELS.index(wheel)
+                local = self.kingpin_local(wheel) + rot_z(delta[k]) @ self.tip_knuckle(wheel)
+                out[name] = R @ local + t
+        return out
+
+    def wheel_frames(self, psi, depth, delta) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(R, centre) of each wheel's knuckle frame in the body frame (axle along its y)."""
+        out = []
+        for k, wheel in enumerate(WHEELS):
+            i = AXLES.index(wheel[0])
+            R, t = self.axle_pose(wheel[0], psi[i], depth[i])
+            out.append((R @ rot_z(delta[k]), R @ self.kingpin_local(wheel) + t))
+        return out
+
+    def ackermann_arms(self) -> tuple[np.ndarray, np.ndarray]:
+        """(arm to the turn-centre line, y) of each wheel, order FL, FR, RL, RR."""
+        arms = np.array(
+            [self.axle_sign(w[0]) * self.axle_x - self.ackermann_center_x for w in WHEELS], dtype=np.float64
+        )
+        ys = np.array([self.kingpin_local(w)[1] for w in WHEELS])
+        return arms, ys
+
+    def wheel_angles(self, lam_front: float, lam_rear: float) -> np.ndarray:
+        """Per-wheel steering angles for axle commands (the tie rods' Ackermann mapping) [rad]."""
+        arms, ys = self.ackermann_arms()
+        out = []
+        for k, lam in enumerate((lam_front, lam_front, lam_rear, lam_rear)):
+            t = math.tan(lam)
+            out.append(math.atan(arms[k] * t / (arms[k] - ys[k] * t)))
+        return np.array(out)
+
+    def axle_steering(self, delta) -> np.ndarray:
+        """(lambda_F, lambda_R) from 4 wheel angles: the inverse Ackermann map, averaged per axle."""
+        arms, ys = self.ackermann_arms()
+        lam = [
+            math.atan(a * math.tan(d) / (a + y * math.tan(d)))
+            for a, y, d in zip(arms, ys, delta, strict=True)
+        ]
+        return np.array([0.5 * (lam[0] + lam[1]), 0.5 * (lam[2] + lam[3])])
+
+    # ------------------------------------------------------------------ YAML
+    _KEYS = frozenset(
+        {
+            "axle_x",
+            "nominal_depth",
+            "track",
+            "wheel_radius",
+            "wheel_width",
+            "plate_offset",
+            "plate_marker_y",
+            "arm_tip",
+            "marker_size",
+            "correction_marker_arc",
+            "ackermann_center_x",
+            "T_body_cam",
+        }
+    )
+
+    @classmethod
+    def load(cls, path: str | Path) -> RoverKinematicModel:
+        """Read a model written by :meth:`save` (every key required; unknown keys are errors)."""
+        d = read_mapping(path, set(cls._KEYS), set())
+        try:
+            kw = {k: float(d[k]) for k in cls._KEYS - {"arm_tip", "T_body_cam"}}
+            return cls(
+                arm_tip=tuple(as_array(d["arm_tip"], (3,), "arm_tip")),
+                T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),
+                **kw,
+            )
+        except (CalibrationError, TypeError, ValueError) as exc:
+            raise CalibrationError(f"{path}: {exc}") from exc
+
+    def save(self, path: str | Path) -> Path:
+        """Write every field to YAML."""
+        data = {k: getattr(self, k) for k in sorted(self._KEYS)}
+        data["arm_tip"] = list(self.arm_tip)
+        return write_mapping(path, data)
