@@ -26,11 +26,13 @@ MARKERS = ("A1", "A2", "B1", "B2", "C1", "C2", "D1", "D2")
 
 
 def rot_x(a: float) -> np.ndarray:
+    """Rotation by ``a`` [rad] about x."""
     c, s = math.cos(a), math.sin(a)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def rot_z(a: float) -> np.ndarray:
+    """Rotation by ``a`` [rad] about z."""
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
@@ -78,6 +80,7 @@ class RoverKinematicModel:
 
     # ------------------------------------------------------------------ forward kinematics
     def axle_sign(self, axle: str) -> float:
+        """+1 for the front axle, -1 for the rear."""
         return 1.0 if axle == "F" else -1.0
 
     def roll_centre(self, axle: str, depth: float) -> np.ndarray:
