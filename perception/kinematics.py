@@ -127,6 +127,24 @@ class RoverKinematicModel:
                 out[name] = R @ local + t
         return out
 
+    def marker_normals(self, psi, delta) -> dict[str, np.ndarray]:
+        """Body-frame unit normals of the 8 marker faces.
+
+        Plate markers lie flat on the beam's inner face; tie-rod markers face the fisheye at zero
+        roll and steering and turn with their knuckle.
+        """
+        nominal = self.marker_positions((0.0, 0.0), (self.nominal_depth,) * 2, np.zeros(4))
+        cam = self.T_body_cam[:3, 3]
+        out = {}
+        for i, axle in enumerate(AXLES):
+            R = rot_x(psi[i])
+            for name in PLATE[axle]:
+                out[name] = R @ np.array([-self.axle_sign(axle), 0.0, 0.0])
+            for name, wheel in zip(ROD[axle], (axle + "L", axle + "R"), strict=True):
+                n = cam - nominal[name]
+                out[name] = R @ rot_z(delta[WHEELS.index(wheel)]) @ (n / np.linalg.norm(n))
+        return out
+
     def wheel_frames(self, psi, depth, delta) -> list[tuple[np.ndarray, np.ndarray]]:
         """(R, centre) of each wheel's knuckle frame in the body frame (axle along its y)."""
         out = []

@@ -1,0 +1,379 @@
+"""Fiducial markers in the fisheye image, and the axle roll, height and steering they give.
+
+Kinematics paper, sections IV-B and V-A/B:
+
+- Magenta markers are segmented in HSV, cleaned by an opening (erosion then dilation) and
+  reduced to blob centroids. Each of A1 ... D2 takes the nearest blob to its predicted pixel (the
+  previous state through the kinematic model and the camera), within a gate.
+- Every centre is unprojected to a unit ray (:meth:`OmniCamera.cam2world`) from the camera
+  centre, in the body frame.
+- Axle roll and height (eq. 2): the plate markers lie in the plane x = +-(axle_x - plate_offset);
+  the ray-plane intersections give the marker vector, whose direction in the y-z plane is the
+  roll psi and whose midpoint is the roll centre at depth d.
+- Steering (eqs. 3-4): the tie-rod ends lie in the axle's roll-corrected plane (normal R_x(psi) z,
+  here moved to the tie-rod height); each ray-plane intersection, seen from its kingpin, gives
+  the wheel's steering angle, and the inverse Ackermann map gives lambda. The paper's distance
+  ratio (eq. 5) is available as :func:`steering_ratio` with a calibrated map (see
+  :class:`SteeringCalibration`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from perception.calib_io import CalibrationError, as_array, read_mapping, write_mapping
+from perception.cameras import OmniCamera
+from perception.kinematics import AXLES, MARKERS, PLATE, ROD, WHEELS, RoverKinematicModel, rot_x
+
+
+@dataclass(frozen=True)
+class MarkerConfig:
+    """Marker segmentation.
+
+    Attributes:
+        hue_range: Magenta hue band in OpenCV units (0-180).
+        min_saturation: Minimum HSV saturation (0-255).
+        min_value: Minimum HSV value (0-255); low, so markers in the rover's shadow still count.
+        min_area_frac: Smallest blob area as a share of the image area.
+        gate_frac: Largest distance from a predicted marker pixel, as a share of the image width.
+    """
+
+    hue_range: tuple[int, int] = (135, 165)
+    min_saturation: int = 110
+    min_value: int = 20
+    min_area_frac: float = 3e-5
+    gate_frac: float = 0.05
+
+
+def segment_magenta(rgb: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Magenta blobs: (centroids (n, 2) [px], areas (n,) [px], cleaned mask).
+
+    Blobs are found in HSV (hue band, saturation and value floors) after an opening. Each blob's
+    centre is then weighted by its magenta chroma, (R + B) / 2 - G, over the blob grown by two
+    pixels: chroma is proportional to the share of a pixel the marker covers, whatever the
+    lighting, so partly covered edge pixels count by their share and the centre is sub-pixel.
+    """
+    img = np.asarray(rgb)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"image: {img.dtype} {img.shape}; expected (H, W, 3) uint8 RGB")
+    hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV)
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    lo, hi = cfg.hue_range
+    mask = (h >= lo) & (h <= hi) & (s >= cfg.min_saturation) & (v >= cfg.min_value)
+    k = np.ones((3, 3), np.uint8)
+    mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, k)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    min_area = max(4.0, cfg.min_area_frac * img.shape[0] * img.shape[1])
+    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
+    f = img.astype(np.float32)
+    chroma = np.maximum(0.5 * (f[..., 0] + f[..., 2]) - f[..., 1], 0.0)
+    cents = []
+    for lab in keep:
+        x, y, w, hh = stats[lab, :4]
+        x0, y0 = max(x - 3, 0), max(y - 3, 0)
+        x1, y1 = min(x + w + 3, img.shape[1]), min(y + hh + 3, img.shape[0])
+        grown = cv2.dilate((labels[y0:y1, x0:x1] == lab).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        wgt = np.where(grown, chroma[y0:y1, x0:x1], 0.0)
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        tot = wgt.sum()
+        cents.append((float((wgt * xs).sum() / tot), float((wgt * ys).sum() / tot)))
+    cent = np.array(cents, dtype=np.float64).reshape(-1, 2)
+    return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask.astype(bool)
+
+
+def assign_markers(predicted: dict[str, np.ndarray], centroids: np.ndarray, gate: float) -> dict[str, int]:
+    """Greedy nearest assignment of blobs to markers, closest pairs first, each blob used once."""
+    names = [m for m in predicted if np.all(np.isfinite(predicted[m]))]
+    if not names or len(centroids) == 0:
+        return {}
+    P = np.array([predicted[m] for m in names])
+    D = np.linalg.norm(P[:, None, :] - centroids[None, :, :], axis=2)
+    out: dict[str, int] = {}
+    used = set()
+    for flat in np.argsort(D, axis=None):
+        i, j = np.unravel_index(flat, D.shape)
+        if D[i, j] > gate:
+            break
+        if names[i] in out or j in used:
+            continue
+        out[names[i]] = int(j)
+        used.add(int(j))
+    return out
+
+
+def body_rays(camera: OmniCamera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), unit directions (n, 3)) of the rays through ``pixels``, body frame."""
+    rays = camera.cam2world(np.asarray(pixels, dtype=np.float64).reshape(-1, 2))
+    T = camera.T_body_cam
+    return T[:3, 3].copy(), rays @ T[:3, :3].T
+
+
+def ray_plane(origin: np.ndarray, direction: np.ndarray, normal: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """Intersection of rays origin + t direction (t > 0) with the plane normal . (r - point) = 0."""
+    denom = direction @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = ((point - origin) @ normal) / denom
+    out = origin + t[..., None] * direction
+    out[~(t > 0)] = np.nan
+    return out
+
+
+def axle_from_plate(
+    model: RoverKinematicModel, axle: str, m1: np.ndarray, m2: np.ndarray
+) -> tuple[float, float]:
+    """(psi, d) of ``axle`` from its two plate-marker positions (body frame), eq. 2."""
+    v = m1 - m2  # index 1 is on the left: +y in the axle frame
+    psi = math.atan2(v[2], v[1])
+    mid = 0.5 * (m1 + m2)
+    return psi, float(-mid[2])
+
+
+def plate_points(model: RoverKinematicModel, axle: str, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Ray intersections with the plate plane x = +-(axle_x - plate_offset) of ``axle``."""
+    x = model.axle_sign(axle) * (model.axle_x - model.plate_offset)
+    return ray_plane(origin, dirs, np.array([1.0, 0.0, 0.0]), np.array([x, 0.0, 0.0]))
+
+
+def tie_rod_points(
+    model: RoverKinematicModel, axle: str, psi: float, depth: float, origin: np.ndarray, dirs: np.ndarray
+) -> np.ndarray:
+    """Ray intersections with the roll-corrected tie-rod plane of ``axle`` (eqs. 3-4)."""
+    R = rot_x(psi)
+    n = R @ np.array([0.0, 0.0, 1.0])
+    point = model.roll_centre(axle, depth) + model.arm_tip[2] * n
+    return ray_plane(origin, dirs, n, point)
+
+
+def wheel_steer_from_tip(
+    model: RoverKinematicModel, wheel: str, tip_body: np.ndarray, psi: float, depth: float
+) -> float:
+    """Steering angle of ``wheel`` [rad] from its tie-rod end (body frame).
+
+    The tip's angle about the kingpin in the axle frame, less its angle at zero steering.
+    """
+    R, t = model.axle_pose(wheel[0], psi, depth)
+    local = R.T @ (tip_body - t) - model.kingpin_local(wheel)
+    nominal = model.tip_knuckle(wheel)
+    ang = math.atan2(local[1], local[0]) - math.atan2(nominal[1], nominal[0])
+    return math.remainder(ang, 2 * math.pi)
+
+
+def steering_ratio(a1: np.ndarray, a2: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> float:
+    """The paper's eq. (5): d(B1, A1) / d(B2, A2)."""
+    return float(np.linalg.norm(b1 - a1) / np.linalg.norm(b2 - a2))
+
+
+@dataclass(frozen=True)
+class SteeringCalibration:
+    """lambda as a function of the distance ratio x of eq. (5), per axle, from a steering sweep.
+
+    The paper fits a 2nd-order polynomial. For this rover the ratio runs from 0.37 to 2.7 over
+    +-30 deg and a quadratic misses by up to 5.8 deg, so the map is the swept table itself,
+    interpolated in ln x (the ratio is 1/x for -lambda). Near full lock the inner tie-rod end
+    passes closest to its plate marker and the ratio stops being monotonic: sweep only the
+    range where it is (about +-24 deg here); the geometric steering of :func:`measure_axles`
+    has no such limit.
+
+    Attributes:
+        ln_ratio: (axle, n) sorted ln x samples, axle order F, R.
+        lam: (axle, n) lambda at those samples [rad].
+    """
+
+    ln_ratio: tuple[tuple[float, ...], tuple[float, ...]]
+    lam: tuple[tuple[float, ...], tuple[float, ...]]
+
+    @classmethod
+    def fit(cls, ratios, lams) -> SteeringCalibration:
+        """From swept (ratio, lambda) samples: ``ratios`` and ``lams`` are (2, n) arrays (F, R)."""
+        x_out, l_out = [], []
+        for r, lam in zip(
+            np.asarray(ratios, dtype=np.float64), np.asarray(lams, dtype=np.float64), strict=True
+        ):
+            lx = np.log(r)
+            order = np.argsort(lx)
+            lx, lam = lx[order], lam[order]
+            if np.any(np.diff(lx) <= 0) or not (np.all(np.diff(lam) > 0) or np.all(np.diff(lam) < 0)):
+                raise CalibrationError("steering sweep: the ratio is not monotonic in lambda; sweep finer")
+            x_out.append(tuple(lx.tolist()))
+            l_out.append(tuple(lam.tolist()))
+        return cls(tuple(x_out), tuple(l_out))
+
+    def steering(self, axle: str, ratio: float) -> float:
+        """Lambda [rad] of ``axle`` for distance ratio ``ratio`` (NaN outside the swept range)."""
+        i = AXLES.index(axle)
+        lx = math.log(ratio) if ratio > 0 else math.nan
+        xs, ls = self.ln_ratio[i], self.lam[i]
+        if not (xs[0] <= lx <= xs[-1]):
+            return math.nan
+        return float(np.interp(lx, xs, ls))
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``ln_ratio_F, lam_F, ln_ratio_R, lam_R`` to YAML."""
+        return write_mapping(
+            path,
+            {
+                "ln_ratio_F": list(self.ln_ratio[0]),
+                "lam_F": list(self.lam[0]),
+                "ln_ratio_R": list(self.ln_ratio[1]),
+                "lam_R": list(self.lam[1]),
+            },
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> SteeringCalibration:
+        """Read a file written by :meth:`save`; missing or unknown keys are errors that name them."""
+        d = read_mapping(path, {"ln_ratio_F", "lam_F", "ln_ratio_R", "lam_R"}, set())
+        try:
+            arrs = {k: as_array(d[k], (-1,), k) for k in d}
+            if any(
+                len(arrs[f"ln_ratio_{a}"]) != len(arrs[f"lam_{a}"]) or len(arrs[f"lam_{a}"]) < 3
+                for a in AXLES
+            ):
+                raise CalibrationError("ln_ratio_* and lam_* must have the same length, at least 3")
+            return cls.fit(
+                [np.exp(arrs["ln_ratio_F"]), np.exp(arrs["ln_ratio_R"])], [arrs["lam_F"], arrs["lam_R"]]
+            )
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {exc}") from exc
+
+
+@dataclass
+class AxleMeasurement:
+    """What the markers say about the axles in one frame.
+
+    Attributes:
+        pixels: Marker name -> measured centroid [px] (found markers only).
+        points: Marker name -> body-frame position [m] (found markers only).
+        psi: (psi_F, psi_R) [rad], NaN where the plate markers were not both found.
+        depth: (d_F, d_R) [m], NaN likewise.
+        delta: (4,) wheel steering angles [rad], NaN where a tie-rod marker is missing.
+        lam: (lambda_F, lambda_R) [rad], NaN where neither tie-rod end of the axle was found.
+    """
+
+    pixels: dict[str, np.ndarray] = field(default_factory=dict)
+    points: dict[str, np.ndarray] = field(default_factory=dict)
+    psi: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    depth: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    delta: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+    lam: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+
+
+def centroid_offsets(
+    model: RoverKinematicModel, camera: OmniCamera, psi, depth, delta
+) -> dict[str, np.ndarray]:
+    """Image offset of each marker's blob centroid from the projection of its centre [px].
+
+    A square seen obliquely through a fisheye does not have its centre at the centroid of its
+    image. The image outline is the projected edge, sampled densely; its area centroid less the
+    projected centre is the offset, for the given state.
+    """
+    pos = model.marker_positions(psi, depth, delta)
+    nrm = model.marker_normals(psi, delta)
+    T_cb = np.linalg.inv(model.T_body_cam)
+    half = model.marker_size / 2
+    s = np.linspace(-1.0, 1.0, 16, endpoint=False)
+    edge = np.concatenate(
+        [np.c_[s, -np.ones(16)], np.c_[np.ones(16), s], np.c_[-s, np.ones(16)], np.c_[-np.ones(16), -s]]
+    )
+    out = {}
+    for name in MARKERS:
+        p, n = pos[name], nrm[name]
+        u = np.cross(n, [0.0, 0.0, 1.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        pts = p + half * (edge[:, :1] * u + edge[:, 1:] * v)
+        poly = camera.world2cam(np.vstack([pts, p]) @ T_cb[:3, :3].T + T_cb[:3, 3])
+        if not np.isfinite(poly).all():
+            out[name] = np.zeros(2)
+            continue
+        x, y = poly[:-1, 0], poly[:-1, 1]
+        xn, yn = np.roll(x, -1), np.roll(y, -1)
+        cross = x * yn - xn * y
+        area = cross.sum() / 2
+        cx = ((x + xn) * cross).sum() / (6 * area)
+        cy = ((y + yn) * cross).sum() / (6 * area)
+        out[name] = np.array([cx, cy]) - poly[-1]
+    return out
+
+
+def measure_axles(
+    model: RoverKinematicModel,
+    camera: OmniCamera,
+    pixels: dict[str, np.ndarray],
+    fallback_psi,
+    fallback_depth,
+    calibration: SteeringCalibration | None = None,
+    refine: bool = True,
+) -> AxleMeasurement:
+    """Axle roll, height and steering from marker pixels (eqs. 2-5).
+
+    Args:
+        model: Rover geometry.
+        camera: The fisheye model (its ``T_body_cam`` is the mount).
+        pixels: Found markers, name -> centroid [px].
+        fallback_psi: Roll used for the tie-rod plane when an axle's plate markers are missing.
+        fallback_depth: Likewise for the depth.
+        calibration: Use the paper's distance ratio (eq. 5) through this map for lambda; by
+            default lambda comes from the tie-rod ends' angles about their kingpins.
+        refine: Measure once, then remove each blob's centroid offset (:func:`centroid_offsets`)
+            predicted at that state and measure again.
+    """
+    first = _measure(model, camera, pixels, fallback_psi, fallback_depth, calibration)
+    if not refine or not pixels:
+        return first
+    psi = np.where(np.isfinite(first.psi), first.psi, np.asarray(fallback_psi, dtype=np.float64))
+    depth = np.where(np.isfinite(first.depth), first.depth, np.asarray(fallback_depth, dtype=np.float64))
+    delta = np.where(np.isfinite(first.delta), first.delta, 0.0)
+    off = centroid_offsets(model, camera, psi, depth, delta)
+    corrected = {m: np.asarray(p, dtype=np.float64) - off[m] for m, p in pixels.items()}
+    out = _measure(model, camera, corrected, psi, depth, calibration)
+    out.pixels = dict(pixels)
+    return out
+
+
+def _measure(model, camera, pixels, fallback_psi, fallback_depth, calibration) -> AxleMeasurement:
+    out = AxleMeasurement(pixels=dict(pixels))
+    names = [m for m in MARKERS if m in pixels]
+    if not names:
+        return out
+    origin, dirs = body_rays(camera, np.array([pixels[m] for m in names]))
+    ray = dict(zip(names, dirs, strict=True))
+    for i, axle in enumerate(AXLES):
+        p1, p2 = PLATE[axle]
+        psi, depth = float(fallback_psi[i]), float(fallback_depth[i])
+        if p1 in ray and p2 in ray:
+            pts = plate_points(model, axle, origin, np.stack([ray[p1], ray[p2]]))
+            if np.all(np.isfinite(pts)):
+                out.points[p1], out.points[p2] = pts[0], pts[1]
+                psi, depth = axle_from_plate(model, axle, pts[0], pts[1])
+                out.psi[i], out.depth[i] = psi, depth
+        for name, wheel in zip(ROD[axle], (axle + "L", axle + "R"), strict=True):
+            if name not in ray:
+                continue
+            tip = tie_rod_points(model, axle, psi, depth, origin, ray[name][None])[0]
+            if not np.all(np.isfinite(tip)):
+                continue
+            out.points[name] = tip
+            k = WHEELS.index(wheel)
+            out.delta[k] = wheel_steer_from_tip(model, wheel, tip, psi, depth)
+        if calibration is not None:
+            if all(m in out.points for m in (p1, p2, *ROD[axle])):
+                r = steering_ratio(
+                    out.points[p1], out.points[p2], out.points[ROD[axle][0]], out.points[ROD[axle][1]]
+                )
+                out.lam[i] = calibration.steering(axle, r)
+            continue
+        arms, ys = model.ackermann_arms()
+        lams = []
+        for k in (2 * i, 2 * i + 1):
+            d = out.delta[k]
+            if np.isfinite(d):
+                lams.append(math.atan(arms[k] * math.tan(d) / (arms[k] + ys[k] * math.tan(d))))
+        if lams:
+            out.lam[i] = float(np.mean(lams))
+    return out

@@ -1,0 +1,197 @@
+"""Axle roll, height and steering from synthetic fisheye images of the markers (no simulator).
+
+The images are made through the OmniCamera model: each pixel's ray (4x supersampled) is tested
+against every marker square at its known pose, so blob centroids carry the same perspective and
+fisheye effects as a real camera's.
+"""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from perception.cameras import OmniCamera
+from perception.kinematics import MARKERS, PLATE, ROD, RoverKinematicModel
+from perception.markers import (
+    MarkerConfig,
+    SteeringCalibration,
+    assign_markers,
+    measure_axles,
+    segment_magenta,
+    steering_ratio,
+)
+
+R_BODY_FISHEYE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+MAGENTA = np.array([230.0, 30.0, 230.0])
+
+
+def rover_model() -> RoverKinematicModel:
+    T = np.eye(4)
+    T[:3, :3] = R_BODY_FISHEYE
+    T[:3, 3] = (0.0, 0.0, -0.12)
+    return RoverKinematicModel(
+        axle_x=0.4,
+        nominal_depth=0.15,
+        track=0.6,
+        wheel_radius=0.115,
+        wheel_width=0.08,
+        plate_offset=0.033,
+        plate_marker_y=0.15,
+        arm_tip=(-0.0968, -0.0726, -0.0448),
+        marker_size=0.035,
+        correction_marker_arc=math.radians(16),
+        T_body_cam=T,
+    )
+
+
+def fisheye(model) -> OmniCamera:
+    return OmniCamera.equidistant((640, 480), math.radians(190.0), 300.8, T_body_cam=model.T_body_cam)
+
+
+def render_markers(model, camera, psi, depth, delta, shade=1.0, ss=4, rng=None):
+    """RGB fisheye image of the 8 magenta squares over a grey textured background."""
+    w, h = camera.image_size
+    rng = rng or np.random.default_rng(0)
+    bg = cv2.GaussianBlur(rng.normal(100, 25, size=(h, w)).astype(np.float32), (0, 0), 1.5)
+    img = np.repeat(bg[..., None], 3, axis=2)
+    pos = model.marker_positions(psi, depth, delta)
+    nrm = model.marker_normals(psi, delta)
+    T_cb = np.linalg.inv(model.T_body_cam)
+    half = model.marker_size / 2
+    for name in MARKERS:
+        p, n = pos[name], nrm[name]
+        u = np.cross(n, [0.0, 0.0, 1.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        corners = np.array([p + a * half * u + b * half * v for a in (-1, 1) for b in (-1, 1)])
+        px = camera.world2cam(corners @ T_cb[:3, :3].T + T_cb[:3, 3])
+        assert np.isfinite(px).all(), f"{name} leaves the field of view"
+        x0, y0 = np.floor(px.min(axis=0)).astype(int) - 2
+        x1, y1 = np.ceil(px.max(axis=0)).astype(int) + 2
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w - 1), min(y1, h - 1)
+        sx = x0 - 0.5 + (np.arange((x1 - x0 + 1) * ss) + 0.5) / ss
+        sy = y0 - 0.5 + (np.arange((y1 - y0 + 1) * ss) + 0.5) / ss
+        gx, gy = np.meshgrid(sx, sy)
+        rays = camera.cam2world(np.stack([gx, gy], -1).reshape(-1, 2)) @ model.T_body_cam[:3, :3].T
+        o = model.T_body_cam[:3, 3]
+        t = ((p - o) @ n) / (rays @ n)
+        hit = o + t[:, None] * rays - p
+        inside = (t > 0) & (np.abs(hit @ u) <= half) & (np.abs(hit @ v) <= half)
+        cov = inside.reshape(len(sy), len(sx)).astype(np.float32)
+        cov = cov.reshape(y1 - y0 + 1, ss, x1 - x0 + 1, ss).mean(axis=(1, 3))
+        patch = img[y0 : y1 + 1, x0 : x1 + 1]
+        img[y0 : y1 + 1, x0 : x1 + 1] = patch * (1 - cov[..., None]) + shade * MAGENTA * cov[..., None]
+    return np.clip(img + 0.5, 0, 255).astype(np.uint8)
+
+
+def predicted_pixels(model, camera, psi, depth, delta):
+    pos = model.marker_positions(psi, depth, delta)
+    T_cb = np.linalg.inv(model.T_body_cam)
+    return {m: camera.world2cam(T_cb[:3, :3] @ p + T_cb[:3, 3]) for m, p in pos.items()}
+
+
+# feasible states: the axle beam stays below the body (depth > 0.1 m + 0.22 m |sin psi|)
+POSES = [
+    ((0.0, 0.0), (0.15, 0.15), (0.0, 0.0)),
+    ((0.2, -0.15), (0.17, 0.15), (0.3, -0.3)),
+    ((-0.34, 0.34), (0.19, 0.18), (-0.52, 0.52)),  # full roll and full lock
+    ((0.12, 0.05), (0.14, 0.13), (0.45, 0.2)),
+]
+
+
+@pytest.mark.parametrize("shade", [1.0, 0.3])  # sunlit, and in the rover's shadow
+@pytest.mark.parametrize("pose", POSES)
+def test_roll_height_and_steering_from_synthetic_markers(pose, shade):
+    model = rover_model()
+    cam = fisheye(model)
+    psi, depth, lam = pose
+    delta = model.wheel_angles(*lam)
+    img = render_markers(model, cam, psi, depth, delta, shade=shade)
+    cfg = MarkerConfig()
+    cent, _, _ = segment_magenta(img, cfg)
+    # predictions from a previous state some way off, as between frames
+    prev = predicted_pixels(model, cam, np.array(psi) * 0.8, np.array(depth) + 0.005, delta * 0.9)
+    found = assign_markers(prev, cent, gate=cfg.gate_frac * 640)
+    assert set(found) == set(MARKERS)
+    meas = measure_axles(model, cam, {m: cent[j] for m, j in found.items()}, psi, depth)
+    err_psi = np.degrees(np.abs(meas.psi - psi))
+    err_d = np.abs(meas.depth - depth) * 1000
+    err_lam = np.degrees(np.abs(meas.lam - lam))
+    print(
+        f"{pose} shade {shade}: psi {err_psi.round(3)} deg, d {err_d.round(2)} mm, lam {err_lam.round(3)} deg"
+    )
+    assert err_psi.max() < 0.2 and err_d.max() < 1.0 and err_lam.max() < 0.3
+
+
+def test_steering_ratio_calibration_round_trip(tmp_path):
+    """The paper's eq. (5) map. On this rover the inner tie-rod end passes closest to its plate
+    marker near full lock, where the ratio stops being monotonic: the sweep covers +-24 deg and a
+    full-lock sweep is refused."""
+    from perception.calib_io import CalibrationError
+
+    model = rover_model()
+
+    def sweep(limit_deg):
+        lams = np.radians(np.linspace(-limit_deg, limit_deg, 121))
+        out = []
+        for axle in ("F", "R"):
+            r = []
+            for lam in lams:
+                p = model.marker_positions((0, 0), (0.15, 0.15), model.wheel_angles(lam, lam))
+                r.append(
+                    steering_ratio(p[PLATE[axle][0]], p[PLATE[axle][1]], p[ROD[axle][0]], p[ROD[axle][1]])
+                )
+            out.append(r)
+        return out, [lams, lams]
+
+    with pytest.raises(CalibrationError, match="not monotonic"):
+        SteeringCalibration.fit(*sweep(30.0))
+    cal = SteeringCalibration.fit(*sweep(24.0))
+    path = cal.save(tmp_path / "steer.yaml")
+    back = SteeringCalibration.load(path)
+    # the ratio does not depend on roll or height, only on steering
+    p = model.marker_positions((0.25, -0.2), (0.17, 0.13), model.wheel_angles(0.21, -0.38))
+    assert back.steering("F", steering_ratio(p["A1"], p["A2"], p["B1"], p["B2"])) == pytest.approx(
+        0.21, abs=2e-4
+    )
+    assert back.steering("R", steering_ratio(p["C1"], p["C2"], p["D1"], p["D2"])) == pytest.approx(
+        -0.33, abs=2e-4
+    )
+    assert math.isnan(back.steering("F", 100.0))  # outside the sweep
+
+
+def test_lost_markers_leave_their_degrees_of_freedom_unmeasured():
+    model = rover_model()
+    cam = fisheye(model)
+    psi, depth, delta = (0.1, -0.1), (0.15, 0.15), model.wheel_angles(0.2, -0.2)
+    pix = predicted_pixels(model, cam, psi, depth, delta)
+    del pix["A2"], pix["D1"], pix["D2"]
+    # exact centre projections, so no blob-centroid refinement
+    meas = measure_axles(model, cam, pix, fallback_psi=(0.1, -0.1), fallback_depth=(0.15, 0.15), refine=False)
+    assert np.isnan(meas.psi[0]) and np.isnan(meas.depth[0])  # front plate incomplete
+    assert meas.psi[1] == pytest.approx(-0.1, abs=1e-9)
+    # front steering still measured on the fallback roll; rear steering lost
+    assert meas.lam[0] == pytest.approx(0.2, abs=1e-6) and np.isnan(meas.lam[1])
+
+
+def test_no_markers_black_and_saturated_frames():
+    cfg = MarkerConfig()
+    for img in (np.zeros((480, 640, 3), np.uint8), np.full((480, 640, 3), 255, np.uint8)):
+        cent, areas, _ = segment_magenta(img, cfg)
+        assert len(cent) == 0
+    model = rover_model()
+    meas = measure_axles(model, fisheye(model), {}, (0, 0), (0.15, 0.15))
+    assert np.isnan(meas.psi).all() and np.isnan(meas.lam).all()
+
+
+def test_kinematic_model_yaml_round_trip_and_errors(tmp_path):
+    from perception.calib_io import CalibrationError
+
+    model = rover_model()
+    back = RoverKinematicModel.load(model.save(tmp_path / "rover.yaml"))
+    assert back.arm_tip == pytest.approx(model.arm_tip) and np.allclose(back.T_body_cam, model.T_body_cam)
+    text = (tmp_path / "rover.yaml").read_text().replace("plate_offset", "plate_ofset")
+    (tmp_path / "bad.yaml").write_text(text)
+    with pytest.raises(CalibrationError, match="plate_ofset|plate_offset"):
+        RoverKinematicModel.load(tmp_path / "bad.yaml")
