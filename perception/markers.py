@@ -54,9 +54,9 @@ def segment_magenta(rgb: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.
     """Magenta blobs: (centroids (n, 2) [px], areas (n,) [px], cleaned mask).
 
     Blobs are found in HSV (hue band, saturation and value floors) after an opening. Each blob's
-    centre is then weighted by its magenta chroma, (R + B) / 2 - G, over the blob grown by two
-    pixels: chroma is proportional to the share of a pixel the marker covers, whatever the
-    lighting, so partly covered edge pixels count by their share and the centre is sub-pixel.
+    centre is then weighted by its saturation relative to the blob's core, over the blob grown
+    by two pixels: saturation does not depend on brightness, so a marker half in shadow keeps
+    its centre, and partly covered edge pixels count by about their share (sub-pixel centres).
     """
     img = np.asarray(rgb)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
@@ -70,15 +70,17 @@ def segment_magenta(rgb: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     min_area = max(4.0, cfg.min_area_frac * img.shape[0] * img.shape[1])
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
-    f = img.astype(np.float32)
-    chroma = np.maximum(0.5 * (f[..., 0] + f[..., 2]) - f[..., 1], 0.0)
+    sat = s.astype(np.float32)
+    in_band = np.abs(h.astype(np.float32) - 0.5 * (lo + hi)) <= (hi - lo)  # hue, with a margin
     cents = []
     for lab in keep:
         x, y, w, hh = stats[lab, :4]
         x0, y0 = max(x - 3, 0), max(y - 3, 0)
         x1, y1 = min(x + w + 3, img.shape[1]), min(y + hh + 3, img.shape[0])
-        grown = cv2.dilate((labels[y0:y1, x0:x1] == lab).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-        wgt = np.where(grown, chroma[y0:y1, x0:x1], 0.0)
+        core = labels[y0:y1, x0:x1] == lab
+        grown = cv2.dilate(core.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        full = float(np.median(sat[y0:y1, x0:x1][core]))
+        wgt = np.where(grown & in_band[y0:y1, x0:x1], np.clip(sat[y0:y1, x0:x1] / full, 0.0, 1.0), 0.0)
         ys, xs = np.mgrid[y0:y1, x0:x1]
         tot = wgt.sum()
         cents.append((float((wgt * xs).sum() / tot), float((wgt * ys).sum() / tot)))

@@ -1,0 +1,41 @@
+"""Axle roll, height and steering measured from rendered fisheye images, against the simulator."""
+
+import math
+
+import numpy as np
+from test_fisheye import feasible_states, lifted_sim, set_joints  # noqa: F401  (fixture)
+
+from perception.markers import MarkerConfig, assign_markers, measure_axles, segment_magenta
+from rover_env.cameras import FisheyeCamera
+
+
+def test_markers_in_rendered_images_give_roll_height_and_steering(lifted_sim):  # noqa: F811
+    sim = lifted_sim
+    g = sim.geometry
+    cam = FisheyeCamera(sim)
+    model = g.kinematic_model(cam.T_body_cam)
+    cfg = MarkerConfig()
+    T_cb = np.linalg.inv(model.T_body_cam)
+    rng = np.random.default_rng(11)
+    errors = []
+    for lam, psi, d in feasible_states(g, 30, rng):
+        set_joints(sim, lam, psi, d, rng.uniform(-math.pi, math.pi, 4))
+        cent, _, _ = segment_magenta(cam.capture().image, cfg)
+        depth = -(g.axle_z + np.asarray(d))
+        delta = g.ackermann_angles(*lam)
+        # the previous frame's state, some way off, predicts where each marker is
+        prev = model.marker_positions(np.asarray(psi) * 0.9, depth + 0.004, delta * 0.9)
+        pred = {m: cam.model.world2cam(T_cb[:3, :3] @ p + T_cb[:3, 3]) for m, p in prev.items()}
+        found = assign_markers(pred, cent, cfg.gate_frac * cam.model.image_size[0])
+        assert len(found) == 8
+        meas = measure_axles(model, cam.model, {m: cent[j] for m, j in found.items()}, psi, depth)
+        errors.append(
+            np.r_[
+                np.degrees(meas.psi - psi),
+                1000 * (meas.depth - depth),
+                np.degrees(meas.lam - np.asarray(lam)),
+            ]
+        )
+    mae = np.abs(np.array(errors)).mean(axis=0)
+    print(f"roll MAE {mae[:2].round(3)} deg, depth {mae[2:4].round(2)} mm, steering {mae[4:].round(3)} deg")
+    assert mae[:2].max() < 0.2 and mae[2:4].max() < 1.0 and mae[4:].max() < 0.5
