@@ -1,0 +1,263 @@
+"""Wheel rotation from the treads in the fisheye image (kinematics paper, section V-C).
+
+Each wheel is a cylinder of the tread radius about its knuckle's y axis, placed by the axle roll,
+height and steering. A fixed-size observation window follows the tread point that faces the
+camera (the paper's w60 point, chosen here by geometry). In it, Shi-Tomasi features on the tread
+are tracked by pyramidal Lucas-Kanade forward and backward between frames, and inconsistent
+tracks dropped. Each feature's ray is intersected with the cylinder at both instants, in the
+knuckle frame, so that roll, height and steering changes cancel; the arc angle between the two
+points is eq. (6), signed by their cross product. A 1-D RANSAC over the angles keeps the
+consistent ones, whose mean is the rotation between the frames.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from perception.cameras import OmniCamera
+from perception.kinematics import RoverKinematicModel
+
+
+@dataclass(frozen=True)
+class TreadConfig:
+    """Tread tracking.
+
+    Attributes:
+        window_frac: Observation-window edge as a share of the image width.
+        max_features: Shi-Tomasi features per window.
+        min_distance_frac: Minimum feature spacing, share of the image width.
+        lk_window_frac: Lucas-Kanade window, share of the image width (odd size, >= 7 px). Small:
+            the tread's image motion is not a translation over a large window (a 21 px window
+            reads a 0.04 rad turn 1.6 % short, a 9 px one 0.6 %).
+        fb_threshold: Largest forward-backward error [px].
+        edge_margin: Features this close to a tread edge are not used [m].
+        ransac_tolerance: 1-D RANSAC inlier band [rad].
+        min_inliers: Fewest consistent features for a valid rotation.
+    """
+
+    window_frac: float = 0.1
+    max_features: int = 25
+    min_distance_frac: float = 0.008
+    lk_window_frac: float = 0.014
+    fb_threshold: float = 0.5
+    edge_margin: float = 0.006
+    ransac_tolerance: float = 0.01
+    min_inliers: int = 4
+
+
+def ray_cylinder(
+    origin: np.ndarray, dirs: np.ndarray, R: np.ndarray, c: np.ndarray, radius: float, half_width: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """First intersection of body-frame rays with a tread cylinder (axis: the frame's y).
+
+    Args:
+        origin: (3,) ray origin, body frame.
+        dirs: (n, 3) unit directions, body frame.
+        R: Rotation of the wheel's knuckle frame in the body frame.
+        c: Wheel centre, body frame [m].
+        radius: Tread radius [m].
+        half_width: Half the tread width [m].
+
+    Returns:
+        (n, 3) hit points in the knuckle frame (NaN where the ray misses the tread) and (n,)
+        bool hits.
+    """
+    o = R.T @ (origin - c)
+    d = np.asarray(dirs, dtype=np.float64) @ R  # rows: R^T d
+    a = d[:, 0] ** 2 + d[:, 2] ** 2
+    b = 2 * (o[0] * d[:, 0] + o[2] * d[:, 2])
+    cc = o[0] ** 2 + o[2] ** 2 - radius**2
+    disc = b * b - 4 * a * cc
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (-b - np.sqrt(disc)) / (2 * a)  # the near side: the tread surface facing the ray
+    pts = o + t[:, None] * d
+    hit = (disc > 0) & (t > 0) & (np.abs(pts[:, 1]) <= half_width)
+    pts[~hit] = np.nan
+    return pts, hit
+
+
+def arc_angle(p1: np.ndarray, p2: np.ndarray, radius: float) -> np.ndarray:
+    """Signed rotation about the wheel axis (+y) carrying tread points p1 to p2 (knuckle frame).
+
+    |alpha| = acos((2 r^2 - |p1 - p2|^2) / (2 r^2)) (paper eq. 6, the chord measured in the wheel
+    plane); the sign is that of (p1 x p2) . y.
+    """
+    q1 = p1[:, [0, 2]]
+    q2 = p2[:, [0, 2]]
+    chord2 = np.sum((q1 - q2) ** 2, axis=1)
+    mag = np.arccos(np.clip((2 * radius**2 - chord2) / (2 * radius**2), -1.0, 1.0))
+    # rotation about +y maps (x, z) -> (x cos + z sin, -x sin + z cos): (p1 x p2) . y = z1 x2 - x1 z2
+    sign = np.sign(q1[:, 1] * q2[:, 0] - q1[:, 0] * q2[:, 1])
+    return sign * mag
+
+
+def ransac_1d(values: np.ndarray, tolerance: float, rng: np.random.Generator | None = None) -> np.ndarray:
+    """Largest set of values within ``tolerance`` of one of them (every value is tried: n <= ~50)."""
+    v = np.asarray(values, dtype=np.float64)
+    if len(v) == 0:
+        return np.zeros(0, dtype=bool)
+    close = np.abs(v[:, None] - v[None, :]) <= tolerance
+    return close[int(np.argmax(close.sum(axis=1)))]
+
+
+def facing_angle(model: RoverKinematicModel, R: np.ndarray, c: np.ndarray) -> float:
+    """Angle about the wheel axis (from the knuckle's +z, toward +x) of the tread point facing the camera."""
+    cam = R.T @ (model.T_body_cam[:3, 3] - c)
+    return math.atan2(cam[0], cam[2])
+
+
+@dataclass
+class TreadWindow:
+    """The observation window of one wheel in one frame.
+
+    Attributes:
+        box: (x0, y0, x1, y1) pixel bounds (x1, y1 exclusive).
+        mask: (y1 - y0, x1 - x0) bool, pixels whose ray meets the tread (away from its edges).
+        centre: Pixel of the tread point facing the camera.
+        phi: Angle of that point about the wheel axis [rad].
+    """
+
+    box: tuple[int, int, int, int]
+    mask: np.ndarray
+    centre: np.ndarray
+    phi: float
+
+
+def tread_window(
+    model: RoverKinematicModel, camera: OmniCamera, R: np.ndarray, c: np.ndarray, cfg: TreadConfig
+) -> TreadWindow | None:
+    """The window around the facing tread point, or None if it is outside the image."""
+    phi = facing_angle(model, R, c)
+    r = model.wheel_radius
+    p_body = R @ np.array([r * math.sin(phi), 0.0, r * math.cos(phi)]) + c
+    T_cb = np.linalg.inv(camera.T_body_cam)
+    px = camera.world2cam(T_cb[:3, :3] @ p_body + T_cb[:3, 3])
+    if not np.all(np.isfinite(px)):
+        return None
+    w, h = camera.image_size
+    half = max(8, int(round(cfg.window_frac * w / 2)))
+    x0, y0 = int(round(px[0])) - half, int(round(px[1])) - half
+    x1, y1 = x0 + 2 * half, y0 + 2 * half
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None
+    gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
+    rays = camera.cam2world(np.stack([gx, gy], -1).reshape(-1, 2)) @ camera.T_body_cam[:3, :3].T
+    ok = np.isfinite(rays[:, 0])
+    rays[~ok] = (0.0, 0.0, -1.0)
+    _, hit = ray_cylinder(camera.T_body_cam[:3, 3], rays, R, c, r, model.wheel_width / 2 - cfg.edge_margin)
+    return TreadWindow((x0, y0, x1, y1), (hit & ok).reshape(y1 - y0, x1 - x0), px, phi)
+
+
+@dataclass
+class RotationMeasurement:
+    """Rotation of one wheel between two frames.
+
+    Attributes:
+        alpha: Rotation about the wheel axis [rad] (NaN if not measured).
+        n_features: Features selected in the window.
+        n_tracked: Features kept by the forward-backward check and on the tread in both frames.
+        n_inliers: Features in the largest consistent set.
+        valid: Whether alpha can be trusted.
+    """
+
+    alpha: float
+    n_features: int
+    n_tracked: int
+    n_inliers: int
+    valid: bool
+
+
+def measure_rotation(
+    prev_gray: np.ndarray,
+    curr_gray: np.ndarray,
+    model: RoverKinematicModel,
+    camera: OmniCamera,
+    prev_frame: tuple[np.ndarray, np.ndarray],
+    curr_frame: tuple[np.ndarray, np.ndarray],
+    cfg: TreadConfig,
+    forbidden: np.ndarray | None = None,
+    alpha_prior: float = 0.0,
+) -> RotationMeasurement:
+    """Rotation of one wheel from ``prev_gray`` to ``curr_gray``.
+
+    Args:
+        prev_gray: The earlier grey fisheye frame.
+        curr_gray: The later one.
+        model: Rover geometry.
+        camera: The fisheye model.
+        prev_frame: (R, centre) of the wheel's knuckle frame at the earlier frame (body frame).
+        curr_frame: The same at the later frame.
+        cfg: Parameters.
+        forbidden: Optional (H, W) bool of pixels where features may not be chosen (the odometry
+            paper's shadow-edge mask, so that moving wheel shadows are not tracked).
+        alpha_prior: Expected rotation [rad] (e.g. the last one): each feature's search starts at
+            its tread point turned by this much, so that fast wheels stay trackable.
+    """
+    none = RotationMeasurement(math.nan, 0, 0, 0, False)
+    win = tread_window(model, camera, *prev_frame, cfg)
+    if win is None or not win.mask.any():
+        return none
+    x0, y0, x1, y1 = win.box
+    mask = win.mask.copy()
+    if forbidden is not None:
+        mask &= ~forbidden[y0:y1, x0:x1]
+    w = camera.image_size[0]
+    pts = cv2.goodFeaturesToTrack(
+        prev_gray[y0:y1, x0:x1],
+        maxCorners=cfg.max_features,
+        qualityLevel=0.01,
+        minDistance=max(2.0, cfg.min_distance_frac * w),
+        mask=mask.astype(np.uint8),
+        blockSize=5,
+    )
+    if pts is None:
+        return none
+    p0 = (pts.reshape(-1, 2) + (x0, y0)).astype(np.float32)
+    origin = camera.T_body_cam[:3, 3]
+    Rbc = camera.T_body_cam[:3, :3]
+    half = model.wheel_width / 2
+    q0, h0 = ray_cylinder(
+        origin, camera.cam2world(p0.astype(np.float64)) @ Rbc.T, *prev_frame, model.wheel_radius, half
+    )
+    # start of each search: the tread point turned by the prior, seen in the current frame
+    ca, sa = math.cos(alpha_prior), math.sin(alpha_prior)
+    turned = q0 @ np.array([[ca, 0.0, sa], [0.0, 1.0, 0.0], [-sa, 0.0, ca]]).T
+    R1, c1 = curr_frame
+    T_cb = np.linalg.inv(camera.T_body_cam)
+    guess = camera.world2cam((turned @ R1.T + c1) @ T_cb[:3, :3].T + T_cb[:3, 3])
+    guess = np.where(np.isfinite(guess), guess, p0).astype(np.float32)
+    win_px = max(7, int(round(cfg.lk_window_frac * w)) | 1)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    lk = dict(winSize=(win_px, win_px), maxLevel=2, criteria=crit)
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(
+        prev_gray,
+        curr_gray,
+        p0.reshape(-1, 1, 2),
+        guess.reshape(-1, 1, 2).copy(),
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+        **lk,
+    )
+    pb, st2, _ = cv2.calcOpticalFlowPyrLK(curr_gray, prev_gray, p1, None, **lk)
+    fb = np.linalg.norm((pb - p0.reshape(-1, 1, 2)).reshape(-1, 2), axis=1)
+    keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_threshold) & h0
+    n_feat = len(p0)
+    if keep.sum() < cfg.min_inliers:
+        return RotationMeasurement(math.nan, n_feat, int(keep.sum()), 0, False)
+    d1 = camera.cam2world(p1.reshape(-1, 2)[keep].astype(np.float64)) @ Rbc.T
+    q1, h1 = ray_cylinder(origin, np.nan_to_num(d1), *curr_frame, model.wheel_radius, half)
+    q0 = q0[keep]
+    both = h1
+    if both.sum() < cfg.min_inliers:
+        return RotationMeasurement(math.nan, n_feat, int(both.sum()), 0, False)
+    alpha = arc_angle(q0[both], q1[both], model.wheel_radius)
+    inl = ransac_1d(alpha, cfg.ransac_tolerance)
+    n_in = int(inl.sum())
+    valid = n_in >= cfg.min_inliers
+    return RotationMeasurement(
+        float(alpha[inl].mean()) if valid else math.nan, n_feat, int(both.sum()), n_in, valid
+    )

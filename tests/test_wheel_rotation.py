@@ -1,0 +1,71 @@
+"""Wheel rotation from synthetic fisheye images of a textured tread (no simulator)."""
+
+import math
+
+import cv2
+import numpy as np
+from test_markers import fisheye, rover_model
+
+from perception.wheel_rotation import TreadConfig, arc_angle, measure_rotation, ransac_1d, ray_cylinder
+
+
+def tread_texture(rng) -> np.ndarray:
+    """A tread texture, (rows across the tread, columns around it), periodic around the wheel."""
+    rows = round(2048 * 0.08 / (2 * np.pi * 0.115))  # square texels on the tread (0.35 mm)
+    tex = rng.normal(size=(rows, 2048)).astype(np.float32)
+    wide = cv2.GaussianBlur(np.hstack([tex, tex, tex]), (0, 0), 10.0)  # blur with wrap-around
+    tex = wide[:, 2048:4096]
+    return (128 + 45 * tex / tex.std()).astype(np.float32)
+
+
+def render_wheel(model, camera, frame, theta, tex):
+    """Grey fisheye image of one wheel's tread at wheel angle ``theta`` (background 60)."""
+    w, h = camera.image_size
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays = camera.cam2world(np.stack([gx, gy], -1).reshape(-1, 2))
+    ok = np.isfinite(rays[:, 0])
+    rays[~ok] = (0.0, 0.0, 1.0)
+    pts, hit = ray_cylinder(
+        camera.T_body_cam[:3, 3],
+        rays @ camera.T_body_cam[:3, :3].T,
+        *frame,
+        model.wheel_radius,
+        model.wheel_width / 2,
+    )
+    hit &= ok
+    phi_wheel = np.arctan2(pts[hit, 0], pts[hit, 2]) - theta  # the texture turns with the wheel
+    u = (phi_wheel / (2 * np.pi) % 1.0) * tex.shape[1]
+    v = (pts[hit, 1] / model.wheel_width + 0.5) * (tex.shape[0] - 1)
+    vals = cv2.remap(
+        tex,
+        u.astype(np.float32).reshape(-1, 1),
+        v.astype(np.float32).reshape(-1, 1),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_WRAP,
+    ).ravel()
+    img = np.full(w * h, 60.0, np.float32)
+    img[hit] = vals
+    return np.clip(img.reshape(h, w) + 0.5, 0, 255).astype(np.uint8)
+
+
+def test_arc_angle_sign_and_eq6():
+    r = 0.115
+    a = np.radians([3.0, -20.0, 40.0])
+    p1 = np.array([[0.0, 0.01, r]] * 3)
+    p2 = np.stack([r * np.sin(a), np.full(3, -0.02), r * np.cos(a)], 1)  # rotation about +y by a
+    np.testing.assert_allclose(arc_angle(p1, p2, r), a, atol=1e-12)
+
+
+def test_ransac_1d_keeps_the_consistent_angles():
+    v = np.r_[np.full(12, 0.2) + np.linspace(-0.004, 0.004, 12), 0.0, 0.0, 0.6, -0.3]
+    inl = ransac_1d(v, 0.01)
+    assert inl[:12].all() and not inl[12:].any()
+
+
+def test_rotation_is_invalid_without_texture():
+    model = rover_model()
+    cam = fisheye(model)
+    frame = model.wheel_frames((0, 0), (0.15, 0.15), np.zeros(4))[0]
+    flat = np.full((480, 640), 90, np.uint8)
+    m = measure_rotation(flat, flat, model, cam, frame, frame, TreadConfig())
+    assert not m.valid and math.isnan(m.alpha)
