@@ -407,12 +407,14 @@ class OmniCamera:
         alpha = np.arctan2(r, p[:, 2])
         valid = (alpha <= self.max_fov / 2 + 1e-12) & np.isfinite(alpha)
         rho = np.polynomial.chebyshev.chebval(alpha, self._inv)
-        for _ in range(8):
+        for _ in range(8):  # the Chebyshev start is usually within 1e-5 px already
             g = r * self._f(rho) - p[:, 2] * rho
             dg = r * self._df(rho) - p[:, 2]
             with np.errstate(divide="ignore", invalid="ignore"):
                 step = np.where(np.abs(dg) > 0, g / dg, 0.0)
             rho = rho - step
+            if not np.nanmax(np.abs(step), initial=0.0) > 1e-9:
+                break
         with np.errstate(divide="ignore", invalid="ignore"):
             ux = np.where(r > 0, p[:, 0] / r, 0.0) * rho
             vy = np.where(r > 0, p[:, 1] / r, 0.0) * rho

@@ -4,6 +4,7 @@ import math
 
 import cv2
 import numpy as np
+import pytest
 from test_markers import fisheye, rover_model
 
 from perception.wheel_rotation import TreadConfig, arc_angle, measure_rotation, ransac_1d, ray_cylinder
@@ -46,6 +47,22 @@ def render_wheel(model, camera, frame, theta, tex):
     img = np.full(w * h, 60.0, np.float32)
     img[hit] = vals
     return np.clip(img.reshape(h, w) + 0.5, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("wheel", [0, 1, 2, 3])
+@pytest.mark.parametrize("alpha", [0.15, -0.3, 0.55])  # tread 0.5 to 2 m/s at 30 Hz
+def test_known_tread_rotation_is_recovered_within_1_percent(wheel, alpha):
+    model = rover_model()
+    cam = fisheye(model)
+    psi, depth, lam = (0.08, -0.05), (0.155, 0.145), (0.2, -0.2)
+    frame = model.wheel_frames(psi, depth, model.wheel_angles(*lam))[wheel]
+    tex = tread_texture(np.random.default_rng(wheel))
+    prev = render_wheel(model, cam, frame, 0.3, tex)
+    curr = render_wheel(model, cam, frame, 0.3 + alpha, tex)
+    m = measure_rotation(prev, curr, model, cam, frame, frame, TreadConfig())  # no prior: from rest
+    print(f"wheel {wheel} alpha {alpha}: measured {m.alpha:.5f}, {m.n_inliers}/{m.n_tracked} tracks agree")
+    assert m.valid
+    assert abs(m.alpha - alpha) <= 0.01 * abs(alpha)
 
 
 def test_arc_angle_sign_and_eq6():
