@@ -155,6 +155,29 @@ def tread_window(
     return TreadWindow((x0, y0, x1, y1), (hit & ok).reshape(y1 - y0, x1 - x0), px, phi)
 
 
+def shading_free(
+    gray: np.ndarray, sigma: float = 2.0, edge_factor: float = 4.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Texture without shading, and the band of strong steps (shadow edges) to leave out.
+
+    The image less its Gaussian blur (``sigma`` px) keeps the tread's speckle and drops smooth
+    shading and the levels of lit and shadowed areas; pixels where the blurred image's gradient
+    exceeds ``edge_factor`` times its median are steps such as shadow edges, and are excluded
+    (the odometry paper's idea of masking shadow edges, applied to the treads).
+
+    Returns:
+        (float32 high-passed image, bool edge band).
+    """
+    g = gray.astype(np.float32)
+    blur = cv2.GaussianBlur(g, (0, 0), sigma)
+    gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3)
+    mag = cv2.magnitude(gx, gy)
+    thr = edge_factor * max(float(np.median(mag)), 1.0)
+    band = cv2.dilate((mag > thr).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    return g - blur, band
+
+
 def _rot_y(a) -> np.ndarray:
     """(..., 3, 3) rotations about +y by angles ``a``."""
     a = np.asarray(a, dtype=np.float64)
@@ -173,6 +196,8 @@ def align_rotation(
     cfg: TreadConfig,
     centre: float = 0.0,
     span: float = 0.8,
+    prev_edges: np.ndarray | None = None,
+    curr_edges: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """Rotation that best maps the tread in the window of ``curr_gray`` back onto ``prev_gray``.
 
@@ -182,17 +207,24 @@ def align_rotation(
     best and a parabola through the top three, maximise the normalised cross-correlation. This
     bounds the search of the feature tracking, which alone loses wheels that turn fast.
 
+    The images may be grey levels or, better, :func:`shading_free` images with their edge
+    bands (``prev_edges``, ``curr_edges``): a shadow edge across a tread does not turn with the
+    wheel and would otherwise pull the alignment toward no rotation.
+
     Returns:
         (alpha [rad], correlation at alpha); (NaN, NaN) without a usable window.
     """
     win = tread_window(model, camera, *curr_frame, cfg)
     if win is None or win.mask.sum() < 30:
         return math.nan, math.nan
-    x0, y0, _, _ = win.box
-    ys, xs = np.nonzero(win.mask)
+    x0, y0, x1, y1 = win.box
+    use = win.mask if curr_edges is None else win.mask & ~curr_edges[y0:y1, x0:x1]
+    if use.sum() < 30:
+        return math.nan, math.nan
+    ys, xs = np.nonzero(use)
     px = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
     vals = curr_gray[ys + y0, xs + x0].astype(np.float64)
-    if vals.std() < 2.0:
+    if vals.std() < 1.0:
         return math.nan, math.nan
     origin = camera.T_body_cam[:3, 3]
     q, hit = ray_cylinder(
@@ -210,13 +242,16 @@ def align_rotation(
     cam_in_prev = Rp.T @ (origin - cp)
 
     prev_f = prev_gray.astype(np.float32)
+    if prev_edges is not None:
+        prev_f = np.where(prev_edges, np.float32(np.nan), prev_f)  # samples there are not used
 
     def score(alphas: np.ndarray, idx: np.ndarray) -> np.ndarray:
         pts = np.einsum("kab,nb->kna", _rot_y(-alphas), q[idx])  # the same tread points, earlier
         visible = np.einsum("kna,kna->kn", pts * [1.0, 0.0, 1.0], cam_in_prev - pts) > 0
         uv = camera.world2cam(pts @ M.T + t).astype(np.float32)
-        samp = cv2.remap(prev_f, uv[..., 0], uv[..., 1], cv2.INTER_LINEAR, borderValue=-1.0)
-        ok = visible & np.isfinite(uv).all(-1) & (samp >= 0)
+        samp = cv2.remap(prev_f, uv[..., 0], uv[..., 1], cv2.INTER_LINEAR, borderValue=np.nan)
+        ok = visible & np.isfinite(uv).all(-1) & np.isfinite(samp)
+        samp = np.where(ok, samp, 0.0)
         a = np.broadcast_to(vals[idx], samp.shape)
         cnt = ok.sum(axis=1)
         ma = np.where(ok, a, 0.0).sum(axis=1) / np.maximum(cnt, 1)
@@ -364,6 +399,8 @@ def measure_rotation(
     cfg: TreadConfig,
     forbidden: np.ndarray | None = None,
     alpha_prior: float = 0.0,
+    span: float = 0.8,
+    shading: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> RotationMeasurement:
     """Rotation of one wheel between two frames [rad], with its validity.
 
@@ -374,9 +411,16 @@ def measure_rotation(
     how many tracks agree with it; the rotation is valid when the alignment's correlation is at
     least ``min_ncc``.
 
-    Args: as :func:`track_tread_features`.
+    Args: as :func:`track_tread_features`; ``span``: the half-width of the search around
+    ``alpha_prior`` [rad] (narrow once a wheel is being tracked, wide to acquire it); ``shading``:
+    the two frames' :func:`shading_free` images, if already computed.
     """
-    alpha, ncc = align_rotation(prev_gray, curr_gray, model, camera, prev_frame, curr_frame, cfg, alpha_prior)
+    if shading is None:  # plain grey levels, no edge bands
+        shading = ((prev_gray, None), (curr_gray, None))
+    (hp_prev, band_prev), (hp_curr, band_curr) = shading
+    alpha, ncc = align_rotation(
+        hp_prev, hp_curr, model, camera, prev_frame, curr_frame, cfg, alpha_prior, span, band_prev, band_curr
+    )
     if not (ncc >= cfg.min_ncc):
         return RotationMeasurement(math.nan, 0, 0, 0, False)
     feats = track_tread_features(

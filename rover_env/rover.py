@@ -161,7 +161,7 @@ class Rover:
             forces=[0.0] * 4,
         )
         tex = write_cached(
-            f"tread:v1:{g.correction_marker_arc:.6f}",
+            f"tread:v2:{g.correction_marker_arc:.6f}",
             lambda: tread_texture(marker_arc=g.correction_marker_arc),
         )
         self._tread_tex = client.loadTexture(str(tex))

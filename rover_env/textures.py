@@ -175,12 +175,18 @@ def tread_texture(
     """
     rng = np.random.default_rng(seed)
     tread_rows = int(round(0.75 * px_v))
-    noise = periodic_noise(px_u, rng, 1.2, 1.5)[:tread_rows, :]
-    g = 95 + 30 * noise
+    # speckle a few millimetres across (6 to 40 texels of 1.4 mm): resolved by the fisheye at
+    # half a metre, so tracking does not feed on aliased detail
+    noise = periodic_noise(px_u, rng, 1.0, 6.0, 40.0)[:tread_rows, :]
+    g = 100 + 38 * noise
     u = (np.arange(px_u) + 0.5) / px_u
-    phase = (u * grousers) % 1.0
-    bars = (phase < 0.22).astype(np.float64)
-    g = g * (1 - 0.45 * bars[None, :])
+    # grousers at irregular spacing, so that the tread has no period for tracking to lock onto
+    edges = (np.arange(grousers) + rng.uniform(-0.3, 0.3, grousers)) / grousers
+    width = 0.22 / grousers * rng.uniform(0.8, 1.2, grousers)
+    bars = np.zeros(px_u)
+    for e, wd in zip(edges, width, strict=True):
+        bars[((u - e) % 1.0) < wd] = 1.0
+    g = g * (1 - 0.4 * bars[None, :])
     img = _to_rgb(g, (0.95, 0.95, 1.0))
     half = marker_arc / (2 * np.pi) / 2
     cols = np.abs(u - 0.5) <= half

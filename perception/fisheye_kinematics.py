@@ -1,0 +1,284 @@
+"""All 10 joint degrees of freedom from one downward fisheye (kinematics paper, Fig. 5).
+
+Per frame: the markers give axle roll, axle-body distance and steering
+(:mod:`perception.markers`); with them each wheel's tread cylinder is placed and its rotation
+since the last frame measured (:mod:`perception.wheel_rotation`); the white correction marker on
+each tread removes the accumulated rotation drift once per sighting (eq. 7). Degrees of freedom
+that cannot be measured in a frame keep their previous value (rotations continue at their last
+rate) and are flagged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from perception.cameras import OmniCamera
+from perception.kinematics import AXLES, MARKERS, WHEELS, RoverKinematicModel
+from perception.markers import (
+    MarkerConfig,
+    SteeringCalibration,
+    assign_markers,
+    measure_axles,
+    segment_magenta,
+)
+from perception.wheel_rotation import TreadConfig, measure_rotation, ray_cylinder, shading_free, tread_window
+
+DOF_NAMES: tuple[str, ...] = (
+    "psi_F",
+    "psi_R",
+    "d_F",
+    "d_R",
+    "lam_F",
+    "lam_R",
+    "theta_FL",
+    "theta_FR",
+    "theta_RL",
+    "theta_RR",
+)
+
+
+@dataclass(frozen=True)
+class KinematicsConfig:
+    """Parameters of :class:`KinematicStateEstimator`.
+
+    Attributes:
+        markers: Magenta marker segmentation.
+        tread: Tread tracking.
+        white_min_value: Correction marker: smallest HSV value (0-255) ...
+        white_max_saturation: ... and largest saturation of its pixels.
+        white_min_pixels: Fewest white pixels on the tread for a sighting.
+        acquire_span: Rotation search around the last rotation when a wheel is not being
+            tracked [rad per frame].
+        track_span: The same while it is: the change of rotation between frames [rad].
+        shadow_robust: Align treads on shading-free images with shadow edges left out.
+    """
+
+    markers: MarkerConfig = field(default_factory=MarkerConfig)
+    tread: TreadConfig = field(default_factory=TreadConfig)
+    white_min_value: int = 170
+    white_max_saturation: int = 40
+    white_min_pixels: int = 6
+    acquire_span: float = 0.8
+    shadow_robust: bool = True
+    track_span: float = 0.25
+
+
+@dataclass
+class KinematicState:
+    """The estimate at one frame. Angles [rad], lengths [m], rates [rad/s]; wheel order FL, FR, RL, RR.
+
+    Attributes:
+        t: Time of the frame [s].
+        psi: Axle roll (psi_F, psi_R).
+        depth: Axle-body distance (d_F, d_R).
+        lam: Axle steering (lambda_F, lambda_R).
+        delta: Wheel steering angles.
+        theta: Integrated wheel rotation since the start.
+        theta_dot: Wheel rates.
+        valid: Degree of freedom (``DOF_NAMES``) -> measured in this frame.
+        markers_found: Magenta markers identified.
+        corrected: Wheels whose rotation the correction marker reset in this frame.
+    """
+
+    t: float
+    psi: np.ndarray
+    depth: np.ndarray
+    lam: np.ndarray
+    delta: np.ndarray
+    theta: np.ndarray
+    theta_dot: np.ndarray
+    valid: dict[str, bool]
+    markers_found: int = 0
+    corrected: tuple[str, ...] = ()
+
+    @property
+    def quality(self) -> float:
+        """Share of the 10 degrees of freedom measured in this frame (0-1)."""
+        return sum(self.valid.values()) / len(DOF_NAMES)
+
+
+class KinematicStateEstimator:
+    """Axle roll, axle-body distance, steering and wheel rotation from fisheye frames.
+
+    Args:
+        camera: The fisheye model (its ``T_body_cam`` is the mount).
+        model: The rover's kinematic geometry.
+        config: Parameters.
+        calibration: Use the paper's distance-ratio steering (eq. 5) through this map.
+    """
+
+    def __init__(
+        self,
+        camera: OmniCamera,
+        model: RoverKinematicModel,
+        config: KinematicsConfig | None = None,
+        calibration: SteeringCalibration | None = None,
+    ) -> None:
+        if not np.allclose(camera.T_body_cam, model.T_body_cam, atol=1e-9):
+            raise ValueError("camera.T_body_cam and model.T_body_cam differ; use one fisheye mount for both")
+        self.camera = camera
+        self.model = model
+        self.config = config or KinematicsConfig()
+        self.calibration = calibration
+        self.reset()
+
+    def reset(self) -> None:
+        """Start again from the nominal state (no roll, nominal height, straight ahead, theta 0)."""
+        m = self.model
+        self._state = KinematicState(
+            t=math.nan,
+            psi=np.zeros(2),
+            depth=np.full(2, m.nominal_depth),
+            lam=np.zeros(2),
+            delta=np.zeros(4),
+            theta=np.zeros(4),
+            theta_dot=np.zeros(4),
+            valid=dict.fromkeys(DOF_NAMES, False),
+        )
+        self._gray: np.ndarray | None = None
+        self._alpha = np.zeros(4)
+        self._locked = np.zeros(4, dtype=bool)
+        self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase at the first sighting
+
+    @property
+    def state(self) -> KinematicState:
+        """The latest estimate."""
+        return self._state
+
+    def _predicted_pixels(self) -> dict[str, np.ndarray]:
+        s = self._state
+        pos = self.model.marker_positions(s.psi, s.depth, s.delta)
+        T_cb = np.linalg.inv(self.camera.T_body_cam)
+        return {m: self.camera.world2cam(T_cb[:3, :3] @ p + T_cb[:3, 3]) for m, p in pos.items()}
+
+    def update(self, image: np.ndarray, t: float) -> KinematicState:
+        """Estimate the state at a new frame.
+
+        Args:
+            image: (H, W, 3) uint8 RGB fisheye frame at the camera's resolution.
+            t: Its time [s].
+
+        Returns:
+            The state; a frame that cannot be used (wrong size or type, black, saturated, no
+            markers) gives the previous state carried forward, finite, with every flag False.
+        """
+        prev = self._state
+        img = np.asarray(image)
+        w, h = self.camera.image_size
+        usable = img.dtype == np.uint8 and img.ndim == 3 and img.shape[:2] == (h, w) and img.shape[2] == 3
+        dt = t - prev.t if math.isfinite(prev.t) else math.nan
+        if not usable:
+            return self._carry(t, dt)
+        cfg = self.config
+        cent, _, _ = segment_magenta(img, cfg.markers)
+        found = assign_markers(self._predicted_pixels(), cent, cfg.markers.gate_frac * w)
+        meas = measure_axles(
+            self.model,
+            self.camera,
+            {m: cent[j] for m, j in found.items()},
+            prev.psi,
+            prev.depth,
+            self.calibration,
+        )
+        psi = np.where(np.isfinite(meas.psi), meas.psi, prev.psi)
+        depth = np.where(np.isfinite(meas.depth), meas.depth, prev.depth)
+        lam = np.where(np.isfinite(meas.lam), meas.lam, prev.lam)
+        from_lam = self.model.wheel_angles(*lam)
+        delta = np.where(np.isfinite(meas.delta), meas.delta, from_lam)
+        valid = {f"psi_{a}": bool(np.isfinite(meas.psi[i])) for i, a in enumerate(AXLES)}
+        valid.update({f"d_{a}": bool(np.isfinite(meas.depth[i])) for i, a in enumerate(AXLES)})
+        valid.update({f"lam_{a}": bool(np.isfinite(meas.lam[i])) for i, a in enumerate(AXLES)})
+        gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        shading = shading_free(gray) if cfg.shadow_robust else (gray, None)
+        theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
+        corrected = []
+        curr_frames = self.model.wheel_frames(psi, depth, delta)
+        if self._gray is not None and dt > 0:
+            prev_frames = self.model.wheel_frames(prev.psi, prev.depth, prev.delta)
+            for k, wheel in enumerate(WHEELS):
+                rot = measure_rotation(
+                    self._gray,
+                    gray,
+                    self.model,
+                    self.camera,
+                    prev_frames[k],
+                    curr_frames[k],
+                    cfg.tread,
+                    alpha_prior=float(self._alpha[k]),
+                )
+                if rot.valid:
+                    self._alpha[k] = rot.alpha
+                    theta[k] += rot.alpha
+                    theta_dot[k] = rot.alpha / dt
+                else:
+                    theta[k] += theta_dot[k] * dt
+                valid[f"theta_{wheel}"] = rot.valid
+        else:
+            valid.update({f"theta_{w_}": False for w_ in WHEELS})
+        for k, wheel in enumerate(WHEELS):
+            phase = self._marker_phase(img, curr_frames[k])
+            if phase is None:
+                continue
+            if not math.isfinite(self._offset[k]):
+                self._offset[k] = theta[k] - phase  # the first sighting fixes c0 of eq. 7
+                continue
+            target = phase + self._offset[k]
+            theta[k] = target + 2 * math.pi * round((theta[k] - target) / (2 * math.pi))
+            corrected.append(wheel)
+        self._gray = gray
+        self._shading = shading
+        self._state = KinematicState(
+            t, psi, depth, lam, delta, theta, theta_dot, valid, len(found), tuple(corrected)
+        )
+        return self._state
+
+    def _carry(self, t: float, dt: float) -> KinematicState:
+        prev = self._state
+        theta = prev.theta + (prev.theta_dot * dt if dt > 0 else 0.0)
+        self._gray = None  # the next usable frame cannot be paired with an unusable one
+        self._state = KinematicState(
+            t,
+            prev.psi.copy(),
+            prev.depth.copy(),
+            prev.lam.copy(),
+            prev.delta.copy(),
+            theta,
+            prev.theta_dot.copy(),
+            dict.fromkeys(DOF_NAMES, False),
+        )
+        return self._state
+
+    def _marker_phase(self, img: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> float | None:
+        """Wheel-angle phase of the white correction marker if it is in the tread window.
+
+        The marker sits at wheel angle 0 on the +z side of the wheel, so at wheel angle theta it
+        is seen at angle theta about the axle (from the knuckle's +z toward +x).
+        """
+        cfg = self.config
+        win = tread_window(self.model, self.camera, *frame, cfg.tread)
+        if win is None:
+            return None
+        x0, y0, x1, y1 = win.box
+        hsv = cv2.cvtColor(np.ascontiguousarray(img[y0:y1, x0:x1]), cv2.COLOR_RGB2HSV)
+        white = win.mask & (hsv[..., 2] >= cfg.white_min_value) & (hsv[..., 1] <= cfg.white_max_saturation)
+        ys, xs = np.nonzero(white)
+        if len(xs) < cfg.white_min_pixels:
+            return None
+        # the marker must lie inside the window, not be cut by its edge
+        if xs.min() == 0 or ys.min() == 0 or xs.max() == white.shape[1] - 1 or ys.max() == white.shape[0] - 1:
+            return None
+        px = np.array([[xs.mean() + x0, ys.mean() + y0]])
+        rays = self.camera.cam2world(px) @ self.camera.T_body_cam[:3, :3].T
+        q, hit = ray_cylinder(
+            self.camera.T_body_cam[:3, 3], rays, *frame, self.model.wheel_radius, self.model.wheel_width / 2
+        )
+        if not hit[0]:
+            return None
+        return math.atan2(q[0, 0], q[0, 2])
+
+
+__all__ = ["DOF_NAMES", "KinematicState", "KinematicStateEstimator", "KinematicsConfig", "MARKERS"]
