@@ -195,3 +195,33 @@ def test_kinematic_model_yaml_round_trip_and_errors(tmp_path):
     (tmp_path / "bad.yaml").write_text(text)
     with pytest.raises(CalibrationError, match="plate_ofset|plate_offset"):
         RoverKinematicModel.load(tmp_path / "bad.yaml")
+
+
+def test_estimator_flags_unusable_frames_and_stays_finite():
+    from perception.fisheye_kinematics import DOF_NAMES, KinematicStateEstimator
+
+    model = rover_model()
+    cam = fisheye(model)
+    est = KinematicStateEstimator(cam, model)
+    psi, depth, lam = (0.1, -0.05), (0.15, 0.15), (0.2, -0.2)
+    good = render_markers(model, cam, psi, depth, model.wheel_angles(*lam))
+    s = est.update(good, 0.0)
+    assert all(s.valid[k] for k in ("psi_F", "psi_R", "d_F", "d_R", "lam_F", "lam_R"))
+    assert not any(s.valid[f"theta_{w}"] for w in ("FL", "FR", "RL", "RR"))  # no previous frame yet
+    np.testing.assert_allclose(s.psi, psi, atol=math.radians(0.2))
+    for t, bad in enumerate(
+        [
+            np.zeros((480, 640, 3), np.uint8),  # black
+            np.full((480, 640, 3), 255, np.uint8),  # saturated
+            np.zeros((240, 320, 3), np.uint8),  # wrong size
+            np.zeros((480, 640), np.float32),  # wrong type
+            render_markers(model, cam, psi, depth, model.wheel_angles(*lam), shade=0.0),  # no markers
+        ],
+        start=1,
+    ):
+        s = est.update(bad, t / 30)
+        assert not any(s.valid[k] for k in DOF_NAMES) and s.quality == 0.0
+        assert np.isfinite(np.r_[s.psi, s.depth, s.lam, s.theta, s.theta_dot]).all()
+        np.testing.assert_allclose(s.psi, psi, atol=math.radians(0.2))  # the last good state
+    with pytest.raises(ValueError, match="T_body_cam"):
+        KinematicStateEstimator(OmniCamera.equidistant((640, 480), math.radians(190), 300.8), model)
