@@ -61,7 +61,7 @@ class KinematicsConfig:
     tread: TreadConfig = field(default_factory=TreadConfig)
     white_min_value: int = 170
     white_max_saturation: int = 40
-    white_min_pixels: int = 6
+    white_min_pixels: int = 40
     acquire_span: float = 0.8
     shadow_robust: bool = True
     track_span: float = 0.25

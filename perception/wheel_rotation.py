@@ -38,6 +38,8 @@ class TreadConfig:
         ransac_tolerance: 1-D RANSAC inlier band [rad].
         min_inliers: Fewest consistent features for a valid rotation.
         min_ncc: Smallest correlation of the direct tread alignment for a valid rotation.
+        min_facing: Smallest cosine between the tread normal and the view direction of a pixel
+            used (keeps away from the silhouette).
     """
 
     window_frac: float = 0.1
@@ -48,7 +50,8 @@ class TreadConfig:
     edge_margin: float = 0.006
     ransac_tolerance: float = 0.01
     min_inliers: int = 4
-    min_ncc: float = 0.8
+    min_ncc: float = 0.6
+    min_facing: float = 0.3
 
 
 def ray_cylinder(
@@ -106,6 +109,19 @@ def ransac_1d(values: np.ndarray, tolerance: float, rng: np.random.Generator | N
     return close[int(np.argmax(close.sum(axis=1)))]
 
 
+def facing(points: np.ndarray, camera_knuckle: np.ndarray, min_cos: float) -> np.ndarray:
+    """Tread points (knuckle frame, (..., 3)) whose surface faces the camera by more than ``min_cos``.
+
+    Near the silhouette the tread is seen edge-on: its pixels mix with what lies behind, which
+    does not turn with the wheel.
+    """
+    n = points * np.array([1.0, 0.0, 1.0])
+    v = camera_knuckle - points
+    with np.errstate(invalid="ignore"):
+        cos = np.einsum("...i,...i->...", n, v) / (np.linalg.norm(n, axis=-1) * np.linalg.norm(v, axis=-1))
+    return cos > min_cos
+
+
 def facing_angle(model: RoverKinematicModel, R: np.ndarray, c: np.ndarray) -> float:
     """Angle about the wheel axis (from the knuckle's +z, toward +x) of the tread point facing the camera."""
     cam = R.T @ (model.T_body_cam[:3, 3] - c)
@@ -151,31 +167,35 @@ def tread_window(
     rays = camera.cam2world(np.stack([gx, gy], -1).reshape(-1, 2)) @ camera.T_body_cam[:3, :3].T
     ok = np.isfinite(rays[:, 0])
     rays[~ok] = (0.0, 0.0, -1.0)
-    _, hit = ray_cylinder(camera.T_body_cam[:3, 3], rays, R, c, r, model.wheel_width / 2 - cfg.edge_margin)
+    origin = camera.T_body_cam[:3, 3]
+    pts, hit = ray_cylinder(origin, rays, R, c, r, model.wheel_width / 2 - cfg.edge_margin)
+    hit &= facing(pts, R.T @ (origin - c), cfg.min_facing)  # not near the tread's silhouette
     return TreadWindow((x0, y0, x1, y1), (hit & ok).reshape(y1 - y0, x1 - x0), px, phi)
 
 
 def shading_free(
-    gray: np.ndarray, sigma: float = 2.0, edge_factor: float = 4.0
+    gray: np.ndarray, fine: float = 1.2, coarse: float = 5.0, edge_factor: float = 4.0, min_step: float = 12.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Texture without shading, and the band of strong steps (shadow edges) to leave out.
+    """Tread texture without shading or pixel noise, and the band of strong steps to leave out.
 
-    The image less its Gaussian blur (``sigma`` px) keeps the tread's speckle and drops smooth
-    shading and the levels of lit and shadowed areas; pixels where the blurred image's gradient
-    exceeds ``edge_factor`` times its median are steps such as shadow edges, and are excluded
-    (the odometry paper's idea of masking shadow edges, applied to the treads).
+    A difference of Gaussians (``fine`` and ``coarse`` px) keeps the speckle a few pixels across:
+    the coarse blur removes smooth shading and the levels of lit and shadowed areas, the fine
+    one the pixel-scale flicker of a renderer's (or sensor's) sampling. Pixels where the
+    coarsely blurred image's gradient exceeds ``edge_factor`` times its median (and ``min_step``
+    grey levels per pixel) are steps such as shadow edges, and are excluded (the odometry
+    paper's idea of masking shadow edges, applied to the treads).
 
     Returns:
-        (float32 high-passed image, bool edge band).
+        (float32 band-passed image, bool edge band).
     """
     g = gray.astype(np.float32)
-    blur = cv2.GaussianBlur(g, (0, 0), sigma)
+    blur = cv2.GaussianBlur(g, (0, 0), coarse)
     gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3)
     mag = cv2.magnitude(gx, gy)
-    thr = edge_factor * max(float(np.median(mag)), 1.0)
+    thr = max(edge_factor * float(np.median(mag)), min_step)
     band = cv2.dilate((mag > thr).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    return g - blur, band
+    return cv2.GaussianBlur(g, (0, 0), fine) - blur, band
 
 
 def _rot_y(a) -> np.ndarray:
@@ -247,7 +267,7 @@ def align_rotation(
 
     def score(alphas: np.ndarray, idx: np.ndarray) -> np.ndarray:
         pts = np.einsum("kab,nb->kna", _rot_y(-alphas), q[idx])  # the same tread points, earlier
-        visible = np.einsum("kna,kna->kn", pts * [1.0, 0.0, 1.0], cam_in_prev - pts) > 0
+        visible = facing(pts, cam_in_prev, cfg.min_facing)
         uv = camera.world2cam(pts @ M.T + t).astype(np.float32)
         samp = cv2.remap(prev_f, uv[..., 0], uv[..., 1], cv2.INTER_LINEAR, borderValue=np.nan)
         ok = visible & np.isfinite(uv).all(-1) & np.isfinite(samp)
