@@ -209,7 +209,10 @@ class KinematicStateEstimator:
                     curr_frames[k],
                     cfg.tread,
                     alpha_prior=float(self._alpha[k]),
+                    span=cfg.track_span if self._locked[k] else cfg.acquire_span,
+                    shading=(self._shading, shading),
                 )
+                self._locked[k] = rot.valid
                 if rot.valid:
                     self._alpha[k] = rot.alpha
                     theta[k] += rot.alpha
