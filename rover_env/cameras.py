@@ -7,6 +7,7 @@ the images and the camera model (:class:`perception.PinholeCamera`), never the s
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -73,7 +74,7 @@ class Frame:
     shadow: np.ndarray | None = None
 
 
-class _RoverCamera:
+class _RoverCamera(ABC):
     """A camera fixed to the rover body: pose, sun lighting, frames and frame pairs."""
 
     def __init__(self, sim: RoverSim, config, T_body_cam: np.ndarray) -> None:
@@ -115,9 +116,9 @@ class _RoverCamera:
         T[:3, 3] = pos
         return T @ self.T_body_cam
 
+    @abstractmethod
     def render_view(self):
         """Render now, with per-pixel ground truth (for tests and evaluation)."""
-        raise NotImplementedError
 
     def _render_frame(self):
         return self.render_view()
