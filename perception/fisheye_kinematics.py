@@ -51,10 +51,16 @@ class KinematicsConfig:
         white_min_value: Correction marker: smallest HSV value (0-255) ...
         white_max_saturation: ... and largest saturation of its pixels.
         white_min_pixels: Fewest white pixels on the tread for a sighting.
+        white_contrast: Marker pixels are at least this many times brighter than the median tread
+            pixel of the window.
+        white_min_area: The marker's blob covers at least this share of the area the whole
+            marker would cover facing the camera.
         acquire_span: Rotation search around the last rotation when a wheel is not being
             tracked [rad per frame].
         track_span: The same while it is: the change of rotation between frames [rad].
         shadow_robust: Align treads on shading-free images with shadow edges left out.
+        max_correction: Largest drift a correction-marker sighting may remove [rad]; a larger
+            one means the white blob was not the marker.
     """
 
     markers: MarkerConfig = field(default_factory=MarkerConfig)
@@ -62,8 +68,11 @@ class KinematicsConfig:
     white_min_value: int = 170
     white_max_saturation: int = 40
     white_min_pixels: int = 40
+    white_contrast: float = 1.8
+    white_min_area: float = 0.25
     acquire_span: float = 0.8
     shadow_robust: bool = True
+    max_correction: float = 0.4
     track_span: float = 0.25
 
 
@@ -211,6 +220,7 @@ class KinematicStateEstimator:
                     alpha_prior=float(self._alpha[k]),
                     span=cfg.track_span if self._locked[k] else cfg.acquire_span,
                     shading=(self._shading, shading),
+                    wheel=wheel,
                 )
                 self._locked[k] = rot.valid
                 if rot.valid:
@@ -223,15 +233,17 @@ class KinematicStateEstimator:
         else:
             valid.update({f"theta_{w_}": False for w_ in WHEELS})
         for k, wheel in enumerate(WHEELS):
-            phase = self._marker_phase(img, curr_frames[k])
+            phase = self._marker_phase(img, curr_frames[k], wheel)
             if phase is None:
                 continue
             if not math.isfinite(self._offset[k]):
                 self._offset[k] = theta[k] - phase  # the first sighting fixes c0 of eq. 7
                 continue
             target = phase + self._offset[k]
-            theta[k] = target + 2 * math.pi * round((theta[k] - target) / (2 * math.pi))
-            corrected.append(wheel)
+            snapped = target + 2 * math.pi * round((theta[k] - target) / (2 * math.pi))
+            if abs(snapped - theta[k]) <= cfg.max_correction:  # larger: a false sighting
+                theta[k] = snapped
+                corrected.append(wheel)
         self._gray = gray
         self._shading = shading
         self._state = KinematicState(
@@ -255,33 +267,54 @@ class KinematicStateEstimator:
         )
         return self._state
 
-    def _marker_phase(self, img: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> float | None:
+    def _marker_phase(
+        self, img: np.ndarray, frame: tuple[np.ndarray, np.ndarray], wheel: str
+    ) -> float | None:
         """Wheel-angle phase of the white correction marker if it is in the tread window.
 
         The marker sits at wheel angle 0 on the +z side of the wheel, so at wheel angle theta it
         is seen at angle theta about the axle (from the knuckle's +z toward +x).
         """
         cfg = self.config
-        win = tread_window(self.model, self.camera, *frame, cfg.tread)
+        win = tread_window(self.model, self.camera, *frame, cfg.tread, wheel)
         if win is None:
             return None
         x0, y0, x1, y1 = win.box
         hsv = cv2.cvtColor(np.ascontiguousarray(img[y0:y1, x0:x1]), cv2.COLOR_RGB2HSV)
-        white = win.mask & (hsv[..., 2] >= cfg.white_min_value) & (hsv[..., 1] <= cfg.white_max_saturation)
-        ys, xs = np.nonzero(white)
-        if len(xs) < cfg.white_min_pixels:
+        v, sat = hsv[..., 2].astype(np.float32), hsv[..., 1]
+        if not win.mask.any():
             return None
-        # the marker must lie inside the window, not be cut by its edge
-        if xs.min() == 0 or ys.min() == 0 or xs.max() == white.shape[1] - 1 or ys.max() == white.shape[0] - 1:
+        # the marker is white paint on a grey tread: far brighter than the tread around it under
+        # the same light, whatever that light is
+        bright = v >= max(cfg.white_min_value, cfg.white_contrast * float(np.median(v[win.mask])))
+        white = (win.mask & bright & (sat <= cfg.white_max_saturation)).astype(np.uint8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(white, connectivity=8)
+        if n <= 1:
             return None
-        px = np.array([[xs.mean() + x0, ys.mean() + y0]])
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        # the painted marker is one patch of about its known size; bright speckle is small spots
+        m = self.model
+        dist = float(np.linalg.norm(frame[1] - self.camera.T_body_cam[:3, 3]))
+        px_per_m = self.camera.image_size[0] / self.camera.max_fov / dist
+        expected = m.correction_marker_arc * m.wheel_radius * m.wheel_width * px_per_m**2
+        if stats[big, cv2.CC_STAT_AREA] < max(cfg.white_min_pixels, cfg.white_min_area * expected):
+            return None
+        ys, xs = np.nonzero(labels == big)
+        px = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
         rays = self.camera.cam2world(px) @ self.camera.T_body_cam[:3, :3].T
         q, hit = ray_cylinder(
             self.camera.T_body_cam[:3, 3], rays, *frame, self.model.wheel_radius, self.model.wheel_width / 2
         )
-        if not hit[0]:
+        if hit.sum() < cfg.white_min_pixels:
             return None
-        return math.atan2(q[0, 0], q[0, 2])
+        phi = np.arctan2(q[hit, 0], q[hit, 2])
+        mean = math.atan2(float(np.sin(phi).mean()), float(np.cos(phi).mean()))
+        spread = np.abs(np.remainder(phi - mean + np.pi, 2 * np.pi) - np.pi)
+        arc = self.model.correction_marker_arc
+        # the whole marker in view: its pixels span about its arc, centred on the mean
+        if not (0.6 * arc <= 2 * np.percentile(spread, 95) <= 1.3 * arc):
+            return None
+        return mean
 
 
 __all__ = ["DOF_NAMES", "KinematicState", "KinematicStateEstimator", "KinematicsConfig", "MARKERS"]

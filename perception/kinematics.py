@@ -154,6 +154,25 @@ class RoverKinematicModel:
             out.append((R @ rot_z(delta[k]), R @ self.kingpin_local(wheel) + t))
         return out
 
+    def occluders(self, wheel: str, R: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Parts in front of a wheel's tread seen from the fisheye: its steering arm and tie-rod marker.
+
+        Args:
+            wheel: FL, FR, RL or RR.
+            R: The wheel's knuckle frame in the body frame (rotation).
+            c: Its centre (the kingpin), body frame.
+
+        Returns:
+            (n, 3) body-frame points along the arm and at the marker, and (n,) radii [m] of the
+            spheres around them that cover the parts.
+        """
+        tip = self.tip_knuckle(wheel)
+        s = np.linspace(0.0, 1.0, 7)[:, None]
+        arm = s * np.array([tip[0], tip[1], 0.0]) + np.array([0.0, 0.0, tip[2]])
+        pts = np.vstack([arm, tip])
+        radii = np.r_[np.full(len(arm), 0.012), 0.75 * self.marker_size]
+        return pts @ R.T + c, radii
+
     def ackermann_arms(self) -> tuple[np.ndarray, np.ndarray]:
         """(arm to the turn-centre line, y) of each wheel, order FL, FR, RL, RR."""
         arms = np.array(

@@ -42,7 +42,7 @@ class TreadConfig:
             used (keeps away from the silhouette).
     """
 
-    window_frac: float = 0.1
+    window_frac: float = 0.16
     max_features: int = 25
     min_distance_frac: float = 0.008
     lk_window_frac: float = 0.014
@@ -146,9 +146,18 @@ class TreadWindow:
 
 
 def tread_window(
-    model: RoverKinematicModel, camera: OmniCamera, R: np.ndarray, c: np.ndarray, cfg: TreadConfig
+    model: RoverKinematicModel,
+    camera: OmniCamera,
+    R: np.ndarray,
+    c: np.ndarray,
+    cfg: TreadConfig,
+    wheel: str | None = None,
 ) -> TreadWindow | None:
-    """The window around the facing tread point, or None if it is outside the image."""
+    """The window around the facing tread point, or None if it is outside the image.
+
+    With ``wheel`` given, pixels covered by that wheel's steering arm and tie-rod marker are
+    left out of the mask.
+    """
     phi = facing_angle(model, R, c)
     r = model.wheel_radius
     p_body = R @ np.array([r * math.sin(phi), 0.0, r * math.cos(phi)]) + c
@@ -170,7 +179,17 @@ def tread_window(
     origin = camera.T_body_cam[:3, 3]
     pts, hit = ray_cylinder(origin, rays, R, c, r, model.wheel_width / 2 - cfg.edge_margin)
     hit &= facing(pts, R.T @ (origin - c), cfg.min_facing)  # not near the tread's silhouette
-    return TreadWindow((x0, y0, x1, y1), (hit & ok).reshape(y1 - y0, x1 - x0), px, phi)
+    mask = (hit & ok).reshape(y1 - y0, x1 - x0)
+    if wheel is not None:  # leave out the steering arm and tie-rod marker in front of the tread
+        occ, radii = model.occluders(wheel, R, c)
+        dist = np.linalg.norm(occ - origin, axis=1)
+        opx = camera.world2cam((occ - origin) @ camera.T_body_cam[:3, :3])
+        scale = camera.image_size[0] / max(camera.max_fov, 1e-6)  # about px per radian
+        for (u, v), rad, d in zip(opx, radii, dist, strict=True):
+            if np.isfinite(u):
+                r_px = rad / d * scale + 2.0
+                mask &= (gx - u) ** 2 + (gy - v) ** 2 > r_px**2
+    return TreadWindow((x0, y0, x1, y1), mask, px, phi)
 
 
 def shading_free(
@@ -218,6 +237,7 @@ def align_rotation(
     span: float = 0.8,
     prev_edges: np.ndarray | None = None,
     curr_edges: np.ndarray | None = None,
+    wheel: str | None = None,
 ) -> tuple[float, float]:
     """Rotation that best maps the tread in the window of ``curr_gray`` back onto ``prev_gray``.
 
@@ -234,7 +254,7 @@ def align_rotation(
     Returns:
         (alpha [rad], correlation at alpha); (NaN, NaN) without a usable window.
     """
-    win = tread_window(model, camera, *curr_frame, cfg)
+    win = tread_window(model, camera, *curr_frame, cfg, wheel)
     if win is None or win.mask.sum() < 30:
         return math.nan, math.nan
     x0, y0, x1, y1 = win.box
@@ -286,7 +306,7 @@ def align_rotation(
     n = len(q)
     best = centre
     # coarse to fine: (half-width of the grid, candidates, pixels used)
-    for half, count, used in ((span, 17, 150), (span / 8, 9, 300), (span / 64, 7, n)):
+    for half, count, used in ((span, 41, 150), (span / 16, 9, 300), (span / 128, 7, n)):
         grid = best + np.linspace(-half, half, count)
         sc = score(grid, np.arange(0, n, max(1, n // used)))
         k = int(np.argmax(sc))
@@ -328,6 +348,7 @@ def track_tread_features(
     cfg: TreadConfig,
     forbidden: np.ndarray | None = None,
     alpha_prior: float = 0.0,
+    wheel: str | None = None,
 ) -> RotationMeasurement:
     """The paper's tread tracking: per-feature arc angles between two frames, 1-D RANSAC, mean.
 
@@ -343,9 +364,10 @@ def track_tread_features(
             paper's shadow-edge mask, so that moving wheel shadows are not tracked).
         alpha_prior: Expected rotation [rad] (e.g. the last one): each feature's search starts at
             its tread point turned by this much, so that fast wheels stay trackable.
+        wheel: The wheel's name, to leave its steering arm and tie-rod marker out of the window.
     """
     none = RotationMeasurement(math.nan, 0, 0, 0, False)
-    win = tread_window(model, camera, *prev_frame, cfg)
+    win = tread_window(model, camera, *prev_frame, cfg, wheel)
     if win is None or not win.mask.any():
         return none
     x0, y0, x1, y1 = win.box
@@ -421,6 +443,7 @@ def measure_rotation(
     alpha_prior: float = 0.0,
     span: float = 0.8,
     shading: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
+    wheel: str | None = None,
 ) -> RotationMeasurement:
     """Rotation of one wheel between two frames [rad], with its validity.
 
@@ -433,18 +456,39 @@ def measure_rotation(
 
     Args: as :func:`track_tread_features`; ``span``: the half-width of the search around
     ``alpha_prior`` [rad] (narrow once a wheel is being tracked, wide to acquire it); ``shading``:
-    the two frames' :func:`shading_free` images, if already computed.
+    the two frames' :func:`shading_free` images, if already computed; ``wheel``: its name, so
+    that its steering arm and tie-rod marker are left out of the window.
     """
     if shading is None:  # plain grey levels, no edge bands
         shading = ((prev_gray, None), (curr_gray, None))
     (hp_prev, band_prev), (hp_curr, band_curr) = shading
     alpha, ncc = align_rotation(
-        hp_prev, hp_curr, model, camera, prev_frame, curr_frame, cfg, alpha_prior, span, band_prev, band_curr
+        hp_prev,
+        hp_curr,
+        model,
+        camera,
+        prev_frame,
+        curr_frame,
+        cfg,
+        alpha_prior,
+        span,
+        band_prev,
+        band_curr,
+        wheel,
     )
     if not (ncc >= cfg.min_ncc):
         return RotationMeasurement(math.nan, 0, 0, 0, False)
     feats = track_tread_features(
-        prev_gray, curr_gray, model, camera, prev_frame, curr_frame, cfg, forbidden, alpha_prior=alpha
+        prev_gray,
+        curr_gray,
+        model,
+        camera,
+        prev_frame,
+        curr_frame,
+        cfg,
+        forbidden,
+        alpha_prior=alpha,
+        wheel=wheel,
     )
     agree = feats.n_inliers if feats.valid and abs(feats.alpha - alpha) <= cfg.ransac_tolerance else 0
     return RotationMeasurement(alpha, feats.n_features, feats.n_tracked, agree, True)
