@@ -208,8 +208,9 @@ class KinematicStateEstimator:
         curr_frames = self.model.wheel_frames(psi, depth, delta)
         if self._gray is not None and dt > 0:
             prev_frames = self.model.wheel_frames(prev.psi, prev.depth, prev.delta)
-            for k, wheel in enumerate(WHEELS):
-                rot = measure_rotation(
+
+            def measure(k: int, prior: float, span: float):
+                return measure_rotation(
                     self._gray,
                     gray,
                     self.model,
@@ -217,11 +218,24 @@ class KinematicStateEstimator:
                     prev_frames[k],
                     curr_frames[k],
                     cfg.tread,
-                    alpha_prior=float(self._alpha[k]),
-                    span=cfg.track_span if self._locked[k] else cfg.acquire_span,
+                    alpha_prior=prior,
+                    span=span,
                     shading=(self._shading, shading),
-                    wheel=wheel,
+                    wheel=WHEELS[k],
                 )
+
+            rots = [
+                measure(k, float(self._alpha[k]), cfg.track_span if self._locked[k] else cfg.acquire_span)
+                for k in range(4)
+            ]
+            # a wheel not yet tracked gets a second search around the wheels that are: on one
+            # rover their rotations differ by the turn and by slip, not by multiples
+            good = [r.alpha for r in rots if r.valid]
+            for k in range(4):
+                if not rots[k].valid and not self._locked[k] and good:
+                    rots[k] = measure(k, float(np.median(good)), cfg.acquire_span)
+            for k, wheel in enumerate(WHEELS):
+                rot = rots[k]
                 self._locked[k] = rot.valid
                 if rot.valid:
                     self._alpha[k] = rot.alpha

@@ -40,6 +40,8 @@ class TreadConfig:
         min_ncc: Smallest correlation of the direct tread alignment for a valid rotation.
         min_facing: Smallest cosine between the tread normal and the view direction of a pixel
             used (keeps away from the silhouette).
+        peak_separation: Rotations this far from the best one count as other candidates [rad].
+        min_peak_margin: The best correlation must beat every other candidate's by this much.
     """
 
     window_frac: float = 0.16
@@ -52,6 +54,8 @@ class TreadConfig:
     min_inliers: int = 4
     min_ncc: float = 0.6
     min_facing: float = 0.3
+    peak_separation: float = 0.1
+    min_peak_margin: float = 0.08
 
 
 def ray_cylinder(
@@ -252,7 +256,9 @@ def align_rotation(
     wheel and would otherwise pull the alignment toward no rotation.
 
     Returns:
-        (alpha [rad], correlation at alpha); (NaN, NaN) without a usable window.
+        (alpha [rad], correlation at alpha); alpha is NaN without a usable window or when
+        another rotation, ``peak_separation`` away, correlates nearly as well (the best must win
+        by ``min_peak_margin``).
     """
     win = tread_window(model, camera, *curr_frame, cfg, wheel)
     if win is None or win.mask.sum() < 30:
@@ -305,12 +311,18 @@ def align_rotation(
 
     n = len(q)
     best = centre
+    margin = 1.0
     # coarse to fine: (half-width of the grid, candidates, pixels used)
     for half, count, used in ((span, 41, 150), (span / 16, 9, 300), (span / 128, 7, n)):
         grid = best + np.linspace(-half, half, count)
         sc = score(grid, np.arange(0, n, max(1, n // used)))
         k = int(np.argmax(sc))
         best = grid[k]
+        if half == span:  # how far the best peak stands above any other rotation
+            others = sc[np.abs(grid - best) > cfg.peak_separation]
+            margin = float(sc[k] - others.max()) if len(others) else 1.0
+    if margin < cfg.min_peak_margin:  # two rotations fit about as well: do not guess
+        return math.nan, float(sc[k])
     k = int(np.clip(k, 1, count - 2))
     y0_, y1_, y2_ = sc[k - 1], sc[k], sc[k + 1]
     den = y0_ - 2 * y1_ + y2_
@@ -476,7 +488,7 @@ def measure_rotation(
         band_curr,
         wheel,
     )
-    if not (ncc >= cfg.min_ncc):
+    if not (ncc >= cfg.min_ncc and math.isfinite(alpha)):
         return RotationMeasurement(math.nan, 0, 0, 0, False)
     feats = track_tread_features(
         prev_gray,
