@@ -7,6 +7,7 @@ in the image; pixel coordinates are (x = column, y = row) with the centre of the
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -395,6 +396,18 @@ class OmniCamera:
         outside = np.arccos(np.clip(rays[:, 2], -1, 1)) > self.max_fov / 2 + 1e-12
         rays[outside] = np.nan
         return rays.reshape(*lead, 3)
+
+    @functools.cached_property
+    def pixel_rays(self) -> np.ndarray:
+        """(H, W, 3) unit ray of every pixel centre (camera frame; NaN outside the field of view).
+
+        Computed on first use and kept: per-frame code reads rays from it instead of unprojecting.
+        """
+        w, h = self.image_size
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        rays = self.cam2world(np.stack([xs, ys], -1))
+        rays.setflags(write=False)
+        return rays
 
     def world2cam(self, points_cam) -> np.ndarray:
         """Pixels (..., 2) of camera-frame points or rays (..., 3); NaN outside the field of view.

@@ -177,9 +177,9 @@ def tread_window(
     if x1 - x0 < 8 or y1 - y0 < 8:
         return None
     gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
-    rays = camera.cam2world(np.stack([gx, gy], -1).reshape(-1, 2)) @ camera.T_body_cam[:3, :3].T
+    rays = camera.pixel_rays[y0:y1, x0:x1].reshape(-1, 3) @ camera.T_body_cam[:3, :3].T
     ok = np.isfinite(rays[:, 0])
-    rays[~ok] = (0.0, 0.0, -1.0)
+    rays[~ok] = (0.0, 0.0, -1.0)  # a copy: the matrix product above
     origin = camera.T_body_cam[:3, 3]
     pts, hit = ray_cylinder(origin, rays, R, c, r, model.wheel_width / 2 - cfg.edge_margin)
     hit &= facing(pts, R.T @ (origin - c), cfg.min_facing)  # not near the tread's silhouette
@@ -268,14 +268,13 @@ def align_rotation(
     if use.sum() < 30:
         return math.nan, math.nan
     ys, xs = np.nonzero(use)
-    px = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
     vals = curr_gray[ys + y0, xs + x0].astype(np.float64)
     if vals.std() < 1.0:
         return math.nan, math.nan
     origin = camera.T_body_cam[:3, 3]
     q, hit = ray_cylinder(
         origin,
-        camera.cam2world(px) @ camera.T_body_cam[:3, :3].T,
+        camera.pixel_rays[ys + y0, xs + x0] @ camera.T_body_cam[:3, :3].T,
         *curr_frame,
         model.wheel_radius,
         model.wheel_width / 2,
