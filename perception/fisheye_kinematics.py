@@ -151,6 +151,7 @@ class KinematicStateEstimator:
         self._gray: np.ndarray | None = None
         self._alpha = np.zeros(4)
         self._locked = np.zeros(4, dtype=bool)
+        self._windows: list = [None] * 4
         self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase at the first sighting
 
     @property
@@ -206,6 +207,9 @@ class KinematicStateEstimator:
         theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
         corrected = []
         curr_frames = self.model.wheel_frames(psi, depth, delta)
+        windows = [
+            tread_window(self.model, self.camera, *curr_frames[k], cfg.tread, w) for k, w in enumerate(WHEELS)
+        ]
         if self._gray is not None and dt > 0:
             prev_frames = self.model.wheel_frames(prev.psi, prev.depth, prev.delta)
 
@@ -222,6 +226,7 @@ class KinematicStateEstimator:
                     span=span,
                     shading=(self._shading, shading),
                     wheel=WHEELS[k],
+                    windows=(self._windows[k], windows[k]),
                 )
 
             rots = [
@@ -247,7 +252,7 @@ class KinematicStateEstimator:
         else:
             valid.update({f"theta_{w_}": False for w_ in WHEELS})
         for k, wheel in enumerate(WHEELS):
-            phase = self._marker_phase(img, curr_frames[k], wheel)
+            phase = self._marker_phase(img, curr_frames[k], windows[k])
             if phase is None:
                 continue
             if not math.isfinite(self._offset[k]):
@@ -260,6 +265,7 @@ class KinematicStateEstimator:
                 corrected.append(wheel)
         self._gray = gray
         self._shading = shading
+        self._windows = windows
         self._state = KinematicState(
             t, psi, depth, lam, delta, theta, theta_dot, valid, len(found), tuple(corrected)
         )
@@ -281,16 +287,13 @@ class KinematicStateEstimator:
         )
         return self._state
 
-    def _marker_phase(
-        self, img: np.ndarray, frame: tuple[np.ndarray, np.ndarray], wheel: str
-    ) -> float | None:
+    def _marker_phase(self, img: np.ndarray, frame: tuple[np.ndarray, np.ndarray], win) -> float | None:
         """Wheel-angle phase of the white correction marker if it is in the tread window.
 
         The marker sits at wheel angle 0 on the +z side of the wheel, so at wheel angle theta it
         is seen at angle theta about the axle (from the knuckle's +z toward +x).
         """
         cfg = self.config
-        win = tread_window(self.model, self.camera, *frame, cfg.tread, wheel)
         if win is None:
             return None
         x0, y0, x1, y1 = win.box

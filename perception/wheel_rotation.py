@@ -242,6 +242,7 @@ def align_rotation(
     prev_edges: np.ndarray | None = None,
     curr_edges: np.ndarray | None = None,
     wheel: str | None = None,
+    window: TreadWindow | None = None,
 ) -> tuple[float, float]:
     """Rotation that best maps the tread in the window of ``curr_gray`` back onto ``prev_gray``.
 
@@ -260,7 +261,7 @@ def align_rotation(
         another rotation, ``peak_separation`` away, correlates nearly as well (the best must win
         by ``min_peak_margin``).
     """
-    win = tread_window(model, camera, *curr_frame, cfg, wheel)
+    win = window if window is not None else tread_window(model, camera, *curr_frame, cfg, wheel)
     if win is None or win.mask.sum() < 30:
         return math.nan, math.nan
     x0, y0, x1, y1 = win.box
@@ -360,6 +361,7 @@ def track_tread_features(
     forbidden: np.ndarray | None = None,
     alpha_prior: float = 0.0,
     wheel: str | None = None,
+    window: TreadWindow | None = None,
 ) -> RotationMeasurement:
     """The paper's tread tracking: per-feature arc angles between two frames, 1-D RANSAC, mean.
 
@@ -376,9 +378,10 @@ def track_tread_features(
         alpha_prior: Expected rotation [rad] (e.g. the last one): each feature's search starts at
             its tread point turned by this much, so that fast wheels stay trackable.
         wheel: The wheel's name, to leave its steering arm and tie-rod marker out of the window.
+        window: The tread window of the earlier frame, if already computed.
     """
     none = RotationMeasurement(math.nan, 0, 0, 0, False)
-    win = tread_window(model, camera, *prev_frame, cfg, wheel)
+    win = window if window is not None else tread_window(model, camera, *prev_frame, cfg, wheel)
     if win is None or not win.mask.any():
         return none
     x0, y0, x1, y1 = win.box
@@ -455,6 +458,7 @@ def measure_rotation(
     span: float = 0.8,
     shading: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
     wheel: str | None = None,
+    windows: tuple[TreadWindow | None, TreadWindow | None] | None = None,
 ) -> RotationMeasurement:
     """Rotation of one wheel between two frames [rad], with its validity.
 
@@ -468,38 +472,22 @@ def measure_rotation(
     Args: as :func:`track_tread_features`; ``span``: the half-width of the search around
     ``alpha_prior`` [rad] (narrow once a wheel is being tracked, wide to acquire it); ``shading``:
     the two frames' :func:`shading_free` images, if already computed; ``wheel``: its name, so
-    that its steering arm and tie-rod marker are left out of the window.
+    that its steering arm and tie-rod marker are left out of the window; ``windows``: the
+    (earlier, later) frames' tread windows, if already computed.
     """
     if shading is None:  # plain grey levels, no edge bands
         shading = ((prev_gray, None), (curr_gray, None))
     (hp_prev, band_prev), (hp_curr, band_curr) = shading
+    prev_win, curr_win = windows if windows is not None else (None, None)
+    frames = (prev_frame, curr_frame)
+    edges = (band_prev, band_curr)
     alpha, ncc = align_rotation(
-        hp_prev,
-        hp_curr,
-        model,
-        camera,
-        prev_frame,
-        curr_frame,
-        cfg,
-        alpha_prior,
-        span,
-        band_prev,
-        band_curr,
-        wheel,
+        hp_prev, hp_curr, model, camera, *frames, cfg, alpha_prior, span, *edges, wheel, curr_win
     )
     if not (ncc >= cfg.min_ncc and math.isfinite(alpha)):
         return RotationMeasurement(math.nan, 0, 0, 0, False)
     feats = track_tread_features(
-        prev_gray,
-        curr_gray,
-        model,
-        camera,
-        prev_frame,
-        curr_frame,
-        cfg,
-        forbidden,
-        alpha_prior=alpha,
-        wheel=wheel,
+        prev_gray, curr_gray, model, camera, *frames, cfg, forbidden, alpha, wheel, prev_win
     )
     agree = feats.n_inliers if feats.valid and abs(feats.alpha - alpha) <= cfg.ransac_tolerance else 0
     return RotationMeasurement(alpha, feats.n_features, feats.n_tracked, agree, True)
