@@ -39,3 +39,40 @@ def test_markers_in_rendered_images_give_roll_height_and_steering(lifted_sim):  
     mae = np.abs(np.array(errors)).mean(axis=0)
     print(f"roll MAE {mae[:2].round(3)} deg, depth {mae[2:4].round(2)} mm, steering {mae[4:].round(3)} deg")
     assert mae[:2].max() < 0.2 and mae[2:4].max() < 1.0 and mae[4:].max() < 0.5
+
+
+def test_steering_sweep_calibration_in_the_simulator(tmp_path):
+    """The paper's steering calibration, on rendered images, then used on held-out poses."""
+    from conftest import flat_scenario
+    from test_fisheye import set_joints
+
+    from perception.markers import SteeringCalibration
+    from rover_env.calibrate import write_steering_calibration
+    from rover_env.sim import RoverSim
+
+    sim = RoverSim(flat_scenario(mu=1.0))
+    try:
+        sim.reset(2.0, -1.0, 0.4)
+        path = write_steering_calibration(tmp_path / "steering.yaml", sim, limit_deg=24.0, steps=17)
+        cal = SteeringCalibration.load(path)
+        g = sim.geometry
+        cam = FisheyeCamera(sim)
+        model = g.kinematic_model(cam.T_body_cam)
+        cfg = MarkerConfig()
+        T_cb = np.linalg.inv(model.T_body_cam)
+        errors = []
+        for lam in np.radians([-19.0, -7.5, 4.0, 13.0, 21.5]):  # between the swept poses
+            set_joints(sim, (lam, -lam), (0.0, 0.0), (0.0, 0.0), (0.0,) * 4)
+            cent, _, _ = segment_magenta(cam.capture().image, cfg)
+            depth = np.full(2, -g.axle_z)
+            delta = g.ackermann_angles(lam, -lam)
+            pred = model.marker_positions((0.0, 0.0), depth, delta)
+            pix = {m: cam.model.world2cam(T_cb[:3, :3] @ p + T_cb[:3, 3]) for m, p in pred.items()}
+            found = assign_markers(pix, cent, cfg.gate_frac * 640)
+            meas = measure_axles(model, cam.model, {m: cent[j] for m, j in found.items()}, (0, 0), depth, cal)
+            errors.append(np.degrees(meas.lam - [lam, -lam]))
+    finally:
+        sim.close()
+    err = np.abs(np.array(errors))
+    print(f"ratio-calibrated steering on held-out poses: MAE {err.mean():.3f} deg, max {err.max():.3f} deg")
+    assert err.max() < 0.75
