@@ -10,6 +10,7 @@ plate, B1, B2 on the front tie-rod ends, C1, C2 and D1, D2 on the rear (index 1 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -133,16 +134,25 @@ class RoverKinematicModel:
         Plate markers lie flat on the beam's inner face; tie-rod markers face the fisheye at zero
         roll and steering and turn with their knuckle.
         """
-        nominal = self.marker_positions((0.0, 0.0), (self.nominal_depth,) * 2, np.zeros(4))
-        cam = self.T_body_cam[:3, 3]
         out = {}
         for i, axle in enumerate(AXLES):
             R = rot_x(psi[i])
             for name in PLATE[axle]:
                 out[name] = R @ np.array([-self.axle_sign(axle), 0.0, 0.0])
             for name, wheel in zip(ROD[axle], (axle + "L", axle + "R"), strict=True):
+                out[name] = R @ rot_z(delta[WHEELS.index(wheel)]) @ self._rod_normals[name]
+        return out
+
+    @functools.cached_property
+    def _rod_normals(self) -> dict[str, np.ndarray]:
+        """Tie-rod marker normals at zero roll and steering (they face the fisheye)."""
+        nominal = self.marker_positions((0.0, 0.0), (self.nominal_depth,) * 2, np.zeros(4))
+        cam = self.T_body_cam[:3, 3]
+        out = {}
+        for axle in AXLES:
+            for name in ROD[axle]:
                 n = cam - nominal[name]
-                out[name] = R @ rot_z(delta[WHEELS.index(wheel)]) @ (n / np.linalg.norm(n))
+                out[name] = n / np.linalg.norm(n)
         return out
 
     def wheel_frames(self, psi, depth, delta) -> list[tuple[np.ndarray, np.ndarray]]:
