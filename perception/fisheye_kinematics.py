@@ -25,7 +25,7 @@ from perception.markers import (
     measure_axles,
     segment_magenta,
 )
-from perception.wheel_rotation import TreadConfig, measure_rotation, ray_cylinder, shading_free, tread_window
+from perception.wheel_rotation import TreadConfig, measure_strips, strip_resolution, unwrap_tread
 
 DOF_NAMES: tuple[str, ...] = (
     "psi_F",
@@ -58,7 +58,9 @@ class KinematicsConfig:
         acquire_span: Rotation search around the last rotation when a wheel is not being
             tracked [rad per frame].
         track_span: The same while it is: the change of rotation between frames [rad].
-        shadow_robust: Align treads on shading-free images with shadow edges left out.
+        shadow_robust: Align band-passed treads with shadow edges left out.
+        roi_margin_frac: While every marker is found, each is looked for only within the
+            gate plus this share of the image width around its predicted pixel.
         max_correction: Largest drift a correction-marker sighting may remove [rad]; a larger
             one means the white blob was not the marker.
     """
@@ -74,6 +76,7 @@ class KinematicsConfig:
     shadow_robust: bool = True
     max_correction: float = 0.4
     track_span: float = 0.25
+    roi_margin_frac: float = 0.03
 
 
 @dataclass
@@ -133,6 +136,9 @@ class KinematicStateEstimator:
         self.model = model
         self.config = config or KinematicsConfig()
         self.calibration = calibration
+        # strip column steps, fixed per wheel: set at the nominal state
+        nominal = model.wheel_frames(np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4))
+        self._dphi = [strip_resolution(model, camera, R, c, self.config.tread.column_px) for R, c in nominal]
         self.reset()
 
     def reset(self) -> None:
@@ -148,10 +154,10 @@ class KinematicStateEstimator:
             theta_dot=np.zeros(4),
             valid=dict.fromkeys(DOF_NAMES, False),
         )
-        self._gray: np.ndarray | None = None
         self._alpha = np.zeros(4)
         self._locked = np.zeros(4, dtype=bool)
-        self._windows: list = [None] * 4
+        self._strips: list = [None] * 4  # the last frame's tread strips
+        self._markers_tracked = False  # all markers found in the last frame
         self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase at the first sighting
 
     @property
@@ -163,7 +169,8 @@ class KinematicStateEstimator:
         s = self._state
         pos = self.model.marker_positions(s.psi, s.depth, s.delta)
         T_cb = np.linalg.inv(self.camera.T_body_cam)
-        return {m: self.camera.world2cam(T_cb[:3, :3] @ p + T_cb[:3, 3]) for m, p in pos.items()}
+        px = self.camera.world2cam(np.array([pos[m] for m in MARKERS]) @ T_cb[:3, :3].T + T_cb[:3, 3])
+        return dict(zip(MARKERS, px, strict=True))
 
     def update(self, image: np.ndarray, t: float) -> KinematicState:
         """Estimate the state at a new frame.
@@ -184,8 +191,18 @@ class KinematicStateEstimator:
         if not usable:
             return self._carry(t, dt)
         cfg = self.config
-        cent, _, _ = segment_magenta(img, cfg.markers)
-        found = assign_markers(self._predicted_pixels(), cent, cfg.markers.gate_frac * w)
+        predicted = self._predicted_pixels()
+        gate = cfg.markers.gate_frac * w
+        found: dict = {}
+        if self._markers_tracked:  # look where the markers should be first
+            at = np.array([p for p in predicted.values() if np.all(np.isfinite(p))])
+            reach = gate + cfg.roi_margin_frac * w
+            cent, _, _ = segment_magenta(img, cfg.markers, np.hstack([at - reach, at + reach + 1]))
+            found = assign_markers(predicted, cent, gate)
+        if len(found) < len(MARKERS):  # lost one: search the whole frame
+            cent, _, _ = segment_magenta(img, cfg.markers)
+            found = assign_markers(predicted, cent, gate)
+        self._markers_tracked = len(found) == len(MARKERS)
         meas = measure_axles(
             self.model,
             self.camera,
@@ -203,31 +220,20 @@ class KinematicStateEstimator:
         valid.update({f"d_{a}": bool(np.isfinite(meas.depth[i])) for i, a in enumerate(AXLES)})
         valid.update({f"lam_{a}": bool(np.isfinite(meas.lam[i])) for i, a in enumerate(AXLES)})
         gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-        shading = shading_free(gray) if cfg.shadow_robust else (gray, None)
         theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
         corrected = []
         curr_frames = self.model.wheel_frames(psi, depth, delta)
-        windows = [
-            tread_window(self.model, self.camera, *curr_frames[k], cfg.tread, w) for k, w in enumerate(WHEELS)
+        strips = [
+            unwrap_tread(
+                gray, self.model, self.camera, R, c, self._dphi[k], cfg.tread, WHEELS[k], cfg.shadow_robust
+            )
+            for k, (R, c) in enumerate(curr_frames)
         ]
-        if self._gray is not None and dt > 0:
-            prev_frames = self.model.wheel_frames(prev.psi, prev.depth, prev.delta)
+        if dt > 0:
+            r = self.model.wheel_radius
 
             def measure(k: int, prior: float, span: float):
-                return measure_rotation(
-                    self._gray,
-                    gray,
-                    self.model,
-                    self.camera,
-                    prev_frames[k],
-                    curr_frames[k],
-                    cfg.tread,
-                    alpha_prior=prior,
-                    span=span,
-                    shading=(self._shading, shading),
-                    wheel=WHEELS[k],
-                    windows=(self._windows[k], windows[k]),
-                )
+                return measure_strips(self._strips[k], strips[k], r, cfg.tread, prior, span)
 
             rots = [
                 measure(k, float(self._alpha[k]), cfg.track_span if self._locked[k] else cfg.acquire_span)
@@ -252,7 +258,7 @@ class KinematicStateEstimator:
         else:
             valid.update({f"theta_{w_}": False for w_ in WHEELS})
         for k, wheel in enumerate(WHEELS):
-            phase = self._marker_phase(img, curr_frames[k], windows[k])
+            phase = self._marker_phase(img, strips[k])
             if phase is None:
                 continue
             if not math.isfinite(self._offset[k]):
@@ -263,9 +269,7 @@ class KinematicStateEstimator:
             if abs(snapped - theta[k]) <= cfg.max_correction:  # larger: a false sighting
                 theta[k] = snapped
                 corrected.append(wheel)
-        self._gray = gray
-        self._shading = shading
-        self._windows = windows
+        self._strips = strips
         self._state = KinematicState(
             t, psi, depth, lam, delta, theta, theta_dot, valid, len(found), tuple(corrected)
         )
@@ -274,7 +278,7 @@ class KinematicStateEstimator:
     def _carry(self, t: float, dt: float) -> KinematicState:
         prev = self._state
         theta = prev.theta + (prev.theta_dot * dt if dt > 0 else 0.0)
-        self._gray = None  # the next usable frame cannot be paired with an unusable one
+        self._strips = [None] * 4  # the next usable frame cannot be paired with an unusable one
         self._state = KinematicState(
             t,
             prev.psi.copy(),
@@ -287,49 +291,36 @@ class KinematicStateEstimator:
         )
         return self._state
 
-    def _marker_phase(self, img: np.ndarray, frame: tuple[np.ndarray, np.ndarray], win) -> float | None:
-        """Wheel-angle phase of the white correction marker if it is in the tread window.
+    def _marker_phase(self, img: np.ndarray, strip) -> float | None:
+        """Wheel-angle phase of the white correction marker if it is on the tread strip.
 
         The marker sits at wheel angle 0 on the +z side of the wheel, so at wheel angle theta it
         is seen at angle theta about the axle (from the knuckle's +z toward +x).
         """
         cfg = self.config
-        if win is None:
+        if strip is None:
             return None
-        x0, y0, x1, y1 = win.box
-        hsv = cv2.cvtColor(np.ascontiguousarray(img[y0:y1, x0:x1]), cv2.COLOR_RGB2HSV)
+        vis = strip.visible
+        hsv = cv2.cvtColor(strip.sample(img), cv2.COLOR_RGB2HSV)
         v, sat = hsv[..., 2].astype(np.float32), hsv[..., 1]
-        if not win.mask.any():
-            return None
         # the marker is white paint on a grey tread: far brighter than the tread around it under
         # the same light, whatever that light is
-        bright = v >= max(cfg.white_min_value, cfg.white_contrast * float(np.median(v[win.mask])))
-        white = (win.mask & bright & (sat <= cfg.white_max_saturation)).astype(np.uint8)
+        bright = v >= max(cfg.white_min_value, cfg.white_contrast * float(np.median(v[vis])))
+        white = (vis & bright & (sat <= cfg.white_max_saturation)).astype(np.uint8)
         n, labels, stats, _ = cv2.connectedComponentsWithStats(white, connectivity=8)
         if n <= 1:
             return None
         big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-        # the painted marker is one patch of about its known size; bright speckle is small spots
-        m = self.model
-        dist = float(np.linalg.norm(frame[1] - self.camera.T_body_cam[:3, 3]))
-        px_per_m = self.camera.image_size[0] / self.camera.max_fov / dist
-        expected = m.correction_marker_arc * m.wheel_radius * m.wheel_width * px_per_m**2
+        # the painted marker is one patch of its known arc across the tread; speckle is small spots
+        arc = self.model.correction_marker_arc
+        expected = arc / strip.dphi * vis.shape[0]
         if stats[big, cv2.CC_STAT_AREA] < max(cfg.white_min_pixels, cfg.white_min_area * expected):
             return None
-        ys, xs = np.nonzero(labels == big)
-        px = np.stack([xs + x0, ys + y0], 1).astype(np.float64)
-        rays = self.camera.cam2world(px) @ self.camera.T_body_cam[:3, :3].T
-        q, hit = ray_cylinder(
-            self.camera.T_body_cam[:3, 3], rays, *frame, self.model.wheel_radius, self.model.wheel_width / 2
-        )
-        if hit.sum() < cfg.white_min_pixels:
-            return None
-        phi = np.arctan2(q[hit, 0], q[hit, 2])
-        mean = math.atan2(float(np.sin(phi).mean()), float(np.cos(phi).mean()))
-        spread = np.abs(np.remainder(phi - mean + np.pi, 2 * np.pi) - np.pi)
-        arc = self.model.correction_marker_arc
-        # the whole marker in view: its pixels span about its arc, centred on the mean
-        if not (0.6 * arc <= 2 * np.percentile(spread, 95) <= 1.3 * arc):
+        cols = np.nonzero(labels == big)[1]
+        phi = (strip.k0 + cols) * strip.dphi
+        mean = float(phi.mean())
+        # the whole marker in view: its cells span about its arc, centred on the mean
+        if not (0.6 * arc <= 2 * np.percentile(np.abs(phi - mean), 95) <= 1.3 * arc):
             return None
         return mean
 

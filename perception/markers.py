@@ -50,17 +50,48 @@ class MarkerConfig:
     gate_frac: float = 0.05
 
 
-def segment_magenta(rgb: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def segment_magenta(
+    rgb: np.ndarray, cfg: MarkerConfig, rois: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Magenta blobs: (centroids (n, 2) [px], areas (n,) [px], cleaned mask).
 
     Blobs are found in HSV (hue band, saturation and value floors) after an opening. Each blob's
     centre is then weighted by its saturation relative to the blob's core, over the blob grown
     by two pixels: saturation does not depend on brightness, so a marker half in shadow keeps
     its centre, and partly covered edge pixels count by about their share (sub-pixel centres).
+
+    Args:
+        rgb: (H, W, 3) uint8 RGB image.
+        cfg: Thresholds.
+        rois: Optional (n, 4) boxes (x0, y0, x1, y1) [px]: look only inside them (each marker's
+            region of interest, predicted from the last state). Blobs within 3 px of a box's
+            edge inside the image are left out, as they may be cut; the mask is then only
+            filled in the boxes.
     """
     img = np.asarray(rgb)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
         raise ValueError(f"image: {img.dtype} {img.shape}; expected (H, W, 3) uint8 RGB")
+    H, W = img.shape[:2]
+    min_area = max(4.0, cfg.min_area_frac * H * W)
+    if rois is None:
+        return _blobs(img, cfg, min_area, (0, 0))
+    full = np.zeros((H, W), bool)
+    cents, areas = [], []
+    for x0, y0, x1, y1 in np.asarray(rois, dtype=int).reshape(-1, 4):
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
+        if x1 - x0 < 3 or y1 - y0 < 3:
+            continue
+        c, a, m = _blobs(img[y0:y1, x0:x1], cfg, min_area, (x0, y0), edges=(x0 > 0, y0 > 0, x1 < W, y1 < H))
+        full[y0:y1, x0:x1] |= m
+        for ci, ai in zip(c, a, strict=True):
+            if not any(np.hypot(*(ci - cj)) < 1.0 for cj in cents):  # boxes overlap: once per blob
+                cents.append(ci)
+                areas.append(ai)
+    return np.array(cents, dtype=np.float64).reshape(-1, 2), np.array(areas, dtype=np.float64), full
+
+
+def _blobs(img, cfg: MarkerConfig, min_area: float, offset, edges=(False,) * 4):
+    """Blobs of one image (or crop); ``edges``: (left, top, right, bottom) sides that cut blobs."""
     hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV)
     h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
     lo, hi = cfg.hue_range
@@ -68,8 +99,16 @@ def segment_magenta(rgb: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.
     k = np.ones((3, 3), np.uint8)
     mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, k)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    min_area = max(4.0, cfg.min_area_frac * img.shape[0] * img.shape[1])
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
+    bx, by, bw, bh = (stats[keep, i] for i in range(4))
+    m = 3  # the centre's weights reach this far beyond the blob
+    cut = (
+        (edges[0] & (bx < m))
+        | (edges[1] & (by < m))
+        | (edges[2] & (bx + bw > img.shape[1] - m))
+        | (edges[3] & (by + bh > img.shape[0] - m))
+    )
+    keep = keep[~cut]
     sat = s.astype(np.float32)
     in_band = np.abs(h.astype(np.float32) - 0.5 * (lo + hi)) <= (hi - lo)  # hue, with a margin
     cents = []
@@ -83,7 +122,7 @@ def segment_magenta(rgb: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.
         wgt = np.where(grown & in_band[y0:y1, x0:x1], np.clip(sat[y0:y1, x0:x1] / full, 0.0, 1.0), 0.0)
         ys, xs = np.mgrid[y0:y1, x0:x1]
         tot = wgt.sum()
-        cents.append((float((wgt * xs).sum() / tot), float((wgt * ys).sum() / tot)))
+        cents.append((float((wgt * xs).sum() / tot) + offset[0], float((wgt * ys).sum() / tot) + offset[1]))
     cent = np.array(cents, dtype=np.float64).reshape(-1, 2)
     return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask.astype(bool)
 
@@ -282,14 +321,16 @@ def centroid_offsets(
     edge = np.concatenate(
         [np.c_[s, -np.ones(16)], np.c_[np.ones(16), s], np.c_[-s, np.ones(16)], np.c_[-np.ones(16), -s]]
     )
-    out = {}
+    outlines = []
     for name in MARKERS:
         p, n = pos[name], nrm[name]
         u = np.cross(n, [0.0, 0.0, 1.0])
         u /= np.linalg.norm(u)
         v = np.cross(n, u)
-        pts = p + half * (edge[:, :1] * u + edge[:, 1:] * v)
-        poly = camera.world2cam(np.vstack([pts, p]) @ T_cb[:3, :3].T + T_cb[:3, 3])
+        outlines.append(np.vstack([p + half * (edge[:, :1] * u + edge[:, 1:] * v), p]))
+    polys = camera.world2cam(np.stack(outlines) @ T_cb[:3, :3].T + T_cb[:3, 3])  # one call for all
+    out = {}
+    for name, poly in zip(MARKERS, polys, strict=True):
         if not np.isfinite(poly).all():
             out[name] = np.zeros(2)
             continue

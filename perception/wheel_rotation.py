@@ -1,13 +1,24 @@
 """Wheel rotation from the treads in the fisheye image (kinematics paper, section V-C).
 
 Each wheel is a cylinder of the tread radius about its knuckle's y axis, placed by the axle roll,
-height and steering. A fixed-size observation window follows the tread point that faces the
-camera (the paper's w60 point, chosen here by geometry). In it, Shi-Tomasi features on the tread
-are tracked by pyramidal Lucas-Kanade forward and backward between frames, and inconsistent
-tracks dropped. Each feature's ray is intersected with the cylinder at both instants, in the
-knuckle frame, so that roll, height and steering changes cancel; the arc angle between the two
-points is eq. (6), signed by their cross product. A 1-D RANSAC over the angles keeps the
-consistent ones, whose mean is the rotation between the frames.
+height and steering. The paper follows tread features in an observation window around the tread
+point facing the camera, intersects their rays with the cylinder and turns each feature's chord
+into an arc angle (eq. 6). Here the window is the tread itself, unwrapped: a :class:`TreadStrip`
+samples the image at cylinder points on a grid of (angle about the axle, position across the
+tread), which is the ray-cylinder intersection done once for the whole window. In a strip a
+wheel's rotation is a shift along the angle axis, whatever the roll, height and steering of
+either frame, so that:
+
+- the rotation between two frames is the shift that maximises the masked normalised
+  cross-correlation of the two strips (:func:`align_strips`, all shifts at once by FFT), with a
+  check that no other rotation fits nearly as well and that the strips overlap enough;
+- the paper's features (Shi-Tomasi, pyramidal Lucas-Kanade forward and backward, eq. 6 per
+  track, 1-D RANSAC) are tracked between the strips from that shift
+  (:func:`track_strip_features`), where their motion is a translation, as Lucas-Kanade assumes.
+
+The strips are band-passed on the tread surface so that shading and the levels of lit and
+shadowed tread cancel, and the steps of shadow edges, which do not turn with the wheel, are
+left out (the odometry paper's shadow-edge mask, applied to the treads).
 """
 
 from __future__ import annotations
@@ -24,38 +35,55 @@ from perception.kinematics import RoverKinematicModel
 
 @dataclass(frozen=True)
 class TreadConfig:
-    """Tread tracking.
+    """Tread unwrapping and rotation measurement.
 
     Attributes:
-        window_frac: Observation-window edge as a share of the image width.
-        max_features: Shi-Tomasi features per window.
-        min_distance_frac: Minimum feature spacing, share of the image width.
-        lk_window_frac: Lucas-Kanade window, share of the image width (odd size, >= 7 px). Small:
-            the tread's image motion is not a translation over a large window (a 21 px window
-            reads a 0.04 rad turn 1.6 % short, a 9 px one 0.6 %).
-        fb_threshold: Largest forward-backward error [px].
-        edge_margin: Features this close to a tread edge are not used [m].
-        ransac_tolerance: 1-D RANSAC inlier band [rad].
-        min_inliers: Fewest consistent features for a valid rotation.
-        min_ncc: Smallest correlation of the direct tread alignment for a valid rotation.
-        min_facing: Smallest cosine between the tread normal and the view direction of a pixel
-            used (keeps away from the silhouette).
+        column_px: Strip column spacing: image pixels at the tread point facing the camera.
+        rows: Strip rows across the tread.
+        edge_margin: Tread edges left out [m].
+        min_facing: Smallest cosine between the tread normal and the view direction of a cell
+            (keeps away from the silhouette, where the tread is seen edge-on).
+        fine: Band-pass: small Gaussian sigma on the tread [m] (removes pixel-scale flicker).
+        coarse: Band-pass: large Gaussian sigma on the tread [m] (removes shading and light
+            levels).
+        edge_factor: Shadow-edge band: gradient of the coarse image above this many times its
+            median over the strip ...
+        min_step: ... and above this [grey levels per m].
+        min_cells: Fewest overlapping valid cells for a shift to count.
+        min_overlap: Fewest overlapping valid cells, as a share of the smaller strip's.
+        min_ncc: Smallest correlation of the alignment for a valid rotation, when the tracked
+            features confirm it ...
+        strong_ncc: ... and when too few features are tracked to tell.
         peak_separation: Rotations this far from the best one count as other candidates [rad].
         min_peak_margin: The best correlation must beat every other candidate's by this much.
+        max_features: Shi-Tomasi features per strip.
+        min_distance: Smallest feature spacing [cells].
+        lk_window: Lucas-Kanade window [cells] (odd).
+        fb_threshold: Largest forward-backward error [cells].
+        ransac_tolerance: 1-D RANSAC inlier band [rad].
+        min_inliers: Fewest consistent features for the features' rotation to count.
     """
 
-    window_frac: float = 0.16
-    max_features: int = 25
-    min_distance_frac: float = 0.008
-    lk_window_frac: float = 0.014
-    fb_threshold: float = 0.5
+    column_px: float = 0.7
+    rows: int = 24
     edge_margin: float = 0.006
-    ransac_tolerance: float = 0.01
-    min_inliers: int = 4
-    min_ncc: float = 0.6
     min_facing: float = 0.3
+    fine: float = 0.0025
+    coarse: float = 0.011
+    edge_factor: float = 4.0
+    min_step: float = 1000.0
+    min_cells: int = 150
+    min_overlap: float = 0.25
+    min_ncc: float = 0.6
+    strong_ncc: float = 0.85
     peak_separation: float = 0.1
     min_peak_margin: float = 0.08
+    max_features: int = 25
+    min_distance: float = 4.0
+    lk_window: int = 7
+    fb_threshold: float = 0.3
+    ransac_tolerance: float = 0.01
+    min_inliers: int = 4
 
 
 def ray_cylinder(
@@ -104,7 +132,7 @@ def arc_angle(p1: np.ndarray, p2: np.ndarray, radius: float) -> np.ndarray:
     return sign * mag
 
 
-def ransac_1d(values: np.ndarray, tolerance: float, rng: np.random.Generator | None = None) -> np.ndarray:
+def ransac_1d(values: np.ndarray, tolerance: float) -> np.ndarray:
     """Largest set of values within ``tolerance`` of one of them (every value is tried: n <= ~50)."""
     v = np.asarray(values, dtype=np.float64)
     if len(v) == 0:
@@ -113,222 +141,269 @@ def ransac_1d(values: np.ndarray, tolerance: float, rng: np.random.Generator | N
     return close[int(np.argmax(close.sum(axis=1)))]
 
 
-def facing(points: np.ndarray, camera_knuckle: np.ndarray, min_cos: float) -> np.ndarray:
-    """Tread points (knuckle frame, (..., 3)) whose surface faces the camera by more than ``min_cos``.
-
-    Near the silhouette the tread is seen edge-on: its pixels mix with what lies behind, which
-    does not turn with the wheel.
-    """
-    n = points * np.array([1.0, 0.0, 1.0])
-    v = camera_knuckle - points
-    with np.errstate(invalid="ignore"):
-        cos = np.einsum("...i,...i->...", n, v) / (np.linalg.norm(n, axis=-1) * np.linalg.norm(v, axis=-1))
-    return cos > min_cos
-
-
 def facing_angle(model: RoverKinematicModel, R: np.ndarray, c: np.ndarray) -> float:
     """Angle about the wheel axis (from the knuckle's +z, toward +x) of the tread point facing the camera."""
     cam = R.T @ (model.T_body_cam[:3, 3] - c)
     return math.atan2(cam[0], cam[2])
 
 
+def tread_point(radius: float, phi, y) -> np.ndarray:
+    """Knuckle-frame tread points (..., 3) at angles ``phi`` [rad] about the axle and ``y`` across [m]."""
+    phi, y = np.broadcast_arrays(np.asarray(phi, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    return np.stack([radius * np.sin(phi), y, radius * np.cos(phi)], -1)
+
+
+def strip_resolution(
+    model: RoverKinematicModel, camera: OmniCamera, R: np.ndarray, c: np.ndarray, column_px: float
+) -> float:
+    """Angle step [rad] of strip columns that are ``column_px`` image pixels apart at the facing point."""
+    phi = facing_angle(model, R, c)
+    eps = 1e-3
+    pts = tread_point(model.wheel_radius, np.array([phi - eps, phi + eps]), 0.0) @ R.T + c
+    T_cb = np.linalg.inv(camera.T_body_cam)
+    px = camera.world2cam(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+    px_per_rad = float(np.linalg.norm(px[1] - px[0])) / (2 * eps)
+    if not math.isfinite(px_per_rad) or px_per_rad <= 0:
+        raise ValueError("the tread point facing the camera is outside the fisheye's field of view")
+    return column_px / px_per_rad
+
+
 @dataclass
-class TreadWindow:
-    """The observation window of one wheel in one frame.
+class TreadStrip:
+    """One wheel's tread in one frame, unwrapped onto (angle about the axle, position across).
+
+    Column ``j`` is at angle ``(k0 + j) * dphi`` (from the knuckle's +z toward +x; a tread point
+    at angle phi moves to phi + alpha when the wheel turns by alpha), row ``i`` at ``y[i]``.
 
     Attributes:
-        box: (x0, y0, x1, y1) pixel bounds (x1, y1 exclusive).
-        mask: (y1 - y0, x1 - x0) bool, pixels whose ray meets the tread (away from its edges).
-        centre: Pixel of the tread point facing the camera.
-        phi: Angle of that point about the wheel axis [rad].
+        k0: Index of the first column.
+        dphi: Column step [rad].
+        y: (rows,) positions across the tread, knuckle frame [m].
+        pixels: (rows, cols, 2) float32 image pixel of every cell (-1 where none).
+        visible: (rows, cols) cells on the tread, facing the camera, in the image, not behind the
+            wheel's steering arm or tie-rod marker.
+        valid: ``visible`` and not on a shadow-edge band: the cells the rotation uses.
+        texture: (rows, cols) float32 band-passed grey level (0 where not valid).
     """
 
-    box: tuple[int, int, int, int]
-    mask: np.ndarray
-    centre: np.ndarray
-    phi: float
+    k0: int
+    dphi: float
+    y: np.ndarray
+    pixels: np.ndarray
+    visible: np.ndarray
+    valid: np.ndarray
+    texture: np.ndarray
+
+    @property
+    def phi(self) -> np.ndarray:
+        """(cols,) column angles [rad]."""
+        return (self.k0 + np.arange(self.pixels.shape[1])) * self.dphi
+
+    def sample(self, image: np.ndarray) -> np.ndarray:
+        """The image (grey or colour) at every cell, bilinear (rows, cols[, channels])."""
+        return cv2.remap(image, self.pixels[..., 0], self.pixels[..., 1], cv2.INTER_LINEAR)
 
 
-def tread_window(
+def _masked_blur(img: np.ndarray, mask: np.ndarray, sigma: tuple[float, float]) -> np.ndarray:
+    """Gaussian blur of ``img`` over the cells of ``mask`` only (normalised convolution)."""
+    m = mask.astype(np.float32)
+    num = cv2.GaussianBlur(img * m, (0, 0), sigmaX=sigma[0], sigmaY=sigma[1])
+    den = cv2.GaussianBlur(m, (0, 0), sigmaX=sigma[0], sigmaY=sigma[1])
+    return num / np.maximum(den, 1e-3)
+
+
+def _band_pass(
+    raw: np.ndarray, visible: np.ndarray, cell: tuple[float, float], cfg: TreadConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tread texture without shading or pixel noise, and the band of strong steps to leave out.
+
+    A difference of Gaussians on the tread surface (sigmas ``fine`` and ``coarse`` metres,
+    over the visible cells only, so that the background beyond the silhouette does not bleed
+    in) keeps the speckle: the coarse blur removes smooth shading and the levels of lit and
+    shadowed tread, the fine one the pixel-scale flicker of a renderer's (or sensor's) sampling.
+    Cells where the coarse image's gradient exceeds ``edge_factor`` times its median and
+    ``min_step`` are steps such as shadow edges, which do not turn with the wheel.
+
+    Returns:
+        (float32 band-passed strip, bool edge band).
+    """
+    fine = (cfg.fine / cell[0], cfg.fine / cell[1])
+    coarse = (cfg.coarse / cell[0], cfg.coarse / cell[1])
+    low = _masked_blur(raw, visible, coarse)
+    tex = _masked_blur(raw, visible, fine) - low
+    gx = cv2.Sobel(low, cv2.CV_32F, 1, 0, ksize=3) / (8 * cell[0])  # [grey levels per m]
+    gy = cv2.Sobel(low, cv2.CV_32F, 0, 1, ksize=3) / (8 * cell[1])
+    mag = cv2.magnitude(gx, gy)
+    inner = cv2.erode(visible.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    thr = max(cfg.edge_factor * float(np.median(mag[inner])) if inner.any() else 0.0, cfg.min_step)
+    grow = (max(3, 2 * round(cfg.fine / cell[0]) + 1), max(3, 2 * round(cfg.fine / cell[1]) + 1))
+    band = cv2.dilate(((mag > thr) & inner).astype(np.uint8), np.ones(grow[::-1], np.uint8)) > 0
+    return tex, band
+
+
+def unwrap_tread(
+    gray: np.ndarray,
     model: RoverKinematicModel,
     camera: OmniCamera,
     R: np.ndarray,
     c: np.ndarray,
+    dphi: float,
     cfg: TreadConfig,
     wheel: str | None = None,
-) -> TreadWindow | None:
-    """The window around the facing tread point, or None if it is outside the image.
+    shadow_robust: bool = True,
+) -> TreadStrip | None:
+    """The strip of one wheel's tread in a grey fisheye frame, or None if it is not in view.
 
-    With ``wheel`` given, pixels covered by that wheel's steering arm and tie-rod marker are
-    left out of the mask.
+    Args:
+        gray: (H, W) uint8 grey frame.
+        model: Rover geometry.
+        camera: The fisheye model.
+        R: The wheel's knuckle frame in the body frame (rotation).
+        c: Its centre, body frame [m].
+        dphi: Column step [rad] (:func:`strip_resolution`; keep it fixed between frames).
+        cfg: Parameters.
+        wheel: The wheel's name (FL, FR, RL, RR), to leave out its steering arm and tie-rod
+            marker, which lie in front of the tread.
+        shadow_robust: Band-pass the texture and leave out shadow edges; otherwise the texture
+            is the grey level less its mean.
     """
-    phi = facing_angle(model, R, c)
     r = model.wheel_radius
-    p_body = R @ np.array([r * math.sin(phi), 0.0, r * math.cos(phi)]) + c
-    T_cb = np.linalg.inv(camera.T_body_cam)
-    px = camera.world2cam(T_cb[:3, :3] @ p_body + T_cb[:3, 3])
-    if not np.all(np.isfinite(px)):
-        return None
-    w, h = camera.image_size
-    half = max(8, int(round(cfg.window_frac * w / 2)))
-    x0, y0 = int(round(px[0])) - half, int(round(px[1])) - half
-    x1, y1 = x0 + 2 * half, y0 + 2 * half
-    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
-    if x1 - x0 < 8 or y1 - y0 < 8:
-        return None
-    gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
-    rays = camera.pixel_rays[y0:y1, x0:x1].reshape(-1, 3) @ camera.T_body_cam[:3, :3].T
-    ok = np.isfinite(rays[:, 0])
-    rays[~ok] = (0.0, 0.0, -1.0)  # a copy: the matrix product above
+    phi_c = facing_angle(model, R, c)
+    reach = math.acos(cfg.min_facing)  # facing cells are within this of phi_c, and then some
+    k0 = math.floor((phi_c - reach) / dphi)
+    k1 = math.ceil((phi_c + reach) / dphi)
+    phi = np.arange(k0, k1 + 1) * dphi
+    hw = model.wheel_width / 2 - cfg.edge_margin
+    y = np.linspace(-hw, hw, cfg.rows)
+    q = tread_point(r, phi[None, :], y[:, None])  # (rows, cols, 3), knuckle frame
     origin = camera.T_body_cam[:3, 3]
-    pts, hit = ray_cylinder(origin, rays, R, c, r, model.wheel_width / 2 - cfg.edge_margin)
-    hit &= facing(pts, R.T @ (origin - c), cfg.min_facing)  # not near the tread's silhouette
-    mask = (hit & ok).reshape(y1 - y0, x1 - x0)
-    if wheel is not None:  # leave out the steering arm and tie-rod marker in front of the tread
+    cam_k = R.T @ (origin - c)
+    view = cam_k - q
+    normal = q * np.array([1.0, 0.0, 0.0]) + q * np.array([0.0, 0.0, 1.0])
+    cos = np.einsum("...i,...i->...", normal, view) / (r * np.linalg.norm(view, axis=-1))
+    T_cb = np.linalg.inv(camera.T_body_cam)
+    body = q @ R.T + c
+    px = camera.world2cam(body @ T_cb[:3, :3].T + T_cb[:3, 3])
+    w, h = camera.image_size
+    visible = (cos > cfg.min_facing) & np.isfinite(px).all(-1)
+    visible &= (px[..., 0] >= 0) & (px[..., 0] <= w - 1) & (px[..., 1] >= 0) & (px[..., 1] <= h - 1)
+    if wheel is not None:
         occ, radii = model.occluders(wheel, R, c)
         dist = np.linalg.norm(occ - origin, axis=1)
         opx = camera.world2cam((occ - origin) @ camera.T_body_cam[:3, :3])
-        scale = camera.image_size[0] / max(camera.max_fov, 1e-6)  # about px per radian
+        scale = w / max(camera.max_fov, 1e-6)  # about px per radian
+        tread_dist = np.linalg.norm(body - origin, axis=-1)
         for (u, v), rad, d in zip(opx, radii, dist, strict=True):
-            if np.isfinite(u):
-                r_px = rad / d * scale + 2.0
-                mask &= (gx - u) ** 2 + (gy - v) ** 2 > r_px**2
-    return TreadWindow((x0, y0, x1, y1), mask, px, phi)
+            if np.isfinite(u):  # the part hides the cells behind it, within its image radius
+                behind = tread_dist > d
+                visible &= ~behind | (
+                    (px[..., 0] - u) ** 2 + (px[..., 1] - v) ** 2 > (rad / d * scale + 2) ** 2
+                )
+    if visible.sum() < cfg.min_cells:
+        return None
+    cols = np.flatnonzero(visible.any(axis=0))
+    sl = slice(cols[0], cols[-1] + 1)
+    visible, px = visible[:, sl], px[:, sl]
+    k0 += int(cols[0])
+    px = np.where(visible[..., None], px, -1.0)
+    px = px.astype(np.float32)
+    raw = cv2.remap(gray, px[..., 0], px[..., 1], cv2.INTER_LINEAR).astype(np.float32)
+    cell = (r * dphi, float(y[1] - y[0]))  # (column, row) size on the tread [m]
+    if shadow_robust:
+        tex, band = _band_pass(raw, visible, cell, cfg)
+        valid = visible & ~band
+    else:
+        valid = visible.copy()
+        tex = raw - float(raw[visible].mean())
+    tex = np.where(valid, tex, np.float32(0.0)).astype(np.float32)
+    return TreadStrip(k0, dphi, y, px, visible, valid, tex)
 
 
-def shading_free(
-    gray: np.ndarray, fine: float = 1.2, coarse: float = 5.0, edge_factor: float = 4.0, min_step: float = 12.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """Tread texture without shading or pixel noise, and the band of strong steps to leave out.
-
-    A difference of Gaussians (``fine`` and ``coarse`` px) keeps the speckle a few pixels across:
-    the coarse blur removes smooth shading and the levels of lit and shadowed areas, the fine
-    one the pixel-scale flicker of a renderer's (or sensor's) sampling. Pixels where the
-    coarsely blurred image's gradient exceeds ``edge_factor`` times its median (and ``min_step``
-    grey levels per pixel) are steps such as shadow edges, and are excluded (the odometry
-    paper's idea of masking shadow edges, applied to the treads).
-
-    Returns:
-        (float32 band-passed image, bool edge band).
-    """
-    g = gray.astype(np.float32)
-    blur = cv2.GaussianBlur(g, (0, 0), coarse)
-    gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3)
-    mag = cv2.magnitude(gx, gy)
-    thr = max(edge_factor * float(np.median(mag)), min_step)
-    band = cv2.dilate((mag > thr).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    return cv2.GaussianBlur(g, (0, 0), fine) - blur, band
+def _xcorr(fa: np.ndarray, fb: np.ndarray, n: int) -> np.ndarray:
+    """Sum over rows and j of a[j] b[j - s], for lags s = 0 .. n-1 (negative lags wrap), from rffts."""
+    return np.fft.irfft((fa * np.conj(fb)).sum(axis=0), n)
 
 
-def _rot_y(a) -> np.ndarray:
-    """(..., 3, 3) rotations about +y by angles ``a``."""
-    a = np.asarray(a, dtype=np.float64)
-    c, s = np.cos(a), np.sin(a)
-    z, o = np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+def masked_ncc(
+    a: np.ndarray, ma: np.ndarray, b: np.ndarray, mb: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Normalised cross-correlation of ``a`` against ``b`` shifted along columns, over masked cells.
 
-
-def align_rotation(
-    prev_gray: np.ndarray,
-    curr_gray: np.ndarray,
-    model: RoverKinematicModel,
-    camera: OmniCamera,
-    prev_frame: tuple[np.ndarray, np.ndarray],
-    curr_frame: tuple[np.ndarray, np.ndarray],
-    cfg: TreadConfig,
-    centre: float = 0.0,
-    span: float = 0.8,
-    prev_edges: np.ndarray | None = None,
-    curr_edges: np.ndarray | None = None,
-    wheel: str | None = None,
-    window: TreadWindow | None = None,
-) -> tuple[float, float]:
-    """Rotation that best maps the tread in the window of ``curr_gray`` back onto ``prev_gray``.
-
-    Every tread pixel of the current window is a point on the cylinder; turned back by a trial
-    angle and projected into the previous frame, it should see the same grey level. A coarse
-    grid over ``centre`` +- ``span`` on a subsample of the pixels, then a fine grid around the
-    best and a parabola through the top three, maximise the normalised cross-correlation. This
-    bounds the search of the feature tracking, which alone loses wheels that turn fast.
-
-    The images may be grey levels or, better, :func:`shading_free` images with their edge
-    bands (``prev_edges``, ``curr_edges``): a shadow edge across a tread does not turn with the
-    wheel and would otherwise pull the alignment toward no rotation.
+    For every lag s, the correlation of a[i, j] with b[i, j - s] over the cells where both masks
+    hold (Padfield's masked NCC, summed over rows; all lags by FFT).
 
     Returns:
-        (alpha [rad], correlation at alpha); alpha is NaN without a usable window or when
-        another rotation, ``peak_separation`` away, correlates nearly as well (the best must win
-        by ``min_peak_margin``).
+        (lags, ncc, overlapping cells) for lags -(cols_b - 1) .. cols_a - 1.
     """
-    win = window if window is not None else tread_window(model, camera, *curr_frame, cfg, wheel)
-    if win is None or win.mask.sum() < 30:
-        return math.nan, math.nan
-    x0, y0, x1, y1 = win.box
-    use = win.mask if curr_edges is None else win.mask & ~curr_edges[y0:y1, x0:x1]
-    if use.sum() < 30:
-        return math.nan, math.nan
-    ys, xs = np.nonzero(use)
-    vals = curr_gray[ys + y0, xs + x0].astype(np.float64)
-    if vals.std() < 1.0:
-        return math.nan, math.nan
-    origin = camera.T_body_cam[:3, 3]
-    q, hit = ray_cylinder(
-        origin,
-        camera.pixel_rays[ys + y0, xs + x0] @ camera.T_body_cam[:3, :3].T,
-        *curr_frame,
-        model.wheel_radius,
-        model.wheel_width / 2,
-    )
-    q, vals = q[hit], vals[hit]
-    Rp, cp = prev_frame
-    T_cb = np.linalg.inv(camera.T_body_cam)
-    M = T_cb[:3, :3] @ Rp
-    t = T_cb[:3, :3] @ cp + T_cb[:3, 3]
-    cam_in_prev = Rp.T @ (origin - cp)
+    na, nb = a.shape[1], b.shape[1]
+    n = int(cv2.getOptimalDFTSize(na + nb - 1))
+    ma, mb = ma.astype(np.float64), mb.astype(np.float64)
+    a, b = a.astype(np.float64) * ma, b.astype(np.float64) * mb
+    fa0, fa1, fa2 = (np.fft.rfft(x, n, axis=1) for x in (ma, a, a * a))
+    fb0, fb1, fb2 = (np.fft.rfft(x, n, axis=1) for x in (mb, b, b * b))
+    cnt = np.rint(_xcorr(fa0, fb0, n))
+    sa, sb = _xcorr(fa1, fb0, n), _xcorr(fa0, fb1, n)
+    saa, sbb, sab = _xcorr(fa2, fb0, n), _xcorr(fa0, fb2, n), _xcorr(fa1, fb1, n)
+    lags = np.r_[np.arange(0, na), np.arange(-(nb - 1), 0)]
+    idx = np.r_[np.arange(0, na), np.arange(n - (nb - 1), n)]
+    cnt, sa, sb, saa, sbb, sab = (x[idx] for x in (cnt, sa, sb, saa, sbb, sab))
+    order = np.argsort(lags)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        num = sab - sa * sb / cnt
+        den = np.sqrt(np.clip(saa - sa * sa / cnt, 0, None) * np.clip(sbb - sb * sb / cnt, 0, None))
+        ncc = np.where((cnt > 0) & (den > 1e-9 * np.maximum(cnt, 1)), num / den, -1.0)
+    return lags[order], ncc[order], cnt[order]
 
-    prev_f = prev_gray.astype(np.float32)
-    if prev_edges is not None:
-        prev_f = np.where(prev_edges, np.float32(np.nan), prev_f)  # samples there are not used
 
-    def score(alphas: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        pts = np.einsum("kab,nb->kna", _rot_y(-alphas), q[idx])  # the same tread points, earlier
-        visible = facing(pts, cam_in_prev, cfg.min_facing)
-        uv = camera.world2cam(pts @ M.T + t).astype(np.float32)
-        samp = cv2.remap(prev_f, uv[..., 0], uv[..., 1], cv2.INTER_LINEAR, borderValue=np.nan)
-        ok = visible & np.isfinite(uv).all(-1) & np.isfinite(samp)
-        samp = np.where(ok, samp, 0.0)
-        a = np.broadcast_to(vals[idx], samp.shape)
-        cnt = ok.sum(axis=1)
-        ma = np.where(ok, a, 0.0).sum(axis=1) / np.maximum(cnt, 1)
-        mb = np.where(ok, samp, 0.0).sum(axis=1) / np.maximum(cnt, 1)
-        x = np.where(ok, a - ma[:, None], 0.0)
-        y = np.where(ok, samp - mb[:, None], 0.0)
-        den = np.sqrt((x * x).sum(axis=1) * (y * y).sum(axis=1))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ncc = (x * y).sum(axis=1) / den
-        return np.where((cnt >= 20) & (den > 0), ncc, -1.0)
+@dataclass
+class Alignment:
+    """Rotation between two strips by correlation.
 
-    n = len(q)
-    best = centre
-    margin = 1.0
-    # coarse to fine: (half-width of the grid, candidates, pixels used)
-    for half, count, used in ((span, 41, 150), (span / 16, 9, 300), (span / 128, 7, n)):
-        grid = best + np.linspace(-half, half, count)
-        sc = score(grid, np.arange(0, n, max(1, n // used)))
-        k = int(np.argmax(sc))
-        best = grid[k]
-        if half == span:  # how far the best peak stands above any other rotation
-            others = sc[np.abs(grid - best) > cfg.peak_separation]
-            margin = float(sc[k] - others.max()) if len(others) else 1.0
+    Attributes:
+        alpha: Rotation [rad] (NaN if none is trustworthy).
+        ncc: Correlation at alpha.
+        margin: How far the best correlation stands above any other rotation's.
+        overlap: Cells compared at alpha.
+    """
+
+    alpha: float
+    ncc: float
+    margin: float
+    overlap: int
+
+
+def align_strips(
+    prev: TreadStrip, curr: TreadStrip, cfg: TreadConfig, centre: float = 0.0, span: float = 0.8
+) -> Alignment:
+    """Rotation [rad] carrying the tread of ``prev`` to that of ``curr``, within ``centre`` +- ``span``.
+
+    Shifts where the strips overlap on fewer than ``min_cells`` cells, or on less than
+    ``min_overlap`` of the smaller strip, are not candidates: a small overlap can correlate well
+    by chance. The integer shift of best correlation is refined by a parabola; the result is
+    NaN when another rotation, ``peak_separation`` away, correlates within ``min_peak_margin``.
+    """
+    if abs(prev.dphi - curr.dphi) > 1e-12 * max(prev.dphi, 1e-12):
+        raise ValueError(f"strips with different column steps ({prev.dphi} and {curr.dphi} rad)")
+    lags, ncc, cnt = masked_ncc(curr.texture, curr.valid, prev.texture, prev.valid)
+    shift = lags + (curr.k0 - prev.k0)  # in columns of the common grid: alpha = shift * dphi
+    alpha = shift * curr.dphi
+    need = max(cfg.min_cells, cfg.min_overlap * min(curr.valid.sum(), prev.valid.sum()))
+    cand = (np.abs(alpha - centre) <= span) & (cnt >= need)
+    if not cand.any():
+        return Alignment(math.nan, math.nan, 0.0, 0)
+    score = np.where(cand, ncc, -np.inf)
+    k = int(np.argmax(score))
+    others = cand & (np.abs(alpha - alpha[k]) > cfg.peak_separation)
+    margin = float(ncc[k] - ncc[others].max()) if others.any() else 1.0
+    best = float(alpha[k])
+    if 0 < k < len(ncc) - 1 and cand[k - 1] and cand[k + 1]:
+        y0, y1, y2 = ncc[k - 1], ncc[k], ncc[k + 1]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            best += float(np.clip(0.5 * (y0 - y2) / den, -1, 1)) * curr.dphi
     if margin < cfg.min_peak_margin:  # two rotations fit about as well: do not guess
-        return math.nan, float(sc[k])
-    k = int(np.clip(k, 1, count - 2))
-    y0_, y1_, y2_ = sc[k - 1], sc[k], sc[k + 1]
-    den = y0_ - 2 * y1_ + y2_
-    shift = 0.5 * (y0_ - y2_) / den if den < 0 else 0.0
-    h = grid[1] - grid[0]
-    return float(grid[k] + np.clip(shift, -1, 1) * h), float(y1_)
+        return Alignment(math.nan, float(ncc[k]), margin, int(cnt[k]))
+    return Alignment(best, float(ncc[k]), margin, int(cnt[k]))
 
 
 @dataclass
@@ -337,10 +412,12 @@ class RotationMeasurement:
 
     Attributes:
         alpha: Rotation about the wheel axis [rad] (NaN if not measured).
-        n_features: Features selected in the window.
+        n_features: Features selected in the earlier strip.
         n_tracked: Features kept by the forward-backward check and on the tread in both frames.
-        n_inliers: Features in the largest consistent set.
+        n_inliers: Features in the largest consistent set (for :func:`measure_rotation`: that
+            agree with the alignment).
         valid: Whether alpha can be trusted.
+        ncc: Correlation of the alignment (NaN if none).
     """
 
     alpha: float
@@ -348,100 +425,131 @@ class RotationMeasurement:
     n_tracked: int
     n_inliers: int
     valid: bool
+    ncc: float = math.nan
 
 
-def track_tread_features(
-    prev_gray: np.ndarray,
-    curr_gray: np.ndarray,
-    model: RoverKinematicModel,
-    camera: OmniCamera,
-    prev_frame: tuple[np.ndarray, np.ndarray],
-    curr_frame: tuple[np.ndarray, np.ndarray],
-    cfg: TreadConfig,
-    forbidden: np.ndarray | None = None,
-    alpha_prior: float = 0.0,
-    wheel: str | None = None,
-    window: TreadWindow | None = None,
+def _to_u8(texture: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    scale = 40.0 / max(float(texture[valid].std()) if valid.any() else 1.0, 1e-3)
+    return np.clip(128.0 + scale * texture, 0, 255).astype(np.uint8)
+
+
+def track_strip_features(
+    prev: TreadStrip, curr: TreadStrip, radius: float, cfg: TreadConfig, alpha_prior: float = 0.0
 ) -> RotationMeasurement:
-    """The paper's tread tracking: per-feature arc angles between two frames, 1-D RANSAC, mean.
+    """The paper's tread features between two strips: Shi-Tomasi, LK both ways, eq. 6, 1-D RANSAC.
 
-    Args:
-        prev_gray: The earlier grey fisheye frame.
-        curr_gray: The later one.
-        model: Rover geometry.
-        camera: The fisheye model.
-        prev_frame: (R, centre) of the wheel's knuckle frame at the earlier frame (body frame).
-        curr_frame: The same at the later frame.
-        cfg: Parameters.
-        forbidden: Optional (H, W) bool of pixels where features may not be chosen (the odometry
-            paper's shadow-edge mask, so that moving wheel shadows are not tracked).
-        alpha_prior: Expected rotation [rad] (e.g. the last one): each feature's search starts at
-            its tread point turned by this much, so that fast wheels stay trackable.
-        wheel: The wheel's name, to leave its steering arm and tie-rod marker out of the window.
-        window: The tread window of the earlier frame, if already computed.
+    Features are chosen on the earlier strip's valid cells that, turned by ``alpha_prior``
+    [rad], land on the later strip's, and searched there from that position; tracks whose
+    backward track misses the start by more than ``fb_threshold`` cells, or that leave the valid
+    cells, are dropped. Each track's two cells are cylinder points; their chord gives the arc
+    angle of eq. (6). The rotation is the mean of the largest consistent set.
     """
     none = RotationMeasurement(math.nan, 0, 0, 0, False)
-    win = window if window is not None else tread_window(model, camera, *prev_frame, cfg, wheel)
-    if win is None or not win.mask.any():
+    # features only where, turned by the prior, they land on the later strip's valid cells
+    cols = np.rint(prev.k0 + np.arange(prev.valid.shape[1]) + alpha_prior / prev.dphi).astype(int) - curr.k0
+    inside = (cols >= 0) & (cols < curr.valid.shape[1])
+    lands = np.zeros_like(prev.valid)
+    lands[:, inside] = curr.valid[:, cols[inside]]
+    # and with their whole Lucas-Kanade window on valid cells
+    win = np.ones((3, 3), np.uint8)
+    mask = cv2.erode((prev.valid & lands).astype(np.uint8), win)
+    if not mask.any():
         return none
-    x0, y0, x1, y1 = win.box
-    mask = win.mask.copy()
-    if forbidden is not None:
-        mask &= ~forbidden[y0:y1, x0:x1]
-    w = camera.image_size[0]
+    # both strips on one column grid (Lucas-Kanade takes images of one size)
+    k0 = min(prev.k0, curr.k0)
+    n = max(prev.k0 + prev.texture.shape[1], curr.k0 + curr.texture.shape[1]) - k0
+
+    def canvas(strip: TreadStrip) -> np.ndarray:
+        out = np.full((strip.texture.shape[0], n), 128, np.uint8)
+        j = strip.k0 - k0
+        out[:, j : j + strip.texture.shape[1]] = _to_u8(strip.texture, strip.valid)
+        return out
+
+    a8, b8 = canvas(prev), canvas(curr)
+    off_a, off_b = prev.k0 - k0, curr.k0 - k0
     pts = cv2.goodFeaturesToTrack(
-        prev_gray[y0:y1, x0:x1],
-        maxCorners=cfg.max_features,
-        qualityLevel=0.01,
-        minDistance=max(2.0, cfg.min_distance_frac * w),
-        mask=mask.astype(np.uint8),
-        blockSize=5,
+        a8[:, off_a : off_a + mask.shape[1]], cfg.max_features, 0.01, cfg.min_distance, mask=mask, blockSize=5
     )
     if pts is None:
         return none
-    p0 = (pts.reshape(-1, 2) + (x0, y0)).astype(np.float32)
-    origin = camera.T_body_cam[:3, 3]
-    Rbc = camera.T_body_cam[:3, :3]
-    half = model.wheel_width / 2
-    q0, h0 = ray_cylinder(
-        origin, camera.cam2world(p0.astype(np.float64)) @ Rbc.T, *prev_frame, model.wheel_radius, half
+    p0 = pts.reshape(-1, 2).astype(np.float32) + np.float32((off_a, 0.0))
+    guess = p0 + np.float32((alpha_prior / prev.dphi, 0.0))
+    lk = dict(
+        winSize=(cfg.lk_window, cfg.lk_window),
+        maxLevel=0,  # the search starts at the aligned rotation, within a cell or so
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
     )
-    # start of each search: the tread point turned by the prior, seen in the current frame
-    ca, sa = math.cos(alpha_prior), math.sin(alpha_prior)
-    turned = q0 @ np.array([[ca, 0.0, sa], [0.0, 1.0, 0.0], [-sa, 0.0, ca]]).T
-    R1, c1 = curr_frame
-    T_cb = np.linalg.inv(camera.T_body_cam)
-    guess = camera.world2cam((turned @ R1.T + c1) @ T_cb[:3, :3].T + T_cb[:3, 3])
-    guess = np.where(np.isfinite(guess), guess, p0).astype(np.float32)
-    win_px = max(7, int(round(cfg.lk_window_frac * w)) | 1)
-    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
-    lk = dict(winSize=(win_px, win_px), maxLevel=2, criteria=crit)
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(
-        prev_gray,
-        curr_gray,
+        a8,
+        b8,
         p0.reshape(-1, 1, 2),
         guess.reshape(-1, 1, 2).copy(),
         flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
         **lk,
     )
-    pb, st2, _ = cv2.calcOpticalFlowPyrLK(curr_gray, prev_gray, p1, None, **lk)
-    fb = np.linalg.norm((pb - p0.reshape(-1, 1, 2)).reshape(-1, 2), axis=1)
-    keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_threshold) & h0
-    n_feat = len(p0)
-    if keep.sum() < cfg.min_inliers:
-        return RotationMeasurement(math.nan, n_feat, int(keep.sum()), 0, False)
-    d1 = camera.cam2world(p1.reshape(-1, 2)[keep].astype(np.float64)) @ Rbc.T
-    q1, h1 = ray_cylinder(origin, np.nan_to_num(d1), *curr_frame, model.wheel_radius, half)
-    q0 = q0[keep]
-    both = h1
-    if both.sum() < cfg.min_inliers:
-        return RotationMeasurement(math.nan, n_feat, int(both.sum()), 0, False)
-    alpha = arc_angle(q0[both], q1[both], model.wheel_radius)
+    pb, st2, _ = cv2.calcOpticalFlowPyrLK(
+        b8, a8, p1, p0.reshape(-1, 1, 2).copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk
+    )
+    p1, pb = p1.reshape(-1, 2), pb.reshape(-1, 2)
+    fb = np.linalg.norm(pb - p0, axis=1)
+    p0 -= np.float32((off_a, 0.0))  # back to each strip's own columns
+    p1 -= np.float32((off_b, 0.0))
+    j, i = np.rint(np.nan_to_num(p1, nan=-1.0)).astype(int).T
+    inside = (j >= 0) & (j < curr.valid.shape[1]) & (i >= 0) & (i < curr.valid.shape[0])
+    on = np.zeros(len(p1), dtype=bool)
+    on[inside] = curr.valid[i[inside], j[inside]]
+    keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_threshold) & on
+    n_feat, n_kept = len(p0), int(keep.sum())
+    if n_kept < cfg.min_inliers:
+        return RotationMeasurement(math.nan, n_feat, n_kept, 0, False)
+
+    def cylinder(strip: TreadStrip, p: np.ndarray) -> np.ndarray:
+        phi = (strip.k0 + p[:, 0].astype(np.float64)) * strip.dphi
+        y = np.interp(p[:, 1], np.arange(len(strip.y)), strip.y)
+        return tread_point(radius, phi, y)
+
+    alpha = arc_angle(cylinder(prev, p0[keep]), cylinder(curr, p1[keep]), radius)
     inl = ransac_1d(alpha, cfg.ransac_tolerance)
     n_in = int(inl.sum())
     valid = n_in >= cfg.min_inliers
+    return RotationMeasurement(float(alpha[inl].mean()) if valid else math.nan, n_feat, n_kept, n_in, valid)
+
+
+def measure_strips(
+    prev: TreadStrip | None,
+    curr: TreadStrip | None,
+    radius: float,
+    cfg: TreadConfig,
+    alpha_prior: float = 0.0,
+    span: float = 0.8,
+) -> RotationMeasurement:
+    """Rotation of one wheel between two strips [rad], with its validity.
+
+    The rotation is the strips' alignment (:func:`align_strips`, searched around ``alpha_prior``
+    +- ``span``): on rendered treads the per-feature arc angles of the paper scatter by a few
+    per cent, while the alignment is within 0.5 %. It is valid when no other rotation fits nearly
+    as well and either the paper's features (:func:`track_strip_features`, started at the
+    aligned rotation) confirm it with a correlation of at least ``min_ncc``, or too few features
+    are tracked to tell and the correlation is at least ``strong_ncc``. ``n_inliers`` counts the
+    tracks that agree with it.
+    """
+    if prev is None or curr is None:
+        return RotationMeasurement(math.nan, 0, 0, 0, False)
+    al = align_strips(prev, curr, cfg, alpha_prior, span)
+    if not (math.isfinite(al.alpha) and al.ncc >= cfg.min_ncc):
+        return RotationMeasurement(math.nan, 0, 0, 0, False, al.ncc)
+    feats = track_strip_features(prev, curr, radius, cfg, al.alpha)
+    agree = feats.valid and abs(feats.alpha - al.alpha) <= cfg.ransac_tolerance
+    # two readings of the tread: a fair correlation needs the tracks to confirm it; a strong
+    # one stands alone unless the tracks agree on another rotation
+    valid = agree or (al.ncc >= cfg.strong_ncc and not feats.valid)
     return RotationMeasurement(
-        float(alpha[inl].mean()) if valid else math.nan, n_feat, int(both.sum()), n_in, valid
+        al.alpha if valid else math.nan,
+        feats.n_features,
+        feats.n_tracked,
+        feats.n_inliers if agree else 0,
+        valid,
+        al.ncc,
     )
 
 
@@ -453,41 +561,31 @@ def measure_rotation(
     prev_frame: tuple[np.ndarray, np.ndarray],
     curr_frame: tuple[np.ndarray, np.ndarray],
     cfg: TreadConfig,
-    forbidden: np.ndarray | None = None,
     alpha_prior: float = 0.0,
     span: float = 0.8,
-    shading: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
     wheel: str | None = None,
-    windows: tuple[TreadWindow | None, TreadWindow | None] | None = None,
+    shadow_robust: bool = True,
 ) -> RotationMeasurement:
-    """Rotation of one wheel between two frames [rad], with its validity.
+    """Rotation of one wheel between two grey fisheye frames [rad], with its validity.
 
-    The rotation is the direct alignment of the tread (:func:`align_rotation`, searched around
-    ``alpha_prior``): on rendered treads the per-feature arc angles of the paper scatter by a few
-    per cent and their mean is biased by as much, while the alignment is within 0.5 %. The
-    paper's features (:func:`track_tread_features`, started at the aligned rotation) then count
-    how many tracks agree with it; the rotation is valid when the alignment's correlation is at
-    least ``min_ncc``.
+    Both treads are unwrapped (:func:`unwrap_tread`), then measured by :func:`measure_strips`.
 
-    Args: as :func:`track_tread_features`; ``span``: the half-width of the search around
-    ``alpha_prior`` [rad] (narrow once a wheel is being tracked, wide to acquire it); ``shading``:
-    the two frames' :func:`shading_free` images, if already computed; ``wheel``: its name, so
-    that its steering arm and tie-rod marker are left out of the window; ``windows``: the
-    (earlier, later) frames' tread windows, if already computed.
+    Args:
+        prev_gray: (H, W) uint8 grey earlier frame.
+        curr_gray: The later one.
+        model: Rover geometry.
+        camera: The fisheye model.
+        prev_frame: (R, centre) of the wheel's knuckle frame at the earlier frame (body frame).
+        curr_frame: The same at the later frame.
+        cfg: Parameters.
+        alpha_prior: Expected rotation [rad] (e.g. the last one).
+        span: Half-width of the search around it [rad].
+        wheel: The wheel's name, to leave out its steering arm and tie-rod marker.
+        shadow_robust: See :func:`unwrap_tread`.
     """
-    if shading is None:  # plain grey levels, no edge bands
-        shading = ((prev_gray, None), (curr_gray, None))
-    (hp_prev, band_prev), (hp_curr, band_curr) = shading
-    prev_win, curr_win = windows if windows is not None else (None, None)
-    frames = (prev_frame, curr_frame)
-    edges = (band_prev, band_curr)
-    alpha, ncc = align_rotation(
-        hp_prev, hp_curr, model, camera, *frames, cfg, alpha_prior, span, *edges, wheel, curr_win
-    )
-    if not (ncc >= cfg.min_ncc and math.isfinite(alpha)):
-        return RotationMeasurement(math.nan, 0, 0, 0, False)
-    feats = track_tread_features(
-        prev_gray, curr_gray, model, camera, *frames, cfg, forbidden, alpha, wheel, prev_win
-    )
-    agree = feats.n_inliers if feats.valid and abs(feats.alpha - alpha) <= cfg.ransac_tolerance else 0
-    return RotationMeasurement(alpha, feats.n_features, feats.n_tracked, agree, True)
+    dphi = strip_resolution(model, camera, *curr_frame, cfg.column_px)
+    strips = [
+        unwrap_tread(g, model, camera, *f, dphi, cfg, wheel, shadow_robust)
+        for g, f in ((prev_gray, prev_frame), (curr_gray, curr_frame))
+    ]
+    return measure_strips(*strips, model.wheel_radius, cfg, alpha_prior, span)
