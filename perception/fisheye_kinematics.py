@@ -5,12 +5,13 @@ Per frame: the markers give axle roll, axle-body distance and steering
 since the last frame measured (:mod:`perception.wheel_rotation`); the white correction marker on
 each tread removes the accumulated rotation drift once per sighting (eq. 7). Degrees of freedom
 that cannot be measured in a frame keep their previous value (rotations continue at their last
-rate) and are flagged.
+rate, or at the other wheels' until they have one) and are flagged.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
@@ -48,11 +49,14 @@ class KinematicsConfig:
     Attributes:
         markers: Magenta marker segmentation.
         tread: Tread tracking.
-        white_min_value: Correction marker: smallest HSV value (0-255) ...
-        white_max_saturation: ... and largest saturation of its pixels.
-        white_min_pixels: Fewest white pixels on the tread for a sighting.
-        white_contrast: Marker pixels are at least this many times brighter than the median tread
-            pixel of the window.
+        white_min_value: Correction marker: smallest HSV value (0-255) of its cells ...
+        white_max_saturation: ... largest saturation ...
+        white_min_pixels: ... fewest cells for a sighting ...
+        white_contrast: ... and how many times brighter than the tread around them (the median
+            of the nearby columns' cells) they are: paint and tread under the same light, lit
+            or in shadow.
+        white_max_cv: The marker's cells (inside its edge) vary by at most this share of their
+            mean: paint is even, lit tread is speckled.
         white_min_area: The marker's blob covers at least this share of the area the whole
             marker would cover facing the camera.
         acquire_span: Rotation search around the last rotation when a wheel is not being
@@ -62,19 +66,21 @@ class KinematicsConfig:
         roi_margin_frac: While every marker is found, each is looked for only within the
             gate plus this share of the image width around its predicted pixel.
         max_correction: Largest drift a correction-marker sighting may remove [rad]; a larger
-            one means the white blob was not the marker.
+            one means the white blob was not the marker. The first two sightings must agree
+            within it to fix the marker's offset.
     """
 
     markers: MarkerConfig = field(default_factory=MarkerConfig)
     tread: TreadConfig = field(default_factory=TreadConfig)
-    white_min_value: int = 170
+    white_min_value: int = 25
     white_max_saturation: int = 40
     white_min_pixels: int = 40
-    white_contrast: float = 1.8
+    white_contrast: float = 1.4
+    white_max_cv: float = 0.1
     white_min_area: float = 0.25
     acquire_span: float = 0.8
     shadow_robust: bool = True
-    max_correction: float = 0.4
+    max_correction: float = 0.2
     track_span: float = 0.25
     roi_margin_frac: float = 0.03
 
@@ -155,10 +161,12 @@ class KinematicStateEstimator:
             valid=dict.fromkeys(DOF_NAMES, False),
         )
         self._alpha = np.zeros(4)
-        self._locked = np.zeros(4, dtype=bool)
+        self._locked = np.zeros(4, dtype=bool)  # measured in the last frame
+        self._measured = np.zeros(4, dtype=bool)  # measured since the reset
         self._strips: list = [None] * 4  # the last frame's tread strips
         self._markers_tracked = False  # all markers found in the last frame
-        self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase at the first sighting
+        self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase, once confirmed
+        self._pending = np.full(4, math.nan)  # the last unconfirmed sighting's offset
 
     @property
     def state(self) -> KinematicState:
@@ -245,14 +253,18 @@ class KinematicStateEstimator:
             for k in range(4):
                 if not rots[k].valid and not self._locked[k] and good:
                     rots[k] = measure(k, float(np.median(good)), cfg.acquire_span)
+            good = [r.alpha for r in rots if r.valid]
             for k, wheel in enumerate(WHEELS):
                 rot = rots[k]
                 self._locked[k] = rot.valid
                 if rot.valid:
                     self._alpha[k] = rot.alpha
+                    self._measured[k] = True
                     theta[k] += rot.alpha
                     theta_dot[k] = rot.alpha / dt
                 else:
+                    if not self._measured[k] and good:  # no rate of its own yet: the others'
+                        theta_dot[k] = float(np.median(good)) / dt
                     theta[k] += theta_dot[k] * dt
                 valid[f"theta_{wheel}"] = rot.valid
         else:
@@ -262,7 +274,12 @@ class KinematicStateEstimator:
             if phase is None:
                 continue
             if not math.isfinite(self._offset[k]):
-                self._offset[k] = theta[k] - phase  # the first sighting fixes c0 of eq. 7
+                # c0 of eq. 7: fixed once two sightings agree on it (one may be a false one)
+                offset = theta[k] - phase
+                gap = math.remainder(offset - self._pending[k], 2 * math.pi)
+                if abs(gap) <= cfg.max_correction:
+                    self._offset[k] = offset
+                self._pending[k] = offset
                 continue
             target = phase + self._offset[k]
             snapped = target + 2 * math.pi * round((theta[k] - target) / (2 * math.pi))
@@ -305,24 +322,42 @@ class KinematicStateEstimator:
         v, sat = hsv[..., 2].astype(np.float32), hsv[..., 1]
         # the marker is white paint on a grey tread: far brighter than the tread around it under
         # the same light, whatever that light is
-        bright = v >= max(cfg.white_min_value, cfg.white_contrast * float(np.median(v[vis])))
+        # the tread's level around each column: the median over the cells of the columns within
+        # about two marker widths (lit and shadowed parts of the tread each keep their own)
+        arc = self.model.correction_marker_arc
+        col_med = _nanmedian(np.where(vis, v, np.nan), axis=0)
+        half = max(1, int(round(2 * arc / strip.dphi)))
+        padded = np.pad(col_med, half, constant_values=np.nan)
+        level = _nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1), axis=1)
+        bright = (v >= cfg.white_min_value) & (v >= cfg.white_contrast * np.nan_to_num(level, nan=255.0))
         white = (vis & bright & (sat <= cfg.white_max_saturation)).astype(np.uint8)
         n, labels, stats, _ = cv2.connectedComponentsWithStats(white, connectivity=8)
         if n <= 1:
             return None
         big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
         # the painted marker is one patch of its known arc across the tread; speckle is small spots
-        arc = self.model.correction_marker_arc
         expected = arc / strip.dphi * vis.shape[0]
         if stats[big, cv2.CC_STAT_AREA] < max(cfg.white_min_pixels, cfg.white_min_area * expected):
             return None
-        cols = np.nonzero(labels == big)[1]
+        blob = labels == big
+        inner = cv2.erode(blob.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        vals = v[inner] if inner.sum() >= 10 else v[blob]
+        if vals.std() > cfg.white_max_cv * vals.mean():  # paint is even; lit tread is speckled
+            return None
+        cols = np.nonzero(blob)[1]
         phi = (strip.k0 + cols) * strip.dphi
         mean = float(phi.mean())
         # the whole marker in view: its cells span about its arc, centred on the mean
         if not (0.6 * arc <= 2 * np.percentile(np.abs(phi - mean), 95) <= 1.3 * arc):
             return None
         return mean
+
+
+def _nanmedian(a: np.ndarray, axis: int) -> np.ndarray:
+    """np.nanmedian without the warning for all-NaN slices (which give NaN)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(a, axis=axis)
 
 
 __all__ = ["DOF_NAMES", "KinematicState", "KinematicStateEstimator", "KinematicsConfig", "MARKERS"]

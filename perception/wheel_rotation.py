@@ -49,11 +49,13 @@ class TreadConfig:
         edge_factor: Shadow-edge band: gradient of the coarse image above this many times its
             median over the strip ...
         min_step: ... and above this [grey levels per m].
+        min_level: Band-pass: the texture is divided by the local grey level, at least this.
         min_cells: Fewest overlapping valid cells for a shift to count.
         min_overlap: Fewest overlapping valid cells, as a share of the smaller strip's.
         min_ncc: Smallest correlation of the alignment for a valid rotation, when the tracked
             features confirm it ...
         strong_ncc: ... and when too few features are tracked to tell.
+        min_override: Consistent features that outvote the alignment when they disagree with it.
         peak_separation: Rotations this far from the best one count as other candidates [rad].
         min_peak_margin: The best correlation must beat every other candidate's by this much.
         max_features: Shi-Tomasi features per strip.
@@ -72,10 +74,12 @@ class TreadConfig:
     coarse: float = 0.011
     edge_factor: float = 4.0
     min_step: float = 1000.0
+    min_level: float = 8.0
     min_cells: int = 150
     min_overlap: float = 0.25
     min_ncc: float = 0.6
-    strong_ncc: float = 0.85
+    strong_ncc: float = 0.75
+    min_override: int = 10
     peak_separation: float = 0.1
     min_peak_margin: float = 0.08
     max_features: int = 25
@@ -219,8 +223,9 @@ def _band_pass(
 
     A difference of Gaussians on the tread surface (sigmas ``fine`` and ``coarse`` metres,
     over the visible cells only, so that the background beyond the silhouette does not bleed
-    in) keeps the speckle: the coarse blur removes smooth shading and the levels of lit and
-    shadowed tread, the fine one the pixel-scale flicker of a renderer's (or sensor's) sampling.
+    in), divided by the coarse level, keeps the speckle: the coarse blur removes smooth shading
+    and the levels of lit and shadowed tread (light multiplies the albedo, so the ratio is the
+    same in both), the fine one the pixel-scale flicker of a renderer's (or sensor's) sampling.
     Cells where the coarse image's gradient exceeds ``edge_factor`` times its median and
     ``min_step`` are steps such as shadow edges, which do not turn with the wheel.
 
@@ -230,7 +235,9 @@ def _band_pass(
     fine = (cfg.fine / cell[0], cfg.fine / cell[1])
     coarse = (cfg.coarse / cell[0], cfg.coarse / cell[1])
     low = _masked_blur(raw, visible, coarse)
-    tex = _masked_blur(raw, visible, fine) - low
+    # shading multiplies the tread's albedo: the texture relative to the local level is the same
+    # lit or in shadow
+    tex = (_masked_blur(raw, visible, fine) - low) / np.maximum(low, cfg.min_level)
     gx = cv2.Sobel(low, cv2.CV_32F, 1, 0, ksize=3) / (8 * cell[0])  # [grey levels per m]
     gy = cv2.Sobel(low, cv2.CV_32F, 0, 1, ksize=3) / (8 * cell[1])
     mag = cv2.magnitude(gx, gy)
@@ -281,16 +288,24 @@ def unwrap_tread(
     view = cam_k - q
     normal = q * np.array([1.0, 0.0, 0.0]) + q * np.array([0.0, 0.0, 1.0])
     cos = np.einsum("...i,...i->...", normal, view) / (r * np.linalg.norm(view, axis=-1))
+    facing = cos > cfg.min_facing
+    cols = np.flatnonzero(facing.any(axis=0))
+    if len(cols) == 0:
+        return None
+    sl = slice(cols[0], cols[-1] + 1)  # only the columns that face the camera
+    q, facing = q[:, sl], facing[:, sl]
+    k0 += int(cols[0])
     T_cb = np.linalg.inv(camera.T_body_cam)
     body = q @ R.T + c
-    px = camera.world2cam(body @ T_cb[:3, :3].T + T_cb[:3, 3])
+    px = np.full(q.shape[:2] + (2,), np.nan)
+    # the inverse polynomial alone is within ~1e-5 px
+    px[facing] = camera.world2cam(body[facing] @ T_cb[:3, :3].T + T_cb[:3, 3], refine=False)
     w, h = camera.image_size
-    visible = (cos > cfg.min_facing) & np.isfinite(px).all(-1)
-    visible &= (px[..., 0] >= 0) & (px[..., 0] <= w - 1) & (px[..., 1] >= 0) & (px[..., 1] <= h - 1)
+    visible = facing & (px[..., 0] >= 0) & (px[..., 0] <= w - 1) & (px[..., 1] >= 0) & (px[..., 1] <= h - 1)
     if wheel is not None:
         occ, radii = model.occluders(wheel, R, c)
         dist = np.linalg.norm(occ - origin, axis=1)
-        opx = camera.world2cam((occ - origin) @ camera.T_body_cam[:3, :3])
+        opx = camera.world2cam((occ - origin) @ camera.T_body_cam[:3, :3], refine=False)
         scale = w / max(camera.max_fov, 1e-6)  # about px per radian
         tread_dist = np.linalg.norm(body - origin, axis=-1)
         for (u, v), rad, d in zip(opx, radii, dist, strict=True):
@@ -414,8 +429,7 @@ class RotationMeasurement:
         alpha: Rotation about the wheel axis [rad] (NaN if not measured).
         n_features: Features selected in the earlier strip.
         n_tracked: Features kept by the forward-backward check and on the tread in both frames.
-        n_inliers: Features in the largest consistent set (for :func:`measure_rotation`: that
-            agree with the alignment).
+        n_inliers: Features in the largest consistent set.
         valid: Whether alpha can be trusted.
         ncc: Correlation of the alignment (NaN if none).
     """
@@ -530,8 +544,8 @@ def measure_strips(
     per cent, while the alignment is within 0.5 %. It is valid when no other rotation fits nearly
     as well and either the paper's features (:func:`track_strip_features`, started at the
     aligned rotation) confirm it with a correlation of at least ``min_ncc``, or too few features
-    are tracked to tell and the correlation is at least ``strong_ncc``. ``n_inliers`` counts the
-    tracks that agree with it.
+    are tracked to tell and the correlation is at least ``strong_ncc``. When at least
+    ``min_override`` consistent features settle on another rotation, theirs is taken.
     """
     if prev is None or curr is None:
         return RotationMeasurement(math.nan, 0, 0, 0, False)
@@ -540,17 +554,16 @@ def measure_strips(
         return RotationMeasurement(math.nan, 0, 0, 0, False, al.ncc)
     feats = track_strip_features(prev, curr, radius, cfg, al.alpha)
     agree = feats.valid and abs(feats.alpha - al.alpha) <= cfg.ransac_tolerance
-    # two readings of the tread: a fair correlation needs the tracks to confirm it; a strong
-    # one stands alone unless the tracks agree on another rotation
-    valid = agree or (al.ncc >= cfg.strong_ncc and not feats.valid)
-    return RotationMeasurement(
-        al.alpha if valid else math.nan,
-        feats.n_features,
-        feats.n_tracked,
-        feats.n_inliers if agree else 0,
-        valid,
-        al.ncc,
-    )
+    if agree or (al.ncc >= cfg.strong_ncc and not feats.valid):
+        # two readings of the tread that agree, or a strong correlation and too few tracks to tell
+        return RotationMeasurement(al.alpha, feats.n_features, feats.n_tracked, feats.n_inliers, True, al.ncc)
+    if feats.valid and feats.n_inliers >= cfg.min_override:
+        # many tracks, started at the aligned rotation, settle on another: a shadow or a change of
+        # light has pulled the correlation; the tracks follow the tread itself
+        return RotationMeasurement(
+            feats.alpha, feats.n_features, feats.n_tracked, feats.n_inliers, True, al.ncc
+        )
+    return RotationMeasurement(math.nan, feats.n_features, feats.n_tracked, 0, False, al.ncc)
 
 
 def measure_rotation(
