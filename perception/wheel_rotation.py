@@ -46,9 +46,9 @@ class TreadConfig:
         fine: Band-pass: small Gaussian sigma on the tread [m] (removes pixel-scale flicker).
         coarse: Band-pass: large Gaussian sigma on the tread [m] (removes shading and light
             levels).
-        edge_factor: Shadow-edge band: gradient of the coarse image above this many times its
-            median over the strip ...
-        min_step: ... and above this [grey levels per m].
+        edge_factor: Shadow-edge band: gradient of the log of the coarse image above this many
+            times its median over the strip ...
+        min_step: ... and above this [1/m].
         min_level: Band-pass: the texture is divided by the local grey level, at least this.
         min_cells: Fewest overlapping valid cells for a shift to count.
         min_overlap: Fewest overlapping valid cells, as a share of the smaller strip's.
@@ -73,7 +73,7 @@ class TreadConfig:
     fine: float = 0.0025
     coarse: float = 0.011
     edge_factor: float = 4.0
-    min_step: float = 1000.0
+    min_step: float = 15.0
     min_level: float = 8.0
     min_cells: int = 150
     min_overlap: float = 0.25
@@ -238,12 +238,16 @@ def _band_pass(
     # shading multiplies the tread's albedo: the texture relative to the local level is the same
     # lit or in shadow
     tex = (_masked_blur(raw, visible, fine) - low) / np.maximum(low, cfg.min_level)
-    gx = cv2.Sobel(low, cv2.CV_32F, 1, 0, ksize=3) / (8 * cell[0])  # [grey levels per m]
-    gy = cv2.Sobel(low, cv2.CV_32F, 0, 1, ksize=3) / (8 * cell[1])
+    # shadow edges: steps of the log level (a shadow divides the light by the same factor on
+    # dark and bright tread), in 1/m
+    log_low = np.log(np.maximum(low, cfg.min_level))
+    gx = cv2.Sobel(log_low, cv2.CV_32F, 1, 0, ksize=3) / (8 * cell[0])
+    gy = cv2.Sobel(log_low, cv2.CV_32F, 0, 1, ksize=3) / (8 * cell[1])
     mag = cv2.magnitude(gx, gy)
     inner = cv2.erode(visible.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     thr = max(cfg.edge_factor * float(np.median(mag[inner])) if inner.any() else 0.0, cfg.min_step)
-    grow = (max(3, 2 * round(cfg.fine / cell[0]) + 1), max(3, 2 * round(cfg.fine / cell[1]) + 1))
+    # the band-passed image rings for about a coarse sigma on each side of a step
+    grow = (2 * round(cfg.coarse / cell[0]) + 1, 2 * round(cfg.coarse / cell[1]) + 1)
     band = cv2.dilate(((mag > thr) & inner).astype(np.uint8), np.ones(grow[::-1], np.uint8)) > 0
     return tex, band
 
@@ -342,13 +346,14 @@ def _xcorr(fa: np.ndarray, fb: np.ndarray, n: int) -> np.ndarray:
 def masked_ncc(
     a: np.ndarray, ma: np.ndarray, b: np.ndarray, mb: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Normalised cross-correlation of ``a`` against ``b`` shifted along columns, over masked cells.
+    """Normalised cross-correlation of ``a`` against ``b`` shifted along columns, over weighted cells.
 
-    For every lag s, the correlation of a[i, j] with b[i, j - s] over the cells where both masks
-    hold (Padfield's masked NCC, summed over rows; all lags by FFT).
+    For every lag s, the correlation of a[i, j] with b[i, j - s], each pair weighted by
+    ma[i, j] mb[i, j - s] (bool masks or weights in [0, 1]; Padfield's masked NCC, summed over
+    rows; all lags by FFT).
 
     Returns:
-        (lags, ncc, overlapping cells) for lags -(cols_b - 1) .. cols_a - 1.
+        (lags, ncc, overlap: the sum of the pair weights) for lags -(cols_b - 1) .. cols_a - 1.
     """
     na, nb = a.shape[1], b.shape[1]
     n = int(cv2.getOptimalDFTSize(na + nb - 1))
@@ -356,7 +361,7 @@ def masked_ncc(
     a, b = a.astype(np.float64) * ma, b.astype(np.float64) * mb
     fa0, fa1, fa2 = (np.fft.rfft(x, n, axis=1) for x in (ma, a, a * a))
     fb0, fb1, fb2 = (np.fft.rfft(x, n, axis=1) for x in (mb, b, b * b))
-    cnt = np.rint(_xcorr(fa0, fb0, n))
+    cnt = _xcorr(fa0, fb0, n)
     sa, sb = _xcorr(fa1, fb0, n), _xcorr(fa0, fb1, n)
     saa, sbb, sab = _xcorr(fa2, fb0, n), _xcorr(fa0, fb2, n), _xcorr(fa1, fb1, n)
     lags = np.r_[np.arange(0, na), np.arange(-(nb - 1), 0)]
@@ -366,7 +371,7 @@ def masked_ncc(
     with np.errstate(invalid="ignore", divide="ignore"):
         num = sab - sa * sb / cnt
         den = np.sqrt(np.clip(saa - sa * sa / cnt, 0, None) * np.clip(sbb - sb * sb / cnt, 0, None))
-        ncc = np.where((cnt > 0) & (den > 1e-9 * np.maximum(cnt, 1)), num / den, -1.0)
+        ncc = np.where((cnt > 0.5) & (den > 1e-9 * np.maximum(cnt, 1)), num / den, -1.0)
     return lags[order], ncc[order], cnt[order]
 
 
@@ -417,8 +422,8 @@ def align_strips(
         if den < 0:
             best += float(np.clip(0.5 * (y0 - y2) / den, -1, 1)) * curr.dphi
     if margin < cfg.min_peak_margin:  # two rotations fit about as well: do not guess
-        return Alignment(math.nan, float(ncc[k]), margin, int(cnt[k]))
-    return Alignment(best, float(ncc[k]), margin, int(cnt[k]))
+        return Alignment(math.nan, float(ncc[k]), margin, int(round(cnt[k])))
+    return Alignment(best, float(ncc[k]), margin, int(round(cnt[k])))
 
 
 @dataclass
