@@ -7,7 +7,18 @@ import numpy as np
 import pytest
 from test_markers import fisheye, rover_model
 
-from perception.wheel_rotation import TreadConfig, arc_angle, measure_rotation, ransac_1d, ray_cylinder
+from perception.wheel_rotation import (
+    TreadConfig,
+    arc_angle,
+    masked_ncc,
+    measure_rotation,
+    measure_strips,
+    ransac_1d,
+    ray_cylinder,
+    strip_resolution,
+    track_strip_features,
+    unwrap_tread,
+)
 
 
 def tread_texture(rng) -> np.ndarray:
@@ -86,3 +97,80 @@ def test_rotation_is_invalid_without_texture():
     flat = np.full((480, 640), 90, np.uint8)
     m = measure_rotation(flat, flat, model, cam, frame, frame, TreadConfig())
     assert not m.valid and math.isnan(m.alpha)
+
+
+def test_masked_ncc_equals_the_direct_sum_at_every_lag():
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(5, 17)), rng.normal(size=(5, 12))
+    ma, mb = rng.random((5, 17)) > 0.3, rng.random((5, 12)) > 0.3
+    lags, ncc, cnt = masked_ncc(a, ma, b, mb)
+    for s_, r, c in zip(lags, ncc, cnt, strict=True):
+        pairs = [
+            (a[i, j], b[i, j - s_])
+            for i in range(5)
+            for j in range(17)
+            if 0 <= j - s_ < 12 and ma[i, j] and mb[i, j - s_]
+        ]
+        assert c == pytest.approx(len(pairs), abs=1e-6)
+        if len(pairs) >= 3:
+            x, y = np.array(pairs).T
+            assert r == pytest.approx(np.corrcoef(x, y)[0, 1], abs=1e-6)
+
+
+def strips_of(model, cam, frame, tex, theta0, alpha, shadow=None):
+    """Tread strips of one wheel at two wheel angles; ``shadow``: (H, W) light factor, fixed in the image."""
+    cfg = TreadConfig()
+    dphi = strip_resolution(model, cam, *frame, cfg.column_px)
+    out = []
+    for th in (theta0, theta0 + alpha):
+        img = render_wheel(model, cam, frame, th, tex)
+        if shadow is not None:
+            img = np.clip(img * shadow, 0, 255).astype(np.uint8)
+        out.append(unwrap_tread(img, model, cam, *frame, dphi, cfg))
+    return out
+
+
+@pytest.mark.parametrize("alpha", [0.15, -0.3])
+def test_the_papers_features_alone_recover_the_rotation_within_1_percent(alpha):
+    model = rover_model()
+    cam = fisheye(model)
+    frame = model.wheel_frames((0.05, 0.0), (0.15, 0.15), model.wheel_angles(0.1, -0.1))[2]
+    prev, curr = strips_of(model, cam, frame, tread_texture(np.random.default_rng(5)), 1.0, alpha)
+    # started 0.6 columns off the answer: Lucas-Kanade converges from there
+    m = track_strip_features(prev, curr, model.wheel_radius, TreadConfig(), alpha + 0.6 * prev.dphi)
+    print(f"features: {m.alpha:.5f} for {alpha}, {m.n_inliers}/{m.n_tracked} consistent")
+    assert m.valid and m.n_inliers >= 10
+    assert abs(m.alpha - alpha) <= 0.01 * abs(alpha)
+
+
+def test_a_shadow_edge_fixed_in_the_image_does_not_pull_the_rotation():
+    """The body's shadow across a tread: it stays put while the tread turns under it."""
+    model = rover_model()
+    cam = fisheye(model)
+    wheel = 0
+    frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[wheel]
+    cfg = TreadConfig()
+    dphi = strip_resolution(model, cam, *frame, cfg.column_px)
+    probe = unwrap_tread(np.full((480, 640), 128, np.uint8), model, cam, *frame, dphi, cfg)
+    # a straight shadow edge through the middle of the tread's image, slanted, light ratio 3
+    mid = probe.pixels[probe.visible].mean(axis=0)
+    gx, gy = np.meshgrid(np.arange(640.0), np.arange(480.0))
+    shadow = np.where((gx - mid[0]) + 0.4 * (gy - mid[1]) > 0, 1.0, 1 / 3)
+    alpha = 0.2
+    prev, curr = strips_of(model, cam, frame, tread_texture(np.random.default_rng(8)), 0.4, alpha, shadow)
+    assert 0.05 < (~curr.valid & curr.visible).mean() < 0.6  # the edge band is left out
+    m = measure_strips(prev, curr, model.wheel_radius, cfg)
+    # without the band, the edge's ring in the band-passed strip pulls the rotation toward 0
+    blind = TreadConfig(min_step=1e9)
+    tex = tread_texture(np.random.default_rng(8))
+    unmasked = [
+        unwrap_tread(
+            np.clip(render_wheel(model, cam, frame, th, tex) * shadow, 0, 255).astype(np.uint8),
+            model, cam, *frame, dphi, blind,
+        )
+        for th in (0.4, 0.4 + alpha)
+    ]  # fmt: skip
+    m_blind = measure_strips(*unmasked, model.wheel_radius, blind)
+    print(f"shadowed tread: {m.alpha:.5f} for {alpha}; without the edge band {m_blind.alpha:.5f}")
+    assert m.valid and abs(m.alpha - alpha) <= 0.01 * alpha
+    assert abs(m_blind.alpha - alpha) > 0.01 * alpha
