@@ -11,7 +11,6 @@ rate, or at the other wheels' until they have one) and are flagged.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 
 import cv2
@@ -325,10 +324,11 @@ class KinematicStateEstimator:
         # the tread's level around each column: the median over the cells of the columns within
         # about two marker widths (lit and shadowed parts of the tread each keep their own)
         arc = self.model.correction_marker_arc
-        col_med = _nanmedian(np.where(vis, v, np.nan), axis=0)
+        col_med = _masked_median(v, vis, axis=0)
         half = max(1, int(round(2 * arc / strip.dphi)))
         padded = np.pad(col_med, half, constant_values=np.nan)
-        level = _nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1), axis=1)
+        windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1)
+        level = _masked_median(windows, np.isfinite(windows), axis=1)
         bright = (v >= cfg.white_min_value) & (v >= cfg.white_contrast * np.nan_to_num(level, nan=255.0))
         white = (vis & bright & (sat <= cfg.white_max_saturation)).astype(np.uint8)
         n, labels, stats, _ = cv2.connectedComponentsWithStats(white, connectivity=8)
@@ -353,11 +353,17 @@ class KinematicStateEstimator:
         return mean
 
 
-def _nanmedian(a: np.ndarray, axis: int) -> np.ndarray:
-    """np.nanmedian without the warning for all-NaN slices (which give NaN)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmedian(a, axis=axis)
+def _masked_median(a: np.ndarray, mask: np.ndarray, axis: int) -> np.ndarray:
+    """Median of ``a`` over the cells of ``mask`` along ``axis`` (NaN where there are none).
+
+    The same as ``np.nanmedian`` of the masked array, by one sort (several times faster on
+    small arrays).
+    """
+    srt = np.sort(np.where(mask, a, np.inf), axis=axis)
+    n = mask.sum(axis=axis)
+    lo = np.take_along_axis(srt, np.expand_dims(np.maximum(n - 1, 0) // 2, axis), axis).squeeze(axis)
+    hi = np.take_along_axis(srt, np.expand_dims(n // 2, axis).clip(max=a.shape[axis] - 1), axis).squeeze(axis)
+    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
 
 
 __all__ = ["DOF_NAMES", "KinematicState", "KinematicStateEstimator", "KinematicsConfig", "MARKERS"]

@@ -93,11 +93,9 @@ def segment_magenta(
 def _blobs(img, cfg: MarkerConfig, min_area: float, offset, edges=(False,) * 4):
     """Blobs of one image (or crop); ``edges``: (left, top, right, bottom) sides that cut blobs."""
     hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV)
-    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
     lo, hi = cfg.hue_range
-    mask = (h >= lo) & (h <= hi) & (s >= cfg.min_saturation) & (v >= cfg.min_value)
-    k = np.ones((3, 3), np.uint8)
-    mask = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, k)
+    mask = cv2.inRange(hsv, (lo, cfg.min_saturation, cfg.min_value), (hi, 255, 255))
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
     bx, by, bw, bh = (stats[keep, i] for i in range(4))
@@ -109,22 +107,22 @@ def _blobs(img, cfg: MarkerConfig, min_area: float, offset, edges=(False,) * 4):
         | (edges[3] & (by + bh > img.shape[0] - m))
     )
     keep = keep[~cut]
-    sat = s.astype(np.float32)
-    in_band = np.abs(h.astype(np.float32) - 0.5 * (lo + hi)) <= (hi - lo)  # hue, with a margin
     cents = []
     for lab in keep:
         x, y, w, hh = stats[lab, :4]
         x0, y0 = max(x - 3, 0), max(y - 3, 0)
         x1, y1 = min(x + w + 3, img.shape[1]), min(y + hh + 3, img.shape[0])
-        core = labels[y0:y1, x0:x1] == lab
-        grown = cv2.dilate(core.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-        full = float(np.median(sat[y0:y1, x0:x1][core]))
-        wgt = np.where(grown & in_band[y0:y1, x0:x1], np.clip(sat[y0:y1, x0:x1] / full, 0.0, 1.0), 0.0)
-        ys, xs = np.mgrid[y0:y1, x0:x1]
-        tot = wgt.sum()
-        cents.append((float((wgt * xs).sum() / tot) + offset[0], float((wgt * ys).sum() / tot) + offset[1]))
+        core = (labels[y0:y1, x0:x1] == lab).astype(np.uint8)
+        grown = cv2.dilate(core, np.ones((5, 5), np.uint8)) > 0
+        h = hsv[y0:y1, x0:x1, 0].astype(np.float32)
+        sat = hsv[y0:y1, x0:x1, 1].astype(np.float32)
+        full = float(np.median(sat[core > 0]))
+        in_band = np.abs(h - 0.5 * (lo + hi)) <= (hi - lo)  # hue, with a margin
+        wgt = np.where(grown & in_band, np.clip(sat / full, 0.0, 1.0), 0.0).astype(np.float32)
+        mom = cv2.moments(wgt)
+        cents.append((mom["m10"] / mom["m00"] + x0 + offset[0], mom["m01"] / mom["m00"] + y0 + offset[1]))
     cent = np.array(cents, dtype=np.float64).reshape(-1, 2)
-    return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask.astype(bool)
+    return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask > 0
 
 
 def assign_markers(predicted: dict[str, np.ndarray], centroids: np.ndarray, gate: float) -> dict[str, int]:
@@ -315,33 +313,28 @@ def centroid_offsets(
     """
     pos = model.marker_positions(psi, depth, delta)
     nrm = model.marker_normals(psi, delta)
+    P = np.array([pos[m] for m in MARKERS])  # (8, 3)
+    N = np.array([nrm[m] for m in MARKERS])
     T_cb = np.linalg.inv(model.T_body_cam)
     half = model.marker_size / 2
     s = np.linspace(-1.0, 1.0, 16, endpoint=False)
-    edge = np.concatenate(
-        [np.c_[s, -np.ones(16)], np.c_[np.ones(16), s], np.c_[-s, np.ones(16)], np.c_[-np.ones(16), -s]]
-    )
-    outlines = []
-    for name in MARKERS:
-        p, n = pos[name], nrm[name]
-        u = np.cross(n, [0.0, 0.0, 1.0])
-        u /= np.linalg.norm(u)
-        v = np.cross(n, u)
-        outlines.append(np.vstack([p + half * (edge[:, :1] * u + edge[:, 1:] * v), p]))
-    polys = camera.world2cam(np.stack(outlines) @ T_cb[:3, :3].T + T_cb[:3, 3])  # one call for all
-    out = {}
-    for name, poly in zip(MARKERS, polys, strict=True):
-        if not np.isfinite(poly).all():
-            out[name] = np.zeros(2)
-            continue
-        x, y = poly[:-1, 0], poly[:-1, 1]
-        xn, yn = np.roll(x, -1), np.roll(y, -1)
-        cross = x * yn - xn * y
-        area = cross.sum() / 2
-        cx = ((x + xn) * cross).sum() / (6 * area)
-        cy = ((y + yn) * cross).sum() / (6 * area)
-        out[name] = np.array([cx, cy]) - poly[-1]
-    return out
+    one = np.ones(16)
+    edge = np.concatenate([np.c_[s, -one], np.c_[one, s], np.c_[-s, one], np.c_[-one, -s]])  # (64, 2)
+    U = np.stack([N[:, 1], -N[:, 0], np.zeros(len(N))], 1)  # N x z, in the face
+    U /= np.linalg.norm(U, axis=1, keepdims=True)
+    V = np.cross(N, U)
+    outline = P[:, None] + half * (edge[None, :, :1] * U[:, None] + edge[None, :, 1:] * V[:, None])
+    pts = np.concatenate([outline, P[:, None]], axis=1)  # (8, 65, 3): outline, then the centre
+    poly = camera.world2cam(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+    x, y = poly[:, :-1, 0], poly[:, :-1, 1]
+    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
+    cross = x * yn - xn * y
+    area = cross.sum(axis=1) / 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.stack([((x + xn) * cross).sum(1), ((y + yn) * cross).sum(1)], 1) / (6 * area[:, None])
+    off = c - poly[:, -1]
+    off[~np.isfinite(off).all(axis=1)] = 0.0  # outside the field of view: no correction
+    return {m: off[i] for i, m in enumerate(MARKERS)}
 
 
 def measure_axles(
