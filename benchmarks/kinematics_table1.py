@@ -150,7 +150,8 @@ def table(rows: list[dict]) -> str:
     )
     body = "".join(
         f"| {m['dataset']} | {m['duration']:.0f} | {m['roll_mae'][0]:.3f} / {m['roll_mae'][1]:.3f} "
-        f"| {m['steer_mae'][0]:.3f} / {m['steer_mae'][1]:.3f} | {m['depth_mae'][0]:.2f} / {m['depth_mae'][1]:.2f} "
+        f"| {m['steer_mae'][0]:.3f} / {m['steer_mae'][1]:.3f} "
+        f"| {m['depth_mae'][0]:.2f} / {m['depth_mae'][1]:.2f} "
         f"| {m['drift']:.3f} | {m['rate_rms']:.2f} | {100 * m['all_dof']:.2f} % | {m['ms']:.1f} |\n"
         for m in rows
     )
