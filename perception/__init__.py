@@ -6,6 +6,9 @@ This package depends on numpy, OpenCV and SciPy only; it never needs the simulat
 from perception.calib_io import CalibrationError
 from perception.calibration import ExtrinsicFit, OmniFit, calibrate_ground_camera, fit_omni_camera
 from perception.cameras import OmniCamera, PinholeCamera
+from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.kinematics import RoverKinematicModel
+from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, OdometryEstimate
 from perception.wheel_kinematics import (
     SLIP_EPS,
@@ -15,15 +18,21 @@ from perception.wheel_kinematics import (
 )
 
 __all__ = [
+    "DOF_NAMES",
     "SLIP_EPS",
     "CalibrationError",
     "ExtrinsicFit",
     "FlowOdometry",
     "FlowOdometryConfig",
+    "KinematicState",
+    "KinematicStateEstimator",
+    "KinematicsConfig",
     "OdometryEstimate",
     "OmniCamera",
     "OmniFit",
     "PinholeCamera",
+    "RoverKinematicModel",
+    "SteeringCalibration",
     "calibrate_ground_camera",
     "fit_omni_camera",
     "slip_angle",

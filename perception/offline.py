@@ -17,7 +17,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception.cameras import PinholeCamera
+from perception.cameras import OmniCamera, PinholeCamera
+from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
+from perception.kinematics import RoverKinematicModel
+from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
 from perception.trajectory import write_planar_tum
 
@@ -149,3 +152,114 @@ def run_folder_odometry(
     n_valid = sum(r[5] for r in rows)
     log.info("odometry: %d frames, %d of %d pairs valid, %.2f m", len(files), n_valid, len(rows), distance)
     return FolderOdometryResult(len(files), len(rows), n_valid, distance, csv_path, tum_path)
+
+
+@dataclass(frozen=True)
+class FolderKinematicsResult:
+    """Summary of :func:`run_folder_kinematics`.
+
+    Attributes:
+        frames: Images found.
+        all_valid: Frames on which all 10 degrees of freedom were measured.
+        csv_path: The per-frame CSV.
+    """
+
+    frames: int
+    all_valid: int
+    csv_path: Path
+
+
+def run_folder_kinematics(
+    images: str | Path,
+    camera: str | Path | OmniCamera,
+    rover: str | Path | RoverKinematicModel,
+    fps: float,
+    out: str | Path,
+    steering: str | Path | SteeringCalibration | None = None,
+    config: KinematicsConfig | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> FolderKinematicsResult:
+    """The fisheye kinematics estimator over a folder of fisheye images.
+
+    Args:
+        images: Folder of colour images (name order is time order).
+        camera: Omnidirectional calibration YAML (:meth:`OmniCamera.save`) or a camera.
+        rover: Rover geometry YAML (:meth:`RoverKinematicModel.save`) or a model; its
+            ``T_body_cam`` must be the camera's.
+        fps: Frame rate of the images [Hz].
+        out: Output folder (created); ``kinematics.csv`` gets one row per image: t, the 10
+            degrees of freedom (psi_F, psi_R [rad], d_F, d_R [m], lambda_F, lambda_R [rad],
+            theta FL..RR [rad]), the four wheel rates [rad/s], quality and a validity flag per
+            degree of freedom.
+        steering: Optional steering calibration (eq. 5 ratio map) YAML or object.
+        config: Estimator parameters.
+        progress: Called with the finished share (0..1).
+
+    Raises:
+        FileNotFoundError: Missing folder or no images.
+        CalibrationError: Missing or malformed calibration files (the message names the key).
+        ValueError: A bad frame rate, a first image whose size differs from the calibration, or
+            camera and rover files with different mounts.
+
+    Unreadable images and images of another size do not stop the run: the estimator carries its
+    state over them with every flag down, and the row says why.
+    """
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps: {fps!r}; give the camera's frame rate in Hz (> 0)")
+    cam = camera if isinstance(camera, OmniCamera) else OmniCamera.load(camera)
+    model = rover if isinstance(rover, RoverKinematicModel) else RoverKinematicModel.load(rover)
+    cal = steering if steering is None or isinstance(steering, SteeringCalibration) else None
+    if steering is not None and cal is None:
+        cal = SteeringCalibration.load(steering)
+    est = KinematicStateEstimator(cam, model, config, cal)
+    files = list_images(images)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
+    if first is None:
+        raise ValueError(f"{files[0]}: not a readable image")
+    if (first.shape[1], first.shape[0]) != cam.image_size:
+        w, h = cam.image_size
+        raise ValueError(
+            f"{files[0]}: {first.shape[1]}x{first.shape[0]} px, but the camera calibration is for "
+            f"{w}x{h} px; use the calibration of this camera and resolution"
+        )
+    csv_path = out / "kinematics.csv"
+    n_all = 0
+    with open(csv_path, "w", newline="") as fh:
+        wr = csv.writer(fh)
+        wr.writerow(
+            ["t", *DOF_NAMES, "rate_FL", "rate_FR", "rate_RL", "rate_RR", "quality"]
+            + [f"valid_{d}" for d in DOF_NAMES]
+            + ["note"]
+        )
+        for k, path in enumerate(files):
+            t = k / fps
+            bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            note = ""
+            if bgr is None:
+                note = f"{path.name}: not a readable image"
+                rgb = np.zeros((0, 0, 3), np.uint8)  # the estimator flags it and carries on
+            else:
+                rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+                if (rgb.shape[1], rgb.shape[0]) != cam.image_size:
+                    note = f"{path.name}: {rgb.shape[1]}x{rgb.shape[0]} px differs from the calibration"
+            if note:
+                log.warning("%s; the state is carried over it", note)
+            s = est.update(rgb, t)
+            n_all += int(all(s.valid.values()))
+            dof = np.r_[s.psi, s.depth, s.lam, s.theta]
+            wr.writerow(
+                [
+                    f"{t:.6f}",
+                    *(f"{v:.6f}" for v in dof),
+                    *(f"{v:.5f}" for v in s.theta_dot),
+                    f"{s.quality:.2f}",
+                ]
+                + [int(s.valid[d]) for d in DOF_NAMES]
+                + [note]
+            )
+            if progress is not None:
+                progress((k + 1) / len(files))
+    log.info("kinematics: %d frames, all 10 DOF on %d", len(files), n_all)
+    return FolderKinematicsResult(len(files), n_all, csv_path)

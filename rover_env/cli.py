@@ -1,4 +1,4 @@
-"""The ``rover`` command line: ``rover demo``, ``rover bench``, ``rover odometry``, ``rover scenarios``."""
+"""The ``rover`` command line: ``rover demo``, ``bench``, ``odometry``, ``kinematics``, ``scenarios``."""
 
 from __future__ import annotations
 
@@ -56,6 +56,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_kinematics(args: argparse.Namespace) -> int:
+    from perception.offline import run_folder_kinematics
+
+    bar = _progress_bar("kinematics")
+    res = run_folder_kinematics(
+        args.images, args.camera, args.rover, args.fps, args.out, steering=args.steering, progress=bar
+    )
+    sys.stderr.write("\n")
+    print(f"{res.frames} images, all 10 degrees of freedom on {res.all_valid}; wrote {res.csv_path}")
+    return 0
+
+
 def _cmd_odometry(args: argparse.Namespace) -> int:
     from perception.offline import run_folder_odometry
 
@@ -104,6 +116,14 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--fps", type=float, required=True, help="frame rate of the images [Hz]")
     o.add_argument("--out", required=True, help="output folder (odometry.csv, trajectory.tum)")
     o.set_defaults(func=_cmd_odometry)
+    k = sub.add_parser("kinematics", help="fisheye kinematic state estimation on a folder of fisheye images")
+    k.add_argument("images", help="folder of colour images, in name order")
+    k.add_argument("--camera", required=True, help="omnidirectional calibration YAML (OmniCamera.save)")
+    k.add_argument("--rover", required=True, help="rover geometry YAML (RoverKinematicModel.save)")
+    k.add_argument("--steering", help="optional steering calibration YAML (eq. 5 ratio map)")
+    k.add_argument("--fps", type=float, required=True, help="frame rate of the images [Hz]")
+    k.add_argument("--out", required=True, help="output folder (kinematics.csv)")
+    k.set_defaults(func=_cmd_kinematics)
     s = sub.add_parser("scenarios", help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
     return p

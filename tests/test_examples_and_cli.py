@@ -90,3 +90,35 @@ def test_rover_odometry_cli_on_a_folder_of_images(tmp_path):
         main(["odometry", str(tmp_path / "nowhere"), "--calib", str(calib), "--fps", "30", "--out", str(out)])
         == 2
     )
+
+
+def test_rover_kinematics_cli_on_a_folder_of_fisheye_images(tmp_path, capsys):
+    import math
+
+    import cv2
+    from test_markers import fisheye, render_markers, rover_model
+
+    model = rover_model()
+    cam = fisheye(model)
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    psis = [(0.02 * k, -0.01 * k) for k in range(4)]
+    for k, psi in enumerate(psis):
+        rgb = render_markers(model, cam, psi, (0.15, 0.15), model.wheel_angles(0.1, -0.1))
+        cv2.imwrite(str(imgs / f"f{k:03d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    (imgs / "f004.png").write_bytes(b"not an image")
+    cam_yaml, rover_yaml = cam.save(tmp_path / "omni.yaml"), model.save(tmp_path / "rover.yaml")
+    out = tmp_path / "out"
+    args = ["kinematics", str(imgs), "--camera", str(cam_yaml), "--rover", str(rover_yaml), "--fps", "30"]
+    assert main([*args, "--out", str(out)]) == 0
+    rows = np.genfromtxt(out / "kinematics.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    assert len(rows) == 5
+    np.testing.assert_allclose(rows["psi_F"][:4], [p[0] for p in psis], atol=math.radians(0.2))
+    np.testing.assert_allclose(rows["psi_R"][:4], [p[1] for p in psis], atol=math.radians(0.2))
+    assert rows["valid_psi_F"][:4].all() and not rows["valid_psi_F"][4]
+    assert "not a readable image" in rows["note"][4] and np.isfinite(rows["psi_F"][4])
+    # a malformed geometry file: the error names the key, nothing is raised
+    (tmp_path / "bad.yaml").write_text(rover_yaml.read_text().replace("wheel_radius", "wheel_radiu"))
+    args[args.index(str(rover_yaml))] = str(tmp_path / "bad.yaml")
+    assert main([*args, "--out", str(out)]) == 2
+    assert "wheel_radiu" in capsys.readouterr().err
