@@ -285,24 +285,34 @@ def unwrap_tread(
     phi = np.arange(k0, k1 + 1) * dphi
     hw = model.wheel_width / 2 - cfg.edge_margin
     y = np.linspace(-hw, hw, cfg.rows)
-    q = tread_point(r, phi[None, :], y[:, None])  # (rows, cols, 3), knuckle frame
+    sin, cos_ = np.sin(phi), np.cos(phi)
     origin = camera.T_body_cam[:3, 3]
-    cam_k = R.T @ (origin - c)
-    view = cam_k - q
-    normal = q * np.array([1.0, 0.0, 0.0]) + q * np.array([0.0, 0.0, 1.0])
-    cos = np.einsum("...i,...i->...", normal, view) / (r * np.linalg.norm(view, axis=-1))
-    facing = cos > cfg.min_facing
+    ck = R.T @ (origin - c)  # the camera in the knuckle frame
+    # cosine between the tread normal (sin, 0, cos) and the view from (r sin, y, r cos) to ck,
+    # from 1-D terms over columns (a) and rows (b)
+    a = sin * ck[0] + cos_ * ck[2]
+    b = y * y - 2 * y * ck[1]
+    dist2 = (ck @ ck + r * r - 2 * r * a)[None, :] + b[:, None]
+    facing = (a - r)[None, :] > cfg.min_facing * np.sqrt(np.maximum(dist2, 1e-12))
     cols = np.flatnonzero(facing.any(axis=0))
     if len(cols) == 0:
         return None
     sl = slice(cols[0], cols[-1] + 1)  # only the columns that face the camera
-    q, facing = q[:, sl], facing[:, sl]
+    sin, cos_, facing = sin[sl], cos_[sl], facing[:, sl]
     k0 += int(cols[0])
+    # camera-frame points: t + M (r sin, y, r cos), summed from rank-one terms
     T_cb = np.linalg.inv(camera.T_body_cam)
-    body = q @ R.T + c
-    px = np.full(q.shape[:2] + (2,), np.nan)
+    M = T_cb[:3, :3] @ R
+    t = T_cb[:3, :3] @ c + T_cb[:3, 3]
+    pts = (
+        t
+        + (r * sin)[None, :, None] * M[:, 0]
+        + y[:, None, None] * M[:, 1]
+        + (r * cos_)[None, :, None] * M[:, 2]
+    )
+    px = np.full(facing.shape + (2,), np.nan)
     # the inverse polynomial alone is within ~1e-5 px
-    px[facing] = camera.world2cam(body[facing] @ T_cb[:3, :3].T + T_cb[:3, 3], refine=False)
+    px[facing] = camera.world2cam(pts[facing], refine=False)
     w, h = camera.image_size
     visible = facing & (px[..., 0] >= 0) & (px[..., 0] <= w - 1) & (px[..., 1] >= 0) & (px[..., 1] <= h - 1)
     if wheel is not None:
@@ -310,10 +320,10 @@ def unwrap_tread(
         dist = np.linalg.norm(occ - origin, axis=1)
         opx = camera.world2cam((occ - origin) @ camera.T_body_cam[:3, :3], refine=False)
         scale = w / max(camera.max_fov, 1e-6)  # about px per radian
-        tread_dist = np.linalg.norm(body - origin, axis=-1)
+        tread_dist2 = np.einsum("...i,...i->...", pts, pts)  # the camera is the origin
         for (u, v), rad, d in zip(opx, radii, dist, strict=True):
             if np.isfinite(u):  # the part hides the cells behind it, within its image radius
-                behind = tread_dist > d
+                behind = tread_dist2 > d * d
                 visible &= ~behind | (
                     (px[..., 0] - u) ** 2 + (px[..., 1] - v) ** 2 > (rad / d * scale + 2) ** 2
                 )
