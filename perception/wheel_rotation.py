@@ -347,11 +347,6 @@ def unwrap_tread(
     return TreadStrip(k0, dphi, y, px, visible, valid, tex)
 
 
-def _xcorr(fa: np.ndarray, fb: np.ndarray, n: int) -> np.ndarray:
-    """Sum over rows and j of a[j] b[j - s], for lags s = 0 .. n-1 (negative lags wrap), from rffts."""
-    return np.fft.irfft((fa * np.conj(fb)).sum(axis=0), n)
-
-
 def masked_ncc(
     a: np.ndarray, ma: np.ndarray, b: np.ndarray, mb: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -368,20 +363,20 @@ def masked_ncc(
     n = int(cv2.getOptimalDFTSize(na + nb - 1))
     ma, mb = ma.astype(np.float64), mb.astype(np.float64)
     a, b = a.astype(np.float64) * ma, b.astype(np.float64) * mb
-    fa0, fa1, fa2 = (np.fft.rfft(x, n, axis=1) for x in (ma, a, a * a))
-    fb0, fb1, fb2 = (np.fft.rfft(x, n, axis=1) for x in (mb, b, b * b))
-    cnt = _xcorr(fa0, fb0, n)
-    sa, sb = _xcorr(fa1, fb0, n), _xcorr(fa0, fb1, n)
-    saa, sbb, sab = _xcorr(fa2, fb0, n), _xcorr(fa0, fb2, n), _xcorr(fa1, fb1, n)
-    lags = np.r_[np.arange(0, na), np.arange(-(nb - 1), 0)]
-    idx = np.r_[np.arange(0, na), np.arange(n - (nb - 1), n)]
-    cnt, sa, sb, saa, sbb, sab = (x[idx] for x in (cnt, sa, sb, saa, sbb, sab))
-    order = np.argsort(lags)
+    fa = np.fft.rfft(np.stack([ma, a, a * a]), n, axis=2)  # (3, rows, freq)
+    fb = np.conj(np.fft.rfft(np.stack([mb, b, b * b]), n, axis=2))
+    # sum over rows and j of x[j] y[j - s]: products of the transforms, summed over rows
+    pairs = ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))
+    prod = np.stack([(fa[i] * fb[k]).sum(axis=0) for i, k in pairs])
+    corr = np.fft.irfft(prod, n, axis=1)
+    lags = np.r_[np.arange(-(nb - 1), 0), np.arange(0, na)]
+    idx = np.r_[np.arange(n - (nb - 1), n), np.arange(0, na)]
+    cnt, sa, sb, saa, sbb, sab = corr[:, idx]
     with np.errstate(invalid="ignore", divide="ignore"):
         num = sab - sa * sb / cnt
         den = np.sqrt(np.clip(saa - sa * sa / cnt, 0, None) * np.clip(sbb - sb * sb / cnt, 0, None))
         ncc = np.where((cnt > 0.5) & (den > 1e-9 * np.maximum(cnt, 1)), num / den, -1.0)
-    return lags[order], ncc[order], cnt[order]
+    return lags, ncc, cnt
 
 
 @dataclass
