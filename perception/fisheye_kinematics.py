@@ -269,6 +269,8 @@ class KinematicStateEstimator:
         else:
             valid.update({f"theta_{w_}": False for w_ in WHEELS})
         for k, wheel in enumerate(WHEELS):
+            if not self._marker_may_show(strips[k], theta[k] - self._offset[k]):
+                continue
             phase = self._marker_phase(img, strips[k])
             if phase is None:
                 continue
@@ -306,6 +308,18 @@ class KinematicStateEstimator:
             dict.fromkeys(DOF_NAMES, False),
         )
         return self._state
+
+    def _marker_may_show(self, strip, expected: float) -> bool:
+        """Whether the correction marker, expected at angle ``expected`` (NaN: not known yet), can be in view."""
+        if strip is None:
+            return False
+        if not math.isfinite(expected):
+            return True
+        lo, hi = strip.k0 * strip.dphi, (strip.k0 + strip.pixels.shape[1]) * strip.dphi
+        mid = 0.5 * (lo + hi)
+        at = mid + math.remainder(expected - mid, 2 * math.pi)  # the marker's turn nearest the strip
+        reach = self.model.correction_marker_arc / 2 + self.config.max_correction
+        return lo - reach <= at <= hi + reach
 
     def _marker_phase(self, img: np.ndarray, strip) -> float | None:
         """Wheel-angle phase of the white correction marker if it is on the tread strip.
