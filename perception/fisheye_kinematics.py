@@ -310,7 +310,7 @@ class KinematicStateEstimator:
         return self._state
 
     def _marker_may_show(self, strip, expected: float) -> bool:
-        """Whether the correction marker, expected at angle ``expected`` (NaN: not known yet), can be in view."""
+        """Whether the correction marker, expected at ``expected`` [rad] (NaN: unknown), can be in view."""
         if strip is None:
             return False
         if not math.isfinite(expected):
