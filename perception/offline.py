@@ -65,6 +65,25 @@ def list_images(folder: str | Path) -> list[Path]:
     return files
 
 
+def _open_run(images, out, fps: float, image_size: tuple[int, int]) -> tuple[list[Path], Path]:
+    """Checks shared by the folder runs: frame rate, images, the first image's size; makes ``out``."""
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps: {fps!r}; give the camera's frame rate in Hz (> 0)")
+    files = list_images(images)
+    first = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
+    if first is None:
+        raise ValueError(f"{files[0]}: not a readable image")
+    if (first.shape[1], first.shape[0]) != tuple(image_size):
+        w, h = image_size
+        raise ValueError(
+            f"{files[0]}: {first.shape[1]}x{first.shape[0]} px, but the calibration is for {w}x{h} px; "
+            "use the calibration of this camera and resolution"
+        )
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return files, out
+
+
 def run_folder_odometry(
     images: str | Path,
     calibration: str | Path | PinholeCamera,
@@ -91,22 +110,9 @@ def run_folder_odometry(
     Unreadable images and later images of another size do not stop the run: their rows are
     marked invalid with the reason, and the chain restarts at the next good image.
     """
-    if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"fps: {fps!r}; give the camera's frame rate in Hz (> 0)")
     camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
     odo = FlowOdometry(camera, config)
-    files = list_images(images)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    first = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
-    if first is None:
-        raise ValueError(f"{files[0]}: not a readable image")
-    if (first.shape[1], first.shape[0]) != camera.image_size:
-        w, h = camera.image_size
-        raise ValueError(
-            f"{files[0]}: {first.shape[1]}x{first.shape[0]} px, but the calibration is for {w}x{h} px; "
-            "use the calibration of this camera and resolution"
-        )
+    files, out = _open_run(images, out, fps, camera.image_size)
     rows = []
     times, twists = [0.0], [np.zeros(3)]
     for k, path in enumerate(files):
@@ -204,26 +210,13 @@ def run_folder_kinematics(
     Unreadable images and images of another size do not stop the run: the estimator carries its
     state over them with every flag down, and the row says why.
     """
-    if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"fps: {fps!r}; give the camera's frame rate in Hz (> 0)")
     cam = camera if isinstance(camera, OmniCamera) else OmniCamera.load(camera)
     model = rover if isinstance(rover, RoverKinematicModel) else RoverKinematicModel.load(rover)
     cal = steering if steering is None or isinstance(steering, SteeringCalibration) else None
     if steering is not None and cal is None:
         cal = SteeringCalibration.load(steering)
     est = KinematicStateEstimator(cam, model, config, cal)
-    files = list_images(images)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
-    if first is None:
-        raise ValueError(f"{files[0]}: not a readable image")
-    if (first.shape[1], first.shape[0]) != cam.image_size:
-        w, h = cam.image_size
-        raise ValueError(
-            f"{files[0]}: {first.shape[1]}x{first.shape[0]} px, but the camera calibration is for "
-            f"{w}x{h} px; use the calibration of this camera and resolution"
-        )
+    files, out = _open_run(images, out, fps, cam.image_size)
     csv_path = out / "kinematics.csv"
     n_all = 0
     with open(csv_path, "w", newline="") as fh:
