@@ -77,7 +77,7 @@ def segment_magenta(
         return _blobs(img, cfg, min_area, (0, 0))
     full = np.zeros((H, W), bool)
     cents, areas = [], []
-    for x0, y0, x1, y1 in np.asarray(rois, dtype=int).reshape(-1, 4):
+    for x0, y0, x1, y1 in merge_boxes(np.asarray(rois, dtype=int).reshape(-1, 4)):
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
         if x1 - x0 < 3 or y1 - y0 < 3:
             continue
@@ -88,6 +88,25 @@ def segment_magenta(
                 cents.append(ci)
                 areas.append(ai)
     return np.array(cents, dtype=np.float64).reshape(-1, 2), np.array(areas, dtype=np.float64), full
+
+
+def merge_boxes(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Boxes (x0, y0, x1, y1) with every overlapping group replaced by its bounding box."""
+    out = [tuple(int(v) for v in b) for b in boxes]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                a, b = out[i], out[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    out[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+                    del out[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return out
 
 
 def _blobs(img, cfg: MarkerConfig, min_area: float, offset, edges=(False,) * 4):
