@@ -67,6 +67,9 @@ class KinematicsConfig:
         max_correction: Largest drift a correction-marker sighting may remove [rad]; a larger
             one means the white blob was not the marker. The first two sightings must agree
             within it to fix the marker's offset.
+        reacquire_tolerance: Sightings that ask for a larger correction are taken when two of
+            them, at least half a turn apart, agree on it within this [rad] (the drift grew past
+            ``max_correction`` while the marker was not seen).
     """
 
     markers: MarkerConfig = field(default_factory=MarkerConfig)
@@ -80,6 +83,7 @@ class KinematicsConfig:
     acquire_span: float = 0.8
     shadow_robust: bool = True
     max_correction: float = 0.2
+    reacquire_tolerance: float = 0.06
     track_span: float = 0.25
     roi_margin_frac: float = 0.03
 
@@ -166,6 +170,8 @@ class KinematicStateEstimator:
         self._markers_tracked = False  # all markers found in the last frame
         self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase, once confirmed
         self._pending = np.full(4, math.nan)  # the last unconfirmed sighting's offset
+        self._doubt: list = [None] * 4  # (correction, theta) of a sighting too far from theta
+        self._fixed_at = np.full(4, math.nan)  # theta at the last correction
 
     @property
     def state(self) -> KinematicState:
@@ -269,7 +275,10 @@ class KinematicStateEstimator:
         else:
             valid.update({f"theta_{w_}": False for w_ in WHEELS})
         for k, wheel in enumerate(WHEELS):
-            if not self._marker_may_show(strips[k], theta[k] - self._offset[k]):
+            # where the marker should be, if it was seen within the last turn
+            recent = abs(theta[k] - self._fixed_at[k]) < 2 * math.pi
+            expected = theta[k] - self._offset[k] if recent else math.nan
+            if not self._marker_may_show(strips[k], expected):
                 continue
             phase = self._marker_phase(img, strips[k])
             if phase is None:
@@ -284,8 +293,25 @@ class KinematicStateEstimator:
                 continue
             target = phase + self._offset[k]
             snapped = target + 2 * math.pi * round((theta[k] - target) / (2 * math.pi))
-            if abs(snapped - theta[k]) <= cfg.max_correction:  # larger: a false sighting
+            fix = snapped - theta[k]
+            if abs(fix) <= cfg.max_correction:
+                accept = True
+            else:
+                # a false sighting, or drift beyond max_correction: two sightings at least half a
+                # turn apart that ask for the same correction are the marker (nothing else white
+                # turns with the wheel)
+                d = self._doubt[k]
+                accept = (
+                    d is not None
+                    and abs(theta[k] - d[1]) >= math.pi
+                    and abs(fix - d[0]) <= cfg.reacquire_tolerance
+                )
+                if not accept and (d is None or abs(theta[k] - d[1]) >= math.pi):
+                    self._doubt[k] = (fix, theta[k])
+            if accept:
                 theta[k] = snapped
+                self._doubt[k] = None
+                self._fixed_at[k] = theta[k]
                 corrected.append(wheel)
         self._strips = strips
         self._state = KinematicState(
