@@ -291,27 +291,9 @@ class KinematicStateEstimator:
                     self._offset[k] = offset
                 self._pending[k] = offset
                 continue
-            target = phase + self._offset[k]
-            snapped = target + 2 * math.pi * round((theta[k] - target) / (2 * math.pi))
-            fix = snapped - theta[k]
-            if abs(fix) <= cfg.max_correction:
-                accept = True
-            else:
-                # a false sighting, or drift beyond max_correction: two sightings at least half a
-                # turn apart that ask for the same correction are the marker (nothing else white
-                # turns with the wheel)
-                d = self._doubt[k]
-                accept = (
-                    d is not None
-                    and abs(theta[k] - d[1]) >= math.pi
-                    and abs(fix - d[0]) <= cfg.reacquire_tolerance
-                )
-                if not accept and (d is None or abs(theta[k] - d[1]) >= math.pi):
-                    self._doubt[k] = (fix, theta[k])
-            if accept:
-                theta[k] = snapped
-                self._doubt[k] = None
-                self._fixed_at[k] = theta[k]
+            fixed = self._correct(k, theta[k], phase)
+            if fixed is not None:
+                theta[k] = fixed
                 corrected.append(wheel)
         self._strips = strips
         self._state = KinematicState(
@@ -334,6 +316,29 @@ class KinematicStateEstimator:
             dict.fromkeys(DOF_NAMES, False),
         )
         return self._state
+
+    def _correct(self, k: int, theta: float, phase: float) -> float | None:
+        """Eq. 7 for wheel ``k``: the corrected angle for a marker sighting at ``phase``, or None.
+
+        A sighting asking for more than ``max_correction`` is a false one, or drift that grew
+        while the marker was not seen: two such sightings at least half a turn apart that ask
+        for the same correction (within ``reacquire_tolerance``) are the marker, since nothing
+        else white turns with the wheel.
+        """
+        cfg = self.config
+        target = phase + self._offset[k]
+        snapped = target + 2 * math.pi * round((theta - target) / (2 * math.pi))
+        fix = snapped - theta
+        if abs(fix) > cfg.max_correction:
+            d = self._doubt[k]
+            later = d is not None and abs(theta - d[1]) >= math.pi
+            if not (later and abs(fix - d[0]) <= cfg.reacquire_tolerance):
+                if d is None or later:
+                    self._doubt[k] = (fix, theta)
+                return None
+        self._doubt[k] = None
+        self._fixed_at[k] = snapped
+        return snapped
 
     def _marker_may_show(self, strip, expected: float) -> bool:
         """Whether the correction marker, expected at ``expected`` [rad] (NaN: unknown), can be in view."""

@@ -225,3 +225,22 @@ def test_estimator_flags_unusable_frames_and_stays_finite():
         np.testing.assert_allclose(s.psi, psi, atol=math.radians(0.2))  # the last good state
     with pytest.raises(ValueError, match="T_body_cam"):
         KinematicStateEstimator(OmniCamera.equidistant((640, 480), math.radians(190), 300.8), model)
+
+
+def test_correction_marker_reacquires_after_drift_beyond_the_limit():
+    """Eq. 7: small corrections at once; a large one only when a later turn asks for the same."""
+    from perception.fisheye_kinematics import KinematicStateEstimator
+
+    model = rover_model()
+    est = KinematicStateEstimator(fisheye(model), model)
+    est._offset[0] = 0.0  # the marker's phase equals theta (mod 2 pi)
+    assert est._correct(0, 10.0, 10.1 - 2 * math.pi) == pytest.approx(10.1)  # 0.1 rad: taken
+    # drifted 0.35 rad: refused, also later in the same pass ...
+    assert est._correct(0, 20.0, 20.35) is None
+    assert est._correct(0, 20.2, 20.55) is None
+    # ... and a turn later, a sighting asking for another correction is refused too
+    assert est._correct(0, 26.0, 26.0 - 0.5) is None
+    # the next turn agrees with that one: taken
+    assert est._correct(0, 32.0, 32.0 - 0.48) == pytest.approx(31.52)
+    # after a correction, a lone far sighting is refused again
+    assert est._correct(0, 40.0, 40.4) is None
