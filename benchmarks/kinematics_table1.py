@@ -92,7 +92,9 @@ def drive(index: int, scale: float = 1.0) -> dict:
         est = KinematicStateEstimator(cam.model, g.kinematic_model(cam.T_body_cam))
         truth, estimate, valid, spent = [], [], [], 0.0
         n = int(round(duration / cam.period))
-        for _ in range(n):
+        for i in range(n):
+            if i % 600 == 0:  # progress, every 20 s of drive
+                sys.stderr.write(f"dataset {index}: {i / 30:.0f} of {duration:.0f} s\n")
             frame = cam.capture()
             gt = sim.ground_truth()
             t0 = time.perf_counter()
