@@ -94,7 +94,7 @@ def drive(index: int, scale: float = 1.0) -> dict:
         n = int(round(duration / cam.period))
         for i in range(n):
             if i % 600 == 0:  # progress, every 20 s of drive
-                sys.stderr.write(f"dataset {index}: {i / 30:.0f} of {duration:.0f} s\n")
+                sys.stderr.write(f"dataset {index}: {i * cam.period:.0f} of {duration:.0f} s\n")
             frame = cam.capture()
             gt = sim.ground_truth()
             t0 = time.perf_counter()
