@@ -401,18 +401,6 @@ class OmniCamera:
         return rays.reshape(*lead, 3)
 
     @functools.cached_property
-    def pixel_rays(self) -> np.ndarray:
-        """(H, W, 3) unit ray of every pixel centre (camera frame; NaN outside the field of view).
-
-        Computed on first use and kept: per-frame code reads rays from it instead of unprojecting.
-        """
-        w, h = self.image_size
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        rays = self.cam2world(np.stack([xs, ys], -1))
-        rays.setflags(write=False)
-        return rays
-
-    @functools.cached_property
     def _rho_table(self) -> tuple[np.ndarray, np.ndarray]:
         """(alpha, rho) of the inverse polynomial on a grid fine enough for 1e-5 px by interpolation."""
         alpha = np.linspace(0.0, self.max_fov / 2 + 1e-9, 8193)
