@@ -416,12 +416,20 @@ class OmniCamera:
         p, lead = _points(points_cam, 3, "points_cam")
         r = np.hypot(p[:, 0], p[:, 1])
         alpha = np.arctan2(r, p[:, 2])
+        if not refine:  # a dense table of the inverse polynomial, linearly interpolated
+            # beyond the field of view (and for NaN) the table gives NaN
+            rho = np.interp(alpha, *self._rho_table, right=np.nan)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = np.where(r > 0, rho / r, 0.0)
+            ux, vy = p[:, 0] * s, p[:, 1] * s
+            c, d, e = self.affine
+            out = np.empty((len(p), 2))
+            out[:, 0] = c * ux + d * vy + self.center[0]
+            out[:, 1] = e * ux + vy + self.center[1]
+            return out.reshape(*lead, 2)
         valid = (alpha <= self.max_fov / 2 + 1e-12) & np.isfinite(alpha)
-        if refine:
-            rho = np.polynomial.chebyshev.chebval(alpha, self._inv)
-        else:  # a dense table of the inverse polynomial, linearly interpolated (one C call)
-            rho = np.interp(alpha, *self._rho_table)
-        for _ in range(8 if refine else 0):  # the Chebyshev start is usually within 1e-5 px already
+        rho = np.polynomial.chebyshev.chebval(alpha, self._inv)
+        for _ in range(8):  # the Chebyshev start is usually within 1e-5 px already
             g = r * self._f(rho) - p[:, 2] * rho
             dg = r * self._df(rho) - p[:, 2]
             with np.errstate(divide="ignore", invalid="ignore"):

@@ -25,7 +25,7 @@ from perception.markers import (
     measure_axles,
     segment_magenta,
 )
-from perception.wheel_rotation import TreadConfig, measure_strips, strip_resolution, unwrap_tread
+from perception.wheel_rotation import TreadConfig, measure_pairs, strip_resolution, unwrap_treads
 
 DOF_NAMES: tuple[str, ...] = (
     "psi_F",
@@ -145,9 +145,11 @@ class KinematicStateEstimator:
         self.model = model
         self.config = config or KinematicsConfig()
         self.calibration = calibration
-        # strip column steps, fixed per wheel: set at the nominal state
         nominal = model.wheel_frames(np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4))
-        self._dphi = [strip_resolution(model, camera, R, c, self.config.tread.column_px) for R, c in nominal]
+        # one column step for all wheels (the finest), so that their strips are processed together
+        self._dphi = min(
+            strip_resolution(model, camera, R, c, self.config.tread.column_px) for R, c in nominal
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -236,28 +238,25 @@ class KinematicStateEstimator:
         theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
         corrected = []
         curr_frames = self.model.wheel_frames(psi, depth, delta)
-        strips = [
-            unwrap_tread(
-                gray, self.model, self.camera, R, c, self._dphi[k], cfg.tread, WHEELS[k], cfg.shadow_robust
-            )
-            for k, (R, c) in enumerate(curr_frames)
-        ]
+        strips = unwrap_treads(
+            gray, self.model, self.camera, curr_frames, self._dphi, cfg.tread, list(WHEELS), cfg.shadow_robust
+        )
         if dt > 0:
             r = self.model.wheel_radius
-
-            def measure(k: int, prior: float, span: float):
-                return measure_strips(self._strips[k], strips[k], r, cfg.tread, prior, span)
-
-            rots = [
-                measure(k, float(self._alpha[k]), cfg.track_span if self._locked[k] else cfg.acquire_span)
-                for k in range(4)
-            ]
+            pairs = list(zip(self._strips, strips, strict=True))
+            spans = [cfg.track_span if self._locked[k] else cfg.acquire_span for k in range(4)]
+            rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
             # rover their rotations differ by the turn and by slip, not by multiples
             good = [r.alpha for r in rots if r.valid]
-            for k in range(4):
-                if not rots[k].valid and not self._locked[k] and good:
-                    rots[k] = measure(k, float(np.median(good)), cfg.acquire_span)
+            again = [k for k in range(4) if not rots[k].valid and not self._locked[k]]
+            if good and again:
+                more = measure_pairs(
+                    [pairs[k] for k in again], r, cfg.tread, [float(np.median(good))] * len(again),
+                    [cfg.acquire_span] * len(again),
+                )  # fmt: skip
+                for k, m in zip(again, more, strict=True):
+                    rots[k] = m
             good = [r.alpha for r in rots if r.valid]
             for k, wheel in enumerate(WHEELS):
                 rot = rots[k]

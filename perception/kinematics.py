@@ -176,12 +176,19 @@ class RoverKinematicModel:
             (n, 3) body-frame points along the arm and at the marker, and (n,) radii [m] of the
             spheres around them that cover the parts.
         """
-        tip = self.tip_knuckle(wheel)
-        s = np.linspace(0.0, 1.0, 7)[:, None]
-        arm = s * np.array([tip[0], tip[1], 0.0]) + np.array([0.0, 0.0, tip[2]])
-        pts = np.vstack([arm, tip])
-        radii = np.r_[np.full(len(arm), 0.012), 0.75 * self.marker_size]
-        return pts @ R.T + c, radii
+        pts, radii = self._occluder_parts[wheel]
+        return pts @ np.asarray(R).T + c, radii
+
+    @functools.cached_property
+    def _occluder_parts(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per wheel: knuckle-frame points along the steering arm and at the tie-rod marker, radii."""
+        out = {}
+        for wheel in WHEELS:
+            tip = self.tip_knuckle(wheel)
+            s = np.linspace(0.0, 1.0, 7)[:, None]
+            arm = s * np.array([tip[0], tip[1], 0.0]) + np.array([0.0, 0.0, tip[2]])
+            out[wheel] = (np.vstack([arm, tip]), np.r_[np.full(len(arm), 0.012), 0.75 * self.marker_size])
+        return out
 
     def ackermann_arms(self) -> tuple[np.ndarray, np.ndarray]:
         """(arm to the turn-centre line, y) of each wheel, order FL, FR, RL, RR."""

@@ -24,7 +24,7 @@ left out (the odometry paper's shadow-edge mask, applied to the treads).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -185,7 +185,7 @@ class TreadStrip:
         y: (rows,) positions across the tread, knuckle frame [m].
         pixels: (rows, cols, 2) float32 image pixel of every cell (-1 where none).
         visible: (rows, cols) cells on the tread, facing the camera, in the image, not behind the
-            wheel's steering arm or tie-rod marker.
+            rover's steering arms or tie-rod markers.
         valid: ``visible`` and not on a shadow-edge band: the cells the rotation uses.
         texture: (rows, cols) float32 band-passed grey level (0 where not valid).
     """
@@ -197,6 +197,8 @@ class TreadStrip:
     visible: np.ndarray
     valid: np.ndarray
     texture: np.ndarray
+    # row spectra of (valid, texture, texture^2) for the correlation, kept for the next frame
+    _spectrum: tuple | None = field(default=None, repr=False, compare=False)
 
     @property
     def phi(self) -> np.ndarray:
@@ -209,11 +211,17 @@ class TreadStrip:
 
 
 def _masked_blur(img: np.ndarray, mask: np.ndarray, sigma: tuple[float, float]) -> np.ndarray:
-    """Gaussian blur of ``img`` over the cells of ``mask`` only (normalised convolution)."""
+    """Gaussian blur of ``img`` over the cells of ``mask`` only (normalised convolution, zero beyond)."""
     m = mask.astype(np.float32)
-    num = cv2.GaussianBlur(img * m, (0, 0), sigmaX=sigma[0], sigmaY=sigma[1])
-    den = cv2.GaussianBlur(m, (0, 0), sigmaX=sigma[0], sigmaY=sigma[1])
+    blur = dict(sigmaX=sigma[0], sigmaY=sigma[1], borderType=cv2.BORDER_CONSTANT)
+    num = cv2.GaussianBlur(img * m, (0, 0), **blur)
+    den = cv2.GaussianBlur(m, (0, 0), **blur)
     return num / np.maximum(den, 1e-3)
+
+
+def _band_reach(cell: tuple[float, float], cfg: TreadConfig) -> int:
+    """Rows the band-pass reaches (its largest kernel's radius, with a margin)."""
+    return math.ceil(4 * cfg.coarse / cell[1]) + 2
 
 
 def _band_pass(
@@ -237,18 +245,155 @@ def _band_pass(
     low = _masked_blur(raw, visible, coarse)
     # shading multiplies the tread's albedo: the texture relative to the local level is the same
     # lit or in shadow
-    tex = (_masked_blur(raw, visible, fine) - low) / np.maximum(low, cfg.min_level)
+    lev = np.maximum(low, np.float32(cfg.min_level))
+    tex = (_masked_blur(raw, visible, fine) - low) / lev
     # shadow edges: steps of the log level (a shadow divides the light by the same factor on
     # dark and bright tread), in 1/m
-    log_low = np.log(np.maximum(low, cfg.min_level))
-    gx = cv2.Sobel(log_low, cv2.CV_32F, 1, 0, ksize=3) / (8 * cell[0])
-    gy = cv2.Sobel(log_low, cv2.CV_32F, 0, 1, ksize=3) / (8 * cell[1])
-    mag = cv2.magnitude(gx, gy)
-    inner = cv2.erode(visible.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    log_low = np.log(lev)
+    gx = cv2.Sobel(log_low, cv2.CV_32F, 1, 0, ksize=3, scale=1 / (8 * cell[0]))
+    gy = cv2.Sobel(log_low, cv2.CV_32F, 0, 1, ksize=3, scale=1 / (8 * cell[1]))
+    inner = cv2.erode(visible.astype(np.uint8), np.ones((3, 3), np.uint8))
     # the band-passed image rings for about a coarse sigma on each side of a step
     grow = (2 * round(cfg.coarse / cell[0]) + 1, 2 * round(cfg.coarse / cell[1]) + 1)
-    band = cv2.dilate(((mag > cfg.min_step) & inner).astype(np.uint8), np.ones(grow[::-1], np.uint8)) > 0
+    step = (cv2.magnitude(gx, gy) > cfg.min_step).view(np.uint8) & inner
+    band = cv2.dilate(step, np.ones(grow[::-1], np.uint8)) > 0
     return tex, band
+
+
+def facing_columns(dphi: float, cfg: TreadConfig) -> int:
+    """Columns of the grid searched for tread facing the camera: every strip is at most this wide."""
+    return 2 * math.ceil(math.acos(cfg.min_facing) / dphi) + 3
+
+
+def unwrap_treads(
+    gray: np.ndarray,
+    model: RoverKinematicModel,
+    camera: OmniCamera,
+    frames: list[tuple[np.ndarray, np.ndarray]],
+    dphi: float,
+    cfg: TreadConfig,
+    wheels: list[str] | None = None,
+    shadow_robust: bool = True,
+) -> list[TreadStrip | None]:
+    """The strips of several wheels' treads in one grey fisheye frame (None for a wheel not in view).
+
+    All wheels go through each step together: one projection of every cell, one occlusion
+    raster, one resampling and one band-pass of the strips stacked in a single image, with gaps
+    wider than the band-pass's reach between them.
+
+    Args:
+        gray: (H, W) uint8 grey frame.
+        model: Rover geometry.
+        camera: The fisheye model.
+        frames: (R, c) of each wheel's knuckle frame in the body frame (rotation, centre [m]).
+        dphi: Column step [rad] (:func:`strip_resolution`; keep it fixed between frames).
+        cfg: Parameters.
+        wheels: The wheels' names (FL, FR, RL, RR), to leave out the cells hidden behind the
+            rover's steering arms and tie-rod markers, which lie in front of the treads.
+        shadow_robust: Band-pass the texture and leave out shadow edges; otherwise the texture
+            is the grey level less its mean.
+    """
+    n = len(frames)
+    if n == 0:
+        return []
+    r = model.wheel_radius
+    ncol = facing_columns(dphi, cfg)
+    hw = model.wheel_width / 2 - cfg.edge_margin
+    y = np.linspace(-hw, hw, cfg.rows)
+    Rs = np.array([f[0] for f in frames], dtype=np.float64)
+    cs = np.array([f[1] for f in frames], dtype=np.float64)
+    T = camera.T_body_cam
+    origin, Rbc = T[:3, 3], T[:3, :3]
+    ck = np.einsum("kij,ki->kj", Rs, origin - cs)  # the camera in each knuckle frame
+    phi_c = np.arctan2(ck[:, 0], ck[:, 2])  # the tread point facing the camera
+    k0 = np.floor((phi_c - math.acos(cfg.min_facing)) / dphi).astype(int) - 1
+    phi = (k0[:, None] + np.arange(ncol)) * dphi
+    sin, cos_ = np.sin(phi), np.cos(phi)
+    # cosine between the tread normal (sin, 0, cos) and the view from (r sin, y, r cos) to ck,
+    # from 1-D terms over columns (a) and rows (b)
+    a = sin * ck[:, :1] + cos_ * ck[:, 2:]
+    b = y * y - 2 * y * ck[:, 1:2]
+    dist2 = (np.einsum("ki,ki->k", ck, ck)[:, None] + r * r - 2 * r * a)[:, None, :] + b[:, :, None]
+    facing = (a - r)[:, None, :] > cfg.min_facing * np.sqrt(np.maximum(dist2, 1e-12))
+    # camera-frame cells: A (a column's point at y = 0) + y M[:, 1], projected where facing
+    M = np.einsum("ji,kjl->kil", Rbc, Rs)  # Rbc^T R_k
+    t = (cs - origin) @ Rbc
+    A = t[:, None, :] + (r * sin)[..., None] * M[:, None, :, 0] + (r * cos_)[..., None] * M[:, None, :, 2]
+    kk, ii, jj = np.nonzero(facing)
+    pts = A[kk, jj] + y[ii, None] * M[kk, :, 1]
+    px = camera.world2cam(pts, refine=False)
+    w, h = camera.image_size
+    with np.errstate(invalid="ignore"):
+        ok = (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+    if wheels is not None:
+        ok[ok] = ~_occluded(model, camera, frames, wheels, pts[ok], px[ok])
+    visible = np.zeros(facing.shape, bool)
+    visible[kk[ok], ii[ok], jj[ok]] = True
+    grid = np.full(facing.shape + (2,), -1.0, np.float32)
+    grid[kk[ok], ii[ok], jj[ok]] = px[ok]
+    strips: list[TreadStrip | None] = [None] * n
+    keep = []
+    for k in range(n):
+        if visible[k].sum() < cfg.min_cells:
+            continue
+        cols = np.flatnonzero(visible[k].any(axis=0))
+        keep.append((k, int(cols[0]), int(cols[-1]) + 1))
+    if not keep:
+        return strips
+    cell = (r * dphi, float(y[1] - y[0]))  # (column, row) size on the tread [m]
+    rows = cfg.rows
+    gap = _band_reach(cell, cfg)
+    width = max(c1 - c0 for _, c0, c1 in keep)
+    height = len(keep) * rows + (len(keep) - 1) * gap
+    maps = np.full((height, width, 2), -1.0, np.float32)
+    vis = np.zeros((height, width), bool)
+    for i, (k, c0, c1) in enumerate(keep):
+        r0 = i * (rows + gap)
+        vis[r0 : r0 + rows, : c1 - c0] = visible[k, :, c0:c1]
+        maps[r0 : r0 + rows, : c1 - c0] = grid[k, :, c0:c1]
+    raw = cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR).astype(np.float32)
+    if shadow_robust:
+        tex, band = _band_pass(raw, vis, cell, cfg)
+        valid = vis & ~band
+    else:
+        valid = vis
+        tex = raw
+    tex = np.where(valid, tex, np.float32(0.0))
+    for i, (k, c0, c1) in enumerate(keep):
+        blk = np.s_[i * (rows + gap) : i * (rows + gap) + rows, : c1 - c0]
+        t_k = tex[blk]
+        if not shadow_robust:
+            t_k = np.where(valid[blk], t_k - np.float32(t_k[valid[blk]].mean()), np.float32(0.0))
+        strips[k] = TreadStrip(int(k0[k]) + c0, dphi, y, maps[blk], vis[blk], valid[blk], t_k)
+    return strips
+
+
+def _occluded(model, camera, frames, wheels, pts: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Which tread points are hidden behind a steering arm or tie-rod marker (of any wheel).
+
+    ``pts``: (n, 3) camera-frame points [m]; ``px``: (n, 2) their pixels, in the image.
+
+    Each part is a chain of spheres (:meth:`RoverKinematicModel.occluders`); their image discs,
+    with a 2 px margin, are drawn farthest first into a label image, so that each pixel holds
+    the nearest part over it, and a point is hidden when it is farther from the camera than that
+    part.
+    """
+    T = camera.T_body_cam
+    parts = [model.occluders(wh, R, c) for wh, (R, c) in zip(wheels, frames, strict=True)]
+    P = np.vstack([p for p, _ in parts]) - T[:3, 3]
+    radii = np.concatenate([rad for _, rad in parts])
+    dist = np.linalg.norm(P, axis=1)
+    opx = camera.world2cam(P @ T[:3, :3], refine=False)
+    w, h = camera.image_size
+    disc = radii / dist * (w / max(camera.max_fov, 1e-6)) + 2  # about px per radian
+    label = np.zeros((h, w), np.uint8)
+    order = [j for j in np.argsort(-dist) if np.isfinite(opx[j]).all()]
+    fixed = np.rint(np.c_[opx[order] * 16, disc[order] * 16]).astype(int).tolist()  # 4 fractional bits
+    for j, (u, v, rad) in zip(order, fixed, strict=True):
+        cv2.circle(label, (u, v), rad, int(j) + 1, -1, cv2.LINE_8, 4)
+    ij = np.rint(px).astype(np.intp)
+    near = np.r_[np.inf, dist] ** 2
+    return np.einsum("ij,ij->i", pts, pts) > near[label[ij[:, 1], ij[:, 0]]]
 
 
 def unwrap_tread(
@@ -264,87 +409,38 @@ def unwrap_tread(
 ) -> TreadStrip | None:
     """The strip of one wheel's tread in a grey fisheye frame, or None if it is not in view.
 
-    Args:
-        gray: (H, W) uint8 grey frame.
-        model: Rover geometry.
-        camera: The fisheye model.
-        R: The wheel's knuckle frame in the body frame (rotation).
-        c: Its centre, body frame [m].
-        dphi: Column step [rad] (:func:`strip_resolution`; keep it fixed between frames).
-        cfg: Parameters.
-        wheel: The wheel's name (FL, FR, RL, RR), to leave out its steering arm and tie-rod
-            marker, which lie in front of the tread.
-        shadow_robust: Band-pass the texture and leave out shadow edges; otherwise the texture
-            is the grey level less its mean.
+    :func:`unwrap_treads` for one wheel: ``R``, ``c`` are its knuckle frame in the body frame,
+    ``wheel`` its name (to leave out the parts in front of its tread).
     """
-    r = model.wheel_radius
-    phi_c = facing_angle(model, R, c)
-    reach = math.acos(cfg.min_facing)  # facing cells are within this of phi_c, and then some
-    k0 = math.floor((phi_c - reach) / dphi)
-    k1 = math.ceil((phi_c + reach) / dphi)
-    phi = np.arange(k0, k1 + 1) * dphi
-    hw = model.wheel_width / 2 - cfg.edge_margin
-    y = np.linspace(-hw, hw, cfg.rows)
-    sin, cos_ = np.sin(phi), np.cos(phi)
-    origin = camera.T_body_cam[:3, 3]
-    ck = R.T @ (origin - c)  # the camera in the knuckle frame
-    # cosine between the tread normal (sin, 0, cos) and the view from (r sin, y, r cos) to ck,
-    # from 1-D terms over columns (a) and rows (b)
-    a = sin * ck[0] + cos_ * ck[2]
-    b = y * y - 2 * y * ck[1]
-    dist2 = (ck @ ck + r * r - 2 * r * a)[None, :] + b[:, None]
-    facing = (a - r)[None, :] > cfg.min_facing * np.sqrt(np.maximum(dist2, 1e-12))
-    cols = np.flatnonzero(facing.any(axis=0))
-    if len(cols) == 0:
-        return None
-    sl = slice(cols[0], cols[-1] + 1)  # only the columns that face the camera
-    sin, cos_, facing = sin[sl], cos_[sl], facing[:, sl]
-    k0 += int(cols[0])
-    # camera-frame points: t + M (r sin, y, r cos), summed from rank-one terms
-    T_cb = np.linalg.inv(camera.T_body_cam)
-    M = T_cb[:3, :3] @ R
-    t = T_cb[:3, :3] @ c + T_cb[:3, 3]
-    pts = (
-        t
-        + (r * sin)[None, :, None] * M[:, 0]
-        + y[:, None, None] * M[:, 1]
-        + (r * cos_)[None, :, None] * M[:, 2]
-    )
-    px = np.full(facing.shape + (2,), np.nan)
-    # the inverse polynomial alone is within ~1e-5 px
-    px[facing] = camera.world2cam(pts[facing], refine=False)
-    w, h = camera.image_size
-    visible = facing & (px[..., 0] >= 0) & (px[..., 0] <= w - 1) & (px[..., 1] >= 0) & (px[..., 1] <= h - 1)
-    if wheel is not None:
-        occ, radii = model.occluders(wheel, R, c)
-        dist = np.linalg.norm(occ - origin, axis=1)
-        opx = camera.world2cam((occ - origin) @ camera.T_body_cam[:3, :3], refine=False)
-        scale = w / max(camera.max_fov, 1e-6)  # about px per radian
-        tread_dist2 = np.einsum("...i,...i->...", pts, pts)  # the camera is the origin
-        for (u, v), rad, d in zip(opx, radii, dist, strict=True):
-            if np.isfinite(u):  # the part hides the cells behind it, within its image radius
-                behind = tread_dist2 > d * d
-                visible &= ~behind | (
-                    (px[..., 0] - u) ** 2 + (px[..., 1] - v) ** 2 > (rad / d * scale + 2) ** 2
-                )
-    if visible.sum() < cfg.min_cells:
-        return None
-    cols = np.flatnonzero(visible.any(axis=0))
-    sl = slice(cols[0], cols[-1] + 1)
-    visible, px = visible[:, sl], px[:, sl]
-    k0 += int(cols[0])
-    px = np.where(visible[..., None], px, -1.0)
-    px = px.astype(np.float32)
-    raw = cv2.remap(gray, px[..., 0], px[..., 1], cv2.INTER_LINEAR).astype(np.float32)
-    cell = (r * dphi, float(y[1] - y[0]))  # (column, row) size on the tread [m]
-    if shadow_robust:
-        tex, band = _band_pass(raw, visible, cell, cfg)
-        valid = visible & ~band
-    else:
-        valid = visible.copy()
-        tex = raw - float(raw[visible].mean())
-    tex = np.where(valid, tex, np.float32(0.0)).astype(np.float32)
-    return TreadStrip(k0, dphi, y, px, visible, valid, tex)
+    return unwrap_treads(
+        gray, model, camera, [(R, c)], dphi, cfg, None if wheel is None else [wheel], shadow_robust
+    )[0]
+
+
+def _row_spectra(stack: np.ndarray, n: int) -> np.ndarray:
+    """Complex spectra (..., n // 2 + 1) of the rows of ``stack`` (..., cols), zero-padded to ``n``."""
+    lead, cols = stack.shape[:-1], stack.shape[-1]
+    pad = np.zeros((int(np.prod(lead)), n), stack.dtype)
+    pad[:, :cols] = stack.reshape(-1, cols)
+    out = cv2.dft(pad, flags=cv2.DFT_ROWS | cv2.DFT_COMPLEX_OUTPUT)
+    cplx = np.complex64 if stack.dtype == np.float32 else np.complex128
+    return out.view(cplx)[:, : n // 2 + 1, 0].reshape(*lead, n // 2 + 1)
+
+
+def _correlate(fa: np.ndarray, fb: np.ndarray, na: int, nb: int, n: int):
+    """Masked NCC at every lag from the row spectra (3, rows, freq) of (mask, x, x^2) of a and b."""
+    # sum over rows and j of x[j] y[j - s]: products of the transforms, summed over rows
+    i, k = np.array([0, 1, 0, 2, 0, 1]), np.array([0, 0, 1, 0, 2, 1])
+    prod = np.einsum("prf,prf->pf", fa[i], np.conj(fb[k]))
+    corr = np.fft.irfft(prod, n, axis=1)
+    idx = np.r_[np.arange(n - (nb - 1), n), np.arange(0, na)]
+    lags = np.arange(-(nb - 1), na)
+    cnt, sa, sb, saa, sbb, sab = corr[:, idx].astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        num = sab - sa * sb / cnt
+        den = np.sqrt(np.clip(saa - sa * sa / cnt, 0, None) * np.clip(sbb - sb * sb / cnt, 0, None))
+        ncc = np.where((cnt > 0.5) & (den > 1e-6 * np.maximum(cnt, 1)), num / den, -1.0)
+    return lags, ncc, cnt
 
 
 def masked_ncc(
@@ -354,7 +450,7 @@ def masked_ncc(
 
     For every lag s, the correlation of a[i, j] with b[i, j - s], each pair weighted by
     ma[i, j] mb[i, j - s] (bool masks or weights in [0, 1]; Padfield's masked NCC, summed over
-    rows; all lags by FFT).
+    rows; all lags by FFT, in float64).
 
     Returns:
         (lags, ncc, overlap: the sum of the pair weights) for lags -(cols_b - 1) .. cols_a - 1.
@@ -363,20 +459,26 @@ def masked_ncc(
     n = int(cv2.getOptimalDFTSize(na + nb - 1))
     ma, mb = ma.astype(np.float64), mb.astype(np.float64)
     a, b = a.astype(np.float64) * ma, b.astype(np.float64) * mb
-    fa = np.fft.rfft(np.stack([ma, a, a * a]), n, axis=2)  # (3, rows, freq)
-    fb = np.conj(np.fft.rfft(np.stack([mb, b, b * b]), n, axis=2))
-    # sum over rows and j of x[j] y[j - s]: products of the transforms, summed over rows
-    pairs = ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))
-    prod = np.stack([(fa[i] * fb[k]).sum(axis=0) for i, k in pairs])
-    corr = np.fft.irfft(prod, n, axis=1)
-    lags = np.r_[np.arange(-(nb - 1), 0), np.arange(0, na)]
-    idx = np.r_[np.arange(n - (nb - 1), n), np.arange(0, na)]
-    cnt, sa, sb, saa, sbb, sab = corr[:, idx]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        num = sab - sa * sb / cnt
-        den = np.sqrt(np.clip(saa - sa * sa / cnt, 0, None) * np.clip(sbb - sb * sb / cnt, 0, None))
-        ncc = np.where((cnt > 0.5) & (den > 1e-9 * np.maximum(cnt, 1)), num / den, -1.0)
-    return lags, ncc, cnt
+    fa = _row_spectra(np.stack([ma, a, a * a]), n)
+    fb = _row_spectra(np.stack([mb, b, b * b]), n)
+    return _correlate(fa, fb, na, nb, n)
+
+
+def _strip_spectra(strips: list[TreadStrip], n: int) -> None:
+    """Compute (once) each strip's row spectra at DFT size ``n``, all strips in one transform."""
+    todo = [s for s in strips if s._spectrum is None or s._spectrum[0] != n]
+    if not todo:
+        return
+    rows = max(s.texture.shape[0] for s in todo)
+    cols = max(s.texture.shape[1] for s in todo)
+    stack = np.zeros((len(todo), 3, rows, cols), np.float32)
+    for i, s in enumerate(todo):
+        m = s.valid.astype(np.float32)
+        x = s.texture * m
+        stack[i, :, : m.shape[0], : m.shape[1]] = (m, x, x * x)
+    spec = _row_spectra(stack, n)
+    for i, s in enumerate(todo):
+        s._spectrum = (n, spec[i])
 
 
 @dataclass
@@ -396,23 +498,32 @@ class Alignment:
     overlap: int
 
 
-def align_strips(
-    prev: TreadStrip, curr: TreadStrip, cfg: TreadConfig, centre: float = 0.0, span: float = 0.8
-) -> Alignment:
-    """Rotation [rad] carrying the tread of ``prev`` to that of ``curr``, within ``centre`` +- ``span``.
+def align_pairs(
+    pairs: list[tuple[TreadStrip, TreadStrip]], cfg: TreadConfig, centres, spans
+) -> list[Alignment]:
+    """:func:`align_strips` for several (earlier, later) pairs at once (one transform for all)."""
+    for prev, curr in pairs:
+        if abs(prev.dphi - curr.dphi) > 1e-12 * max(prev.dphi, 1e-12):
+            raise ValueError(f"strips with different column steps ({prev.dphi} and {curr.dphi} rad)")
+    if not pairs:
+        return []
+    widest = max(max(p.texture.shape[1], c.texture.shape[1]) for p, c in pairs)
+    n = int(cv2.getOptimalDFTSize(2 * max(widest, facing_columns(pairs[0][0].dphi, cfg))))
+    _strip_spectra([s for pair in pairs for s in pair], n)
+    out = []
+    for (prev, curr), centre, span in zip(pairs, centres, spans, strict=True):
+        lags, ncc, cnt = _correlate(
+            curr._spectrum[1], prev._spectrum[1], curr.texture.shape[1], prev.texture.shape[1], n
+        )
+        out.append(_best_shift(prev, curr, lags, ncc, cnt, cfg, centre, span))
+    return out
 
-    Shifts where the strips overlap on fewer than ``min_cells`` cells, or on less than
-    ``min_overlap`` of the smaller strip, are not candidates: a small overlap can correlate well
-    by chance. The integer shift of best correlation is refined by a parabola; the result is
-    NaN when another rotation, ``peak_separation`` away, correlates within ``min_peak_margin``.
-    """
-    if abs(prev.dphi - curr.dphi) > 1e-12 * max(prev.dphi, 1e-12):
-        raise ValueError(f"strips with different column steps ({prev.dphi} and {curr.dphi} rad)")
-    lags, ncc, cnt = masked_ncc(curr.texture, curr.valid, prev.texture, prev.valid)
+
+def _best_shift(prev, curr, lags, ncc, cnt, cfg: TreadConfig, centre: float, span: float) -> Alignment:
     shift = lags + (curr.k0 - prev.k0)  # in columns of the common grid: alpha = shift * dphi
     alpha = shift * curr.dphi
     need = max(cfg.min_cells, cfg.min_overlap * min(curr.valid.sum(), prev.valid.sum()))
-    cand = (np.abs(alpha - centre) <= span) & (cnt >= need)
+    cand = (np.abs(alpha - centre) <= span) & (cnt >= need - 0.5)
     if not cand.any():
         return Alignment(math.nan, math.nan, 0.0, 0)
     score = np.where(cand, ncc, -np.inf)
@@ -428,6 +539,21 @@ def align_strips(
     if margin < cfg.min_peak_margin:  # two rotations fit about as well: do not guess
         return Alignment(math.nan, float(ncc[k]), margin, int(round(cnt[k])))
     return Alignment(best, float(ncc[k]), margin, int(round(cnt[k])))
+
+
+def align_strips(
+    prev: TreadStrip, curr: TreadStrip, cfg: TreadConfig, centre: float = 0.0, span: float = 0.8
+) -> Alignment:
+    """Rotation [rad] carrying the tread of ``prev`` to that of ``curr``, within ``centre`` +- ``span``.
+
+    The masked normalised cross-correlation of the two strips' textures at every shift
+    (:func:`masked_ncc`). Shifts where the strips overlap on fewer than ``min_cells`` cells, or
+    on less than ``min_overlap`` of the smaller strip, are not candidates: a small overlap can
+    correlate well by chance. The integer shift of best correlation is refined by a parabola;
+    the result is NaN when another rotation, ``peak_separation`` away, correlates within
+    ``min_peak_margin``.
+    """
+    return align_pairs([(prev, curr)], cfg, [centre], [span])[0]
 
 
 @dataclass
@@ -456,6 +582,103 @@ def _to_u8(texture: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.clip(128.0 + scale * texture, 0, 255).astype(np.uint8)
 
 
+def track_pairs(
+    pairs: list[tuple[TreadStrip, TreadStrip]], radius: float, cfg: TreadConfig, priors
+) -> list[RotationMeasurement]:
+    """:func:`track_strip_features` for several (earlier, later) pairs at once.
+
+    The pairs' strips are laid in blocks of one image each for the earlier and the later frame
+    (every pair on its own column grid, gaps between blocks), so that features are selected by
+    one Shi-Tomasi call and tracked by one Lucas-Kanade call each way.
+    """
+    out = [RotationMeasurement(math.nan, 0, 0, 0, False) for _ in pairs]
+    win = np.ones((3, 3), np.uint8)
+    blocks = []
+    for i, ((prev, curr), prior) in enumerate(zip(pairs, priors, strict=True)):
+        # features only where, turned by the prior, they land on the later strip's valid cells
+        cols = np.rint(prev.k0 + np.arange(prev.valid.shape[1]) + prior / prev.dphi).astype(int) - curr.k0
+        inside = (cols >= 0) & (cols < curr.valid.shape[1])
+        lands = np.zeros_like(prev.valid)
+        lands[:, inside] = curr.valid[:, cols[inside]]
+        # and with their whole Lucas-Kanade window on valid cells
+        mask = cv2.erode((prev.valid & lands).view(np.uint8), win)
+        if mask.any():
+            k0 = min(prev.k0, curr.k0)
+            n = max(prev.k0 + prev.texture.shape[1], curr.k0 + curr.texture.shape[1]) - k0
+            blocks.append((i, prev, curr, mask, k0, n))
+    if not blocks:
+        return out
+    gap = cfg.lk_window + 2
+    rows = max(max(p.texture.shape[0], c.texture.shape[0]) for _, p, c, *_ in blocks)
+    height = len(blocks) * (rows + gap) - gap
+    width = max(b[5] for b in blocks)
+    a8 = np.full((height, width), 128, np.uint8)
+    b8 = np.full((height, width), 128, np.uint8)
+    mask = np.zeros((height, width), np.uint8)
+    on_b = np.zeros((height, width), bool)
+    for j, (_, prev, curr, m, k0, _) in enumerate(blocks):
+        r0 = j * (rows + gap)
+        ja, jb = prev.k0 - k0, curr.k0 - k0
+        ha, wa = prev.texture.shape
+        hb, wb = curr.texture.shape
+        a8[r0 : r0 + ha, ja : ja + wa] = _to_u8(prev.texture, prev.valid)
+        b8[r0 : r0 + hb, jb : jb + wb] = _to_u8(curr.texture, curr.valid)
+        mask[r0 : r0 + ha, ja : ja + wa] = m
+        on_b[r0 : r0 + hb, jb : jb + wb] = curr.valid
+    pts = cv2.goodFeaturesToTrack(a8, 0, 0.01, cfg.min_distance, mask=mask, blockSize=5)
+    if pts is None:
+        return out
+    pts = pts.reshape(-1, 2)
+    blk = np.rint(pts[:, 1]).astype(int) // (rows + gap)
+    # the strongest max_features of each block (the corners come strongest first)
+    rank = np.zeros(len(pts), int)
+    for j in range(len(blocks)):
+        sel = blk == j
+        rank[sel] = np.arange(sel.sum())
+    take = rank < cfg.max_features
+    p0, blk = pts[take].astype(np.float32), blk[take]
+    prior_cols = np.array([priors[b[0]] / b[1].dphi for b in blocks], np.float32)
+    guess = p0 + np.stack([prior_cols[blk], np.zeros(len(blk), np.float32)], 1)
+    lk = dict(
+        winSize=(cfg.lk_window, cfg.lk_window),
+        maxLevel=0,  # the search starts at the aligned rotation, within a cell or so
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(a8, b8, p0.reshape(-1, 1, 2), guess.reshape(-1, 1, 2), **lk)
+    pb, st2, _ = cv2.calcOpticalFlowPyrLK(b8, a8, p1, p0.reshape(-1, 1, 2).copy(), **lk)
+    p1, pb = p1.reshape(-1, 2), pb.reshape(-1, 2)
+    fb = np.linalg.norm(pb - p0, axis=1)
+    j, i = np.rint(np.nan_to_num(p1, nan=-1.0)).astype(int).T
+    inside = (j >= 0) & (j < width) & (i >= 0) & (i < height)
+    on = np.zeros(len(p1), dtype=bool)
+    on[inside] = on_b[i[inside], j[inside]] & (i[inside] // (rows + gap) == blk[inside])
+    keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_threshold) & on
+    # each track's two cells are cylinder points (eq. 6 on their chord)
+    k0s = np.array([b[4] for b in blocks])[blk]
+    dphi = np.array([b[1].dphi for b in blocks])[blk]
+    row0 = blk * (rows + gap)
+    y0 = np.array([b[1].y[0] for b in blocks])[blk]
+    dy = np.array([b[1].y[1] - b[1].y[0] for b in blocks])[blk]
+    q0 = tread_point(radius, (k0s + p0[:, 0]) * dphi, y0 + (p0[:, 1] - row0) * dy)
+    q1 = tread_point(radius, (k0s + p1[:, 0]) * dphi, y0 + (p1[:, 1] - row0) * dy)
+    alpha = arc_angle(q0[keep], q1[keep], radius)
+    blk_kept = blk[keep]
+    for j, b in enumerate(blocks):
+        a_j = alpha[blk_kept == j]
+        n_feat, n_kept = int((blk == j).sum()), len(a_j)
+        if n_kept < cfg.min_inliers:
+            out[b[0]] = RotationMeasurement(math.nan, n_feat, n_kept, 0, False)
+            continue
+        inl = ransac_1d(a_j, cfg.ransac_tolerance)
+        n_in = int(inl.sum())
+        valid = n_in >= cfg.min_inliers
+        out[b[0]] = RotationMeasurement(
+            float(a_j[inl].mean()) if valid else math.nan, n_feat, n_kept, n_in, valid
+        )
+    return out
+
+
 def track_strip_features(
     prev: TreadStrip, curr: TreadStrip, radius: float, cfg: TreadConfig, alpha_prior: float = 0.0
 ) -> RotationMeasurement:
@@ -467,75 +690,39 @@ def track_strip_features(
     cells, are dropped. Each track's two cells are cylinder points; their chord gives the arc
     angle of eq. (6). The rotation is the mean of the largest consistent set.
     """
-    none = RotationMeasurement(math.nan, 0, 0, 0, False)
-    # features only where, turned by the prior, they land on the later strip's valid cells
-    cols = np.rint(prev.k0 + np.arange(prev.valid.shape[1]) + alpha_prior / prev.dphi).astype(int) - curr.k0
-    inside = (cols >= 0) & (cols < curr.valid.shape[1])
-    lands = np.zeros_like(prev.valid)
-    lands[:, inside] = curr.valid[:, cols[inside]]
-    # and with their whole Lucas-Kanade window on valid cells
-    win = np.ones((3, 3), np.uint8)
-    mask = cv2.erode((prev.valid & lands).astype(np.uint8), win)
-    if not mask.any():
-        return none
-    # both strips on one column grid (Lucas-Kanade takes images of one size)
-    k0 = min(prev.k0, curr.k0)
-    n = max(prev.k0 + prev.texture.shape[1], curr.k0 + curr.texture.shape[1]) - k0
+    return track_pairs([(prev, curr)], radius, cfg, [alpha_prior])[0]
 
-    def canvas(strip: TreadStrip) -> np.ndarray:
-        out = np.full((strip.texture.shape[0], n), 128, np.uint8)
-        j = strip.k0 - k0
-        out[:, j : j + strip.texture.shape[1]] = _to_u8(strip.texture, strip.valid)
-        return out
 
-    a8, b8 = canvas(prev), canvas(curr)
-    off_a, off_b = prev.k0 - k0, curr.k0 - k0
-    pts = cv2.goodFeaturesToTrack(
-        a8[:, off_a : off_a + mask.shape[1]], cfg.max_features, 0.01, cfg.min_distance, mask=mask, blockSize=5
-    )
-    if pts is None:
-        return none
-    p0 = pts.reshape(-1, 2).astype(np.float32) + np.float32((off_a, 0.0))
-    guess = p0 + np.float32((alpha_prior / prev.dphi, 0.0))
-    lk = dict(
-        winSize=(cfg.lk_window, cfg.lk_window),
-        maxLevel=0,  # the search starts at the aligned rotation, within a cell or so
-        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
-    )
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(
-        a8,
-        b8,
-        p0.reshape(-1, 1, 2),
-        guess.reshape(-1, 1, 2).copy(),
-        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-        **lk,
-    )
-    pb, st2, _ = cv2.calcOpticalFlowPyrLK(
-        b8, a8, p1, p0.reshape(-1, 1, 2).copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk
-    )
-    p1, pb = p1.reshape(-1, 2), pb.reshape(-1, 2)
-    fb = np.linalg.norm(pb - p0, axis=1)
-    p0 -= np.float32((off_a, 0.0))  # back to each strip's own columns
-    p1 -= np.float32((off_b, 0.0))
-    j, i = np.rint(np.nan_to_num(p1, nan=-1.0)).astype(int).T
-    inside = (j >= 0) & (j < curr.valid.shape[1]) & (i >= 0) & (i < curr.valid.shape[0])
-    on = np.zeros(len(p1), dtype=bool)
-    on[inside] = curr.valid[i[inside], j[inside]]
-    keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_threshold) & on
-    n_feat, n_kept = len(p0), int(keep.sum())
-    if n_kept < cfg.min_inliers:
-        return RotationMeasurement(math.nan, n_feat, n_kept, 0, False)
-
-    def cylinder(strip: TreadStrip, p: np.ndarray) -> np.ndarray:
-        phi = (strip.k0 + p[:, 0].astype(np.float64)) * strip.dphi
-        y = np.interp(p[:, 1], np.arange(len(strip.y)), strip.y)
-        return tread_point(radius, phi, y)
-
-    alpha = arc_angle(cylinder(prev, p0[keep]), cylinder(curr, p1[keep]), radius)
-    inl = ransac_1d(alpha, cfg.ransac_tolerance)
-    n_in = int(inl.sum())
-    valid = n_in >= cfg.min_inliers
-    return RotationMeasurement(float(alpha[inl].mean()) if valid else math.nan, n_feat, n_kept, n_in, valid)
+def measure_pairs(
+    pairs: list[tuple[TreadStrip | None, TreadStrip | None]],
+    radius: float,
+    cfg: TreadConfig,
+    priors,
+    spans,
+) -> list[RotationMeasurement]:
+    """:func:`measure_strips` for several wheels at once (batched alignment and tracking)."""
+    out = [RotationMeasurement(math.nan, 0, 0, 0, False) for _ in pairs]
+    ok = [i for i, (p, c) in enumerate(pairs) if p is not None and c is not None]
+    als = align_pairs([pairs[i] for i in ok], cfg, [priors[i] for i in ok], [spans[i] for i in ok])
+    go = []
+    for i, al in zip(ok, als, strict=True):
+        if math.isfinite(al.alpha) and al.ncc >= cfg.min_ncc:
+            go.append((i, al))
+        else:
+            out[i] = RotationMeasurement(math.nan, 0, 0, 0, False, al.ncc)
+    feats = track_pairs([pairs[i] for i, _ in go], radius, cfg, [al.alpha for _, al in go])
+    for (i, al), f in zip(go, feats, strict=True):
+        agree = f.valid and abs(f.alpha - al.alpha) <= cfg.ransac_tolerance
+        if agree or (al.ncc >= cfg.strong_ncc and not f.valid):
+            # two readings of the tread that agree, or a strong correlation and too few tracks
+            out[i] = RotationMeasurement(al.alpha, f.n_features, f.n_tracked, f.n_inliers, True, al.ncc)
+        elif f.valid and f.n_inliers >= cfg.min_override:
+            # many tracks, started at the aligned rotation, settle on another: a shadow or a
+            # change of light has pulled the correlation; the tracks follow the tread itself
+            out[i] = RotationMeasurement(f.alpha, f.n_features, f.n_tracked, f.n_inliers, True, al.ncc)
+        else:
+            out[i] = RotationMeasurement(math.nan, f.n_features, f.n_tracked, 0, False, al.ncc)
+    return out
 
 
 def measure_strips(
@@ -556,23 +743,7 @@ def measure_strips(
     are tracked to tell and the correlation is at least ``strong_ncc``. When at least
     ``min_override`` consistent features settle on another rotation, theirs is taken.
     """
-    if prev is None or curr is None:
-        return RotationMeasurement(math.nan, 0, 0, 0, False)
-    al = align_strips(prev, curr, cfg, alpha_prior, span)
-    if not (math.isfinite(al.alpha) and al.ncc >= cfg.min_ncc):
-        return RotationMeasurement(math.nan, 0, 0, 0, False, al.ncc)
-    feats = track_strip_features(prev, curr, radius, cfg, al.alpha)
-    agree = feats.valid and abs(feats.alpha - al.alpha) <= cfg.ransac_tolerance
-    if agree or (al.ncc >= cfg.strong_ncc and not feats.valid):
-        # two readings of the tread that agree, or a strong correlation and too few tracks to tell
-        return RotationMeasurement(al.alpha, feats.n_features, feats.n_tracked, feats.n_inliers, True, al.ncc)
-    if feats.valid and feats.n_inliers >= cfg.min_override:
-        # many tracks, started at the aligned rotation, settle on another: a shadow or a change of
-        # light has pulled the correlation; the tracks follow the tread itself
-        return RotationMeasurement(
-            feats.alpha, feats.n_features, feats.n_tracked, feats.n_inliers, True, al.ncc
-        )
-    return RotationMeasurement(math.nan, feats.n_features, feats.n_tracked, 0, False, al.ncc)
+    return measure_pairs([(prev, curr)], radius, cfg, [alpha_prior], [span])[0]
 
 
 def measure_rotation(
