@@ -406,6 +406,20 @@ class OmniCamera:
         alpha = np.linspace(0.0, self.max_fov / 2 + 1e-9, 8193)
         return alpha, np.polynomial.chebyshev.chebval(alpha, self._inv)
 
+    def project_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels (u, v) of camera-frame points given as coordinate arrays of one shape [m -> px].
+
+        The fast form of :meth:`world2cam` without ``refine`` (rho from a dense table of the
+        inverse polynomial, within ~1e-5 px), for many points; NaN outside the field of view.
+        """
+        r = np.hypot(x, y)
+        rho = np.interp(np.arctan2(r, z), *self._rho_table, right=np.nan)  # NaN beyond the view
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(r > 0, rho / r, 0.0)
+        ux, vy = x * s, y * s
+        c, d, e = self.affine
+        return c * ux + d * vy + self.center[0], e * ux + vy + self.center[1]
+
     def world2cam(self, points_cam, refine: bool = True) -> np.ndarray:
         """Pixels (..., 2) of camera-frame points or rays (..., 3); NaN outside the field of view.
 
@@ -416,16 +430,9 @@ class OmniCamera:
         p, lead = _points(points_cam, 3, "points_cam")
         r = np.hypot(p[:, 0], p[:, 1])
         alpha = np.arctan2(r, p[:, 2])
-        if not refine:  # a dense table of the inverse polynomial, linearly interpolated
-            # beyond the field of view (and for NaN) the table gives NaN
-            rho = np.interp(alpha, *self._rho_table, right=np.nan)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                s = np.where(r > 0, rho / r, 0.0)
-            ux, vy = p[:, 0] * s, p[:, 1] * s
-            c, d, e = self.affine
+        if not refine:
             out = np.empty((len(p), 2))
-            out[:, 0] = c * ux + d * vy + self.center[0]
-            out[:, 1] = e * ux + vy + self.center[1]
+            out[:, 0], out[:, 1] = self.project_xyz(p[:, 0], p[:, 1], p[:, 2])
             return out.reshape(*lead, 2)
         valid = (alpha <= self.max_fov / 2 + 1e-12) & np.isfinite(alpha)
         rho = np.polynomial.chebyshev.chebval(alpha, self._inv)

@@ -22,6 +22,7 @@ from perception.markers import (
     MarkerConfig,
     SteeringCalibration,
     assign_markers,
+    marker_projection,
     measure_axles,
     segment_magenta,
 )
@@ -64,6 +65,8 @@ class KinematicsConfig:
         shadow_robust: Align band-passed treads with shadow edges left out.
         roi_margin_frac: While every marker is found, each is looked for only within the
             gate plus this share of the image width around its predicted pixel.
+        geometry_refresh: The predicted marker pixels and the centroid offsets are computed
+            again when the roll or steering has changed by this [rad], or the depth by this [m].
         max_correction: Largest drift a correction-marker sighting may remove [rad]; a larger
             one means the white blob was not the marker. The first two sightings must agree
             within it to fix the marker's offset.
@@ -86,6 +89,7 @@ class KinematicsConfig:
     reacquire_tolerance: float = 0.06
     track_span: float = 0.25
     roi_margin_frac: float = 0.03
+    geometry_refresh: tuple[float, float] = (math.radians(1.0), 0.003)
 
 
 @dataclass
@@ -169,6 +173,7 @@ class KinematicStateEstimator:
         self._locked = np.zeros(4, dtype=bool)  # measured in the last frame
         self._measured = np.zeros(4, dtype=bool)  # measured since the reset
         self._strips: list = [None] * 4  # the last frame's tread strips
+        self._geometry = None  # (state, (predicted marker pixels, centroid offsets))
         self._markers_tracked = False  # all markers found in the last frame
         self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase, once confirmed
         self._pending = np.full(4, math.nan)  # the last unconfirmed sighting's offset
@@ -180,12 +185,21 @@ class KinematicStateEstimator:
         """The latest estimate."""
         return self._state
 
-    def _predicted_pixels(self) -> dict[str, np.ndarray]:
+    def _marker_geometry(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """(predicted marker pixels, centroid offsets) at the last state.
+
+        Both are kept until the state moves by ``geometry_refresh`` (angle [rad], depth [m]): the
+        offsets change by ~0.01 px per degree and the predictions only place search regions.
+        """
         s = self._state
-        pos = self.model.marker_positions(s.psi, s.depth, s.delta)
-        T_cb = np.linalg.inv(self.camera.T_body_cam)
-        px = self.camera.world2cam(np.array([pos[m] for m in MARKERS]) @ T_cb[:3, :3].T + T_cb[:3, 3])
-        return dict(zip(MARKERS, px, strict=True))
+        q = np.r_[s.psi, s.delta, s.depth]
+        angle, length = self.config.geometry_refresh
+        if self._geometry is not None:
+            dq = np.abs(q - self._geometry[0])
+            if dq[:6].max() <= angle and dq[6:].max() <= length:
+                return self._geometry[1]
+        self._geometry = (q, marker_projection(self.model, self.camera, s.psi, s.depth, s.delta))
+        return self._geometry[1]
 
     def update(self, image: np.ndarray, t: float) -> KinematicState:
         """Estimate the state at a new frame.
@@ -206,7 +220,7 @@ class KinematicStateEstimator:
         if not usable:
             return self._carry(t, dt)
         cfg = self.config
-        predicted = self._predicted_pixels()
+        predicted, offsets = self._marker_geometry()
         gate = cfg.markers.gate_frac * w
         found: dict = {}
         if self._markers_tracked:  # look where the markers should be first
@@ -225,6 +239,7 @@ class KinematicStateEstimator:
             prev.psi,
             prev.depth,
             self.calibration,
+            offsets=offsets,
         )
         psi = np.where(np.isfinite(meas.psi), meas.psi, prev.psi)
         depth = np.where(np.isfinite(meas.depth), meas.depth, prev.depth)

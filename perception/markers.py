@@ -115,7 +115,7 @@ def _blobs(img, cfg: MarkerConfig, min_area: float, offset, edges=(False,) * 4):
     lo, hi = cfg.hue_range
     mask = cv2.inRange(hsv, (lo, cfg.min_saturation, cfg.min_value), (hi, 255, 255))
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
     bx, by, bw, bh = (stats[keep, i] for i in range(4))
     m = 3  # the centre's weights reach this far beyond the blob
@@ -135,13 +135,21 @@ def _blobs(img, cfg: MarkerConfig, min_area: float, offset, edges=(False,) * 4):
         grown = cv2.dilate(core, np.ones((5, 5), np.uint8)) > 0
         h = hsv[y0:y1, x0:x1, 0].astype(np.float32)
         sat = hsv[y0:y1, x0:x1, 1].astype(np.float32)
-        full = float(np.median(sat[core > 0]))
+        full = _median(sat[core > 0])
         in_band = np.abs(h - 0.5 * (lo + hi)) <= (hi - lo)  # hue, with a margin
         wgt = np.where(grown & in_band, np.clip(sat / full, 0.0, 1.0), 0.0).astype(np.float32)
         mom = cv2.moments(wgt)
         cents.append((mom["m10"] / mom["m00"] + x0 + offset[0], mom["m01"] / mom["m00"] + y0 + offset[1]))
     cent = np.array(cents, dtype=np.float64).reshape(-1, 2)
     return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask > 0
+
+
+def _median(v: np.ndarray) -> float:
+    """Median of a 1-D array (np.median without its overhead on small arrays)."""
+    n = len(v)
+    part = np.partition(v, (n - 1) // 2)
+    lo = part[(n - 1) // 2]
+    return float(lo if n % 2 else 0.5 * (lo + part[(n - 1) // 2 + 1 :].min()))
 
 
 def assign_markers(predicted: dict[str, np.ndarray], centroids: np.ndarray, gate: float) -> dict[str, int]:
@@ -330,6 +338,13 @@ def centroid_offsets(
     image. The image outline is the projected edge, sampled densely; its area centroid less the
     projected centre is the offset, for the given state.
     """
+    return marker_projection(model, camera, psi, depth, delta)[1]
+
+
+def marker_projection(
+    model: RoverKinematicModel, camera: OmniCamera, psi, depth, delta
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(pixel of each marker's centre, :func:`centroid_offsets`) at a state [px]."""
     pos = model.marker_positions(psi, depth, delta)
     nrm = model.marker_normals(psi, delta)
     P = np.array([pos[m] for m in MARKERS])  # (8, 3)
@@ -353,7 +368,7 @@ def centroid_offsets(
         c = np.stack([((x + xn) * cross).sum(1), ((y + yn) * cross).sum(1)], 1) / (6 * area[:, None])
     off = c - poly[:, -1]
     off[~np.isfinite(off).all(axis=1)] = 0.0  # outside the field of view: no correction
-    return {m: off[i] for i, m in enumerate(MARKERS)}
+    return {m: poly[i, -1] for i, m in enumerate(MARKERS)}, {m: off[i] for i, m in enumerate(MARKERS)}
 
 
 def measure_axles(
@@ -364,6 +379,7 @@ def measure_axles(
     fallback_depth,
     calibration: SteeringCalibration | None = None,
     refine: bool = True,
+    offsets: dict[str, np.ndarray] | None = None,
 ) -> AxleMeasurement:
     """Axle roll, height and steering from marker pixels (eqs. 2-5).
 
@@ -377,7 +393,14 @@ def measure_axles(
             default lambda comes from the tie-rod ends' angles about their kingpins.
         refine: Measure once, then remove each blob's centroid offset (:func:`centroid_offsets`)
             predicted at that state and measure again.
+        offsets: Centroid offsets [px] to remove instead, in one pass (e.g. those of the last
+            state: they change by about 0.01 px per degree of roll or steering).
     """
+    if offsets is not None:
+        corrected = {m: np.asarray(p, dtype=np.float64) - offsets[m] for m, p in pixels.items()}
+        out = _measure(model, camera, corrected, fallback_psi, fallback_depth, calibration)
+        out.pixels = dict(pixels)
+        return out
     first = _measure(model, camera, pixels, fallback_psi, fallback_depth, calibration)
     if not refine or not pixels:
         return first

@@ -315,29 +315,26 @@ def unwrap_treads(
     b = y * y - 2 * y * ck[:, 1:2]
     dist2 = (np.einsum("ki,ki->k", ck, ck)[:, None] + r * r - 2 * r * a)[:, None, :] + b[:, :, None]
     facing = (a - r)[:, None, :] > cfg.min_facing * np.sqrt(np.maximum(dist2, 1e-12))
-    # camera-frame cells: A (a column's point at y = 0) + y M[:, 1], projected where facing
+    # camera-frame cells: A (a column's point at y = 0) + y M[:, 1], one coordinate at a time
     M = np.einsum("ji,kjl->kil", Rbc, Rs)  # Rbc^T R_k
     t = (cs - origin) @ Rbc
-    A = t[:, None, :] + (r * sin)[..., None] * M[:, None, :, 0] + (r * cos_)[..., None] * M[:, None, :, 2]
-    kk, ii, jj = np.nonzero(facing)
-    pts = A[kk, jj] + y[ii, None] * M[kk, :, 1]
-    px = camera.world2cam(pts, refine=False)
+    A = t[:, :, None] + (r * sin)[:, None, :] * M[:, :, :1] + (r * cos_)[:, None, :] * M[:, :, 2:]
+    X, Y, Z = (A[:, i, None, :] + y[None, :, None] * M[:, i, 1, None, None] for i in range(3))
+    pu, pv = camera.project_xyz(X, Y, Z)  # (n, rows, ncol)
     w, h = camera.image_size
     with np.errstate(invalid="ignore"):
-        ok = (px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+        visible = facing & (pu >= 0) & (pu <= w - 1) & (pv >= 0) & (pv <= h - 1)
     if wheels is not None:
-        ok[ok] = ~_occluded(model, camera, frames, wheels, pts[ok], px[ok])
-    visible = np.zeros(facing.shape, bool)
-    visible[kk[ok], ii[ok], jj[ok]] = True
-    grid = np.full(facing.shape + (2,), -1.0, np.float32)
-    grid[kk[ok], ii[ok], jj[ok]] = px[ok]
+        pu, pv = np.where(visible, pu, -1.0), np.where(visible, pv, -1.0)
+        visible &= ~_occluded(model, camera, frames, wheels, X * X + Y * Y + Z * Z, pu, pv)
+    grid = np.stack([np.where(visible, pu, -1.0), np.where(visible, pv, -1.0)], -1).astype(np.float32)
     strips: list[TreadStrip | None] = [None] * n
     keep = []
-    for k in range(n):
-        if visible[k].sum() < cfg.min_cells:
-            continue
-        cols = np.flatnonzero(visible[k].any(axis=0))
-        keep.append((k, int(cols[0]), int(cols[-1]) + 1))
+    cols_seen = visible.any(axis=1)  # (n, ncol)
+    first, last = cols_seen.argmax(axis=1), ncol - cols_seen[:, ::-1].argmax(axis=1)
+    for k, count in enumerate(visible.sum(axis=(1, 2)).tolist()):
+        if count >= cfg.min_cells:
+            keep.append((k, int(first[k]), int(last[k])))
     if not keep:
         return strips
     cell = (r * dphi, float(y[1] - y[0]))  # (column, row) size on the tread [m]
@@ -368,15 +365,14 @@ def unwrap_treads(
     return strips
 
 
-def _occluded(model, camera, frames, wheels, pts: np.ndarray, px: np.ndarray) -> np.ndarray:
+def _occluded(model, camera, frames, wheels, dist2: np.ndarray, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
     """Which tread points are hidden behind a steering arm or tie-rod marker (of any wheel).
 
-    ``pts``: (n, 3) camera-frame points [m]; ``px``: (n, 2) their pixels, in the image.
-
-    Each part is a chain of spheres (:meth:`RoverKinematicModel.occluders`); their image discs,
-    with a 2 px margin, are drawn farthest first into a label image, so that each pixel holds
-    the nearest part over it, and a point is hidden when it is farther from the camera than that
-    part.
+    ``dist2``: squared distances of the points from the camera [m^2]; ``pu``, ``pv``: their
+    pixels, in the image or -1 (not tested). Each part is a chain of spheres
+    (:meth:`RoverKinematicModel.occluders`); their image discs, with a 2 px margin, are drawn
+    farthest first into a label image, so that each pixel holds the nearest part over it, and a
+    point is hidden when it is farther from the camera than that part.
     """
     T = camera.T_body_cam
     parts = [model.occluders(wh, R, c) for wh, (R, c) in zip(wheels, frames, strict=True)]
@@ -387,13 +383,15 @@ def _occluded(model, camera, frames, wheels, pts: np.ndarray, px: np.ndarray) ->
     w, h = camera.image_size
     disc = radii / dist * (w / max(camera.max_fov, 1e-6)) + 2  # about px per radian
     label = np.zeros((h, w), np.uint8)
-    order = [j for j in np.argsort(-dist) if np.isfinite(opx[j]).all()]
+    order = np.argsort(-dist)
+    order = order[np.isfinite(opx[order]).all(axis=1)]
     fixed = np.rint(np.c_[opx[order] * 16, disc[order] * 16]).astype(int).tolist()  # 4 fractional bits
-    for j, (u, v, rad) in zip(order, fixed, strict=True):
-        cv2.circle(label, (u, v), rad, int(j) + 1, -1, cv2.LINE_8, 4)
-    ij = np.rint(px).astype(np.intp)
+    for j, (u, v, rad) in zip(order.tolist(), fixed, strict=True):
+        cv2.circle(label, (u, v), rad, j + 1, -1, cv2.LINE_8, 4)
+    lab = label[np.rint(pv).astype(np.intp), np.rint(pu).astype(np.intp)]
+    lab[pu < 0] = 0
     near = np.r_[np.inf, dist] ** 2
-    return np.einsum("ij,ij->i", pts, pts) > near[label[ij[:, 1], ij[:, 0]]]
+    return dist2 > near[lab]
 
 
 def unwrap_tread(
@@ -427,20 +425,27 @@ def _row_spectra(stack: np.ndarray, n: int) -> np.ndarray:
     return out.view(cplx)[:, : n // 2 + 1, 0].reshape(*lead, n // 2 + 1)
 
 
-def _correlate(fa: np.ndarray, fb: np.ndarray, na: int, nb: int, n: int):
-    """Masked NCC at every lag from the row spectra (3, rows, freq) of (mask, x, x^2) of a and b."""
+def _correlate(fa: np.ndarray, fb: np.ndarray, na, nb, n: int):
+    """Masked NCC at every lag from row spectra of (mask, x, x^2): fa, fb (pairs, 3, rows, freq).
+
+    Returns, per pair, (lags, ncc, overlap) for lags -(nb - 1) .. na - 1.
+    """
     # sum over rows and j of x[j] y[j - s]: products of the transforms, summed over rows
-    i, k = np.array([0, 1, 0, 2, 0, 1]), np.array([0, 0, 1, 0, 2, 1])
-    prod = np.einsum("prf,prf->pf", fa[i], np.conj(fb[k]))
-    corr = np.fft.irfft(prod, n, axis=1)
-    idx = np.r_[np.arange(n - (nb - 1), n), np.arange(0, na)]
-    lags = np.arange(-(nb - 1), na)
-    cnt, sa, sb, saa, sbb, sab = corr[:, idx].astype(np.float64)
+    cb = np.conj(fb)
+    prod = np.stack(
+        [(fa[:, i] * cb[:, k]).sum(axis=1) for i, k in ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))], 1
+    )
+    corr = np.fft.irfft(prod, n, axis=2).astype(np.float64)  # (pairs, 6, n): circular lags
+    cnt, sa, sb, saa, sbb, sab = corr.transpose(1, 0, 2)
     with np.errstate(invalid="ignore", divide="ignore"):
         num = sab - sa * sb / cnt
         den = np.sqrt(np.clip(saa - sa * sa / cnt, 0, None) * np.clip(sbb - sb * sb / cnt, 0, None))
         ncc = np.where((cnt > 0.5) & (den > 1e-6 * np.maximum(cnt, 1)), num / den, -1.0)
-    return lags, ncc, cnt
+    out = []
+    for q, (a, b) in enumerate(zip(na, nb, strict=True)):
+        idx = np.r_[n - (b - 1) : n, 0:a]
+        out.append((np.arange(-(b - 1), a), ncc[q, idx], cnt[q, idx]))
+    return out
 
 
 def masked_ncc(
@@ -461,7 +466,7 @@ def masked_ncc(
     a, b = a.astype(np.float64) * ma, b.astype(np.float64) * mb
     fa = _row_spectra(np.stack([ma, a, a * a]), n)
     fb = _row_spectra(np.stack([mb, b, b * b]), n)
-    return _correlate(fa, fb, na, nb, n)
+    return _correlate(fa[None], fb[None], [na], [nb], n)[0]
 
 
 def _strip_spectra(strips: list[TreadStrip], n: int) -> None:
@@ -510,13 +515,21 @@ def align_pairs(
     widest = max(max(p.texture.shape[1], c.texture.shape[1]) for p, c in pairs)
     n = int(cv2.getOptimalDFTSize(2 * max(widest, facing_columns(pairs[0][0].dphi, cfg))))
     _strip_spectra([s for pair in pairs for s in pair], n)
-    out = []
-    for (prev, curr), centre, span in zip(pairs, centres, spans, strict=True):
-        lags, ncc, cnt = _correlate(
-            curr._spectrum[1], prev._spectrum[1], curr.texture.shape[1], prev.texture.shape[1], n
-        )
-        out.append(_best_shift(prev, curr, lags, ncc, cnt, cfg, centre, span))
-    return out
+    rows = max(max(p.texture.shape[0], c.texture.shape[0]) for p, c in pairs)
+
+    def spectra(strips):
+        out = np.zeros((len(strips), 3, rows, n // 2 + 1), strips[0]._spectrum[1].dtype)
+        for i, s_ in enumerate(strips):
+            out[i, :, : s_.texture.shape[0]] = s_._spectrum[1]
+        return out
+
+    curr_f, prev_f = spectra([c for _, c in pairs]), spectra([p for p, _ in pairs])
+    na, nb = [c.texture.shape[1] for _, c in pairs], [p.texture.shape[1] for p, _ in pairs]
+    corr = _correlate(curr_f, prev_f, na, nb, n)
+    return [
+        _best_shift(prev, curr, *c, cfg, centre, span)
+        for (prev, curr), c, centre, span in zip(pairs, corr, centres, spans, strict=True)
+    ]
 
 
 def _best_shift(prev, curr, lags, ncc, cnt, cfg: TreadConfig, centre: float, span: float) -> Alignment:
