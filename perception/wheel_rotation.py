@@ -319,14 +319,25 @@ def unwrap_treads(
     M = np.einsum("ji,kjl->kil", Rbc, Rs)  # Rbc^T R_k
     t = (cs - origin) @ Rbc
     A = t[:, :, None] + (r * sin)[:, None, :] * M[:, :, :1] + (r * cos_)[:, None, :] * M[:, :, 2:]
-    X, Y, Z = (A[:, i, None, :] + y[None, :, None] * M[:, i, 1, None, None] for i in range(3))
-    pu, pv = camera.project_xyz(X, Y, Z)  # (n, rows, ncol)
+    # each column's cells lie on a line across the tread, whose image is smooth: project five
+    # of them and interpolate the rest by the quartic through them (within 1e-4 px)
+    nodes = np.linspace(-hw, hw, 5)
+    lagrange = np.polynomial.polynomial.polyvander(y / hw, 4) @ np.linalg.inv(
+        np.polynomial.polynomial.polyvander(nodes / hw, 4)
+    )
+    X, Y, Z = (A[:, i, None, :] + nodes[None, :, None] * M[:, i, 1, None, None] for i in range(3))
+    pu, pv = (lagrange @ q for q in camera.project_xyz(X, Y, Z))  # (n, rows, ncol)
     w, h = camera.image_size
     with np.errstate(invalid="ignore"):
         visible = facing & (pu >= 0) & (pu <= w - 1) & (pv >= 0) & (pv <= h - 1)
     if wheels is not None:
         pu, pv = np.where(visible, pu, -1.0), np.where(visible, pv, -1.0)
-        visible &= ~_occluded(model, camera, frames, wheels, X * X + Y * Y + Z * Z, pu, pv)
+        # squared distance from the camera: |A + y m|^2 with m = M[:, :, 1] a unit vector
+        am = np.einsum("kic,ki->kc", A, M[:, :, 1])
+        dist2 = (
+            np.einsum("kic,kic->kc", A, A)[:, None, :] + 2 * y[:, None] * am[:, None, :] + (y * y)[:, None]
+        )
+        visible &= ~_occluded(model, camera, frames, wheels, dist2, pu, pv)
     grid = np.stack([np.where(visible, pu, -1.0), np.where(visible, pv, -1.0)], -1).astype(np.float32)
     strips: list[TreadStrip | None] = [None] * n
     keep = []
@@ -513,7 +524,8 @@ def align_pairs(
     if not pairs:
         return []
     widest = max(max(p.texture.shape[1], c.texture.shape[1]) for p, c in pairs)
-    n = int(cv2.getOptimalDFTSize(2 * max(widest, facing_columns(pairs[0][0].dphi, cfg))))
+    # a power of two: the same size frame after frame, so that each strip is transformed once
+    n = 1 << (2 * widest - 2).bit_length()
     _strip_spectra([s for pair in pairs for s in pair], n)
     rows = max(max(p.texture.shape[0], c.texture.shape[0]) for p, c in pairs)
 
@@ -591,8 +603,10 @@ class RotationMeasurement:
 
 
 def _to_u8(texture: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    scale = 40.0 / max(float(texture[valid].std()) if valid.any() else 1.0, 1e-3)
-    return np.clip(128.0 + scale * texture, 0, 255).astype(np.uint8)
+    """The texture in 8 bits for Shi-Tomasi and Lucas-Kanade: 128 + 40 per standard deviation."""
+    _, std = cv2.meanStdDev(texture, mask=valid.view(np.uint8))
+    scale = 40.0 / max(float(std[0, 0]), 1e-3)
+    return cv2.addWeighted(texture, scale, texture, 0.0, 128.0, dtype=cv2.CV_8U)  # rounded, clipped
 
 
 def track_pairs(
