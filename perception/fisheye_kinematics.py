@@ -227,7 +227,7 @@ class KinematicStateEstimator:
         found: dict = {}
         if self._markers_tracked:  # look where the markers should be first
             at = np.array([p for p in predicted.values() if np.all(np.isfinite(p))])
-            reach = 0.5 * gate + cfg.roi_margin_frac * w
+            reach = 0.25 * gate + cfg.roi_margin_frac * w
             cent, _, _ = segment_magenta(img, cfg.markers, np.hstack([at - reach, at + reach + 1]))
             found = assign_markers(predicted, cent, gate)
         if len(found) < len(MARKERS):  # lost one: search the whole frame

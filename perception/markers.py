@@ -74,20 +74,33 @@ def segment_magenta(
     H, W = img.shape[:2]
     min_area = max(4.0, cfg.min_area_frac * H * W)
     if rois is None:
-        return _blobs(img, cfg, min_area, (0, 0))
+        boxes = [(0, 0, W, H)]
+    else:
+        boxes = []
+        for x0, y0, x1, y1 in merge_boxes(np.asarray(rois, dtype=int).reshape(-1, 4)):
+            x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
+            if x1 - x0 >= 3 and y1 - y0 >= 3:
+                boxes.append((x0, y0, x1, y1))
     full = np.zeros((H, W), bool)
-    cents, areas = [], []
-    for x0, y0, x1, y1 in merge_boxes(np.asarray(rois, dtype=int).reshape(-1, 4)):
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
-        if x1 - x0 < 3 or y1 - y0 < 3:
-            continue
-        c, a, m = _blobs(img[y0:y1, x0:x1], cfg, min_area, (x0, y0), edges=(x0 > 0, y0 > 0, x1 < W, y1 < H))
-        full[y0:y1, x0:x1] |= m
-        for ci, ai in zip(c, a, strict=True):
-            if not any(np.hypot(*(ci - cj)) < 1.0 for cj in cents):  # boxes overlap: once per blob
-                cents.append(ci)
-                areas.append(ai)
-    return np.array(cents, dtype=np.float64).reshape(-1, 2), np.array(areas, dtype=np.float64), full
+    if not boxes:
+        return np.zeros((0, 2)), np.zeros(0), full
+    # the boxes side by side in one image, 4 black columns apart (black is not magenta, and the
+    # opening and 8-connectivity do not bridge 4 columns): every step runs once for all of them
+    gap = 4
+    starts = np.cumsum([0] + [x1 - x0 + gap for x0, _, x1, _ in boxes])[:-1]
+    if len(boxes) == 1:
+        x0, y0, x1, y1 = boxes[0]
+        mosaic = img[y0:y1, x0:x1]
+    else:
+        mosaic = np.zeros(
+            (max(y1 - y0 for _, y0, _, y1 in boxes), starts[-1] + boxes[-1][2] - boxes[-1][0], 3), np.uint8
+        )
+        for u, (x0, y0, x1, y1) in zip(starts, boxes, strict=True):
+            mosaic[: y1 - y0, u : u + x1 - x0] = img[y0:y1, x0:x1]
+    cent, area, mask = _blobs(mosaic, cfg, min_area, boxes, starts, (W, H))
+    for u, (x0, y0, x1, y1) in zip(starts, boxes, strict=True):
+        full[y0:y1, x0:x1] = mask[: y1 - y0, u : u + x1 - x0]
+    return cent, area, full
 
 
 def merge_boxes(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -109,39 +122,96 @@ def merge_boxes(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
     return out
 
 
-def _blobs(img, cfg: MarkerConfig, min_area: float, offset, edges=(False,) * 4):
-    """Blobs of one image (or crop); ``edges``: (left, top, right, bottom) sides that cut blobs."""
-    hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV)
+def _blobs(mosaic, cfg: MarkerConfig, min_area: float, boxes, starts, size):
+    """Blobs of the boxes laid side by side in ``mosaic`` (box i from column starts[i]).
+
+    Returns image centroids (n, 2), areas (n,) and the mosaic's cleaned mask. A blob within
+    3 px of its box's edge is left out where that edge is inside the image (W, H) ``size``: the
+    box may cut it.
+    """
+    hsv = cv2.cvtColor(mosaic, cv2.COLOR_RGB2HSV)
     lo, hi = cfg.hue_range
     mask = cv2.inRange(hsv, (lo, cfg.min_saturation, cfg.min_value), (hi, 255, 255))
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
     keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
     bx, by, bw, bh = (stats[keep, i] for i in range(4))
+    box = np.searchsorted(starts, bx, side="right") - 1
+    x0, y0, x1, y1 = np.array(boxes).T[:, box]
+    u = np.asarray(starts)[box]
     m = 3  # the centre's weights reach this far beyond the blob
     cut = (
-        (edges[0] & (bx < m))
-        | (edges[1] & (by < m))
-        | (edges[2] & (bx + bw > img.shape[1] - m))
-        | (edges[3] & (by + bh > img.shape[0] - m))
+        ((x0 > 0) & (bx - u < m))
+        | ((y0 > 0) & (by < m))
+        | ((x1 < size[0]) & (bx + bw > u + x1 - x0 - m))
+        | ((y1 < size[1]) & (by + bh > y1 - y0 - m))
     )
-    keep = keep[~cut]
+    keep, box, u = keep[~cut], box[~cut], u[~cut]
+    if len(keep) == 0:
+        return np.zeros((0, 2)), np.zeros(0), mask > 0
+    cx, cy = _weighted_centres(hsv, labels, stats, keep, cfg)
+    off = np.array(boxes)[box, :2] - np.c_[u, np.zeros_like(u)]
+    cent = np.c_[cx, cy] + off
+    return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask > 0
+
+
+def _weighted_centres(hsv, labels, stats, keep, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Centres of the blobs ``keep``, each weighted by saturation relative to its core's median.
+
+    Each blob's weights cover the blob grown by two pixels, in the hue band (with a margin), at
+    min(saturation / the median saturation of the blob, 1).
+    """
+    lo, hi = cfg.hue_range
+    k = len(keep)
+    x, y, w, h = (stats[keep, i] for i in range(4))
+    # blobs whose grown areas may meet are done one by one; the others all at once
+    ax0, ay0, ax1, ay1 = x - 2, y - 2, x + w + 2, y + h + 2
+    meet = (ax0[:, None] < ax1[None]) & (ax0[None] < ax1[:, None]) & (ay0[:, None] < ay1[None])
+    meet &= ay0[None] < ay1[:, None]
+    np.fill_diagonal(meet, False)
+    if meet.any():
+        return _centres_one_by_one(hsv, labels, stats, keep, cfg)
+    ids = np.zeros(labels.max() + 1, np.uint16)
+    ids[keep] = np.arange(1, k + 1)
+    core = ids[labels]
+    grown = cv2.dilate(core, np.ones((5, 5), np.uint8))  # the blob's id over its grown area
+    sat = hsv[..., 1]
+    # each blob's median saturation over its core, by one sort
+    on = core > 0
+    lab, val = core[on], sat[on]
+    order = np.lexsort((val, lab))
+    val = val[order].astype(np.float64)
+    cnt = np.bincount(lab, minlength=k + 1)[1:]
+    first = np.cumsum(cnt) - cnt
+    med = 0.5 * (val[first + (cnt - 1) // 2] + val[first + cnt // 2])
+    in_band = np.abs(2 * hsv[..., 0].astype(np.int16) - (lo + hi)) <= 2 * (hi - lo)  # with a margin
+    idx = np.flatnonzero(np.where(in_band, grown, 0))  # the pixels that carry weight
+    g = grown.ravel()[idx]
+    wgt = np.minimum(sat.ravel()[idx] / med[g - 1], 1.0)
+    yy, xx = np.divmod(idx, hsv.shape[1])
+    m00 = np.bincount(g, wgt, k + 1)[1:]
+    return np.bincount(g, wgt * xx, k + 1)[1:] / m00, np.bincount(g, wgt * yy, k + 1)[1:] / m00
+
+
+def _centres_one_by_one(hsv, labels, stats, keep, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_weighted_centres`, blob by blob (for blobs whose grown areas may overlap)."""
+    lo, hi = cfg.hue_range
     cents = []
     for lab in keep:
         x, y, w, hh = stats[lab, :4]
         x0, y0 = max(x - 3, 0), max(y - 3, 0)
-        x1, y1 = min(x + w + 3, img.shape[1]), min(y + hh + 3, img.shape[0])
+        x1, y1 = min(x + w + 3, hsv.shape[1]), min(y + hh + 3, hsv.shape[0])
         core = (labels[y0:y1, x0:x1] == lab).astype(np.uint8)
         grown = cv2.dilate(core, np.ones((5, 5), np.uint8)) > 0
-        h = hsv[y0:y1, x0:x1, 0].astype(np.float32)
-        sat = hsv[y0:y1, x0:x1, 1].astype(np.float32)
+        h = hsv[y0:y1, x0:x1, 0].astype(np.int16)
+        sat = hsv[y0:y1, x0:x1, 1].astype(np.float64)
         full = _median(sat[core > 0])
-        in_band = np.abs(h - 0.5 * (lo + hi)) <= (hi - lo)  # hue, with a margin
-        wgt = np.where(grown & in_band, np.clip(sat / full, 0.0, 1.0), 0.0).astype(np.float32)
+        in_band = np.abs(2 * h - (lo + hi)) <= 2 * (hi - lo)  # hue, with a margin
+        wgt = np.where(grown & in_band, np.minimum(sat / full, 1.0), 0.0)
         mom = cv2.moments(wgt)
-        cents.append((mom["m10"] / mom["m00"] + x0 + offset[0], mom["m01"] / mom["m00"] + y0 + offset[1]))
-    cent = np.array(cents, dtype=np.float64).reshape(-1, 2)
-    return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask > 0
+        cents.append((mom["m10"] / mom["m00"] + x0, mom["m01"] / mom["m00"] + y0))
+    c = np.array(cents, dtype=np.float64).reshape(-1, 2)
+    return c[:, 0], c[:, 1]
 
 
 def _median(v: np.ndarray) -> float:
