@@ -23,6 +23,7 @@ left out (the odometry paper's shadow-edge mask, applied to the treads).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -266,6 +267,15 @@ def _band_pass(
     return tex, band
 
 
+@functools.lru_cache(maxsize=8)
+def _row_interpolation(rows: int, hw: float) -> tuple[np.ndarray, np.ndarray]:
+    """Five nodes across the tread [m] and the (rows, 5) quartic interpolation to the strip rows."""
+    nodes = np.linspace(-hw, hw, 5)
+    y = np.linspace(-hw, hw, rows)
+    vander = np.polynomial.polynomial.polyvander
+    return nodes, vander(y / hw, 4) @ np.linalg.inv(vander(nodes / hw, 4))
+
+
 def facing_columns(dphi: float, cfg: TreadConfig) -> int:
     """Columns of the grid searched for tread facing the camera: every strip is at most this wide."""
     return 2 * math.ceil(math.acos(cfg.min_facing) / dphi) + 3
@@ -327,10 +337,7 @@ def unwrap_treads(
     A = t[:, :, None] + (r * sin)[:, None, :] * M[:, :, :1] + (r * cos_)[:, None, :] * M[:, :, 2:]
     # each column's cells lie on a line across the tread, whose image is smooth: project five
     # of them and interpolate the rest by the quartic through them (within 1e-4 px)
-    nodes = np.linspace(-hw, hw, 5)
-    lagrange = np.polynomial.polynomial.polyvander(y / hw, 4) @ np.linalg.inv(
-        np.polynomial.polynomial.polyvander(nodes / hw, 4)
-    )
+    nodes, lagrange = _row_interpolation(cfg.rows, hw)
     X, Y, Z = (A[:, i, None, :] + nodes[None, :, None] * M[:, i, 1, None, None] for i in range(3))
     pu, pv = (lagrange @ q for q in camera.project_xyz(X, Y, Z))  # (n, rows, ncol)
     w, h = camera.image_size
@@ -405,7 +412,7 @@ def _occluded(model, camera, frames, wheels, dist2: np.ndarray, pu: np.ndarray, 
     fixed = np.rint(np.c_[opx[order] * 16, disc[order] * 16]).astype(int).tolist()  # 4 fractional bits
     for j, (u, v, rad) in zip(order.tolist(), fixed, strict=True):
         cv2.circle(label, (u, v), rad, j + 1, -1, cv2.LINE_8, 4)
-    lab = label[np.rint(pv).astype(np.intp), np.rint(pu).astype(np.intp)]
+    lab = label[(pv + 0.5).astype(np.intp), (pu + 0.5).astype(np.intp)]  # the nearest pixel (-1 -> 0)
     lab[pu < 0] = 0
     near = np.r_[np.inf, dist] ** 2
     return dist2 > near[lab]
