@@ -429,7 +429,7 @@ def marker_projection(
     V = np.cross(N, U)
     outline = P[:, None] + half * (edge[None, :, :1] * U[:, None] + edge[None, :, 1:] * V[:, None])
     pts = np.concatenate([outline, P[:, None]], axis=1)  # (8, 65, 3): outline, then the centre
-    poly = camera.world2cam(pts @ T_cb[:3, :3].T + T_cb[:3, 3])
+    poly = camera.world2cam(pts @ T_cb[:3, :3].T + T_cb[:3, 3], refine=False)  # within 1e-5 px
     x, y = poly[:, :-1, 0], poly[:, :-1, 1]
     xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
     cross = x * yn - xn * y
