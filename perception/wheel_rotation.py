@@ -207,6 +207,11 @@ class TreadStrip:
     # row spectra of (valid, texture, texture^2) for the correlation, kept for the next frame
     _spectrum: tuple | None = field(default=None, repr=False, compare=False)
 
+    @functools.cached_property
+    def n_valid(self) -> int:
+        """Number of valid cells."""
+        return int(np.count_nonzero(self.valid))
+
     @property
     def phi(self) -> np.ndarray:
         """(cols,) column angles [rad]."""
@@ -449,27 +454,23 @@ def _row_spectra(stack: np.ndarray, n: int) -> np.ndarray:
     return out.view(cplx)[:, : n // 2 + 1, 0].reshape(*lead, n // 2 + 1)
 
 
-def _correlate(fa: np.ndarray, fb: np.ndarray, na, nb, n: int):
-    """Masked NCC at every lag from row spectra of (mask, x, x^2): fa, fb (pairs, 3, rows, freq).
+def _correlate(fa: np.ndarray, fb: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Masked NCC at every circular lag from the row spectra of (mask, x, x^2).
 
-    Returns, per pair, (lags, ncc, overlap) for lags -(nb - 1) .. na - 1.
+    ``fa``, ``fb``: (pairs, 3, rows, freq). Returns (ncc, overlap), each (pairs, n): index j is
+    lag j (j < cols of a) or j - n.
     """
     # sum over rows and j of x[j] y[j - s]: products of the transforms, summed over rows
     cb = np.conj(fb)
-    prod = np.stack(
-        [(fa[:, i] * cb[:, k]).sum(axis=1) for i, k in ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))], 1
-    )
-    corr = np.fft.irfft(prod, n, axis=2).astype(np.float64)  # (pairs, 6, n): circular lags
+    pairs = ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))
+    prod = np.stack([(fa[:, i] * cb[:, k]).sum(axis=1) for i, k in pairs], 1)
+    corr = np.fft.irfft(prod, n, axis=2).astype(np.float64)  # (pairs, 6, n)
     cnt, sa, sb, saa, sbb, sab = corr.transpose(1, 0, 2)
     with np.errstate(invalid="ignore", divide="ignore"):
         num = sab - sa * sb / cnt
         den = np.sqrt(np.clip(saa - sa * sa / cnt, 0, None) * np.clip(sbb - sb * sb / cnt, 0, None))
         ncc = np.where((cnt > 0.5) & (den > 1e-6 * np.maximum(cnt, 1)), num / den, -1.0)
-    out = []
-    for q, (a, b) in enumerate(zip(na, nb, strict=True)):
-        idx = np.r_[n - (b - 1) : n, 0:a]
-        out.append((np.arange(-(b - 1), a), ncc[q, idx], cnt[q, idx]))
-    return out
+    return ncc, cnt
 
 
 def masked_ncc(
@@ -490,7 +491,9 @@ def masked_ncc(
     a, b = a.astype(np.float64) * ma, b.astype(np.float64) * mb
     fa = _row_spectra(np.stack([ma, a, a * a]), n)
     fb = _row_spectra(np.stack([mb, b, b * b]), n)
-    return _correlate(fa[None], fb[None], [na], [nb], n)[0]
+    ncc, cnt = _correlate(fa[None], fb[None], n)
+    idx = np.r_[n - (nb - 1) : n, 0:na]
+    return np.arange(-(nb - 1), na), ncc[0, idx], cnt[0, idx]
 
 
 def _strip_spectra(strips: list[TreadStrip], n: int) -> None:
@@ -548,35 +551,41 @@ def align_pairs(
             out[i, :, : s_.texture.shape[0]] = s_._spectrum[1]
         return out
 
-    curr_f, prev_f = spectra([c for _, c in pairs]), spectra([p for p, _ in pairs])
-    na, nb = [c.texture.shape[1] for _, c in pairs], [p.texture.shape[1] for p, _ in pairs]
-    corr = _correlate(curr_f, prev_f, na, nb, n)
-    return [
-        _best_shift(prev, curr, *c, cfg, centre, span)
-        for (prev, curr), c, centre, span in zip(pairs, corr, centres, spans, strict=True)
-    ]
-
-
-def _best_shift(prev, curr, lags, ncc, cnt, cfg: TreadConfig, centre: float, span: float) -> Alignment:
-    shift = lags + (curr.k0 - prev.k0)  # in columns of the common grid: alpha = shift * dphi
-    alpha = shift * curr.dphi
-    need = max(cfg.min_cells, cfg.min_overlap * min(curr.valid.sum(), prev.valid.sum()))
-    cand = (np.abs(alpha - centre) <= span) & (cnt >= need - 0.5)
-    if not cand.any():
-        return Alignment(math.nan, math.nan, 0.0, 0)
-    score = np.where(cand, ncc, -np.inf)
-    k = int(np.argmax(score))
-    others = cand & (np.abs(alpha - alpha[k]) > cfg.peak_separation)
-    margin = float(ncc[k] - ncc[others].max()) if others.any() else 1.0
-    best = float(alpha[k])
-    if 0 < k < len(ncc) - 1 and cand[k - 1] and cand[k + 1]:
-        y0, y1, y2 = ncc[k - 1], ncc[k], ncc[k + 1]
-        den = y0 - 2 * y1 + y2
-        if den < 0:
-            best += float(np.clip(0.5 * (y0 - y2) / den, -1, 1)) * curr.dphi
-    if margin < cfg.min_peak_margin:  # two rotations fit about as well: do not guess
-        return Alignment(math.nan, float(ncc[k]), margin, int(round(cnt[k])))
-    return Alignment(best, float(ncc[k]), margin, int(round(cnt[k])))
+    ncc, cnt = _correlate(spectra([c for _, c in pairs]), spectra([p for p, _ in pairs]), n)
+    # every pair's candidates at once, on the circular lags
+    na = np.array([c.texture.shape[1] for _, c in pairs])[:, None]
+    nb = np.array([p.texture.shape[1] for p, _ in pairs])[:, None]
+    j = np.arange(n)[None]
+    lag = np.where(j < na, j, j - n)
+    shift = lag + np.array([c.k0 - p.k0 for p, c in pairs])[:, None]  # columns of the common grid
+    dphi = np.array([c.dphi for _, c in pairs])[:, None]
+    alpha = shift * dphi
+    smaller = np.array([min(c.n_valid, p.n_valid) for p, c in pairs])[:, None]
+    need = np.maximum(cfg.min_cells, cfg.min_overlap * smaller)
+    within = np.abs(alpha - np.asarray(centres)[:, None]) <= np.asarray(spans)[:, None]
+    cand = ((j < na) | (j >= n - (nb - 1))) & within & (cnt >= need - 0.5)
+    q = np.arange(len(pairs))
+    k = np.argmax(np.where(cand, ncc, -np.inf), axis=1)
+    top, at = ncc[q, k], alpha[q, k]
+    others = cand & (np.abs(alpha - at[:, None]) > cfg.peak_separation)
+    margin = np.where(others.any(axis=1), top - np.where(others, ncc, -np.inf).max(axis=1), 1.0)
+    # parabola through the neighbouring lags
+    km, kp = (k - 1) % n, (k + 1) % n
+    near = cand[q, km] & cand[q, kp] & (lag[q, km] == lag[q, k] - 1) & (lag[q, kp] == lag[q, k] + 1)
+    y0, y2 = ncc[q, km], ncc[q, kp]
+    den = y0 - 2 * top + y2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        step = np.where(near & (den < 0), np.clip(0.5 * (y0 - y2) / den, -1, 1), 0.0)
+    best = at + step * dphi[:, 0]
+    out = []
+    for i in range(len(pairs)):
+        if not cand[i].any():
+            out.append(Alignment(math.nan, math.nan, 0.0, 0))
+        else:
+            # two rotations that fit about as well: do not guess
+            a = float(best[i]) if margin[i] >= cfg.min_peak_margin else math.nan
+            out.append(Alignment(a, float(top[i]), float(margin[i]), int(round(cnt[i, k[i]]))))
+    return out
 
 
 def align_strips(
