@@ -546,6 +546,8 @@ def align_pairs(
     rows = max(max(p.texture.shape[0], c.texture.shape[0]) for p, c in pairs)
 
     def spectra(strips):
+        if all(s_.texture.shape[0] == rows for s_ in strips):
+            return np.stack([s_._spectrum[1] for s_ in strips])
         out = np.zeros((len(strips), 3, rows, n // 2 + 1), strips[0]._spectrum[1].dtype)
         for i, s_ in enumerate(strips):
             out[i, :, : s_.texture.shape[0]] = s_._spectrum[1]
