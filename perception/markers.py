@@ -484,31 +484,62 @@ def measure_axles(
     return out
 
 
+def _hit(o, d, axis: int | None, normal, point):
+    """Ray o + t d (t > 0) with the plane normal . (r - point) = 0, on floats; None if it misses."""
+    if axis is not None:  # the plane x = point[0]
+        den, num = d[0], point[0] - o[0]
+    else:
+        den = d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]
+        num = sum((point[i] - o[i]) * normal[i] for i in range(3))
+    t = num / den if den != 0 else math.nan
+    if not t > 0:
+        return None
+    return [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
+
+
 def _measure(model, camera, pixels, fallback_psi, fallback_depth, calibration) -> AxleMeasurement:
+    """Eqs. 2-5 for one set of marker pixels (see :func:`measure_axles`), on floats."""
     out = AxleMeasurement(pixels=dict(pixels))
     names = [m for m in MARKERS if m in pixels]
     if not names:
         return out
     origin, dirs = body_rays(camera, np.array([pixels[m] for m in names]))
-    ray = dict(zip(names, dirs, strict=True))
+    o = origin.tolist()
+    ray = {m: d for m, d in zip(names, dirs.tolist(), strict=True) if all(math.isfinite(v) for v in d)}
+    arms, ys = model.ackermann_arms()
+    tip_z = float(model.arm_tip[2])
     for i, axle in enumerate(AXLES):
         p1, p2 = PLATE[axle]
         psi, depth = float(fallback_psi[i]), float(fallback_depth[i])
+        x_plate = model.axle_sign(axle) * (model.axle_x - model.plate_offset)
         if p1 in ray and p2 in ray:
-            pts = plate_points(model, axle, origin, np.stack([ray[p1], ray[p2]]))
-            if np.all(np.isfinite(pts)):
-                out.points[p1], out.points[p2] = pts[0], pts[1]
-                psi, depth = axle_from_plate(model, axle, pts[0], pts[1])
+            m1 = _hit(o, ray[p1], 0, None, (x_plate, 0.0, 0.0))
+            m2 = _hit(o, ray[p2], 0, None, (x_plate, 0.0, 0.0))
+            if m1 is not None and m2 is not None:
+                out.points[p1], out.points[p2] = np.array(m1), np.array(m2)
+                # eq. 2: index 1 is on the left (+y in the axle frame)
+                psi = math.atan2(m1[2] - m2[2], m1[1] - m2[1])
+                depth = -0.5 * (m1[2] + m2[2])
                 out.psi[i], out.depth[i] = psi, depth
+        # the roll-corrected tie-rod plane (eqs. 3-4): normal R_x(psi) z, at the tie-rod height
+        c, s_ = math.cos(psi), math.sin(psi)
+        normal = (0.0, -s_, c)
+        centre = (model.axle_sign(axle) * model.axle_x, 0.0, -depth)
+        point = (centre[0], centre[1] + tip_z * normal[1], centre[2] + tip_z * normal[2])
         for name, wheel in zip(ROD[axle], (axle + "L", axle + "R"), strict=True):
             if name not in ray:
                 continue
-            tip = tie_rod_points(model, axle, psi, depth, origin, ray[name][None])[0]
-            if not np.all(np.isfinite(tip)):
+            tip = _hit(o, ray[name], None, normal, point)
+            if tip is None:
                 continue
-            out.points[name] = tip
+            out.points[name] = np.array(tip)
             k = WHEELS.index(wheel)
-            out.delta[k] = wheel_steer_from_tip(model, wheel, tip, psi, depth)
+            # the tip's angle about the kingpin in the axle frame, less its angle at zero steering
+            v = (tip[0] - centre[0], tip[1] - centre[1], tip[2] - centre[2])
+            lx, ly = v[0], c * v[1] + s_ * v[2] - float(model.kingpin_local(wheel)[1])
+            nominal = model.tip_knuckle(wheel)
+            ang = math.atan2(ly, lx) - math.atan2(nominal[1], nominal[0])
+            out.delta[k] = math.remainder(ang, 2 * math.pi)
         if calibration is not None:
             if all(m in out.points for m in (p1, p2, *ROD[axle])):
                 r = steering_ratio(
@@ -516,7 +547,6 @@ def _measure(model, camera, pixels, fallback_psi, fallback_depth, calibration) -
                 )
                 out.lam[i] = calibration.steering(axle, r)
             continue
-        arms, ys = model.ackermann_arms()
         lams = []
         for k in (2 * i, 2 * i + 1):
             d = out.delta[k]
