@@ -222,12 +222,21 @@ class TreadStrip:
         return cv2.remap(image, self.pixels[..., 0], self.pixels[..., 1], cv2.INTER_LINEAR)
 
 
+@functools.lru_cache(maxsize=16)
+def _gaussian(sigma: float) -> np.ndarray:
+    """The 1-D kernel cv2.GaussianBlur uses on float images for ``sigma`` (4 sigma each side)."""
+    return cv2.getGaussianKernel(int(round(sigma * 8 + 1)) | 1, sigma, cv2.CV_32F)
+
+
 def _masked_blur(img: np.ndarray, mask: np.ndarray, sigma: tuple[float, float]) -> np.ndarray:
-    """Gaussian blur of ``img`` over the cells of ``mask`` only (normalised convolution, zero beyond)."""
-    m = mask.astype(np.float32)
-    blur = dict(sigmaX=sigma[0], sigmaY=sigma[1], borderType=cv2.BORDER_CONSTANT)
-    num = cv2.GaussianBlur(img * m, (0, 0), **blur)
-    den = cv2.GaussianBlur(m, (0, 0), **blur)
+    """Gaussian blur of ``img`` (zero off the mask) over the cells of ``mask`` only (normalised
+    convolution, zero beyond the array).
+
+    cv2.GaussianBlur's kernels, applied by sepFilter2D (the same result, in half the time).
+    """
+    kx, ky = _gaussian(float(sigma[0])), _gaussian(float(sigma[1]))
+    num = cv2.sepFilter2D(img, -1, kx, ky, borderType=cv2.BORDER_CONSTANT)
+    den = cv2.sepFilter2D(mask.astype(np.float32), -1, kx, ky, borderType=cv2.BORDER_CONSTANT)
     return num / np.maximum(den, 1e-3)
 
 
