@@ -229,10 +229,10 @@ def _gaussian(sigma: float) -> np.ndarray:
 
 
 def _masked_blur(img: np.ndarray, mask: np.ndarray, sigma: tuple[float, float]) -> np.ndarray:
-    """Gaussian blur of ``img`` (zero off the mask) over the cells of ``mask`` only (normalised
-    convolution, zero beyond the array).
+    """Gaussian blur of ``img`` (zero off the mask) over the cells of ``mask`` only.
 
-    cv2.GaussianBlur's kernels, applied by sepFilter2D (the same result, in half the time).
+    Normalised convolution, zero beyond the array; cv2.GaussianBlur's kernels applied by
+    sepFilter2D (the same result, in half the time).
     """
     kx, ky = _gaussian(float(sigma[0])), _gaussian(float(sigma[1]))
     num = cv2.sepFilter2D(img, -1, kx, ky, borderType=cv2.BORDER_CONSTANT)
