@@ -105,7 +105,7 @@ def segment_magenta(
 
 def merge_boxes(boxes: np.ndarray) -> list[tuple[int, int, int, int]]:
     """Boxes (x0, y0, x1, y1) with every overlapping group replaced by its bounding box."""
-    out = [tuple(int(v) for v in b) for b in boxes]
+    out = [tuple(b) for b in np.asarray(boxes, dtype=int).tolist()]
     merged = True
     while merged:
         merged = False
@@ -150,8 +150,8 @@ def _blobs(mosaic, cfg: MarkerConfig, min_area: float, boxes, starts, size):
     if len(keep) == 0:
         return np.zeros((0, 2)), np.zeros(0), mask > 0
     cx, cy = _weighted_centres(hsv, labels, stats, keep, cfg)
-    off = np.array(boxes)[box, :2] - np.c_[u, np.zeros_like(u)]
-    cent = np.c_[cx, cy] + off
+    corner = np.array(boxes)[box]
+    cent = np.stack([cx + corner[:, 0] - u, cy + corner[:, 1]], axis=1)
     return cent, stats[keep, cv2.CC_STAT_AREA].astype(np.float64), mask > 0
 
 
@@ -173,7 +173,7 @@ def _weighted_centres(hsv, labels, stats, keep, cfg: MarkerConfig) -> tuple[np.n
         return _centres_one_by_one(hsv, labels, stats, keep, cfg)
     ids = np.zeros(labels.max() + 1, np.uint16)
     ids[keep] = np.arange(1, k + 1)
-    core = ids[labels]
+    core = np.take(ids, labels)
     grown = cv2.dilate(core, np.ones((5, 5), np.uint8))  # the blob's id over its grown area
     sat = hsv[..., 1]
     # each blob's median saturation over its core, by one sort
@@ -184,8 +184,9 @@ def _weighted_centres(hsv, labels, stats, keep, cfg: MarkerConfig) -> tuple[np.n
     cnt = np.bincount(lab, minlength=k + 1)[1:]
     first = np.cumsum(cnt) - cnt
     med = 0.5 * (val[first + (cnt - 1) // 2] + val[first + cnt // 2])
-    in_band = np.abs(2 * hsv[..., 0].astype(np.int16) - (lo + hi)) <= 2 * (hi - lo)  # with a margin
-    idx = np.flatnonzero(np.where(in_band, grown, 0))  # the pixels that carry weight
+    idx = np.flatnonzero(grown)
+    hue = hsv[..., 0].ravel()[idx].astype(np.int16)
+    idx = idx[np.abs(2 * hue - (lo + hi)) <= 2 * (hi - lo)]  # in the hue band, with a margin
     g = grown.ravel()[idx]
     wgt = np.minimum(sat.ravel()[idx] / med[g - 1], 1.0)
     yy, xx = np.divmod(idx, hsv.shape[1])
