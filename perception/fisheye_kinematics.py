@@ -391,7 +391,9 @@ class KinematicStateEstimator:
         col_med = _masked_median(v, vis, axis=0)
         half = max(1, int(round(2 * arc / strip.dphi)))
         padded = np.concatenate([np.full(half, np.nan), col_med, np.full(half, np.nan)])
-        windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1)
+        windows = np.lib.stride_tricks.as_strided(  # read-only view: (columns, 2 half + 1)
+            padded, (len(col_med), 2 * half + 1), (padded.strides[0],) * 2, writeable=False
+        )
         level = _masked_median(windows, np.isfinite(windows), axis=1)
         bright = (v >= cfg.white_min_value) & (v >= cfg.white_contrast * np.nan_to_num(level, nan=255.0))
         white = (vis & bright & (sat <= cfg.white_max_saturation)).astype(np.uint8)
@@ -423,7 +425,7 @@ def _masked_median(a: np.ndarray, mask: np.ndarray, axis: int) -> np.ndarray:
     The same as ``np.nanmedian`` of the masked array, by one sort (several times faster on
     small arrays).
     """
-    srt = np.moveaxis(np.sort(np.where(mask, a, np.inf), axis=axis), axis, -1)
+    srt = np.sort(np.moveaxis(np.where(mask, a, np.inf), axis, -1), axis=-1)
     n = mask.sum(axis=axis).reshape(-1)
     flat = srt.reshape(-1, srt.shape[-1])
     rows = np.arange(len(flat))
