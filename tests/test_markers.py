@@ -244,3 +244,25 @@ def test_correction_marker_reacquires_after_drift_beyond_the_limit():
     assert est._correct(0, 32.0, 32.0 - 0.48) == pytest.approx(31.52)
     # after a correction, a lone far sighting is refused again
     assert est._correct(0, 40.0, 40.4) is None
+
+
+@pytest.mark.parametrize("pose", POSES[:2])
+def test_regions_of_interest_give_the_centres_of_the_whole_frame(pose):
+    """The boxes, laid side by side in one image, find each marker's centre exactly as the full frame does."""
+    model = rover_model()
+    cam = fisheye(model)
+    psi, depth, lam = pose
+    img = render_markers(model, cam, psi, depth, model.wheel_angles(*lam))
+    cfg = MarkerConfig()
+    full, full_area, _ = segment_magenta(img, cfg)
+    at = np.array(list(predicted_pixels(model, cam, psi, depth, model.wheel_angles(*lam)).values()))
+    boxes = np.hstack([at - 30, at + 31])
+    roi, roi_area, mask = segment_magenta(img, cfg, boxes)
+    assert len(roi) == len(full) == len(MARKERS)
+    order_f, order_r = np.lexsort(full.T), np.lexsort(roi.T)
+    np.testing.assert_allclose(roi[order_r], full[order_f], atol=1e-9)
+    np.testing.assert_array_equal(roi_area[order_r], full_area[order_f])
+    # a box that cuts a blob leaves it out, rather than giving a shifted centre
+    cut = segment_magenta(img, cfg, np.hstack([at[:1] - 30, at[:1] + 2]))[0]
+    assert len(cut) == 0
+    assert mask.shape == img.shape[:2]

@@ -174,3 +174,33 @@ def test_a_shadow_edge_fixed_in_the_image_does_not_pull_the_rotation():
     print(f"shadowed tread: {m.alpha:.5f} for {alpha}; without the edge band {m_blind.alpha:.5f}")
     assert m.valid and abs(m.alpha - alpha) <= 0.01 * alpha
     assert abs(m_blind.alpha - alpha) > 0.01 * alpha
+
+
+def test_strips_of_all_wheels_together_equal_each_wheel_alone():
+    """The wheels share one projection, resampling and band-pass, with gaps wider than its reach."""
+    from perception.wheel_rotation import _masked_blur, unwrap_treads
+
+    model = rover_model()
+    cam = fisheye(model)
+    frames = model.wheel_frames((0.06, -0.04), (0.16, 0.14), model.wheel_angles(0.2, -0.15))
+    rng = np.random.default_rng(4)
+    gray = cv2.GaussianBlur(rng.normal(120, 40, (480, 640)).astype(np.float32), (0, 0), 1.0)
+    gray = np.clip(gray, 0, 255).astype(np.uint8)
+    cfg = TreadConfig()
+    dphi = strip_resolution(model, cam, *frames[0], cfg.column_px)
+    together = unwrap_treads(gray, model, cam, frames, dphi, cfg)
+    for frame, strip in zip(frames, together, strict=True):
+        alone = unwrap_tread(gray, model, cam, *frame, dphi, cfg)
+        assert strip.k0 == alone.k0 and strip.visible.sum() > 1000
+        np.testing.assert_array_equal(strip.pixels, alone.pixels)
+        np.testing.assert_array_equal(strip.valid, alone.valid)
+        np.testing.assert_allclose(strip.texture, alone.texture, atol=1e-6)
+    # the band-pass's blur is OpenCV's Gaussian blur, normalised over the mask
+    img = rng.random((40, 70)).astype(np.float32)
+    mask = rng.random((40, 70)) > 0.3
+    img[~mask] = 0
+    ref = [cv2.GaussianBlur(x, (0, 0), sigmaX=6.9, sigmaY=3.7, borderType=cv2.BORDER_CONSTANT)
+           for x in (img, mask.astype(np.float32))]  # fmt: skip
+    np.testing.assert_allclose(
+        _masked_blur(img, mask, (6.9, 3.7)), ref[0] / np.maximum(ref[1], 1e-3), rtol=1e-6
+    )
