@@ -230,6 +230,10 @@ def assign_markers(predicted: dict[str, np.ndarray], centroids: np.ndarray, gate
         return {}
     P = np.array([predicted[m] for m in names])
     D = np.linalg.norm(P[:, None, :] - centroids[None, :, :], axis=2)
+    nearest = D.argmin(axis=1)
+    if len(set(nearest.tolist())) == len(names) and (D[np.arange(len(names)), nearest] <= gate).all():
+        # every marker's nearest blob is its own: the greedy pass would give the same
+        return {m: int(j) for m, j in zip(names, nearest, strict=True)}
     out: dict[str, int] = {}
     used = set()
     for flat in np.argsort(D, axis=None):

@@ -282,12 +282,13 @@ def _band_pass(
 
 
 @functools.lru_cache(maxsize=8)
-def _row_interpolation(rows: int, hw: float) -> tuple[np.ndarray, np.ndarray]:
-    """Five nodes across the tread [m] and the (rows, 5) quartic interpolation to the strip rows."""
+def _row_interpolation(rows: int, hw: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(strip rows across the tread [m], five nodes [m], (rows, 5) quartic interpolation to the rows)."""
     nodes = np.linspace(-hw, hw, 5)
     y = np.linspace(-hw, hw, rows)
     vander = np.polynomial.polynomial.polyvander
-    return nodes, vander(y / hw, 4) @ np.linalg.inv(vander(nodes / hw, 4))
+    y.flags.writeable = nodes.flags.writeable = False  # shared between calls
+    return y, nodes, vander(y / hw, 4) @ np.linalg.inv(vander(nodes / hw, 4))
 
 
 def facing_columns(dphi: float, cfg: TreadConfig) -> int:
@@ -329,7 +330,7 @@ def unwrap_treads(
     r = model.wheel_radius
     ncol = facing_columns(dphi, cfg)
     hw = model.wheel_width / 2 - cfg.edge_margin
-    y = np.linspace(-hw, hw, cfg.rows)
+    y = _row_interpolation(cfg.rows, hw)[0]
     Rs = np.array([f[0] for f in frames], dtype=np.float64)
     cs = np.array([f[1] for f in frames], dtype=np.float64)
     T = camera.T_body_cam
@@ -351,7 +352,7 @@ def unwrap_treads(
     A = t[:, :, None] + (r * sin)[:, None, :] * M[:, :, :1] + (r * cos_)[:, None, :] * M[:, :, 2:]
     # each column's cells lie on a line across the tread, whose image is smooth: project five
     # of them and interpolate the rest by the quartic through them (within 1e-4 px)
-    nodes, lagrange = _row_interpolation(cfg.rows, hw)
+    _, nodes, lagrange = _row_interpolation(cfg.rows, hw)
     X, Y, Z = (A[:, i, None, :] + nodes[None, :, None] * M[:, i, 1, None, None] for i in range(3))
     pu, pv = (lagrange @ q for q in camera.project_xyz(X, Y, Z))  # (n, rows, ncol)
     w, h = camera.image_size
