@@ -195,7 +195,7 @@ class KinematicStateEstimator:
         offsets change by ~0.015 px per degree and the predictions only place search regions.
         """
         s = self._state
-        q = np.r_[s.psi, s.delta, s.depth]
+        q = np.concatenate([s.psi, s.delta, s.depth])
         angle, length = self.config.geometry_refresh
         if self._geometry is not None:
             dq = np.abs(q - self._geometry[0])

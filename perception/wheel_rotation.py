@@ -424,12 +424,12 @@ def _occluded(model, camera, frames, wheels, dist2: np.ndarray, pu: np.ndarray, 
     label = np.zeros((h, w), np.uint8)
     order = np.argsort(-dist)
     order = order[np.isfinite(opx[order]).all(axis=1)]
-    fixed = np.rint(np.c_[opx[order] * 16, disc[order] * 16]).astype(int).tolist()  # 4 fractional bits
+    fixed = np.rint(np.column_stack([opx[order] * 16, disc[order] * 16])).astype(int).tolist()  # 1/16 px
     for j, (u, v, rad) in zip(order.tolist(), fixed, strict=True):
         cv2.circle(label, (u, v), rad, j + 1, -1, cv2.LINE_8, 4)
     lab = label[(pv + 0.5).astype(np.intp), (pu + 0.5).astype(np.intp)]  # the nearest pixel (-1 -> 0)
     lab[pu < 0] = 0
-    near = np.r_[np.inf, dist] ** 2
+    near = np.concatenate([[np.inf], dist]) ** 2
     return dist2 > near[lab]
 
 
@@ -515,9 +515,10 @@ def _strip_spectra(strips: list[TreadStrip], n: int) -> None:
     cols = max(s.texture.shape[1] for s in todo)
     stack = np.zeros((len(todo), 3, rows, cols), np.float32)
     for i, s in enumerate(todo):
-        m = s.valid.astype(np.float32)
-        x = s.texture * m
-        stack[i, :, : m.shape[0], : m.shape[1]] = (m, x, x * x)
+        h, w = s.valid.shape
+        stack[i, 0, :h, :w] = s.valid
+        x = np.multiply(s.texture, stack[i, 0, :h, :w], out=stack[i, 1, :h, :w])
+        np.multiply(x, x, out=stack[i, 2, :h, :w])
     spec = _row_spectra(stack, n)
     for i, s in enumerate(todo):
         s._spectrum = (n, spec[i])
