@@ -263,7 +263,10 @@ class KinematicStateEstimator:
             r = self.model.wheel_radius
             pairs = list(zip(self._strips, strips, strict=True))
             spans = [cfg.track_span if self._locked[k] else cfg.acquire_span for k in range(4)]
-            rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans)
+            # strong alignments are checked by the features while a wheel is searched for over
+            # the wide span (a false peak is possible there), not while it is tracked
+            check = [cfg.tread.check_strong or not locked for locked in self._locked]
+            rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans, check)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
             # rover their rotations differ by the turn and by slip, not by multiples
             good = [r.alpha for r in rots if r.valid]
@@ -271,7 +274,7 @@ class KinematicStateEstimator:
             if good and again:
                 more = measure_pairs(
                     [pairs[k] for k in again], r, cfg.tread, [float(np.median(good))] * len(again),
-                    [cfg.acquire_span] * len(again),
+                    [cfg.acquire_span] * len(again), [True] * len(again),
                 )  # fmt: skip
                 for k, m in zip(again, more, strict=True):
                     rots[k] = m

@@ -58,10 +58,13 @@ class TreadConfig:
             features confirm it ...
         strong_ncc: ... and without them (see ``check_strong``).
         check_strong: Track the features also when the correlation is at least ``strong_ncc``,
-            so that they may reject or replace it. Off by default: on rendered drives (rough
-            ground, low sun, 0.5-2 m/s) they changed 3 of 9,093 such alignments, rejecting all
-            three though each was within 1.6 % of the true rotation, and they cost about a
-            fifth of the estimator's time.
+            so that they may reject or replace it. Off by default for a wheel being tracked
+            (the search spans ``track_span`` around its last rotation): on rendered drives
+            (rough ground, low sun, 0.5-2 m/s) they changed 3 of 9,093 such alignments,
+            rejecting all three though each was within 1.6 % of the true rotation, and they
+            cost about a fifth of the estimator's time. A wheel searched for after a loss is
+            always checked (:class:`KinematicStateEstimator`): over the wide span a strong
+            false peak is possible.
         min_override: Consistent features that outvote the alignment when they disagree with it.
         peak_separation: Rotations this far from the best one count as other candidates [rad].
         min_peak_margin: The best correlation must beat every other candidate's by this much.
@@ -761,16 +764,22 @@ def measure_pairs(
     cfg: TreadConfig,
     priors,
     spans,
+    check=None,
 ) -> list[RotationMeasurement]:
-    """:func:`measure_strips` for several wheels at once (batched alignment and tracking)."""
+    """:func:`measure_strips` for several wheels at once (batched alignment and tracking).
+
+    ``check``: per pair, whether strong alignments are checked by the features too (default
+    ``cfg.check_strong``); a wheel searched for after a loss, over a wide span, should be.
+    """
     out = [RotationMeasurement(math.nan, 0, 0, 0, False) for _ in pairs]
+    check = [cfg.check_strong] * len(pairs) if check is None else list(check)
     ok = [i for i, (p, c) in enumerate(pairs) if p is not None and c is not None]
     als = align_pairs([pairs[i] for i in ok], cfg, [priors[i] for i in ok], [spans[i] for i in ok])
     go = []
     for i, al in zip(ok, als, strict=True):
         if not (math.isfinite(al.alpha) and al.ncc >= cfg.min_ncc):
             out[i] = RotationMeasurement(math.nan, 0, 0, 0, False, al.ncc)
-        elif al.ncc >= cfg.strong_ncc and not cfg.check_strong:
+        elif al.ncc >= cfg.strong_ncc and not check[i]:
             out[i] = RotationMeasurement(al.alpha, 0, 0, 0, True, al.ncc)
         else:
             go.append((i, al))
