@@ -413,9 +413,15 @@ class OmniCamera:
         inverse polynomial, within ~1e-5 px), for many points; NaN outside the field of view.
         """
         r = np.hypot(x, y)
-        rho = np.interp(np.arctan2(r, z), *self._rho_table, right=np.nan)  # NaN beyond the view
+        alpha, table = self._rho_table
+        # linear interpolation in the uniform table (NaN beyond the view)
+        pos = np.arctan2(r, z) * ((len(table) - 1) / alpha[-1])
+        inside = pos <= len(table) - 1  # False for NaN
+        pos = np.where(inside, pos, 0.0)
+        i = np.minimum(pos.astype(np.intp), len(table) - 2)  # alpha >= 0
+        rho = np.where(inside, table[i] + (pos - i) * (table[i + 1] - table[i]), np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(r > 0, rho / r, 0.0)
+            s = np.where(r > 0, rho / r, rho * 0.0)  # on the axis: 0, or NaN straight behind
         ux, vy = x * s, y * s
         c, d, e = self.affine
         return c * ux + d * vy + self.center[0], e * ux + vy + self.center[1]

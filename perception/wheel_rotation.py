@@ -238,9 +238,10 @@ def _masked_blur(img: np.ndarray, mask: np.ndarray, sigma: tuple[float, float]) 
     sepFilter2D (the same result, in half the time).
     """
     kx, ky = _gaussian(float(sigma[0])), _gaussian(float(sigma[1]))
-    num = cv2.sepFilter2D(img, -1, kx, ky, borderType=cv2.BORDER_CONSTANT)
-    den = cv2.sepFilter2D(mask.astype(np.float32), -1, kx, ky, borderType=cv2.BORDER_CONSTANT)
-    return num / np.maximum(den, 1e-3)
+    both = np.empty(img.shape + (2,), np.float32)  # image and mask as two channels: one call
+    both[..., 0], both[..., 1] = img, mask
+    out = cv2.sepFilter2D(both, -1, kx, ky, borderType=cv2.BORDER_CONSTANT)
+    return out[..., 0] / np.maximum(out[..., 1], 1e-3)
 
 
 def _band_reach(cell: tuple[float, float], cfg: TreadConfig) -> int:
@@ -430,7 +431,8 @@ def _occluded(model, camera, frames, wheels, dist2: np.ndarray, pu: np.ndarray, 
     fixed = np.rint(np.column_stack([opx[order] * 16, disc[order] * 16])).astype(int).tolist()  # 1/16 px
     for j, (u, v, rad) in zip(order.tolist(), fixed, strict=True):
         cv2.circle(label, (u, v), rad, j + 1, -1, cv2.LINE_8, 4)
-    lab = label[(pv + 0.5).astype(np.intp), (pu + 0.5).astype(np.intp)]  # the nearest pixel (-1 -> 0)
+    # the nearest pixel's label (-1 -> pixel 0, then cleared)
+    lab = np.take(label, (pv + 0.5).astype(np.intp) * w + (pu + 0.5).astype(np.intp))
     lab[pu < 0] = 0
     near = np.concatenate([[np.inf], dist]) ** 2
     return dist2 > near[lab]

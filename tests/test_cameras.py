@@ -178,3 +178,17 @@ def test_omni_fit_rejects_too_few_corners():
         fit_omni_camera(np.ones((10, 2)), np.ones((10, 3)), (640, 480), math.radians(190))
     with pytest.raises(CalibrationError, match="differ in number"):
         fit_omni_camera(np.ones((10, 2)), np.ones((9, 3)), (640, 480), math.radians(190))
+
+
+def test_omni_fast_projection_matches_the_refined_one(omni):
+    """The table-interpolated projection (used for many points) is within 1e-4 px of Newton's."""
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(20000, 3))
+    pts[:3] = [(0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (np.nan, 0.0, 1.0)]  # on the axis, behind, NaN
+    fast, exact = omni.world2cam(pts, refine=False), omni.world2cam(pts, refine=True)
+    inside = np.isfinite(exact).all(axis=1)
+    np.testing.assert_array_equal(np.isfinite(fast).all(axis=1), inside)
+    assert inside[0] and not inside[1] and not inside[2]
+    assert np.abs(fast[inside] - exact[inside]).max() < 1e-4
+    u, v = omni.project_xyz(*pts[inside].T)
+    np.testing.assert_allclose(np.c_[u, v], exact[inside], atol=1e-4)
