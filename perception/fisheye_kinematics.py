@@ -263,9 +263,12 @@ class KinematicStateEstimator:
             r = self.model.wheel_radius
             pairs = list(zip(self._strips, strips, strict=True))
             spans = [cfg.track_span if self._locked[k] else cfg.acquire_span for k in range(4)]
-            # strong alignments are checked by the features while a wheel is searched for over
-            # the wide span (a false peak is possible there), not while it is tracked
-            check = [cfg.tread.check_strong or not locked for locked in self._locked]
+            # while a wheel is searched for over the wide span, the features must confirm the
+            # alignment (a strong false peak is possible there); while it is tracked, a strong
+            # alignment is taken as it is (or checked, with check_strong)
+            check = [
+                1 if locked and cfg.tread.check_strong else 0 if locked else 2 for locked in self._locked
+            ]
             rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans, check)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
             # rover their rotations differ by the turn and by slip, not by multiples
@@ -274,7 +277,7 @@ class KinematicStateEstimator:
             if good and again:
                 more = measure_pairs(
                     [pairs[k] for k in again], r, cfg.tread, [float(np.median(good))] * len(again),
-                    [cfg.acquire_span] * len(again), [True] * len(again),
+                    [cfg.acquire_span] * len(again), [2] * len(again),
                 )  # fmt: skip
                 for k, m in zip(again, more, strict=True):
                     rots[k] = m
