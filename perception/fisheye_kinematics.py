@@ -63,8 +63,8 @@ class KinematicsConfig:
             tracked [rad per frame].
         track_span: The same while it is: the change of rotation between frames [rad].
         shadow_robust: Align band-passed treads with shadow edges left out.
-        roi_margin_frac: While every marker is found, each is looked for only within half the
-            gate plus this share of the image width around its predicted pixel (a marker moves
+        roi_margin_frac: While every marker is found, each is looked for only within a quarter
+            of the gate plus this share of the image width around its predicted pixel (a marker moves
             less than 5 px between frames in 99 % of the frames of a rough drive, and the
             margin holds the blob); a marker not found there is looked for in the whole frame.
         geometry_refresh: The predicted marker pixels and the centroid offsets are computed
@@ -266,9 +266,7 @@ class KinematicStateEstimator:
             # while a wheel is searched for over the wide span, the features must confirm the
             # alignment (a strong false peak is possible there); while it is tracked, a strong
             # alignment is taken as it is (or checked, with check_strong)
-            check = [
-                1 if locked and cfg.tread.check_strong else 0 if locked else 2 for locked in self._locked
-            ]
+            check = [int(cfg.tread.check_strong) if locked else 2 for locked in self._locked]
             rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans, check)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
             # rover their rotations differ by the turn and by slip, not by multiples
