@@ -28,7 +28,7 @@ import numpy as np
 
 from perception.calib_io import CalibrationError, as_array, read_mapping, write_mapping
 from perception.cameras import OmniCamera
-from perception.kinematics import AXLES, MARKERS, PLATE, ROD, WHEELS, RoverKinematicModel, rot_x
+from perception.kinematics import AXLES, MARKERS, PLATE, ROD, WHEELS, RoverKinematicModel
 
 
 @dataclass(frozen=True)
@@ -252,56 +252,6 @@ def body_rays(camera: OmniCamera, pixels: np.ndarray) -> tuple[np.ndarray, np.nd
     rays = camera.cam2world(np.asarray(pixels, dtype=np.float64).reshape(-1, 2))
     T = camera.T_body_cam
     return T[:3, 3].copy(), rays @ T[:3, :3].T
-
-
-def ray_plane(origin: np.ndarray, direction: np.ndarray, normal: np.ndarray, point: np.ndarray) -> np.ndarray:
-    """Intersection of rays origin + t direction (t > 0) with the plane normal . (r - point) = 0."""
-    denom = direction @ normal
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = ((point - origin) @ normal) / denom
-    out = origin + t[..., None] * direction
-    out[~(t > 0)] = np.nan
-    return out
-
-
-def axle_from_plate(
-    model: RoverKinematicModel, axle: str, m1: np.ndarray, m2: np.ndarray
-) -> tuple[float, float]:
-    """(psi, d) of ``axle`` from its two plate-marker positions (body frame), eq. 2."""
-    v = m1 - m2  # index 1 is on the left: +y in the axle frame
-    psi = math.atan2(v[2], v[1])
-    mid = 0.5 * (m1 + m2)
-    return psi, float(-mid[2])
-
-
-def plate_points(model: RoverKinematicModel, axle: str, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Ray intersections with the plate plane x = +-(axle_x - plate_offset) of ``axle``."""
-    x = model.axle_sign(axle) * (model.axle_x - model.plate_offset)
-    return ray_plane(origin, dirs, np.array([1.0, 0.0, 0.0]), np.array([x, 0.0, 0.0]))
-
-
-def tie_rod_points(
-    model: RoverKinematicModel, axle: str, psi: float, depth: float, origin: np.ndarray, dirs: np.ndarray
-) -> np.ndarray:
-    """Ray intersections with the roll-corrected tie-rod plane of ``axle`` (eqs. 3-4)."""
-    R = rot_x(psi)
-    n = R @ np.array([0.0, 0.0, 1.0])
-    point = model.roll_centre(axle, depth) + model.arm_tip[2] * n
-    return ray_plane(origin, dirs, n, point)
-
-
-def wheel_steer_from_tip(
-    model: RoverKinematicModel, wheel: str, tip_body: np.ndarray, psi: float, depth: float
-) -> float:
-    """Steering angle of ``wheel`` [rad] from its tie-rod end (body frame).
-
-    The tip's angle about the kingpin in the axle frame, less its angle at zero steering.
-    """
-    R, t = model.axle_pose(wheel[0], psi, depth)
-    local = R.T @ (tip_body - t) - model.kingpin_local(wheel)
-    nominal = model.tip_knuckle(wheel)
-    ang = math.atan2(local[1], local[0]) - math.atan2(nominal[1], nominal[0])
-    return math.remainder(ang, 2 * math.pi)
 
 
 def steering_ratio(a1: np.ndarray, a2: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> float:
