@@ -439,13 +439,10 @@ def measure_axles(
     return out
 
 
-def _hit(o, d, axis: int | None, normal, point):
+def _hit(o, d, normal, point):
     """Ray o + t d (t > 0) with the plane normal . (r - point) = 0, on floats; None if it misses."""
-    if axis is not None:  # the plane x = point[0]
-        den, num = d[0], point[0] - o[0]
-    else:
-        den = d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]
-        num = sum((point[i] - o[i]) * normal[i] for i in range(3))
+    den = d[0] * normal[0] + d[1] * normal[1] + d[2] * normal[2]
+    num = sum((point[i] - o[i]) * normal[i] for i in range(3))
     t = num / den if den != 0 else math.nan
     if not t > 0:
         return None
@@ -468,8 +465,8 @@ def _measure(model, camera, pixels, fallback_psi, fallback_depth, calibration) -
         psi, depth = float(fallback_psi[i]), float(fallback_depth[i])
         x_plate = model.axle_sign(axle) * (model.axle_x - model.plate_offset)
         if p1 in ray and p2 in ray:
-            m1 = _hit(o, ray[p1], 0, None, (x_plate, 0.0, 0.0))
-            m2 = _hit(o, ray[p2], 0, None, (x_plate, 0.0, 0.0))
+            m1 = _hit(o, ray[p1], (1.0, 0.0, 0.0), (x_plate, 0.0, 0.0))  # the plate plane
+            m2 = _hit(o, ray[p2], (1.0, 0.0, 0.0), (x_plate, 0.0, 0.0))
             if m1 is not None and m2 is not None:
                 out.points[p1], out.points[p2] = np.array(m1), np.array(m2)
                 # eq. 2: index 1 is on the left (+y in the axle frame)
@@ -484,7 +481,7 @@ def _measure(model, camera, pixels, fallback_psi, fallback_depth, calibration) -
         for name, wheel in zip(ROD[axle], (axle + "L", axle + "R"), strict=True):
             if name not in ray:
                 continue
-            tip = _hit(o, ray[name], None, normal, point)
+            tip = _hit(o, ray[name], normal, point)
             if tip is None:
                 continue
             out.points[name] = np.array(tip)
