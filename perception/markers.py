@@ -196,31 +196,8 @@ def _weighted_centres(hsv, labels, stats, keep, cfg: MarkerConfig) -> tuple[np.n
 
 def _centres_one_by_one(hsv, labels, stats, keep, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_weighted_centres`, blob by blob (for blobs whose grown areas may overlap)."""
-    lo, hi = cfg.hue_range
-    cents = []
-    for lab in keep:
-        x, y, w, hh = stats[lab, :4]
-        x0, y0 = max(x - 3, 0), max(y - 3, 0)
-        x1, y1 = min(x + w + 3, hsv.shape[1]), min(y + hh + 3, hsv.shape[0])
-        core = (labels[y0:y1, x0:x1] == lab).astype(np.uint8)
-        grown = cv2.dilate(core, np.ones((5, 5), np.uint8)) > 0
-        h = hsv[y0:y1, x0:x1, 0].astype(np.int16)
-        sat = hsv[y0:y1, x0:x1, 1].astype(np.float64)
-        full = _median(sat[core > 0])
-        in_band = np.abs(2 * h - (lo + hi)) <= 2 * (hi - lo)  # hue, with a margin
-        wgt = np.where(grown & in_band, np.minimum(sat / full, 1.0), 0.0)
-        mom = cv2.moments(wgt)
-        cents.append((mom["m10"] / mom["m00"] + x0, mom["m01"] / mom["m00"] + y0))
-    c = np.array(cents, dtype=np.float64).reshape(-1, 2)
-    return c[:, 0], c[:, 1]
-
-
-def _median(v: np.ndarray) -> float:
-    """Median of a 1-D array (np.median without its overhead on small arrays)."""
-    n = len(v)
-    part = np.partition(v, (n - 1) // 2)
-    lo = part[(n - 1) // 2]
-    return float(lo if n % 2 else 0.5 * (lo + part[(n - 1) // 2 + 1 :].min()))
+    one = [_weighted_centres(hsv, labels, stats, keep[i : i + 1], cfg) for i in range(len(keep))]
+    return np.concatenate([x for x, _ in one]), np.concatenate([y for _, y in one])
 
 
 def assign_markers(predicted: dict[str, np.ndarray], centroids: np.ndarray, gate: float) -> dict[str, int]:
