@@ -246,8 +246,8 @@ def _masked_blur(img: np.ndarray, mask: np.ndarray, sigma: tuple[float, float]) 
 
 
 def _band_reach(cell: tuple[float, float], cfg: TreadConfig) -> int:
-    """Rows the band-pass reaches (its largest kernel's radius, with a margin)."""
-    return math.ceil(4 * cfg.coarse / cell[1]) + 2
+    """Columns the band-pass reaches (its largest kernel's radius, with a margin)."""
+    return math.ceil(4 * cfg.coarse / cell[0]) + 2
 
 
 def _band_pass(
@@ -345,12 +345,6 @@ def unwrap_treads(
     k0 = np.floor((phi_c - math.acos(cfg.min_facing)) / dphi).astype(int) - 1
     phi = (k0[:, None] + np.arange(ncol)) * dphi
     sin, cos_ = np.sin(phi), np.cos(phi)
-    # cosine between the tread normal (sin, 0, cos) and the view from (r sin, y, r cos) to ck,
-    # from 1-D terms over columns (a) and rows (b)
-    a = sin * ck[:, :1] + cos_ * ck[:, 2:]
-    b = y * y - 2 * y * ck[:, 1:2]
-    dist2 = (np.einsum("ki,ki->k", ck, ck)[:, None] + r * r - 2 * r * a)[:, None, :] + b[:, :, None]
-    facing = (a - r)[:, None, :] > cfg.min_facing * np.sqrt(np.maximum(dist2, 1e-12))
     # camera-frame cells: A (a column's point at y = 0) + y M[:, 1], one coordinate at a time
     M = np.einsum("ji,kjl->kil", Rbc, Rs)  # Rbc^T R_k
     t = (cs - origin) @ Rbc
@@ -359,19 +353,27 @@ def unwrap_treads(
     # of them and interpolate the rest by the quartic through them (within 1e-4 px)
     _, nodes, lagrange = _row_interpolation(cfg.rows, hw)
     X, Y, Z = (A[:, i, None, :] + nodes[None, :, None] * M[:, i, 1, None, None] for i in range(3))
-    pu, pv = (lagrange @ q for q in camera.project_xyz(X, Y, Z))  # (n, rows, ncol)
+    nu, nv = camera.project_xyz(X, Y, Z)  # (n, 5, ncol)
     w, h = camera.image_size
+    # cosine between the tread normal (sin, 0, cos) and the view from (r sin, y, r cos) to ck,
+    # from 1-D terms over columns (a) and rows (b)
+    a = sin * ck[:, :1] + cos_ * ck[:, 2:]
+    b = y * y - 2 * y * ck[:, 1:2]
+    dist2 = (np.einsum("ki,ki->k", ck, ck)[:, None] + r * r - 2 * r * a)[:, None, :] + b[:, :, None]
+    facing = (a - r)[:, None, :] > cfg.min_facing * np.sqrt(np.maximum(dist2, 1e-12))
+    pu, pv = lagrange @ nu, lagrange @ nv  # (n, rows, ncol)
     with np.errstate(invalid="ignore"):
         visible = facing & (pu >= 0) & (pu <= w - 1) & (pv >= 0) & (pv <= h - 1)
+    grid = np.stack([np.where(visible, pu, -1.0), np.where(visible, pv, -1.0)], -1).astype(np.float32)
     if wheels is not None:
-        pu, pv = np.where(visible, pu, -1.0), np.where(visible, pv, -1.0)
         # squared distance from the camera: |A + y m|^2 with m = M[:, :, 1] a unit vector
         am = np.einsum("kic,ki->kc", A, M[:, :, 1])
         dist2 = (
             np.einsum("kic,kic->kc", A, A)[:, None, :] + 2 * y[:, None] * am[:, None, :] + (y * y)[:, None]
         )
-        visible &= ~_occluded(model, camera, frames, wheels, dist2, pu, pv)
-    grid = np.stack([np.where(visible, pu, -1.0), np.where(visible, pv, -1.0)], -1).astype(np.float32)
+        hidden = _occluded(model, camera, frames, wheels, dist2, grid)
+        visible &= ~hidden
+        grid[hidden] = -1.0
     strips: list[TreadStrip | None] = [None] * n
     keep = []
     cols_seen = visible.any(axis=1)  # (n, ncol)
@@ -383,15 +385,16 @@ def unwrap_treads(
         return strips
     cell = (r * dphi, float(y[1] - y[0]))  # (column, row) size on the tread [m]
     rows = cfg.rows
+    # the strips side by side, one empty row above and below (the edge steps' 3x3 reach) and
+    # columns between them wider than the band-pass's reach
     gap = _band_reach(cell, cfg)
-    width = max(c1 - c0 for _, c0, c1 in keep)
-    height = len(keep) * rows + (len(keep) - 1) * gap
+    starts = np.cumsum([0] + [c1 - c0 + gap for _, c0, c1 in keep])[:-1].tolist()
+    height, width = rows + 2, starts[-1] + keep[-1][2] - keep[-1][1]
     maps = np.full((height, width, 2), -1.0, np.float32)
     vis = np.zeros((height, width), bool)
-    for i, (k, c0, c1) in enumerate(keep):
-        r0 = i * (rows + gap)
-        vis[r0 : r0 + rows, : c1 - c0] = visible[k, :, c0:c1]
-        maps[r0 : r0 + rows, : c1 - c0] = grid[k, :, c0:c1]
+    for x0, (k, c0, c1) in zip(starts, keep, strict=True):
+        vis[1 : rows + 1, x0 : x0 + c1 - c0] = visible[k, :, c0:c1]
+        maps[1 : rows + 1, x0 : x0 + c1 - c0] = grid[k, :, c0:c1]
     raw = cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR).astype(np.float32)
     if shadow_robust:
         tex, band = _band_pass(raw, vis, cell, cfg)
@@ -400,8 +403,8 @@ def unwrap_treads(
         valid = vis
         tex = raw
     tex = np.where(valid, tex, np.float32(0.0))
-    for i, (k, c0, c1) in enumerate(keep):
-        blk = np.s_[i * (rows + gap) : i * (rows + gap) + rows, : c1 - c0]
+    for x0, (k, c0, c1) in zip(starts, keep, strict=True):
+        blk = np.s_[1 : rows + 1, x0 : x0 + c1 - c0]
         t_k = tex[blk]
         if not shadow_robust:
             t_k = np.where(valid[blk], t_k - np.float32(t_k[valid[blk]].mean()), np.float32(0.0))
@@ -409,11 +412,11 @@ def unwrap_treads(
     return strips
 
 
-def _occluded(model, camera, frames, wheels, dist2: np.ndarray, pu: np.ndarray, pv: np.ndarray) -> np.ndarray:
+def _occluded(model, camera, frames, wheels, dist2: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Which tread points are hidden behind a steering arm or tie-rod marker (of any wheel).
 
-    ``dist2``: squared distances of the points from the camera [m^2]; ``pu``, ``pv``: their
-    pixels, in the image or -1 (not tested). Each part is a chain of spheres
+    ``dist2``: (...) squared distances of the points from the camera [m^2]; ``grid``: (..., 2)
+    float32 their pixels, in the image or -1 (not tested). Each part is a chain of spheres
     (:meth:`RoverKinematicModel.occluders`); their image discs, with a 2 px margin, are drawn
     farthest first into a label image, so that each pixel holds the nearest part over it, and a
     point is hidden when it is farther from the camera than that part.
@@ -432,9 +435,9 @@ def _occluded(model, camera, frames, wheels, dist2: np.ndarray, pu: np.ndarray, 
     fixed = np.rint(np.column_stack([opx[order] * 16, disc[order] * 16])).astype(int).tolist()  # 1/16 px
     for j, (u, v, rad) in zip(order.tolist(), fixed, strict=True):
         cv2.circle(label, (u, v), rad, j + 1, -1, cv2.LINE_8, 4)
-    # the nearest pixel's label (-1 -> pixel 0, then cleared)
-    lab = np.take(label, (pv + 0.5).astype(np.intp) * w + (pu + 0.5).astype(np.intp))
-    lab[pu < 0] = 0
+    # each point's nearest pixel's label (0 for the points at -1, outside the label image)
+    flat = grid.reshape(-1, grid.shape[-2], 2)
+    lab = cv2.remap(label, flat, None, cv2.INTER_NEAREST, borderValue=0).reshape(dist2.shape)
     near = np.concatenate([[np.inf], dist]) ** 2
     return dist2 > near[lab]
 
@@ -557,8 +560,9 @@ def align_pairs(
     if not pairs:
         return []
     widest = max(max(p.texture.shape[1], c.texture.shape[1]) for p, c in pairs)
-    # a power of two: the same size frame after frame, so that each strip is transformed once
-    n = 1 << (2 * widest - 2).bit_length()
+    # long enough for every lag without wrap-around, rounded up to a multiple of 64: the same size
+    # frame after frame, so that each strip is transformed once
+    n = 64 * math.ceil((2 * widest - 1) / 64)
     _strip_spectra([s for pair in pairs for s in pair], n)
     rows = max(max(p.texture.shape[0], c.texture.shape[0]) for p, c in pairs)
 
