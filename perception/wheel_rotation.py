@@ -314,8 +314,8 @@ def unwrap_treads(
     """The strips of several wheels' treads in one grey fisheye frame (None for a wheel not in view).
 
     All wheels go through each step together: one projection of every cell, one occlusion
-    raster, one resampling and one band-pass of the strips stacked in a single image, with gaps
-    wider than the band-pass's reach between them.
+    raster, one resampling and one band-pass of the strips side by side in a single image, with
+    gaps wider than the band-pass's reach between them.
 
     Args:
         gray: (H, W) uint8 grey frame.
