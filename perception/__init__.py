@@ -10,6 +10,7 @@ from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, Kinematic
 from perception.kinematics import RoverKinematicModel
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, OdometryEstimate
+from perception.slip import SlipConfig, SlipEstimate, SlipEstimator, slip_events
 from perception.wheel_kinematics import (
     SLIP_EPS,
     slip_angle,
@@ -32,10 +33,14 @@ __all__ = [
     "OmniFit",
     "PinholeCamera",
     "RoverKinematicModel",
+    "SlipConfig",
+    "SlipEstimate",
+    "SlipEstimator",
     "SteeringCalibration",
     "calibrate_ground_camera",
     "fit_omni_camera",
     "slip_angle",
+    "slip_events",
     "slip_ratio",
     "wheel_ground_velocity",
 ]

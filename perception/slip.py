@@ -1,0 +1,326 @@
+"""Per-wheel slip from two cameras: ground velocity (downward camera) against wheel spin (fisheye).
+
+The odometry gives the body twist (v_x, v_y, omega) over each downward-camera frame pair; the
+fisheye gives each wheel's spin rate theta_dot over each fisheye frame interval and the wheels'
+steering angles. A Kalman filter over x = (v_x, v_y, omega, theta_dot_FL, ..., theta_dot_RR)
+with a random-walk (constant-velocity) model fuses both streams in time order; each measurement
+is an average over its frame interval, so it is applied at the interval's middle. Slip follows
+from the filtered state (DESIGN.md):
+
+    v_i = R(-delta_i) (v_body + omega x p_i)                   ground velocity of wheel centre i
+    s_i = (theta_dot_i r - v_i,long) / max(|theta_dot_i r|, |v_i,long|, eps)
+    beta_i = atan2(v_i,lat, v_i,long)
+
+with its standard deviation from the filter's covariance (first order). Slip events switch on
+when |s| reaches ``event_on`` and off when it falls below ``event_off`` (hysteresis).
+
+Frames: body frame x forward, y left, z up; wheel order FL, FR, RL, RR.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from perception.wheel_kinematics import slip_angle, slip_ratio, wheel_ground_velocity
+
+log = logging.getLogger(__name__)
+
+N_WHEELS = 4
+
+
+@dataclass(frozen=True)
+class SlipConfig:
+    """Parameters of :class:`SlipEstimator`.
+
+    Attributes:
+        velocity_rw: Process noise: random walk of v_x and v_y [m/s per sqrt(s)]; their
+            variance grows by velocity_rw^2 per second between measurements.
+        yaw_rate_rw: The same for omega [rad/s per sqrt(s)].
+        wheel_rate_rw: The same for each wheel rate [rad/s per sqrt(s)]: a wheel that loses
+            traction spins up far faster than the body accelerates.
+        odom_std: Odometry noise (v_x, v_y, omega) at quality 1 [m/s, m/s, rad/s]; divided by
+            the quality (at least ``min_quality``).
+        min_quality: Floor of the quality used to scale ``odom_std``.
+        rate_std: Wheel-rate noise: (floor [rad/s], share of |rate|).
+        init_std: Prior standard deviation of the state before any measurement
+            (v [m/s], omega [rad/s], wheel rate [rad/s]).
+        min_speed: Slip is reported as resolved only when the wheel's tread or ground speed
+            reaches this [m/s]; below it the ratio is noise over noise.
+        max_slip_std: Slip with a larger standard deviation is not valid.
+        max_age: A wheel's slip is not valid when the last odometry or its last rate is older
+            than this [s].
+        event_on: |s| at which a slip event starts.
+        event_off: |s| below which it ends.
+        eps: Denominator floor of the slip ratio [m/s] (the ground truth's).
+    """
+
+    velocity_rw: float = 0.15
+    yaw_rate_rw: float = 0.3
+    wheel_rate_rw: float = 1.0
+    odom_std: tuple[float, float, float] = (0.01, 0.01, 0.02)
+    min_quality: float = 0.05
+    rate_std: tuple[float, float] = (0.05, 0.01)
+    init_std: tuple[float, float, float] = (2.0, 2.0, 20.0)
+    min_speed: float = 0.05
+    max_slip_std: float = 0.1
+    max_age: float = 0.2
+    event_on: float = 0.2
+    event_off: float = 0.1
+    eps: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("velocity_rw", "yaw_rate_rw", "wheel_rate_rw", "min_quality", "min_speed", "max_age"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"SlipConfig.{name}: {getattr(self, name)!r} must be > 0")
+        if len(self.odom_std) != 3 or min(self.odom_std) <= 0:
+            raise ValueError(f"SlipConfig.odom_std: {self.odom_std!r}; give three values > 0")
+        if len(self.rate_std) != 2 or self.rate_std[0] <= 0 or self.rate_std[1] < 0:
+            raise ValueError(f"SlipConfig.rate_std: {self.rate_std!r}; give (floor > 0, share >= 0)")
+        if not 0 < self.event_off < self.event_on <= 1:
+            raise ValueError(
+                f"SlipConfig: event_off={self.event_off}, event_on={self.event_on}; "
+                "need 0 < event_off < event_on <= 1"
+            )
+
+
+@dataclass
+class SlipEstimate:
+    """Filtered state and slip at one time. Wheel order FL, FR, RL, RR.
+
+    Attributes:
+        t: Time [s].
+        twist: (v_x, v_y, omega) body frame [m/s, m/s, rad/s].
+        twist_std: Their standard deviations.
+        wheel_rate: Wheel spin rates [rad/s].
+        wheel_rate_std: Their standard deviations.
+        v_long: Ground velocity of each wheel centre along its heading [m/s].
+        v_lat: Across it, left + [m/s].
+        slip_ratio: Longitudinal slip ratio in [-1, 1] (0 where not valid).
+        slip_ratio_std: Its standard deviation (first order; inf before any measurement).
+        slip_angle: Slip angle [rad] (0 where not valid).
+        valid: Whether each wheel's slip is resolved (speed, uncertainty and fresh data).
+        events: Whether each wheel is in a slip event (hysteresis on |slip_ratio|).
+        quality: Share of the wheels whose slip is valid (0-1).
+    """
+
+    t: float
+    twist: np.ndarray
+    twist_std: np.ndarray
+    wheel_rate: np.ndarray
+    wheel_rate_std: np.ndarray
+    v_long: np.ndarray
+    v_lat: np.ndarray
+    slip_ratio: np.ndarray
+    slip_ratio_std: np.ndarray
+    slip_angle: np.ndarray
+    valid: np.ndarray
+    events: np.ndarray
+    quality: float = field(default=0.0)
+
+
+def slip_events(slip: np.ndarray, on: float = 0.2, off: float = 0.1) -> np.ndarray:
+    """Slip events along a sequence by hysteresis: on when |s| >= ``on``, off when |s| < ``off``.
+
+    The rule :class:`SlipEstimator` applies, for labelling a ground-truth slip sequence.
+
+    Args:
+        slip: (T, ...) slip ratios over time (NaN: no event).
+        on: |s| at which an event starts.
+        off: |s| below which it ends.
+
+    Returns:
+        (T, ...) bool.
+    """
+    s = np.abs(np.asarray(slip, dtype=np.float64))
+    out = np.zeros(s.shape, bool)
+    state = np.zeros(s.shape[1:], bool)
+    for k in range(len(s)):
+        with np.errstate(invalid="ignore"):
+            state = np.where(state, s[k] >= off, s[k] >= on)
+        out[k] = state
+    return out
+
+
+class SlipEstimator:
+    """Per-wheel slip ratio and slip angle from the odometry twist and the optical wheel rates.
+
+    Feed measurements with :meth:`add_odometry` and :meth:`add_wheels` (or :meth:`update` with
+    the estimators' result objects) and read the filtered slip with :meth:`estimate`. Within
+    one call of :meth:`estimate`, measurements are applied in the order of their times, so the
+    two streams may arrive in any order up to the query time; one older than what the filter has
+    already applied is applied at the filter's time.
+
+    Args:
+        wheel_xy: (4, 2) wheel-centre positions in the body frame [m].
+        wheel_radius: [m].
+        config: Parameters.
+    """
+
+    def __init__(self, wheel_xy, wheel_radius: float, config: SlipConfig | None = None) -> None:
+        xy = np.asarray(wheel_xy, dtype=np.float64)
+        if xy.shape != (N_WHEELS, 2) or not np.all(np.isfinite(xy)):
+            raise ValueError(f"wheel_xy: shape {xy.shape}; expected finite (4, 2) body-frame positions [m]")
+        if not (math.isfinite(wheel_radius) and wheel_radius > 0):
+            raise ValueError(f"wheel_radius: {wheel_radius!r}; expected a positive length [m]")
+        self.wheel_xy = xy
+        self.wheel_radius = float(wheel_radius)
+        self.config = config or SlipConfig()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every measurement (a new episode or log)."""
+        c = self.config
+        self._x = np.zeros(3 + N_WHEELS)
+        v0, w0, r0 = c.init_std
+        self._P = np.diag([v0**2, v0**2, w0**2] + [r0**2] * N_WHEELS)
+        self._t: float | None = None
+        self._pending: list[tuple[float, int, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._steer = np.zeros(N_WHEELS)
+        self._t_odom = -math.inf
+        self._t_rate = np.full(N_WHEELS, -math.inf)
+        self._events = np.zeros(N_WHEELS, bool)
+        self._seq = 0
+
+    # ------------------------------------------------------------------ inputs
+    def add_odometry(self, t: float, twist, dt: float, quality: float = 1.0) -> None:
+        """A body-twist measurement from the downward camera.
+
+        Args:
+            t: Time of the later frame of the pair [s].
+            twist: (v_x, v_y, omega), the average over the pair [m/s, m/s, rad/s].
+            dt: Time between the pair's frames [s]; the measurement applies at t - dt/2.
+            quality: The odometry's quality in (0, 1]; scales the noise by 1/quality.
+        """
+        z = np.asarray(twist, dtype=np.float64).reshape(-1)
+        if z.shape != (3,) or not np.all(np.isfinite(z)) or not (quality > 0):
+            return  # an invalid estimate carries no information
+        q = max(float(quality), self.config.min_quality)
+        R = np.diag((np.asarray(self.config.odom_std) / q) ** 2)
+        self._queue(t - 0.5 * max(dt, 0.0), np.arange(3), z, R)
+        self._t_odom = max(self._t_odom, t)
+
+    def add_wheels(self, t: float, wheel_rate, dt: float, valid=None, steering=None) -> None:
+        """Wheel-rate measurements (and steering) from the fisheye.
+
+        Args:
+            t: Time of the frame [s].
+            wheel_rate: (4,) spin rates, the average over the frame interval [rad/s].
+            dt: The frame interval [s]; the rates apply at t - dt/2.
+            valid: (4,) which rates were measured (default: the finite ones).
+            steering: (4,) wheel steering angles [rad], positive left; kept until the next.
+        """
+        z = np.asarray(wheel_rate, dtype=np.float64).reshape(-1)
+        if z.shape != (N_WHEELS,):
+            raise ValueError(f"wheel_rate: shape {z.shape}; expected (4,) rates FL, FR, RL, RR [rad/s]")
+        ok = np.isfinite(z) if valid is None else np.asarray(valid, bool) & np.isfinite(z)
+        if steering is not None:
+            d = np.asarray(steering, dtype=np.float64).reshape(-1)
+            if d.shape != (N_WHEELS,):
+                raise ValueError(f"steering: shape {d.shape}; expected (4,) wheel angles [rad]")
+            self._steer = np.where(np.isfinite(d), d, self._steer)
+        if not ok.any():
+            return
+        floor, share = self.config.rate_std
+        R = np.diag((floor + share * np.abs(z[ok])) ** 2)
+        self._queue(t - 0.5 * max(dt, 0.0), 3 + np.flatnonzero(ok), z[ok], R)
+        self._t_rate[ok] = np.maximum(self._t_rate[ok], t)
+
+    def update(
+        self, t: float, odometry=None, kinematics=None, fisheye_dt: float | None = None
+    ) -> SlipEstimate:
+        """Add the estimators' latest results (either may be None) and return the estimate at ``t``.
+
+        Args:
+            t: Query time [s].
+            odometry: A :class:`~perception.odometry.OdometryEstimate` (used when valid).
+            kinematics: A :class:`~perception.fisheye_kinematics.KinematicState`.
+            fisheye_dt: The fisheye's frame interval [s] (the rates' averaging window).
+        """
+        if odometry is not None and odometry.valid:
+            t_o = t if odometry.t is None else odometry.t
+            self.add_odometry(t_o, odometry.twist, odometry.dt, odometry.quality)
+        if kinematics is not None:
+            valid = [kinematics.valid.get(f"theta_{w}", False) for w in ("FL", "FR", "RL", "RR")]
+            self.add_wheels(kinematics.t, kinematics.theta_dot, fisheye_dt or 0.0, valid, kinematics.delta)
+        return self.estimate(t)
+
+    # ------------------------------------------------------------------ filter
+    def _queue(self, t: float, idx: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
+        if not math.isfinite(t):
+            raise ValueError(f"measurement time {t!r} is not finite")
+        self._seq += 1
+        self._pending.append((float(t), self._seq, idx, z, R))
+
+    def _predict(self, x: np.ndarray, P: np.ndarray, dt: float) -> np.ndarray:
+        c = self.config
+        q = np.array([c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS)
+        return P + np.diag(q * dt)
+
+    def _apply(self, upto: float) -> None:
+        """Apply the pending measurements up to time ``upto`` in time order."""
+        due = sorted((m for m in self._pending if m[0] <= upto), key=lambda m: (m[0], m[1]))
+        self._pending = [m for m in self._pending if m[0] > upto]
+        for t, _, idx, z, R in due:
+            if self._t is not None and t > self._t:
+                self._P = self._predict(self._x, self._P, t - self._t)
+            if self._t is None or t > self._t:
+                self._t = t
+            H = np.zeros((len(idx), len(self._x)))
+            H[np.arange(len(idx)), idx] = 1.0
+            S = H @ self._P @ H.T + R
+            K = np.linalg.solve(S, H @ self._P).T
+            self._x = self._x + K @ (z - H @ self._x)
+            IKH = np.eye(len(self._x)) - K @ H
+            self._P = IKH @ self._P @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric PSD
+
+    def estimate(self, t: float) -> SlipEstimate:
+        """The filtered state and slip at time ``t`` [s] (measurements up to ``t`` applied)."""
+        if not math.isfinite(t):
+            raise ValueError(f"t={t!r}: the query time must be finite")
+        self._apply(t)
+        c = self.config
+        x = self._x.copy()
+        P = self._P if self._t is None or t <= self._t else self._predict(x, self._P, t - self._t)
+        twist, rates = x[:3], x[3:]
+        v_long, v_lat = wheel_ground_velocity(twist, self.wheel_xy, self._steer)
+        a = rates * self.wheel_radius
+        s = slip_ratio(a, v_long, c.eps)
+        # first-order standard deviation: ds/da and ds/dv_long on the side of the larger speed
+        big_a = np.abs(a) >= np.abs(v_long)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            ds_da = np.where(big_a, v_long / a**2, 1.0 / v_long)
+            ds_dv = np.where(big_a, -1.0 / a, -a / v_long**2)
+        cos, sin = np.cos(self._steer), np.sin(self._steer)
+        xw, yw = self.wheel_xy[:, 0], self.wheel_xy[:, 1]
+        J = np.zeros((N_WHEELS, len(x)))  # d v_long / d (v_x, v_y, omega), then d a / d rate
+        with np.errstate(invalid="ignore"):
+            J[:, 0], J[:, 1], J[:, 2] = cos * ds_dv, sin * ds_dv, (-cos * yw + sin * xw) * ds_dv
+            J[np.arange(N_WHEELS), 3 + np.arange(N_WHEELS)] = ds_da * self.wheel_radius
+            var = np.einsum("ij,jk,ik->i", J, P, J)
+        s_std = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+        fresh = (t - self._t_odom <= c.max_age) & (t - self._t_rate <= c.max_age)
+        moving = np.maximum(np.abs(a), np.abs(v_long)) >= c.min_speed
+        valid = fresh & moving & (s_std <= c.max_slip_std)
+        s = np.where(valid, s, 0.0)
+        beta = np.where(valid, slip_angle(v_long, v_lat), 0.0)
+        mag = np.abs(s)
+        self._events = np.where(valid, np.where(self._events, mag >= c.event_off, mag >= c.event_on), False)
+        return SlipEstimate(
+            t=float(t),
+            twist=twist,
+            twist_std=np.sqrt(np.diag(P)[:3]),
+            wheel_rate=rates,
+            wheel_rate_std=np.sqrt(np.diag(P)[3:]),
+            v_long=v_long,
+            v_lat=v_lat,
+            slip_ratio=s,
+            slip_ratio_std=np.where(valid, s_std, np.inf),
+            slip_angle=beta,
+            valid=valid,
+            events=self._events.copy(),
+            quality=float(valid.mean()),
+        )

@@ -1,0 +1,153 @@
+"""SlipEstimator on synthetic streams with known slip (no simulator)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from perception import SlipConfig, SlipEstimator, slip_events, slip_ratio, wheel_ground_velocity
+
+R_WHEEL = 0.115
+XY = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])
+
+
+def truth(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(twist, wheel steering, slip ratio) of a weaving drive with one slip event on FL."""
+    twist = np.array([0.6 + 0.3 * math.sin(0.7 * t), 0.02 * math.sin(1.3 * t), 0.25 * math.sin(0.5 * t)])
+    steer = np.array([0.15, 0.12, -0.15, -0.12]) * math.sin(0.5 * t)
+    s = np.zeros(4)
+    # FL spins out between 2 and 3.5 s (s up to 0.5), RR skids a little throughout
+    s[0] = 0.5 * max(0.0, min(1.0, (t - 2.0) / 0.3, (3.5 - t) / 0.3))
+    s[3] = -0.04
+    return twist, steer, s
+
+
+def wheel_rates(t: float) -> np.ndarray:
+    twist, steer, s = truth(t)
+    v_long, _ = wheel_ground_velocity(twist, XY, steer)
+    # s = (a - v) / max(|a|, |v|): a = v / (1 - s) for s >= 0 (spin), a = v (1 + s) for s < 0
+    a = np.where(s >= 0, v_long / (1 - s), v_long * (1 + s))
+    return a / R_WHEEL
+
+
+def interval_mean(f, t0: float, t1: float, n: int = 16) -> np.ndarray:
+    ts = np.linspace(t0, t1, n)
+    return np.mean([f(t) for t in ts], axis=0)
+
+
+def run_stream(seconds=5.0, noise=True, seed=0, shuffle=False, blackout=None):
+    """Odometry at 60 Hz and fisheye at 30 Hz, each an average over its frame interval."""
+    rng = np.random.default_rng(seed)
+    est = SlipEstimator(XY, R_WHEEL)
+    out = []
+    fo, ff = 1 / 60, 1 / 30
+    for k in range(1, int(seconds * 30) + 1):
+        t = k * ff
+        msgs = []
+        for j in (2 * k - 1, 2 * k):  # the two downward-camera pairs ending within this frame
+            to = j * fo
+            if blackout and blackout[0] <= to < blackout[1]:
+                continue
+            z = interval_mean(lambda u: truth(u)[0], to - fo, to)
+            if noise:
+                z = z + rng.normal(0, [0.01, 0.01, 0.02])
+            msgs.append(("odom", to, z))
+        if not (blackout and blackout[0] <= t < blackout[1]):
+            z = interval_mean(wheel_rates, t - ff, t)
+            if noise:
+                z = z * (1 + rng.normal(0, 0.005, 4)) + rng.normal(0, 0.02, 4)
+            msgs.append(("wheel", t, z))
+        if shuffle:
+            msgs = msgs[::-1]
+        for kind, tm, z in msgs:
+            if kind == "odom":
+                est.add_odometry(tm, z, fo, quality=1.0)
+            else:
+                est.add_wheels(tm, z, ff, steering=truth(tm)[1])
+        out.append((t, est.estimate(t)))
+    return out
+
+
+def test_noise_free_slip_matches_the_definition():
+    est = SlipEstimator(XY, R_WHEEL)
+    t = 2.4
+    twist, steer, s_true = truth(t)
+    for _ in range(30):  # repeated exact measurements at the query time
+        est.add_odometry(t, twist, 0.0)
+        est.add_wheels(t, wheel_rates(t), 0.0, steering=steer)
+    e = est.estimate(t)
+    v_long, v_lat = wheel_ground_velocity(twist, XY, steer)
+    np.testing.assert_allclose(e.slip_ratio, s_true, atol=1e-5)
+    np.testing.assert_allclose(e.slip_ratio, slip_ratio(wheel_rates(t) * R_WHEEL, v_long), atol=1e-5)
+    np.testing.assert_allclose(e.slip_angle, np.arctan2(v_lat, v_long), atol=1e-6)
+    assert e.valid.all() and e.quality == 1.0
+    assert e.events.tolist() == [True, False, False, False]  # FL at s = 0.5
+
+
+def test_noisy_stream_accuracy_and_events():
+    out = run_stream(seconds=5.0, noise=True, seed=1)
+    fisheye_period = 1 / 30
+    err_slip, err_calm = [], []
+    est_on, true_on = [], []
+    for t, e in out:
+        if t < 0.5:  # the filter's start-up
+            continue
+        s_true = truth(t)[2]
+        assert e.valid.all()
+        for i in range(4):
+            (err_slip if abs(s_true[i]) > 0.1 else err_calm).append(abs(e.slip_ratio[i] - s_true[i]))
+        est_on.append(e.events[0])
+        true_on.append(s_true[0])
+    assert np.mean(err_slip) <= 0.05, np.mean(err_slip)
+    assert np.mean(err_calm) <= 0.03, np.mean(err_calm)
+    # one event, starting and ending within two fisheye frames of the truth's
+    est_on, true_on = np.array(est_on), slip_events(np.array(true_on))  # the same hysteresis
+    times = np.array([t for t, _ in out if t >= 0.5])
+    for edge in (1, -1):
+        t_est = times[np.flatnonzero(np.diff(est_on.astype(int)) == edge) + 1]
+        t_true = times[np.flatnonzero(np.diff(true_on.astype(int)) == edge) + 1]
+        assert len(t_est) == len(t_true) == 1, (edge, t_est, t_true)
+        assert 0.0 <= t_est[0] - t_true[0] <= 2 * fisheye_period + 1e-9, (edge, t_est, t_true)
+
+
+def test_arrival_order_within_a_step_does_not_matter():
+    a = run_stream(seconds=2.0, noise=True, seed=3)
+    b = run_stream(seconds=2.0, noise=True, seed=3, shuffle=True)
+    for (_, ea), (_, eb) in zip(a, b, strict=True):
+        np.testing.assert_allclose(ea.slip_ratio, eb.slip_ratio, atol=1e-12)
+        np.testing.assert_allclose(ea.twist, eb.twist, atol=1e-12)
+
+
+def test_blackout_gives_invalid_finite_slip_and_recovers():
+    out = run_stream(seconds=4.0, noise=True, seed=2, blackout=(1.5, 2.2))
+    during = [e for t, e in out if 1.5 + SlipConfig().max_age < t < 2.2]
+    after = [e for t, e in out if t > 2.6]
+    assert during and not any(e.valid.any() for e in during)
+    assert all(np.all(np.isfinite(e.slip_ratio)) and e.quality == 0.0 for e in during)
+    assert all(not e.events.any() for e in during)
+    # uncertainty grows while nothing is measured
+    assert during[-1].twist_std[0] > during[0].twist_std[0]
+    assert all(e.valid.all() for e in after)
+
+
+def test_slip_events_hysteresis():
+    s = np.array([0.0, 0.15, 0.25, 0.15, 0.11, 0.09, 0.15, -0.3, np.nan])
+    assert slip_events(s).tolist() == [False, False, True, True, True, False, False, True, False]
+
+
+def test_invalid_odometry_is_ignored_and_bad_arguments_are_named():
+    est = SlipEstimator(XY, R_WHEEL)
+    est.add_odometry(0.1, [math.nan, 0.0, 0.0], 1 / 60)
+    est.add_odometry(0.1, [0.5, 0.0, 0.0], 1 / 60, quality=0.0)
+    e = est.estimate(0.1)
+    assert not e.valid.any() and np.all(np.isfinite(e.slip_ratio))
+    with pytest.raises(ValueError, match="wheel_rate"):
+        est.add_wheels(0.1, [1.0, 2.0], 1 / 30)
+    with pytest.raises(ValueError, match="wheel_xy"):
+        SlipEstimator(np.zeros((3, 2)), R_WHEEL)
+    with pytest.raises(ValueError, match="event_off"):
+        SlipConfig(event_on=0.1, event_off=0.2)
+    with pytest.raises(ValueError, match="query time"):
+        est.estimate(math.nan)
