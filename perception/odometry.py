@@ -231,6 +231,31 @@ class FlowOdometryConfig:
     use_mask: bool = True
     use_ransac: bool = True
 
+    @classmethod
+    def for_camera(cls, width: int, rate_hz: float, **overrides) -> FlowOdometryConfig:
+        """The defaults (tuned at 640 px and 60 Hz) with pixel sizes scaled to another camera.
+
+        Displacements scale with the width and with the frame period; feature spacing and the
+        tracking window with the width (the window stays odd and >= 5 px).
+
+        Args:
+            width: Image width [px].
+            rate_hz: Frame rate [Hz].
+            overrides: Fields to set explicitly.
+        """
+        if not (width > 0 and rate_hz > 0):
+            raise ValueError(f"width={width!r}, rate_hz={rate_hz!r}: both must be > 0")
+        s = width / 640.0
+        base = cls()
+        window = max(5, int(round(base.window * s)) | 1)
+        scaled = dict(
+            max_disp=base.max_disp * s * 60.0 / rate_hz,
+            window=window,
+            min_distance=max(3.0, base.min_distance * s),
+        )
+        scaled.update(overrides)
+        return cls(**scaled)
+
     def __post_init__(self) -> None:
         w, h = self.min_level_size
         if w < 80 or h < 60:
