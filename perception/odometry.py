@@ -605,8 +605,9 @@ class FlowOdometry:
         return out
 
     def reset(self) -> None:
-        """Forget the chained stream's last frame."""
+        """Forget the chained stream's last frame and restart RANSAC's random stream."""
         self._last = None
+        self._rng = np.random.default_rng(0)
 
 
 def ground_plane_from_wheels(wheel_centres_body, wheel_radius: float) -> tuple[float, float, float]:

@@ -145,10 +145,15 @@ class PerceptionPipeline:
         self._tick = math.gcd(*steps)
         self._every = [n // self._tick for n in steps]
         self._blackout: list[tuple[float, float]] = []
-        self.reset((0.0, 0.0, 0.0))
+        self._pose = np.zeros(3)
+        self._last_odom: OdometryEstimate | None = None
+        self._last_twist = np.zeros(3)
+        self._count = 0
 
     def reset(self, pose0, blackout=()) -> None:
         """Start again after the simulation's reset, at the known start pose (x, y, yaw) [m, rad].
+
+        Call it after every :meth:`RoverSim.reset`: it takes the first frame of each camera.
 
         Args:
             pose0: The start pose in the world (dead reckoning starts there).

@@ -134,8 +134,12 @@ def test_bad_actions_raise_and_out_of_range_is_clipped():
 def test_bad_constructor_arguments_are_explained():
     with pytest.raises(ValueError, match="action_mode"):
         RoverEnv(action_mode="tank")
-    with pytest.raises(ValueError, match="estimated"):
-        RoverEnv(obs_source="estimated")
+    with pytest.raises(ValueError, match="obs_source"):
+        RoverEnv(obs_source="camera")
+    with pytest.raises(ValueError, match="preset"):
+        RoverEnv(preset="fast")
+    with pytest.raises(ValueError, match="blackout"):
+        RoverEnv(obs_source="ground_truth").reset(seed=0, options={"blackout": [(0.0, 1.0)]})
     with pytest.raises(ValueError, match="control_hz"):
         RoverEnv(control_hz=7.0)
     with pytest.raises(rover_env.ConfigError, match="unknown scenario preset"):
@@ -221,3 +225,26 @@ def test_composite_render_records_with_gymnasium_record_video(tmp_path):
     n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     cap.release()
     assert ok and first.shape == (240, 480, 3) and n >= 12
+
+
+def test_estimated_observation_tracks_the_truth_and_survives_a_blackout():
+    env = RoverEnv(preset="train")
+    try:
+        env.reset(seed=2, options={"blackout": [(1.0, 1.5)]})
+        rows = []
+        for _ in range(75):  # 2.5 s at 0.5 of v_max, straight
+            obs, _, term, trunc, info = env.step(np.array([0.5, 0.0, 0.0], dtype=np.float32))
+            assert not (term or trunc)
+            assert sorted(info["estimate"]) == sorted(info["ground_truth"])
+            assert np.all(np.isfinite(obs))
+            rows.append((info["t"], obs.copy(), info["ground_truth"]["twist"][0], info["quality"]))
+        dark = [r for r in rows if 1.1 <= r[0] < 1.5]
+        assert dark and all(r[1][17] == 0.0 and r[1][18] == 0.0 for r in dark)
+        assert all(r[3]["slip"] == 0.0 for r in dark if r[0] >= 1.25)  # stale after max_age
+        # before and well after the blackout the estimated forward speed follows the truth
+        lit = [r for r in rows if 0.6 <= r[0] < 1.0 or r[0] >= 2.0]
+        err = np.array([r[1][0] - r[2] for r in lit])
+        assert np.mean(np.abs(err)) < 0.1, err
+        assert all(r[1][18] > 0.5 for r in rows if r[0] >= 2.0)  # the fisheye is back
+    finally:
+        env.close()

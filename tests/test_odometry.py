@@ -336,3 +336,16 @@ def test_folder_odometry_bad_inputs(ground, tmp_path):
         run_folder_odometry(tmp_path / "imgs", small, 60, tmp_path / "out")
     with pytest.raises(ValueError, match="fps"):
         run_folder_odometry(tmp_path / "imgs", calib, 0, tmp_path / "out")
+
+
+def test_config_for_camera_scales_pixel_sizes():
+    from perception import FlowOdometryConfig
+
+    base = FlowOdometryConfig()
+    c = FlowOdometryConfig.for_camera(160, 30.0)
+    assert c.max_disp == pytest.approx(base.max_disp * 0.25 * 2.0)
+    assert c.window % 2 == 1 and c.window >= 5
+    assert c.min_distance == pytest.approx(5.0)
+    assert FlowOdometryConfig.for_camera(640, 60.0) == base
+    with pytest.raises(ValueError, match="width"):
+        FlowOdometryConfig.for_camera(0, 30.0)

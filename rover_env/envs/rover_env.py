@@ -14,13 +14,14 @@ from gymnasium import spaces
 
 from perception.cameras import PinholeCamera
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
+from rover_env.estimation import PERCEPTION_PRESETS, PerceptionPipeline, StepEstimate
 from rover_env.fisheye import FisheyeCameraConfig
 from rover_env.geometry import RoverGeometry
-from rover_env.ground_truth import GroundTruth
+from rover_env.ground_truth import GROUND_TRUTH_KEYS, GroundTruth
 from rover_env.rendering import Lighting, look_at, render_pinhole
 from rover_env.rover import ackermann_wheel_speeds
 from rover_env.scenario import ScenarioConfig, load_scenario
-from rover_env.sim import RoverSim, quat_to_yaw
+from rover_env.sim import RoverSim, quat_to_yaw, yaw_to_quat
 from rover_env.task import RewardConfig, WaypointCourse
 
 
@@ -111,9 +112,16 @@ class RoverEnv(gym.Env):
 
     Args:
         scenario: Preset name, YAML path or :class:`ScenarioConfig`.
-        obs_source: ``"ground_truth"``. (``"estimated"``, filling the state fields from the
-            camera estimators, needs the perception estimators, which this version does not
-            ship yet; asking for it raises ``ValueError``.)
+        obs_source: ``"estimated"`` (default): fields 0-18 come from perception on the rendered
+            camera images (:class:`~rover_env.estimation.PerceptionPipeline`: odometry twist,
+            fisheye kinematics, the slip filter) and the task features from the dead-reckoned
+            pose; ``info["estimate"]`` then holds the estimate under the keys of
+            ``info["ground_truth"]`` (its ``pose`` dead-reckoned: x, y, the start height and
+            the yaw) and ``info["quality"]`` the odometry, kinematics and slip quality.
+            ``"ground_truth"``: the same layout from the simulator (for ablations).
+        preset: Cameras of the estimator in the loop: ``"train"`` (low resolution, fast) or
+            ``"eval"`` (the papers' 640x480 at 60 and 30 Hz); see
+            :data:`~rover_env.estimation.PERCEPTION_PRESETS`. Unused with ground truth.
         action_mode: ``"drive"`` or ``"wheels"``.
         render_mode: None or ``"rgb_array"`` (a composite of a third-person chase view, the
             downward camera and the fisheye; see :meth:`render`).
@@ -131,8 +139,9 @@ class RoverEnv(gym.Env):
     def __init__(
         self,
         scenario: str | Path | ScenarioConfig = "flat_patches",
-        obs_source: str = "ground_truth",
+        obs_source: str = "estimated",
         action_mode: str = "drive",
+        preset: str = "train",
         render_mode: str | None = None,
         control_hz: float = 30.0,
         physics_hz: float = 240.0,
@@ -151,11 +160,9 @@ class RoverEnv(gym.Env):
             self.obs_source = ObsSource(obs_source)
         except ValueError:
             raise ValueError(f"obs_source={obs_source!r}: use 'ground_truth' or 'estimated'") from None
-        if self.obs_source is ObsSource.ESTIMATED:
-            raise ValueError(
-                "obs_source='estimated' needs the camera estimators, which this version does "
-                "not ship yet; use obs_source='ground_truth'"
-            )
+        if preset not in PERCEPTION_PRESETS:
+            raise ValueError(f"preset={preset!r}: use one of {sorted(PERCEPTION_PRESETS)}")
+        self.preset = preset
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}: use None or 'rgb_array'")
         substeps = physics_hz / control_hz
@@ -178,6 +185,16 @@ class RoverEnv(gym.Env):
             self.scenario, self.geometry, physics_hz=physics_hz, solver_iterations=solver_iterations
         )
         self.course = WaypointCourse(self.scenario.course)
+        self.pipeline: PerceptionPipeline | None = None
+        if self.obs_source is ObsSource.ESTIMATED:
+            self.pipeline = PerceptionPipeline(self.sim, preset)
+            tick = self.sim.dt * self.pipeline._tick
+            if abs(self.control_dt / tick - round(self.control_dt / tick)) > 1e-9:
+                raise ValueError(
+                    f"control_hz={control_hz} is not a whole number of camera ticks ({1 / tick:g} Hz) "
+                    f"of preset {preset!r}"
+                )
+        self._est: StepEstimate | None = None
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
         # Finite bounds far outside anything physical; observations are clipped to them.
@@ -205,7 +222,15 @@ class RoverEnv(gym.Env):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Start an episode at the scenario's start pose plus random jitter from ``seed``."""
+        """Start an episode at the scenario's start pose plus random jitter from ``seed``.
+
+        ``options``: ``{"blackout": [(t0, t1), ...]}`` makes both cameras deliver black frames
+        between t0 and t1 [s] of episode time (a camera fault; the estimator flags it).
+        """
+        options = dict(options or {})
+        unknown = set(options) - {"blackout"}
+        if unknown:
+            raise ValueError(f"reset options {sorted(unknown)} are unknown; the only option is 'blackout'")
         super().reset(seed=seed)
         st = self.scenario.start
         r = st.jitter_position * math.sqrt(self.np_random.uniform())
@@ -214,6 +239,13 @@ class RoverEnv(gym.Env):
         y = st.position[1] + r * math.sin(ang)
         yaw = st.yaw + math.radians(st.jitter_yaw_deg) * self.np_random.uniform(-1.0, 1.0)
         self._gt = self.sim.reset(x, y, yaw)
+        if self.pipeline is not None:
+            # dead reckoning starts at the start pose, which a mission knows
+            self.pipeline.reset((x, y, yaw), blackout=options.get("blackout", ()))
+            self._est = self.pipeline.estimate()
+            self._z0 = float(self._gt.pose[2])
+        elif options.get("blackout"):
+            raise ValueError("reset option 'blackout' needs obs_source='estimated' (there are no cameras)")
         self.course.reset(self._gt.pose[:2])
         self._prev_action = np.zeros_like(self._prev_action)
         feats = self.course.features(self._gt.pose[:2], quat_to_yaw(self._gt.pose[3:]))
@@ -234,7 +266,11 @@ class RoverEnv(gym.Env):
         else:
             speeds = act[:4].astype(np.float64) * self.v_max
         self.sim.rover.command(speeds / g.wheel_radius, lam_f, lam_r)
-        self.sim.step(self.control_dt)
+        if self.pipeline is not None:
+            self.pipeline.advance(self.control_dt)
+            self._est = self.pipeline.estimate()
+        else:
+            self.sim.step(self.control_dt)
         gt = self.sim.ground_truth()
         self._gt = gt
         self._prev_action = act
@@ -346,20 +382,37 @@ class RoverEnv(gym.Env):
     def _observation(self, feats) -> np.ndarray:
         gt = self._gt
         assert gt is not None
+        if self._est is None:
+            src = gt.as_dict()
+            quality = [1.0, 1.0]
+        else:
+            src = self._est.values
+            quality = [self._est.odometry_quality, self._est.kinematics_quality]
+            x, y, yaw = src["odometry_pose"]
+            feats = self.course.features(np.array([x, y]), yaw)  # where the rover thinks it is
         state = np.concatenate(
             [
-                gt.twist,
-                gt.wheel_rate,
-                gt.slip_ratio,
-                gt.axle_roll,
-                gt.axle_height,
-                gt.steering,
-                [1.0, 1.0],
+                src["twist"],
+                src["wheel_rate"],
+                src["slip_ratio"],
+                src["axle_roll"],
+                src["axle_height"],
+                src["steering"],
+                quality,
                 [feats.distance, feats.bearing, feats.cross_track, feats.heading_error],
             ]
         )
-        obs = np.concatenate([state, self._prev_action]).astype(np.float32)
+        obs = np.nan_to_num(np.concatenate([state, self._prev_action]), nan=0.0).astype(np.float32)
         return np.clip(obs, self.observation_space.low, self.observation_space.high)
+
+    def _estimate_info(self) -> dict[str, np.ndarray]:
+        """The estimate under the ground truth's keys (pose dead-reckoned)."""
+        assert self._est is not None
+        v = self._est.values
+        x, y, yaw = v["odometry_pose"]
+        out = {"pose": np.array([x, y, self._z0, *yaw_to_quat(0.0, 0.0, yaw)])}
+        out.update({k: np.array(v[k], dtype=np.float64) for k in GROUND_TRUTH_KEYS if k != "pose"})
+        return out
 
     @staticmethod
     def _term_names() -> tuple[str, ...]:
@@ -383,7 +436,7 @@ class RoverEnv(gym.Env):
     def _info(self, feats, terms: dict[str, float], success: bool, reason: str | None) -> dict[str, Any]:
         gt = self._gt
         assert gt is not None
-        return {
+        out = {
             "ground_truth": gt.as_dict(),
             "wheel_contact": gt.contact_dict(),
             "reward_terms": terms,
@@ -394,3 +447,11 @@ class RoverEnv(gym.Env):
             "is_success": bool(success),
             "termination": reason,
         }
+        if self._est is not None:
+            out["estimate"] = self._estimate_info()
+            out["quality"] = {
+                "odometry": self._est.odometry_quality,
+                "kinematics": self._est.kinematics_quality,
+                "slip": float(self._est.slip.quality),
+            }
+        return out
