@@ -11,20 +11,27 @@ from rover_env.scenario import ScenarioConfig, list_scenarios, load_scenario
 
 __version__ = "0.1.0"
 
-ENV_IDS: tuple[str, ...] = ("Rover-v0",)
+#: Registered missions: id -> shipped scenario.
+MISSIONS: dict[str, str] = {
+    "Rover-v0": "flat_patches",  # flat, with low-friction patches (the default mission)
+    "RoverRoughSlippery-v0": "rough_slippery",  # rough sand with loose-sand pockets
+    "RoverShadows-v0": "shadow_heavy",  # low sun behind the rover, slip patches
+}
+
+ENV_IDS: tuple[str, ...] = tuple(MISSIONS)
 
 
 def register_envs() -> None:
     """Register every id of :data:`ENV_IDS` with Gymnasium; calling it again does nothing."""
     import gymnasium
 
-    for env_id in ENV_IDS:
+    for env_id, scenario in MISSIONS.items():
         if env_id in gymnasium.registry:
             continue
         gymnasium.register(
             id=env_id,
             entry_point="rover_env.envs:RoverEnv",
-            kwargs={"scenario": "flat_patches"},
+            kwargs={"scenario": scenario},
             disable_env_checker=False,
         )
 
@@ -33,6 +40,7 @@ register_envs()
 
 __all__ = [
     "ENV_IDS",
+    "MISSIONS",
     "WHEELS",
     "ConfigError",
     "RoverGeometry",
