@@ -56,8 +56,8 @@ def main(argv=None) -> int:
                 f"{ep + 1} resets, {steps} steps, RSS {rss_mb():.1f} MB, {time.perf_counter() - t0:.0f} s",
                 flush=True,
             )
-    env.close()
     end = rss_mb()
+    env.close()
     print(
         f"\n{args.env} ({args.obs_source}): {args.resets} resets, {steps} steps: RSS {base:.1f} MB after the "
         f"first episode, {end:.1f} MB at the end, growth {end - base:+.1f} MB (target <= 50 MB)"
