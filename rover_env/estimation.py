@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -149,6 +150,8 @@ class PerceptionPipeline:
         self._last_odom: OdometryEstimate | None = None
         self._last_twist = np.zeros(3)
         self._count = 0
+        #: Wall-clock seconds spent so far in each part: physics, rendering, perception.
+        self.timing = {"physics": 0.0, "rendering": 0.0, "perception": 0.0}
 
     def reset(self, pose0, blackout=()) -> None:
         """Start again after the simulation's reset, at the known start pose (x, y, yaw) [m, rad].
@@ -182,8 +185,12 @@ class PerceptionPipeline:
     def _capture(self, downward: bool, fisheye: bool) -> None:
         t = self.sim.t
         dark = self._dark(t)
+        clock = time.perf_counter
         if fisheye:
+            t0 = clock()
             img = self.fisheye.capture().image
+            t1 = clock()
+            self.timing["rendering"] += t1 - t0
             if dark:
                 img = np.zeros_like(img)
             state = self.kinematics.update(img, t)
@@ -194,8 +201,12 @@ class PerceptionPipeline:
                 [state.valid[f"theta_{w}"] for w in ("FL", "FR", "RL", "RR")],
                 state.delta,
             )
+            self.timing["perception"] += clock() - t1
         if downward:
+            t0 = clock()
             img = self.downward.capture().image
+            t1 = clock()
+            self.timing["rendering"] += t1 - t0
             if dark:
                 img = np.zeros_like(img)
             s = self.kinematics.state
@@ -206,6 +217,7 @@ class PerceptionPipeline:
                 self._last_odom = est
                 if est.valid:
                     self.slip.add_odometry(t, est.twist, est.dt, est.quality)
+            self.timing["perception"] += clock() - t1
 
     def advance(self, duration: float) -> None:
         """Run the physics for ``duration`` [s], capturing and processing every camera frame."""
@@ -215,7 +227,9 @@ class PerceptionPipeline:
             raise ValueError(f"duration {duration} s is not a whole number of camera ticks ({dt} s)")
         for _ in range(n):
             t_prev = self.sim.t
+            t0 = time.perf_counter()
             self.sim.step(dt)
+            self.timing["physics"] += time.perf_counter() - t0
             self._count += 1
             self._integrate(t_prev, self.sim.t)
             self._capture(

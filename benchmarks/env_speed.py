@@ -1,0 +1,73 @@
+"""Environment steps per second per core, with the estimator in the loop, and where the time goes.
+
+For each preset, one process drives ``Rover-v0`` with ``obs_source="estimated"`` (a steady turn)
+and splits each step's wall-clock time into physics, rendering (both cameras at their rates) and
+perception (odometry, fisheye kinematics, slip filter), from the pipeline's own clocks; the rest
+is the environment's bookkeeping. A ground-truth run of the same drive gives the physics-only
+rate. Real-time factor = simulated seconds per wall-clock second (control at 30 Hz).
+
+Run: python benchmarks/env_speed.py [--steps 150]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import cv2
+import gymnasium as gym
+import numpy as np
+
+import rover_env  # noqa: F401
+
+ACTION = np.array([0.5, 0.1, -0.1], dtype=np.float32)
+
+
+def run(obs_source: str, preset: str, steps: int) -> dict:
+    env = gym.make("Rover-v0", obs_source=obs_source, preset=preset)
+    try:
+        env.reset(seed=0)
+        for _ in range(10):  # warm-up
+            env.step(ACTION)
+        pipe = env.unwrapped.pipeline
+        before = dict(pipe.timing) if pipe is not None else {}
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            env.step(ACTION)
+        wall = time.perf_counter() - t0
+        parts = {k: (pipe.timing[k] - before[k]) / steps * 1e3 for k in before} if pipe is not None else {}
+        return dict(ms=wall / steps * 1e3, rtf=steps * env.unwrapped.control_dt / wall, parts=parts)
+    finally:
+        env.close()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=150)
+    ap.add_argument("--presets", nargs="+", default=["train", "eval"])
+    args = ap.parse_args(argv)
+    cv2.setNumThreads(1)
+    gt = run("ground_truth", "train", args.steps * 10)
+    print(
+        "| preset | steps/s | real-time factor | ms/step | physics | rendering | perception | other "
+        "| perception share |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print(
+        f"| physics only (ground truth) | {1e3 / gt['ms']:.0f} | {gt['rtf']:.1f}x | {gt['ms']:.2f} | "
+        f"{gt['ms']:.2f} | - | - | - | - |"
+    )
+    for preset in args.presets:
+        r = run("estimated", preset, args.steps)
+        p = r["parts"]
+        other = r["ms"] - sum(p.values())
+        print(
+            f"| {preset} | {1e3 / r['ms']:.1f} | {r['rtf']:.2f}x | {r['ms']:.1f} | {p['physics']:.1f} | "
+            f"{p['rendering']:.1f} | {p['perception']:.1f} | {other:.1f} | "
+            f"{100 * p['perception'] / r['ms']:.0f} % |"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
