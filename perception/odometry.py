@@ -652,15 +652,22 @@ def integrate_twist(t: np.ndarray, twist: np.ndarray, pose0=(0.0, 0.0, 0.0)) -> 
     for k in range(1, len(t)):
         if np.all(np.isfinite(tw[k])):
             last = tw[k]
-        dt = t[k] - t[k - 1]
-        x, y, th = out[k - 1]
-        vx, vy, w = last
-        dth = w * dt
-        if abs(dth) < 1e-9:
-            a, b = dt * (1 - dth**2 / 6), dt * dth / 2
-        else:
-            a, b = math.sin(dth) / w, (1 - math.cos(dth)) / w
-        dx, dy = a * vx - b * vy, b * vx + a * vy  # body-frame displacement over the arc
-        c, s = math.cos(th), math.sin(th)
-        out[k] = (x + c * dx - s * dy, y + s * dx + c * dy, th + dth)
+        out[k] = arc_step(out[k - 1], last, t[k] - t[k - 1])
     return out
+
+
+def arc_step(pose, twist, dt: float) -> np.ndarray:
+    """Planar pose (x, y, yaw) after holding the body twist (v_x, v_y, omega) for ``dt`` [s].
+
+    The exact constant-curvature arc; world frame for the pose, body frame for the twist.
+    """
+    x, y, th = (float(v) for v in pose)
+    vx, vy, w = (float(v) for v in twist)
+    dth = w * dt
+    if abs(dth) < 1e-9:
+        a, b = dt * (1 - dth**2 / 6), dt * dth / 2
+    else:
+        a, b = math.sin(dth) / w, (1 - math.cos(dth)) / w
+    dx, dy = a * vx - b * vy, b * vx + a * vy  # body-frame displacement over the arc
+    c, s = math.cos(th), math.sin(th)
+    return np.array([x + c * dx - s * dy, y + s * dx + c * dy, th + dth])

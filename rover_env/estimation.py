@@ -24,11 +24,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perception.fisheye_kinematics import KinematicsConfig, KinematicState, KinematicStateEstimator
-from perception.odometry import FlowOdometry, FlowOdometryConfig, OdometryEstimate, ground_plane_from_wheels
+from perception.odometry import (
+    FlowOdometry,
+    FlowOdometryConfig,
+    OdometryEstimate,
+    arc_step,
+    ground_plane_from_wheels,
+)
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
 from rover_env.config_io import ConfigError
 from rover_env.fisheye import FisheyeCameraConfig
+from rover_env.ground_truth import GROUND_TRUTH_KEYS
 from rover_env.sim import RoverSim
 
 log = logging.getLogger(__name__)
@@ -36,16 +43,7 @@ log = logging.getLogger(__name__)
 #: Keys of ``info["estimate"]``: the ground truth's keys without ``pose``, plus the
 #: dead-reckoned ``odometry_pose`` (x, y, yaw) and the estimates' quality.
 ESTIMATE_KEYS: tuple[str, ...] = (
-    "odometry_pose",
-    "twist",
-    "wheel_rate",
-    "wheel_angle",
-    "slip_ratio",
-    "slip_angle",
-    "axle_roll",
-    "axle_height",
-    "steering",
-    "quality",
+    ("odometry_pose",) + tuple(k for k in GROUND_TRUTH_KEYS if k != "pose") + ("quality",)
 )
 
 
@@ -182,17 +180,18 @@ class PerceptionPipeline:
     def _dark(self, t: float) -> bool:
         return any(t0 <= t < t1 for t0, t1 in self._blackout)
 
+    def _frame(self, camera) -> np.ndarray:
+        """Render ``camera`` now (black during a blackout); the rendering clock runs meanwhile."""
+        t0 = time.perf_counter()
+        img = camera.capture().image
+        self.timing["rendering"] += time.perf_counter() - t0
+        return np.zeros_like(img) if self._dark(self.sim.t) else img
+
     def _capture(self, downward: bool, fisheye: bool) -> None:
         t = self.sim.t
-        dark = self._dark(t)
-        clock = time.perf_counter
         if fisheye:
-            t0 = clock()
-            img = self.fisheye.capture().image
-            t1 = clock()
-            self.timing["rendering"] += t1 - t0
-            if dark:
-                img = np.zeros_like(img)
+            img = self._frame(self.fisheye)
+            t0 = time.perf_counter()
             state = self.kinematics.update(img, t)
             self.slip.add_wheels(
                 t,
@@ -201,14 +200,10 @@ class PerceptionPipeline:
                 [state.valid[f"theta_{w}"] for w in ("FL", "FR", "RL", "RR")],
                 state.delta,
             )
-            self.timing["perception"] += clock() - t1
+            self.timing["perception"] += time.perf_counter() - t0
         if downward:
-            t0 = clock()
-            img = self.downward.capture().image
-            t1 = clock()
-            self.timing["rendering"] += t1 - t0
-            if dark:
-                img = np.zeros_like(img)
+            img = self._frame(self.downward)
+            t0 = time.perf_counter()
             s = self.kinematics.state
             centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
             plane = ground_plane_from_wheels(centres, self.model.wheel_radius)
@@ -217,7 +212,7 @@ class PerceptionPipeline:
                 self._last_odom = est
                 if est.valid:
                     self.slip.add_odometry(t, est.twist, est.dt, est.quality)
-            self.timing["perception"] += clock() - t1
+            self.timing["perception"] += time.perf_counter() - t0
 
     def advance(self, duration: float) -> None:
         """Run the physics for ``duration`` [s], capturing and processing every camera frame."""
@@ -240,17 +235,7 @@ class PerceptionPipeline:
         """Dead reckoning: the latest valid odometry twist held over the tick, as an arc."""
         if self._last_odom is not None and self._last_odom.valid:
             self._last_twist = self._last_odom.twist
-        vx, vy, w = self._last_twist
-        h = t1 - t0
-        x, y, th = self._pose
-        dth = w * h
-        if abs(dth) < 1e-9:
-            a, b = h, h * dth / 2
-        else:
-            a, b = math.sin(dth) / w, (1 - math.cos(dth)) / w
-        dx, dy = a * vx - b * vy, b * vx + a * vy
-        c, s = math.cos(th), math.sin(th)
-        self._pose = np.array([x + c * dx - s * dy, y + s * dx + c * dy, th + dth])
+        self._pose = arc_step(self._pose, self._last_twist, t1 - t0)
 
     def estimate(self) -> StepEstimate:
         """The estimate now (after :meth:`reset` or :meth:`advance`)."""
