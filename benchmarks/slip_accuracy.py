@@ -26,7 +26,9 @@ from observation_errors import TRUTH, slip_metrics  # noqa: E402
 import rover_env  # noqa: E402,F401
 
 
-def drive(seed: int, preset: str, env_id: str, patch_x: tuple[float, float], seconds: float) -> dict:
+def drive(
+    seed: int, preset: str, env_id: str, patch_x: tuple[float, float], seconds: float, ramp: float = 0.0
+) -> dict:
     env = gym.make(env_id, obs_source="estimated", preset=preset)
     try:
         obs, info = env.reset(seed=seed)
@@ -34,11 +36,14 @@ def drive(seed: int, preset: str, env_id: str, patch_x: tuple[float, float], sec
         est, tru, speed, t = [], [], [], []
         rng = np.random.default_rng(seed)
         burst = int(rng.integers(15, 25))  # steps per phase
+        v = 0.0
         for k in range(int(round(seconds * env.unwrapped.control_hz))):
             x = info["ground_truth"]["pose"][0]
             on_patch = patch_x[0] < x < patch_x[1]
             phase = (k // burst) % 3
-            v = 0.4 if not on_patch else (1.0, -0.2, 0.3)[phase]
+            target = 0.4 if not on_patch else (1.0, -0.2, 0.3)[phase]
+            # the command ramps like a drive with an acceleration limit (ramp_rate per step)
+            v = float(np.clip(target, v - ramp, v + ramp)) if ramp > 0 else target
             obs, _, term, trunc, info = env.step(np.array([v, 0.0, 0.0], np.float32))
             gt = info["ground_truth"]
             est.append(obs[:17].astype(np.float64))
@@ -58,11 +63,19 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="eval", choices=("train", "eval"))
     ap.add_argument("--seeds", type=int, nargs="+", default=[201, 202, 203])
     ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument(
+        "--ramp",
+        type=float,
+        default=0.0,
+        help="largest change of the speed action per step (0: steps; 0.05 = 3 m/s^2 at 30 Hz)",
+    )
     args = ap.parse_args(argv)
     # Rover-v0's sand patch (mu 0.15) spans x 4.75..7.25 m on the first leg
-    runs = [drive(s, args.preset, "Rover-v0", (4.8, 7.2), args.seconds) for s in args.seeds]
+    runs = [drive(s, args.preset, "Rover-v0", (4.8, 7.2), args.seconds, args.ramp) for s in args.seeds]
     m = slip_metrics(runs)
-    print(f"preset {args.preset}, seeds {args.seeds}, {sum(len(r['t']) for r in runs)} steps")
+    print(
+        f"preset {args.preset}, seeds {args.seeds}, ramp {args.ramp}, {sum(len(r['t']) for r in runs)} steps"
+    )
     print(
         "| slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events | precision | recall | F1 "
         "| latency median / max [frames] |"
