@@ -103,13 +103,12 @@ def slip_metrics(runs: list[dict]) -> dict:
                 else:
                     fn += 1
             fp += len(e_runs) - len(matched)
-        dt = rr["t"][1] - rr["t"][0] if len(rr["t"]) > 1 else math.nan
-        rr["steps_per_frame"] = rr["frame"] / dt
     prec = tp / max(tp + fp, 1)
     rec = tp / max(tp + fn, 1)
     f1 = 2 * prec * rec / max(prec + rec, 1e-12)
-    spf = runs[0]["steps_per_frame"] if runs else 1.0
-    lat_frames = np.array(lat) / spf if lat else np.zeros(0)
+    # latencies are counted in control steps; a fisheye frame spans frame / (step time) of them
+    step = float(np.median(np.diff(runs[0]["t"]))) if runs and len(runs[0]["t"]) > 1 else math.nan
+    lat_frames = np.array(lat) * step / runs[0]["frame"] if lat else np.zeros(0)
     return dict(
         mae_slip=float(np.mean(err_slip)) if err_slip else math.nan,
         n_slip=len(err_slip),

@@ -214,9 +214,14 @@ class PerceptionPipeline:
                     self.slip.add_odometry(t, est.twist, est.dt, est.quality)
             self.timing["perception"] += time.perf_counter() - t0
 
+    @property
+    def tick(self) -> float:
+        """The pipeline's time step [s]: the greatest common divisor of the camera periods."""
+        return self.sim.dt * self._tick
+
     def advance(self, duration: float) -> None:
         """Run the physics for ``duration`` [s], capturing and processing every camera frame."""
-        dt = self.sim.dt * self._tick
+        dt = self.tick
         n = round(duration / dt)
         if abs(n * dt - duration) > 1e-9:
             raise ValueError(f"duration {duration} s is not a whole number of camera ticks ({dt} s)")

@@ -188,7 +188,7 @@ class RoverEnv(gym.Env):
         self.pipeline: PerceptionPipeline | None = None
         if self.obs_source is ObsSource.ESTIMATED:
             self.pipeline = PerceptionPipeline(self.sim, preset)
-            tick = self.sim.dt * self.pipeline._tick
+            tick = self.pipeline.tick
             if abs(self.control_dt / tick - round(self.control_dt / tick)) > 1e-9:
                 raise ValueError(
                     f"control_hz={control_hz} is not a whole number of camera ticks ({1 / tick:g} Hz) "
