@@ -1,6 +1,6 @@
 """Environment steps per second per core, with the estimator in the loop, and where the time goes.
 
-For each preset, one process drives ``Rover-v0`` with ``obs_source="estimated"`` (a steady turn)
+For each registered mission and preset, one process drives it with ``obs_source="estimated"`` (a steady turn)
 and splits each step's wall-clock time into physics, rendering (both cameras at their rates) and
 perception (odometry, fisheye kinematics, slip filter), from the pipeline's own clocks; the rest
 is the environment's bookkeeping. A ground-truth run of the same drive gives the physics-only
@@ -18,13 +18,13 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-import rover_env  # noqa: F401
+import rover_env
 
 ACTION = np.array([0.5, 0.1, -0.1], dtype=np.float32)
 
 
-def run(obs_source: str, preset: str, steps: int) -> dict:
-    env = gym.make("Rover-v0", obs_source=obs_source, preset=preset)
+def run(env_id: str, obs_source: str, preset: str, steps: int) -> dict:
+    env = gym.make(env_id, obs_source=obs_source, preset=preset)
     try:
         env.reset(seed=0)
         for _ in range(10):  # warm-up
@@ -45,27 +45,31 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--presets", nargs="+", default=["train", "eval"])
+    ap.add_argument("--envs", nargs="+", default=list(rover_env.ENV_IDS))
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
-    gt = run("ground_truth", "train", args.steps * 10)
     print(
-        "| preset | steps/s | real-time factor | ms/step | physics | rendering | perception | other "
-        "| perception share |"
+        "| mission | preset | steps/s | real-time factor | ms/step | physics | rendering | perception "
+        "| other | perception share |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    print(
-        f"| physics only (ground truth) | {1e3 / gt['ms']:.0f} | {gt['rtf']:.1f}x | {gt['ms']:.2f} | "
-        f"{gt['ms']:.2f} | - | - | - | - |"
-    )
-    for preset in args.presets:
-        r = run("estimated", preset, args.steps)
-        p = r["parts"]
-        other = r["ms"] - sum(p.values())
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for env_id in args.envs:
+        gt = run(env_id, "ground_truth", "train", args.steps * 10)
         print(
-            f"| {preset} | {1e3 / r['ms']:.1f} | {r['rtf']:.2f}x | {r['ms']:.1f} | {p['physics']:.1f} | "
-            f"{p['rendering']:.1f} | {p['perception']:.1f} | {other:.1f} | "
-            f"{100 * p['perception'] / r['ms']:.0f} % |"
+            f"| {env_id} | physics only (ground truth) | {1e3 / gt['ms']:.0f} | {gt['rtf']:.1f}x | "
+            f"{gt['ms']:.2f} | {gt['ms']:.2f} | - | - | - | - |",
+            flush=True,
         )
+        for preset in args.presets:
+            r = run(env_id, "estimated", preset, args.steps)
+            p = r["parts"]
+            other = r["ms"] - sum(p.values())
+            print(
+                f"| {env_id} | {preset} | {1e3 / r['ms']:.1f} | {r['rtf']:.2f}x | {r['ms']:.1f} | "
+                f"{p['physics']:.1f} | {p['rendering']:.1f} | {p['perception']:.1f} | {other:.1f} | "
+                f"{100 * p['perception'] / r['ms']:.0f} % |",
+                flush=True,
+            )
     return 0
 
 

@@ -170,7 +170,7 @@ def bench_cameras(
                         if name == "fisheye":
                             rm = fish.remapper
                             atlas = rm.atlas(
-                                [np.zeros((*fc.camera.image_size[::-1], 3), np.uint8) + 90 for fc in rm.faces]
+                                [np.zeros((*fc.size[::-1], 3), np.uint8) + 90 for fc in rm.faces]
                             )
                             rt = []
                             for _ in range(30):

@@ -15,7 +15,14 @@ import numpy as np
 
 from perception.cameras import PinholeCamera
 from rover_env.config_io import ConfigError, camera_preset, check_camera_config, check_range
-from rover_env.fisheye import R_BODY_FISHEYE, CubemapRemap, FisheyeCameraConfig, FisheyeView, render_fisheye
+from rover_env.fisheye import (
+    R_BODY_FISHEYE,
+    CubemapRemap,
+    FisheyeCameraConfig,
+    FisheyeView,
+    kinematics_roi,
+    render_fisheye,
+)
 from rover_env.rendering import Lighting, RenderedView, render_pinhole
 from rover_env.sim import RoverSim
 
@@ -125,6 +132,7 @@ class _RoverCamera(ABC):
 
     def capture(self) -> Frame:
         """Render one frame at the current simulation time."""
+        self.sim.prepare_render()
         v = self._render_frame()
         frame = Frame(image=v.rgb, t=self.sim.t, shadow=v.shadow)
         self._last = frame
@@ -185,6 +193,7 @@ class DownwardCamera(_RoverCamera):
 
     def render_view(self) -> RenderedView:
         """Render now, with depth and segmentation (for tests and evaluation)."""
+        self.sim.prepare_render()
         lighting = self.lighting
         return render_pinhole(
             self.sim.client,
@@ -211,10 +220,16 @@ class FisheyeCamera(_RoverCamera):
         T[:3, 3] = sim.geometry.fisheye_origin
         super().__init__(sim, cfg, T)
         self.model = cfg.model(T)
-        self.remapper = CubemapRemap(self.model, oversample=cfg.oversample)
+        roi = None
+        if cfg.roi:
+            g = sim.geometry
+            kin = g.kinematic_model(T)
+            roi = kinematics_roi(self.model, kin, g.roll_limit, g.travel_limit, g.steer_limit)
+        self.remapper = CubemapRemap(self.model, oversample=cfg.oversample, roi=roi)
 
     def render_view(self) -> FisheyeView:
         """Render now, with segmentation, shadow and 3-D points (for tests and evaluation)."""
+        self.sim.prepare_render()
         return self._render(labels=True)
 
     def _render_frame(self) -> FisheyeView:

@@ -195,20 +195,39 @@ def render_pinhole(
         renderer: ``"tiny"`` (TinyRenderer, sun lighting) or ``"egl"`` (the EGL plugin must be
             loaded into ``client``; no sun direction, so no shadows: ``lighting.shadows`` must be off).
     """
+    if np.any(camera.distortion):
+        raise ValueError("render_pinhole renders ideal pinhole images; use a camera with zero distortion")
+    return render_K(
+        client, camera.K, camera.image_size, T_world_cam, lighting, near, far, caster, shadow_map, renderer
+    )
+
+
+def render_K(
+    client,
+    K: np.ndarray,
+    size: tuple[int, int],
+    T_world_cam: np.ndarray,
+    lighting: Lighting,
+    near: float = 0.05,
+    far: float = 20.0,
+    caster: ShadowCaster | None = None,
+    shadow_map: ShadowMap | None = None,
+    renderer: str = "tiny",
+) -> RenderedView:
+    """:func:`render_pinhole` with intrinsics ``K`` [px] and ``size`` = (W, H) [px].
+
+    The principal point may lie outside the image (the view is a crop of a larger one).
+    """
     if renderer not in RENDERERS:
         raise ValueError(f"renderer={renderer!r}: use 'tiny' or 'egl'")
     if renderer == "egl" and lighting.shadows:
         raise ValueError(
             "the EGL renderer ignores the sun direction, so it cannot draw shadows; turn shadows off"
         )
-    if np.any(camera.distortion):
-        raise ValueError("render_pinhole renders ideal pinhole images; use a camera with zero distortion")
-    size = camera.image_size
-    view, proj = gl_view_matrix(T_world_cam), gl_projection_from_K(camera.K, size, near, far, renderer)
+    view, proj = gl_view_matrix(T_world_cam), gl_projection_from_K(K, size, near, far, renderer)
     rgb, zbuf, seg = _camera_image(client, size, view, proj, lighting, renderer)
     depth = (far * near / (far - (far - near) * zbuf.astype(np.float64))).astype(np.float32)
     w, h = size
-    K = camera.K
     view = RenderedView(rgb, depth, seg, np.zeros((h, w), dtype=bool), K, np.asarray(T_world_cam))
     if lighting.shadows:
         hit = seg >= 0

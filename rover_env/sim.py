@@ -112,6 +112,7 @@ class RoverSim:
             Ground truth after settling.
         """
         c = self.client
+        self.terrain.drop_detail()  # the saved state has no near-ground chunks
         c.restoreState(self._state_id)
         g = self.geometry
         cy, sy = math.cos(yaw), math.sin(yaw)
@@ -152,6 +153,11 @@ class RoverSim:
             raise RuntimeError("this RoverSim is closed; create a new one")
         for _ in range(max(1, int(round(duration / self.dt)))):
             self._substep()
+
+    def prepare_render(self) -> None:
+        """Draw the exact ground around the rover; call before rendering views near it."""
+        x, y, _ = self.client.getBasePositionAndOrientation(self.rover.body_id)[0]
+        self.terrain.focus(x, y)
 
     @functools.cached_property
     def shadow_caster(self) -> ShadowCaster:

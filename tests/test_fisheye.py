@@ -202,6 +202,42 @@ def test_fiducials_and_treads_in_view_and_where_the_model_says_over_50_states(li
     assert min(tread_px) >= 250  # about 300 px at full lock and full roll, ~1900 typical
 
 
+def test_roi_holds_every_wheel_and_marker_pixel_over_the_joint_range_and_renders_them_exactly(lifted_sim):
+    """The train preset's fisheye renders only kinematics_roi; nothing the estimator reads is outside."""
+    sim = lifted_sim
+    full = FisheyeCamera(sim, FisheyeCameraConfig.preset("half"))
+    roi = FisheyeCamera(sim, FisheyeCameraConfig.preset("half", roi=True))
+    rendered = roi.remapper.rendered
+    assert roi.remapper.face_pixels < 0.35 * full.remapper.face_pixels
+    assert len(roi.remapper.faces) == 4  # one view per wheel corner
+    wheels = [sim.rover.body_id + ((sim.rover.link[f"wheel_{w}"] + 1) << 24) for w in WHEELS]
+    rng = np.random.default_rng(5)
+    for lam, psi, d in feasible_states(sim.geometry, 10, rng):
+        set_joints(sim, lam, psi, d, rng.uniform(-math.pi, math.pi, 4))
+        view = full.render_view()
+        stats, centroids = magenta_blobs(view.rgb)
+        needed = np.isin(view.segmentation, wheels)
+        for k in range(1, len(stats)):
+            x, y, w, h = stats[k, :4]
+            needed[y : y + h, x : x + w] = True
+        needed &= full.remapper.valid
+        assert needed.sum() > 2000
+        assert np.all(rendered[needed]), f"ROI misses {np.sum(needed & ~rendered)} px at lam={lam}, psi={psi}"
+        # the ROI views see the same surfaces along the same rays; outside the ROI it is black
+        small = roi.render_view()
+        assert not small.rgb[~rendered].any()
+        T_cam_world = np.linalg.inv(roi.T_world_cam())
+        hit = rendered & (small.segmentation >= 0)
+        p = small.points_world[hit].astype(np.float64)
+        px = roi.model.world2cam(p @ T_cam_world[:3, :3].T + T_cam_world[:3, 3])
+        rows, cols = np.nonzero(hit)
+        err = np.hypot(px[:, 0] - cols, px[:, 1] - rows)
+        # nearest view pixel; at the rim a view pixel spans up to 1.7 image pixels tangentially
+        assert np.nanmax(err) < 1.25 and np.nanmedian(err) < 0.5
+        same = (small.segmentation == view.segmentation)[rendered]
+        assert same.mean() > 0.98  # labels differ only along edges, sampled from other views
+
+
 def test_fisheye_config_errors():
     with pytest.raises(ConfigError, match="fov_deg"):
         FisheyeCameraConfig(fov_deg=170.0)

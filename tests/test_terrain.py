@@ -96,3 +96,46 @@ def test_tread_texture_has_a_white_marker_at_u_half():
     white = np.where(tread > 240)[0]
     assert white.min() >= 180 - 9 and white.max() <= 180 + 9
     assert len(white) == pytest.approx(16, abs=2)
+
+
+def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhere():
+    """Level of detail: the collision triangles near the rover, a lower 1 m mesh farther away."""
+    from perception.cameras import PinholeCamera
+    from rover_env.rendering import Lighting, look_at, render_pinhole
+    from rover_env.terrain import FINE_RADIUS
+
+    cfg = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness=0.03, wavelength=2.0, seed=3,
+                        texture="sand", texture_px=64)  # fmt: skip
+    client = BulletClient(connection_mode=pb.DIRECT)
+    try:
+        terrain = Terrain(client, cfg, FrictionMapConfig())
+        cam = PinholeCamera.from_fov((200, 200), np.radians(110.0), np.radians(110.0))
+        T = look_at([1.3, -0.7, 2.5], [1.3, -0.7, 0.0], up=(1.0, 0.0, 0.0))
+        light = Lighting((0.0, 0.0, 1.0), shadows=False)
+
+        def ground_points():
+            view = render_pinhole(client, cam, T, light)
+            p = view.points_world[np.isin(view.segmentation, terrain.ground_ids)].astype(np.float64)
+            return p, p[:, 2] - terrain.height_at(p[:, 0], p[:, 1])
+
+        p, dz = ground_points()  # no focus yet: only the far mesh, which stays below the ground
+        assert terrain.ground_ids == (terrain.body_id,)
+        assert dz.max() < 1e-3 and dz.min() > -0.2
+        coarse_gap = np.median(dz)
+        assert -0.06 < coarse_gap < -2e-3
+        terrain.focus(1.3, -0.7)
+        n_near = len(terrain.ground_ids) - 1
+        assert 12 <= n_near <= (2 * FINE_RADIUS + 2) ** 2
+        p, dz = ground_points()
+        near = np.hypot(p[:, 0] - 1.3, p[:, 1] + 0.7) < FINE_RADIUS - 0.05
+        assert near.sum() > 5000
+        assert np.abs(dz[near]).max() < 2e-3  # the exact triangles (float32 depth)
+        assert dz[~near].max() < 1e-3
+        terrain.focus(4.0, 4.0)  # moved: chunks near the old focus go, chunks near the new come
+        assert len(terrain.ground_ids) - 1 <= (2 * FINE_RADIUS + 2) ** 2
+        _, dz = ground_points()
+        assert np.median(dz) < -2e-3  # the view at (1.3, -0.7) sees the far mesh again
+        terrain.drop_detail()
+        assert terrain.ground_ids == (terrain.body_id,)
+    finally:
+        client.disconnect()

@@ -324,6 +324,7 @@ class RoverEnv(gym.Env):
             pos[2] + 1.6,
         ]
         views = self._render_views(left, h, side, h // 2)
+        self.sim.prepare_render()
         chase = render_pinhole(
             c,
             views["chase"],
