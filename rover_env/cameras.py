@@ -194,6 +194,12 @@ class DownwardCamera(_RoverCamera):
     def render_view(self) -> RenderedView:
         """Render now, with depth and segmentation (for tests and evaluation)."""
         self.sim.prepare_render()
+        return self._render(segmentation=True)
+
+    def _render_frame(self) -> RenderedView:
+        return self._render(segmentation=False)
+
+    def _render(self, segmentation: bool) -> RenderedView:
         lighting = self.lighting
         return render_pinhole(
             self.sim.client,
@@ -202,6 +208,7 @@ class DownwardCamera(_RoverCamera):
             lighting,
             caster=self._caster(lighting),
             renderer=self.sim.renderer,
+            segmentation=segmentation,
         )
 
 

@@ -369,8 +369,17 @@ def render_fisheye(
         T_face[:3, :3] = T_world_cam[:3, :3] @ fc.R_cam_face
         views.append(
             render_K(
-                client, fc.K, fc.size, T_face, lighting, near, far, shadow_map=shadow_map, renderer=renderer
-            )
+                client,
+                fc.K,
+                fc.size,
+                T_face,
+                lighting,
+                near,
+                far,
+                shadow_map=shadow_map,
+                renderer=renderer,
+                segmentation=labels,
+            )  # fmt: skip
         )
     rgb = remapper.remap(remapper.atlas([v.rgb for v in views]))
     if not labels:

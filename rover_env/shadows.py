@@ -135,6 +135,7 @@ class ShadowCaster:
         self.body_id = body_id
         self.shapes = body_shapes(client, body_id)
         self._links = sorted({s.link for s in self.shapes if s.link >= 0})
+        self._last: tuple[np.ndarray, np.ndarray, float, ShadowMap] | None = None  # (poses, sun, texel, map)
 
     def _link_poses(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         c = self.client
@@ -168,8 +169,20 @@ class ShadowCaster:
         """
         if not texel > 0:
             raise ValueError(f"texel: {texel!r} m must be > 0")
-        xs, ys, s = sun_frame(sun_direction)
         poses = self._link_poses()
+        # the cameras of one instant share a map: reuse the last one if nothing moved and its
+        # cells are at least as fine
+        key = np.concatenate([np.r_[R.ravel(), t] for R, t in poses.values()])
+        sun = np.asarray(sun_direction, dtype=np.float64)
+        last = self._last
+        if (
+            last is not None
+            and last[2] <= texel
+            and np.array_equal(last[0], key)
+            and np.array_equal(last[1], sun)
+        ):
+            return last[3]
+        xs, ys, s = sun_frame(sun_direction)
         o = poses[-1][1]
         world = []
         for sh in self.shapes:
@@ -218,7 +231,9 @@ class ShadowCaster:
         # may sit up to half a cell's slope below its own cell value
         cos_elev = math.sqrt(max(0.0, 1.0 - s[2] ** 2))
         bias = 0.002 + texel * cos_elev / max(1e-3, abs(s[2]))
-        return ShadowMap(front=front, M=M, bias=bias)
+        out = ShadowMap(front=front, M=M, bias=bias)
+        self._last = (key, sun, texel, out)
+        return out
 
 
 @dataclass(frozen=True)
