@@ -37,10 +37,11 @@ def test_registration_is_idempotent():
 
 @pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
 @pytest.mark.parametrize("action_mode", ["drive", "wheels"])
-def test_check_env_passes_without_warnings(env_id, action_mode):
+@pytest.mark.parametrize("obs_source", ["estimated", "ground_truth"])
+def test_check_env_passes_without_warnings(env_id, action_mode, obs_source):
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-    env = gym.make(env_id, action_mode=action_mode, render_mode="rgb_array")
+    env = gym.make(env_id, action_mode=action_mode, obs_source=obs_source, render_mode="rgb_array")
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -150,18 +151,30 @@ def _make():
     return gym.make("Rover-v0")
 
 
-def test_async_vector_env_and_subproc_vec_env():
+@pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
+def test_make_vec_sync_and_async_give_the_same_rollouts(env_id):
+    """Estimator in the loop in worker processes: the same seeds give the same observations."""
+    out = {}
+    for mode in ("sync", "async"):
+        venv = gym.make_vec(env_id, num_envs=2, vectorization_mode=mode)
+        try:
+            obs, _ = venv.reset(seed=[3, 4])
+            assert obs.shape == (2, len(OBS_FIELDS) + 3)
+            rows = [obs]
+            for k in range(6):
+                obs, rew, term, trunc, info = venv.step(np.tile([0.5, 0.2 * (k % 2), 0.0], (2, 1)))
+                rows.append(obs)
+            assert np.all(np.isfinite(obs)) and obs[:, 3:7].min() > 1.0  # wheels turning forward
+            assert not np.array_equal(obs[0], obs[1])  # two seeds, two start poses
+            out[mode] = np.stack(rows)
+        finally:
+            venv.close()
+    np.testing.assert_array_equal(out["sync"], out["async"])
+
+
+def test_subproc_vec_env():
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
-    venv = gym.make_vec("Rover-v0", num_envs=2, vectorization_mode="async")
-    try:
-        obs, _ = venv.reset(seed=[0, 1])
-        assert obs.shape == (2, len(OBS_FIELDS) + 3)
-        for _ in range(5):
-            obs, rew, term, trunc, info = venv.step(np.tile([0.5, 0.0, 0.0], (2, 1)))
-        assert np.all(np.isfinite(obs)) and obs[:, 0].min() > 0.1
-    finally:
-        venv.close()
     sb3 = SubprocVecEnv([_make, _make])
     try:
         obs = sb3.reset()
