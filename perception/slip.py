@@ -53,7 +53,9 @@ class SlipConfig:
         max_slip_std: Slip with a larger standard deviation is not valid.
         max_age: A wheel's slip is not valid when the last odometry or its last rate is older
             than this [s].
-        event_on: |s| at which a slip event starts.
+        event_on: |s| at which a slip event starts ...
+        event_hold: ... once it has stayed there this long [s] (0: at once; the default, just
+            under one 30 Hz frame, asks for two frames in a row and ignores one-frame spikes).
         event_off: |s| below which it ends.
         eps: Denominator floor of the slip ratio [m/s] (the ground truth's).
     """
@@ -69,6 +71,7 @@ class SlipConfig:
     max_slip_std: float = 0.1
     max_age: float = 0.2
     event_on: float = 0.2
+    event_hold: float = 0.03
     event_off: float = 0.1
     eps: float = 0.01
 
@@ -80,6 +83,8 @@ class SlipConfig:
             raise ValueError(f"SlipConfig.odom_std: {self.odom_std!r}; give three values > 0")
         if len(self.rate_std) != 2 or self.rate_std[0] <= 0 or self.rate_std[1] < 0:
             raise ValueError(f"SlipConfig.rate_std: {self.rate_std!r}; give (floor > 0, share >= 0)")
+        if not self.event_hold >= 0:
+            raise ValueError(f"SlipConfig.event_hold: {self.event_hold!r} s must be >= 0")
         if not 0 < self.event_off < self.event_on <= 1:
             raise ValueError(
                 f"SlipConfig: event_off={self.event_off}, event_on={self.event_on}; "
@@ -122,25 +127,31 @@ class SlipEstimate:
     quality: float = field(default=0.0)
 
 
-def slip_events(slip: np.ndarray, on: float = 0.2, off: float = 0.1) -> np.ndarray:
+def slip_events(slip: np.ndarray, on: float = 0.2, off: float = 0.1, min_frames: int = 1) -> np.ndarray:
     """Slip events along a sequence by hysteresis: on when |s| >= ``on``, off when |s| < ``off``.
 
-    The rule :class:`SlipEstimator` applies, for labelling a ground-truth slip sequence.
+    The rule :class:`SlipEstimator` applies, for labelling a slip sequence sampled once per frame.
 
     Args:
         slip: (T, ...) slip ratios over time (NaN: no event).
-        on: |s| at which an event starts.
+        on: |s| at which an event starts ...
         off: |s| below which it ends.
+        min_frames: ... at the ``min_frames``-th sample in a row with |s| >= ``on``.
 
     Returns:
         (T, ...) bool.
     """
+    if min_frames < 1:
+        raise ValueError(f"min_frames: {min_frames!r}; use >= 1")
     s = np.abs(np.asarray(slip, dtype=np.float64))
     out = np.zeros(s.shape, bool)
     state = np.zeros(s.shape[1:], bool)
+    run = np.zeros(s.shape[1:], int)
     for k in range(len(s)):
         with np.errstate(invalid="ignore"):
-            state = np.where(state, s[k] >= off, s[k] >= on)
+            above = s[k] >= on
+            run = np.where(above, run + 1, 0)
+            state = np.where(state, s[k] >= off, run >= min_frames)
         out[k] = state
     return out
 
@@ -183,6 +194,7 @@ class SlipEstimator:
         self._t_odom = -math.inf
         self._t_rate = np.full(N_WHEELS, -math.inf)
         self._events = np.zeros(N_WHEELS, bool)
+        self._above_since = np.full(N_WHEELS, math.nan)  # when |s| last rose to event_on [s]
         self._seq = 0
 
     # ------------------------------------------------------------------ inputs
@@ -308,7 +320,13 @@ class SlipEstimator:
         s = np.where(valid, s, 0.0)
         beta = np.where(valid, slip_angle(v_long, v_lat), 0.0)
         mag = np.abs(s)
-        self._events = np.where(valid, np.where(self._events, mag >= c.event_off, mag >= c.event_on), False)
+        above = valid & (mag >= c.event_on)
+        self._above_since = np.where(
+            above, np.where(np.isnan(self._above_since), t, self._above_since), math.nan
+        )
+        with np.errstate(invalid="ignore"):
+            start = above & (t - self._above_since >= c.event_hold - 1e-9)
+        self._events = np.where(valid, np.where(self._events, mag >= c.event_off, start), False)
         return SlipEstimate(
             t=float(t),
             twist=twist,

@@ -71,7 +71,7 @@ def run_stream(seconds=5.0, noise=True, seed=0, shuffle=False, blackout=None):
 
 
 def test_noise_free_slip_matches_the_definition():
-    est = SlipEstimator(XY, R_WHEEL)
+    est = SlipEstimator(XY, R_WHEEL, SlipConfig(event_hold=0.0))
     t = 2.4
     twist, steer, s_true = truth(t)
     for _ in range(30):  # repeated exact measurements at the query time
@@ -135,6 +135,22 @@ def test_blackout_gives_invalid_finite_slip_and_recovers():
 def test_slip_events_hysteresis():
     s = np.array([0.0, 0.15, 0.25, 0.15, 0.11, 0.09, 0.15, -0.3, np.nan])
     assert slip_events(s).tolist() == [False, False, True, True, True, False, False, True, False]
+    # two frames in a row above 0.2 before an event starts: a one-frame spike is none
+    s = np.array([0.0, 0.3, 0.0, 0.25, 0.3, 0.15, 0.05])
+    assert slip_events(s, min_frames=2).tolist() == [False, False, False, False, True, True, False]
+
+
+def test_one_frame_spike_is_no_event_but_two_frames_are():
+    est = SlipEstimator(XY, R_WHEEL)  # event_hold 0.03 s: two 30 Hz frames
+    twist = np.array([0.5, 0.0, 0.0])
+    seen = []
+    for k, spin in enumerate([1.0, 1.0, 1.6, 1.0, 1.0, 1.6, 1.6, 1.6, 1.0, 1.0]):
+        t = k / 30
+        for _ in range(20):  # exact measurements: the filter follows at once
+            est.add_odometry(t, twist, 0.0)
+            est.add_wheels(t, np.full(4, spin * 0.5 / R_WHEEL), 0.0)
+        seen.append(bool(est.estimate(t).events[0]))
+    assert seen == [False, False, False, False, False, False, True, True, False, False]
 
 
 def test_invalid_odometry_is_ignored_and_bad_arguments_are_named():
