@@ -190,13 +190,18 @@ def replace(obj: T, **changes: Any) -> T:
 
 
 def check_camera_config(cfg) -> None:
-    """Common checks of a camera configuration: ``width``, ``height`` [px], ``rate_hz``, ``ambient``."""
+    """Common checks of a camera configuration: size [px], ``rate_hz``, ``ambient``, ``ground_range``."""
     for key in ("width", "height"):
         v = getattr(cfg, key)
         if not isinstance(v, int) or not 16 <= v <= 4096:
             raise ConfigError(f"{key}: {v!r} px is not a usable image size; use an integer in 16..4096")
     check_range("rate_hz", cfg.rate_hz, 1.0, 1000.0)
     check_range("ambient", cfg.ambient, 0.0, 1.0, lo_open=True)
+    r = getattr(cfg, "ground_range", None)
+    if r is not None:
+        from rover_env.terrain import FINE_RADIUS
+
+        check_range("ground_range", r, 0.0, FINE_RADIUS, lo_open=True)
 
 
 def camera_preset(cls, name: str, presets: dict[str, tuple[int, int]], overrides: dict):

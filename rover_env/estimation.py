@@ -70,11 +70,12 @@ def _presets() -> dict[str, PerceptionPreset]:
         ),
         # the lowest resolutions at which the estimators hold up: below 320x240 the fisheye's
         # tread texture is too coarse for the wheel rates, and below 30 Hz the wheels turn too
-        # far between frames at 2 m/s; the fisheye renders only its region of interest
+        # far between frames at 2 m/s; the fisheye renders only its region of interest, and
+        # both cameras draw only the exact ground within 2 m
         "train": PerceptionPreset(
             "train",
-            DownwardCameraConfig.preset("train", rate_hz=30.0),
-            FisheyeCameraConfig.preset("half", rate_hz=30.0, roi=True),
+            DownwardCameraConfig.preset("train", rate_hz=30.0, ground_range=2.0),
+            FisheyeCameraConfig.preset("half", rate_hz=30.0, roi=True, ground_range=2.0),
         ),
     }
 

@@ -69,13 +69,14 @@ def kinematics_roi(
     roll_limit: float,
     travel_limit: float,
     steer_limit: float,
-    margin: float = 0.04,
+    margin: float = 0.015,
 ) -> np.ndarray:
     """Fisheye pixels in which the kinematics estimator can find a wheel, marker or steering arm.
 
     The wheels' treads and side discs, the eight markers and the steering arms are projected over
-    the whole joint range (axle roll, travel and steering at their limits and between), and the
-    union is grown by ``margin``; nothing the estimator reads lies outside it.
+    the whole joint range (axle roll, travel and steering at their limits and between); the
+    convex hull of each part's image is filled, and the union is grown by ``margin``: nothing
+    the estimator reads lies outside it.
 
     Args:
         camera: The fisheye model (its ``T_body_cam`` is the mount).
@@ -105,18 +106,21 @@ def kinematics_roi(
     for psi in np.linspace(-roll_limit, roll_limit, 9):
         for d in model.nominal_depth + np.linspace(-travel_limit, travel_limit, 5):
             for lam in np.linspace(-steer_limit, steer_limit, 13):
-                pts = []
+                parts = []  # point sets whose images are filled as convex polygons
                 delta = model.wheel_angles(lam, -lam)  # both axles through their range
                 for k, (R, c) in enumerate(model.wheel_frames((psi, -psi), (d, d), delta)):
-                    pts.append(wheel @ R.T + c)
-                    pts.append(model.occluders(("FL", "FR", "RL", "RR")[k], R, c)[0])
+                    parts.append(wheel @ R.T + c)
+                    parts.append(model.occluders(("FL", "FR", "RL", "RR")[k], R, c)[0])
                 centres = np.array(list(model.marker_positions((psi, -psi), (d, d), delta).values()))
-                pts.append((centres[:, None, :] + ball[None]).reshape(-1, 3))
-                body = np.vstack(pts)
+                parts.extend(centres[:, None, :] + ball[None])
+                sizes = np.cumsum([len(q) for q in parts])[:-1]
+                body = np.vstack(parts)
                 pix = camera.world2cam(body @ T_cam_body[:3, :3].T + T_cam_body[:3, 3])
-                pix = np.rint(pix[np.all(np.isfinite(pix), axis=1)]).astype(np.int64)
-                pix = pix[(pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)]
-                mask[pix[:, 1], pix[:, 0]] = 1
+                for q in np.split(pix, sizes):
+                    q = q[np.all(np.isfinite(q), axis=1)]
+                    if len(q):
+                        hull = cv2.convexHull(np.rint(q * 16).astype(np.int32))
+                        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
     k = max(2, int(round(margin * w)))
     mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
     return mask.astype(bool)
@@ -279,6 +283,10 @@ class FisheyeCameraConfig:
         roi: Render only the region of interest of the kinematics estimator
             (:func:`kinematics_roi`: wheels, markers and steering arms over the joint range);
             the rest of the image is black. Faster in proportion to the pixels saved.
+        ground_range: Draw only the ground within this distance of the rover [m] (at most the
+            terrain's exact-detail radius, 2 m), for speed: TinyRenderer spends time on every
+            triangle whose projection overlaps a view, even where nearer surfaces hide it. Ground
+            seen beyond it is left out (the background shows). None: all ground is drawn.
     """
 
     width: int = 640
@@ -290,6 +298,7 @@ class FisheyeCameraConfig:
     ambient: float = 0.25
     oversample: float = 1.0
     roi: bool = False
+    ground_range: float | None = None
 
     def __post_init__(self) -> None:
         check_camera_config(self)

@@ -251,29 +251,31 @@ def render_K(
 def _darken(rgb: np.ndarray, shadow: np.ndarray, pts: np.ndarray, lighting: Lighting) -> np.ndarray:
     """Scale shadowed pixels from ambient + diffuse cos(i) to ambient only.
 
-    The incidence cosine comes from surface normals estimated from neighbouring 3-D points.
+    The incidence cosine comes from surface normals estimated from neighbouring 3-D points. Only
+    the bounding box of the shadow is computed.
     """
     rows = np.flatnonzero(shadow.any(axis=1))
+    cols = np.flatnonzero(shadow.any(axis=0))
     r0, r1 = int(rows[0]), int(rows[-1]) + 1
-    p = np.pad(
-        pts[max(r0 - 1, 0) : r1 + 1], ((int(r0 == 0), int(r1 == len(pts))), (1, 1), (0, 0)), mode="edge"
-    )
+    c0, c1 = int(cols[0]), int(cols[-1]) + 1
+    h, w = shadow.shape
+    # the box and a one-pixel border (edge-replicated at the image border)
+    p = pts[max(r0 - 1, 0) : min(r1 + 1, h), max(c0 - 1, 0) : min(c1 + 1, w)]
+    pad = ((int(r0 == 0), int(r1 == h)), (int(c0 == 0), int(c1 == w)), (0, 0))
+    if any(any(v) for v in pad[:2]):
+        p = np.pad(p, pad, mode="edge")
     du = p[1:-1, 2:] - p[1:-1, :-2]
     dv = p[2:, 1:-1] - p[:-2, 1:-1]
-    # n = dv x du points toward the camera (the optical frame has y down); only n . sun is needed
+    # n = dv x du points toward the camera (the optical frame has y down)
+    nx = dv[..., 1] * du[..., 2] - dv[..., 2] * du[..., 1]
+    ny = dv[..., 2] * du[..., 0] - dv[..., 0] * du[..., 2]
+    nz = dv[..., 0] * du[..., 1] - dv[..., 1] * du[..., 0]
     sx, sy, sz = (np.float32(v) for v in lighting.sun_direction)
-    ns = (
-        sx * (dv[..., 1] * du[..., 2] - dv[..., 2] * du[..., 1])
-        + sy * (dv[..., 2] * du[..., 0] - dv[..., 0] * du[..., 2])
-        + sz * (dv[..., 0] * du[..., 1] - dv[..., 1] * du[..., 0])
-    )
-    n2 = (
-        np.einsum("ijk,ijk->ij", du, du) * np.einsum("ijk,ijk->ij", dv, dv)
-        - np.einsum("ijk,ijk->ij", du, dv) ** 2
-    )
-    cos_i = np.clip(ns / np.sqrt(np.maximum(n2, 1e-30)), 0.0, 1.0)
-    a, d = lighting.ambient, lighting.diffuse
-    factor = np.where(shadow[r0:r1], np.float32(a) / (np.float32(a) + np.float32(d) * cos_i), np.float32(1.0))
+    norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+    cos_i = np.clip((sx * nx + sy * ny + sz * nz) / np.maximum(norm, np.float32(1e-30)), 0.0, 1.0)
+    a, d = np.float32(lighting.ambient), np.float32(lighting.diffuse)
+    box = shadow[r0:r1, c0:c1]
+    factor = np.where(box, a / (a + d * cos_i), np.float32(1.0))
     out = rgb.copy()
-    out[r0:r1] = np.clip(rgb[r0:r1] * factor[:, :, None] + 0.5, 0, 255).astype(np.uint8)
+    out[r0:r1, c0:c1] = np.clip(rgb[r0:r1, c0:c1] * factor[:, :, None] + 0.5, 0, 255).astype(np.uint8)
     return out

@@ -265,14 +265,9 @@ class ShadowMap:
             flat = pts.reshape(-1, 3)
             cols = 1024
             grid = np.concatenate([flat, np.zeros((-len(flat) % cols, 3), np.float32)]).reshape(-1, cols, 3)
-        uvw = cv2.transform(grid, self.M)
-        caster_w = cv2.remap(
-            self.front,
-            np.ascontiguousarray(uvw[:, :, :2]),
-            None,
-            cv2.INTER_NEAREST,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=-np.inf,
-        )
-        hit = caster_w > uvw[:, :, 2] + self.bias
+        uv = cv2.transform(grid, self.M[:2])
+        caster_w = cv2.remap(self.front, uv, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=-np.inf)  # fmt: skip
+        M = self.M[2].astype(np.float32)
+        hit = caster_w > grid @ M[:3] + np.float32(M[3] + self.bias)
         return hit.reshape(-1)[: math.prod(out_shape)].reshape(out_shape)

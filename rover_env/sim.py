@@ -154,10 +154,15 @@ class RoverSim:
         for _ in range(max(1, int(round(duration / self.dt)))):
             self._substep()
 
-    def prepare_render(self) -> None:
-        """Draw the exact ground around the rover; call before rendering views near it."""
+    def prepare_render(self, ground_range: float | None = None) -> None:
+        """Draw the ground around the rover; call before rendering views near it.
+
+        Args:
+            ground_range: Horizontal distance from the rover [m] beyond which the views to be
+                rendered see no ground (only the ground within it is drawn); None: all of it.
+        """
         x, y, _ = self.client.getBasePositionAndOrientation(self.rover.body_id)[0]
-        self.terrain.focus(x, y)
+        self.terrain.focus(x, y, ground_range)
 
     @functools.cached_property
     def shadow_caster(self) -> ShadowCaster:

@@ -134,6 +134,7 @@ class Terrain:
         self._client = client
         self._chunks: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual body
         self._chunk_shapes: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual shape
+        self._shown: dict[int, bool] = {}  # body -> drawn (alpha 1) or hidden (alpha 0)
         if cfg.kind == "rough":
             self.xs, self.ys, self.heights = make_heights(cfg)
             gz = np.gradient(self.heights, self.ys, self.xs)
@@ -185,50 +186,104 @@ class Terrain:
         """Body ids that draw the ground (segmentation labels of ground pixels)."""
         return (self.body_id, *self._chunks.values())
 
-    def focus(self, x: float, y: float) -> None:
-        """Draw the exact ground within ``FINE_RADIUS`` of world (x, y) [m] (rough terrain).
+    def focus(self, x: float, y: float, near: float | None = None) -> None:
+        """Draw the ground for views taken from near world (x, y) [m]; call before rendering them.
 
-        Call before rendering views near (x, y); chunks that are no longer near are removed.
+        On rough terrain the exact triangles are drawn within ``FINE_RADIUS`` of (x, y) and a
+        coarser mesh beyond. With ``near`` [m] (at most ``FINE_RADIUS``), only the exact chunks that
+        reach within ``near`` of (x, y) are drawn (ground beyond ``near`` + a chunk's diagonal
+        never is), for views that need no farther ground: TinyRenderer
+        walks every triangle whose projection overlaps a view, so far ground costs time even
+        where nearer surfaces hide it. ``None``: the views may see the horizon; all is drawn.
         """
-        if self.heights is None:
+        if near is not None and not 0.0 < near <= FINE_RADIUS:
+            raise ValueError(f"near: {near!r} m; use 0 < near <= FINE_RADIUS ({FINE_RADIUS} m) or None")
+        flat = self.heights is None
+        if flat and near is None:  # the far body alone draws flat ground exactly
+            self._show(self.body_id, True)
+            for body in self._chunks.values():
+                self._show(body, False)
             return
-        x0, y0 = self.xs[0], self.ys[0]
-        nx, ny = len(self.xs) - 1, len(self.ys) - 1  # cells
-        n = max(1, int(round(FINE_CHUNK / self.cfg.cell)))  # cells per chunk edge
-        size = n * self.cfg.cell
-        i_lo = max(0, int((x - FINE_RADIUS - x0) // size))
-        i_hi = min((nx - 1) // n, int((x + FINE_RADIUS - x0) // size))
-        j_lo = max(0, int((y - FINE_RADIUS - y0) // size))
-        j_hi = min((ny - 1) // n, int((y + FINE_RADIUS - y0) // size))
-        want = set()
+        x0, y0, cell, nx, ny = self._chunk_grid()
+        n = max(1, int(round(FINE_CHUNK / cell)))  # cells per chunk edge
+        size = n * cell
+        keep = FINE_RADIUS if not flat else near
+        i_lo = max(0, int((x - keep - x0) // size))
+        i_hi = min((nx - 1) // n, int((x + keep - x0) // size))
+        j_lo = max(0, int((y - keep - y0) // size))
+        j_hi = min((ny - 1) // n, int((y + keep - y0) // size))
+        dist = {}
         for i in range(i_lo, i_hi + 1):
             for j in range(j_lo, j_hi + 1):
                 # distance from (x, y) to the chunk's rectangle
                 dx = max(x0 + i * size - x, 0.0, x - x0 - (i + 1) * size)
                 dy = max(y0 + j * size - y, 0.0, y - y0 - (j + 1) * size)
-                if dx * dx + dy * dy <= FINE_RADIUS * FINE_RADIUS:
-                    want.add((i, j))
+                d = math.hypot(dx, dy)
+                if d <= keep:
+                    dist[(i, j)] = d
         c = self._client
-        for key in [k for k in self._chunks if k not in want]:
-            c.removeBody(self._chunks.pop(key))
-        for key in sorted(want - self._chunks.keys()):
+        for key in [k for k in self._chunks if k not in dist and (not flat or self._chunk_far(k, x, y))]:
+            body = self._chunks.pop(key)
+            self._shown.pop(body, None)
+            c.removeBody(body)
+        for key in sorted(dist.keys() - self._chunks.keys()):
             if key not in self._chunk_shapes:
-                i, j = key
-                sx, sy = slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
-                self._chunk_shapes[key] = self._mesh_shape(
-                    self.xs[sx], self.ys[sy], self.heights[sy, sx], self._normals[sy, sx], self._base_z
-                )
+                self._chunk_shapes[key] = self._chunk_shape(key, n)
             body = c.createMultiBody(0, -1, self._chunk_shapes[key], basePosition=[0, 0, self._base_z])
             c.changeVisualShape(
                 body, -1, textureUniqueId=self.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
             )
+            self._shown[body] = True
             self._chunks[key] = body
+        self._show(self.body_id, near is None)
+        for key, body in self._chunks.items():
+            self._show(body, near is None or dist.get(key, math.inf) <= near)
+
+    def _chunk_grid(self) -> tuple[float, float, float, int, int]:
+        """(x0, y0, cell, cells along x, cells along y) of the grid that chunks are cut from."""
+        if self.heights is not None:
+            return self.xs[0], self.ys[0], self.cfg.cell, len(self.xs) - 1, len(self.ys) - 1
+        cell = FINE_CHUNK  # flat ground: one quad per chunk
+        nx, ny = (max(1, int(math.ceil(s / cell))) for s in self.cfg.size)
+        return -nx * cell / 2, -ny * cell / 2, cell, nx, ny
+
+    def _chunk_far(self, key: tuple[int, int], x: float, y: float) -> bool:
+        """Whether chunk ``key`` is beyond ``FINE_RADIUS`` of (x, y) (flat chunks are kept until then)."""
+        x0, y0, cell, _, _ = self._chunk_grid()
+        size = max(1, int(round(FINE_CHUNK / cell))) * cell
+        i, j = key
+        dx = max(x0 + i * size - x, 0.0, x - x0 - (i + 1) * size)
+        dy = max(y0 + j * size - y, 0.0, y - y0 - (j + 1) * size)
+        return dx * dx + dy * dy > FINE_RADIUS * FINE_RADIUS
+
+    def _chunk_shape(self, key: tuple[int, int], n: int) -> int:
+        """The visual shape of chunk ``key`` (``n`` cells per edge)."""
+        i, j = key
+        if self.heights is not None:
+            nx, ny = len(self.xs) - 1, len(self.ys) - 1
+            sx, sy = slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
+            return self._mesh_shape(
+                self.xs[sx], self.ys[sy], self.heights[sy, sx], self._normals[sy, sx], self._base_z
+            )
+        x0, y0, cell, _, _ = self._chunk_grid()
+        xs = x0 + cell * np.array([i, i + 1], dtype=np.float64)
+        ys = y0 + cell * np.array([j, j + 1], dtype=np.float64)
+        gx, gy = np.meshgrid(xs, ys)
+        h = _slope_height(self.cfg, gx, gy)
+        return self._mesh_shape(xs, ys, h, np.broadcast_to(self._plane_normal, h.shape + (3,)), self._base_z)
+
+    def _show(self, body: int, on: bool) -> None:
+        if self._shown.get(body, True) != on:
+            self._client.changeVisualShape(body, -1, rgbaColor=[1, 1, 1, 1.0 if on else 0.0])
+            self._shown[body] = on
 
     def drop_detail(self) -> None:
         """Remove the near-ground chunks (before restoring a state saved without them)."""
         for body in self._chunks.values():
             self._client.removeBody(body)
         self._chunks.clear()
+        self._shown = {b: v for b, v in self._shown.items() if b == self.body_id}
+        self._show(self.body_id, True)
 
     def _coarse_grid(self):
         """The far-ground grid, about ``COARSE_CELL`` apart, as (xs, ys, heights, normals).

@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import flat_scenario
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from rover_env.cameras import FisheyeCamera
 from rover_env.config_io import ConfigError
@@ -234,8 +235,11 @@ def test_roi_holds_every_wheel_and_marker_pixel_over_the_joint_range_and_renders
         err = np.hypot(px[:, 0] - cols, px[:, 1] - rows)
         # nearest view pixel; at the rim a view pixel spans up to 1.7 image pixels tangentially
         assert np.nanmax(err) < 1.25 and np.nanmedian(err) < 0.5
-        same = (small.segmentation == view.segmentation)[rendered]
-        assert same.mean() > 0.98  # labels differ only along edges, sampled from other views
+        # labels differ only along edges (sampled from other views): compare away from them
+        seg = view.segmentation
+        interior = rendered & (minimum_filter(seg, 3) == maximum_filter(seg, 3))
+        same = (small.segmentation == seg)[interior]
+        assert same.mean() > 0.999
 
 
 def test_fisheye_config_errors():

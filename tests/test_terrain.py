@@ -139,3 +139,65 @@ def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhe
         assert terrain.ground_ids == (terrain.body_id,)
     finally:
         client.disconnect()
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        TerrainConfig(
+            kind="rough",
+            size=(12.0, 12.0),
+            cell=0.1,
+            roughness=0.03,
+            wavelength=2.0,
+            seed=3,
+            texture="sand",
+            texture_px=64,
+        ),  # fmt: skip
+        TerrainConfig(
+            kind="flat",
+            size=(12.0, 12.0),
+            slope_deg=6.0,
+            slope_azimuth_deg=30.0,
+            texture="gravel",
+            texture_px=64,
+        ),  # fmt: skip
+    ],
+)
+def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
+    """focus(near=r): only ground within r is drawn, and it is the ground the full scene draws there."""
+    from perception.cameras import PinholeCamera
+    from rover_env.rendering import Lighting, look_at, render_pinhole
+    from rover_env.terrain import FINE_CHUNK
+
+    client = BulletClient(connection_mode=pb.DIRECT)
+    try:
+        terrain = Terrain(client, cfg, FrictionMapConfig())
+        # an oblique view from near the focus that sees the ground far beyond the range
+        cam = PinholeCamera.from_fov((160, 120), np.radians(90.0), np.radians(70.0))
+        x, y, r = 1.3, -0.7, 1.0
+        z = float(terrain.height_at(x, y)) + 0.4
+        T = look_at([x, y, z], [x + 3.0, y + 1.0, z - 1.2])
+        light = Lighting((0.3, 0.2, 1.0), shadows=False)
+        terrain.focus(x, y)
+        full = render_pinhole(client, cam, T, light)
+        terrain.focus(x, y, near=r)
+        near = render_pinhole(client, cam, T, light)
+        p = full.points_world.astype(np.float64)
+        hit = full.segmentation >= 0
+        dist = np.hypot(p[..., 0] - x, p[..., 1] - y)
+        # whole chunks are drawn: all ground within r, none beyond r + a chunk's diagonal
+        inside, beyond = hit & (dist < r - 0.05), hit & (dist > r + np.sqrt(2) * FINE_CHUNK + 0.05)
+        assert inside.sum() > 3000 and beyond.sum() > 1000
+        same = np.all(near.rgb == full.rgb, axis=-1)
+        assert same[inside].mean() > 0.99  # chunk seams may rasterise a pixel differently
+        assert np.all(near.segmentation[beyond] < 0)  # not drawn: the background shows
+        terrain.focus(x, y)  # full again: everything is back, exactly
+        again = render_pinhole(client, cam, T, light)
+        assert np.array_equal(again.rgb, full.rgb)
+        with pytest.raises(ValueError, match="near"):
+            terrain.focus(x, y, near=5.0)
+        terrain.drop_detail()
+        assert terrain.ground_ids == (terrain.body_id,)
+    finally:
+        client.disconnect()
