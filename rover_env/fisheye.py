@@ -69,7 +69,7 @@ def kinematics_roi(
     roll_limit: float,
     travel_limit: float,
     steer_limit: float,
-    margin: float = 0.015,
+    margin: float = 0.04,
 ) -> np.ndarray:
     """Fisheye pixels in which the kinematics estimator can find a wheel, marker or steering arm.
 
