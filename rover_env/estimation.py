@@ -64,9 +64,12 @@ class PerceptionPreset:
 
 def _presets() -> dict[str, PerceptionPreset]:
     return {
-        # the papers' resolutions and rates
+        # the papers' resolutions and rates; the downward camera sees no ground beyond 2 m, so only
+        # that is drawn for it (the full fisheye sees the horizon)
         "eval": PerceptionPreset(
-            "eval", DownwardCameraConfig.preset("full", rate_hz=60.0), FisheyeCameraConfig.preset("full")
+            "eval",
+            DownwardCameraConfig.preset("full", rate_hz=60.0, ground_range=2.0),
+            FisheyeCameraConfig.preset("full"),
         ),
         # the lowest resolutions at which the estimators hold up: below 320x240 the fisheye's
         # tread texture is too coarse for the wheel rates, and below 30 Hz the wheels turn too

@@ -7,6 +7,7 @@ import pybullet as pb
 import pytest
 from conftest import flat_scenario
 from pybullet_utils.bullet_client import BulletClient
+from scipy.ndimage import minimum_filter
 
 from perception.cameras import PinholeCamera
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig
@@ -242,3 +243,40 @@ def test_both_renderers_put_boxes_where_the_pinhole_model_projects_them(renderer
     bias = np.mean(err, axis=0)
     print(f"{renderer}: box centroid bias {bias.round(3)} px")
     assert np.abs(bias).max() < 0.12  # rasterisation noise of one box is ~0.27 px
+
+
+@pytest.mark.parametrize("preset", ["train", "eval"])
+def test_cameras_ground_range_leaves_the_pixels_they_need_unchanged(preset):
+    """With ground_range the preset's cameras draw only near ground; the ground they see is the same."""
+    import dataclasses
+
+    from conftest import rough_scenario
+
+    from rover_env.cameras import FisheyeCamera
+    from rover_env.estimation import PERCEPTION_PRESETS
+
+    p = PERCEPTION_PRESETS[preset]
+    assert p.downward.ground_range is not None
+    sim = RoverSim(rough_scenario())
+    try:
+        sim.reset(1.0, -0.5, 0.3)
+        sim.step(0.5)
+        pos = np.array(sim.client.getBasePositionAndOrientation(sim.rover.body_id)[0])
+        for cls, cfg in ((DownwardCamera, p.downward), (FisheyeCamera, p.fisheye)):
+            full = cls(sim, dataclasses.replace(cfg, ground_range=None)).render_view()
+            near = cls(sim, cfg).render_view()
+            seen = np.isfinite(full.points_world).all(axis=-1) & (full.segmentation >= 0)
+            if cls is FisheyeCamera:
+                seen &= cls(sim, cfg).remapper.rendered
+            dist = np.hypot(*(full.points_world[..., :2] - pos[:2]).transpose(2, 0, 1))
+            if cfg.ground_range is None:
+                assert np.array_equal(near.rgb, full.rgb)
+                continue
+            # away from far ground by a pixel: the fisheye interpolates its views bilinearly
+            near_ground = seen & (dist < cfg.ground_range - 0.05)
+            inside = minimum_filter(near_ground | ~seen, 3) & near_ground
+            assert inside.sum() > 5000
+            same = np.all(near.rgb == full.rgb, axis=-1)[inside]
+            assert same.mean() > 0.999, f"{cls.__name__}: {np.sum(~same)} of {inside.sum()} px differ"
+    finally:
+        sim.close()
