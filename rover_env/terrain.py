@@ -192,9 +192,9 @@ class Terrain:
         On rough terrain the exact triangles are drawn within ``FINE_RADIUS`` of (x, y) and a
         coarser mesh beyond. With ``near`` [m] (at most ``FINE_RADIUS``), only the exact chunks that
         reach within ``near`` of (x, y) are drawn (ground beyond ``near`` + a chunk's diagonal
-        never is), for views that need no farther ground: TinyRenderer
-        walks every triangle whose projection overlaps a view, so far ground costs time even
-        where nearer surfaces hide it. ``None``: the views may see the horizon; all is drawn.
+        never is), for views that need no farther ground: TinyRenderer walks every triangle whose
+        projection overlaps a view, so far ground costs time even where nearer surfaces hide it.
+        ``None``: the views may see the horizon; all is drawn.
         """
         if near is not None and not 0.0 < near <= FINE_RADIUS:
             raise ValueError(f"near: {near!r} m; use 0 < near <= FINE_RADIUS ({FINE_RADIUS} m) or None")
@@ -215,14 +215,17 @@ class Terrain:
         dist = {}
         for i in range(i_lo, i_hi + 1):
             for j in range(j_lo, j_hi + 1):
-                # distance from (x, y) to the chunk's rectangle
-                dx = max(x0 + i * size - x, 0.0, x - x0 - (i + 1) * size)
-                dy = max(y0 + j * size - y, 0.0, y - y0 - (j + 1) * size)
-                d = math.hypot(dx, dy)
+                d = self._chunk_distance((i, j), x, y)
                 if d <= keep:
                     dist[(i, j)] = d
         c = self._client
-        for key in [k for k in self._chunks if k not in dist and (not flat or self._chunk_far(k, x, y))]:
+        # flat chunks outside ``near`` stay (hidden) until they are beyond FINE_RADIUS
+        gone = [
+            k
+            for k in self._chunks
+            if k not in dist and (not flat or self._chunk_distance(k, x, y) > FINE_RADIUS)
+        ]
+        for key in gone:
             body = self._chunks.pop(key)
             self._shown.pop(body, None)
             c.removeBody(body)
@@ -247,14 +250,14 @@ class Terrain:
         nx, ny = (max(1, int(math.ceil(s / cell))) for s in self.cfg.size)
         return -nx * cell / 2, -ny * cell / 2, cell, nx, ny
 
-    def _chunk_far(self, key: tuple[int, int], x: float, y: float) -> bool:
-        """Whether chunk ``key`` is beyond ``FINE_RADIUS`` of (x, y) (flat chunks are kept until then)."""
+    def _chunk_distance(self, key: tuple[int, int], x: float, y: float) -> float:
+        """Distance from world (x, y) to chunk ``key``'s rectangle [m] (0 inside it)."""
         x0, y0, cell, _, _ = self._chunk_grid()
         size = max(1, int(round(FINE_CHUNK / cell))) * cell
         i, j = key
         dx = max(x0 + i * size - x, 0.0, x - x0 - (i + 1) * size)
         dy = max(y0 + j * size - y, 0.0, y - y0 - (j + 1) * size)
-        return dx * dx + dy * dy > FINE_RADIUS * FINE_RADIUS
+        return math.hypot(dx, dy)
 
     def _chunk_shape(self, key: tuple[int, int], n: int) -> int:
         """The visual shape of chunk ``key`` (``n`` cells per edge)."""
