@@ -13,6 +13,7 @@ the exact ground.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from pathlib import Path
@@ -204,8 +205,7 @@ class Terrain:
             for body in self._chunks.values():
                 self._show(body, False)
             return
-        x0, y0, cell, nx, ny = self._chunk_grid()
-        n = max(1, int(round(FINE_CHUNK / cell)))  # cells per chunk edge
+        x0, y0, cell, nx, ny, n = self._chunk_grid
         size = n * cell
         keep = FINE_RADIUS if not flat else near
         i_lo = max(0, int((x - keep - x0) // size))
@@ -231,7 +231,7 @@ class Terrain:
             c.removeBody(body)
         for key in sorted(dist.keys() - self._chunks.keys()):
             if key not in self._chunk_shapes:
-                self._chunk_shapes[key] = self._chunk_shape(key, n)
+                self._chunk_shapes[key] = self._chunk_shape(key)
             body = c.createMultiBody(0, -1, self._chunk_shapes[key], basePosition=[0, 0, self._base_z])
             c.changeVisualShape(
                 body, -1, textureUniqueId=self.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
@@ -242,33 +242,36 @@ class Terrain:
         for key, body in self._chunks.items():
             self._show(body, near is None or dist.get(key, math.inf) <= near)
 
-    def _chunk_grid(self) -> tuple[float, float, float, int, int]:
-        """(x0, y0, cell, cells along x, cells along y) of the grid that chunks are cut from."""
+    @functools.cached_property
+    def _chunk_grid(self) -> tuple[float, float, float, int, int, int]:
+        """(x0, y0, cell, cells along x, cells along y, cells per chunk edge) of the chunks' grid."""
         if self.heights is not None:
-            return self.xs[0], self.ys[0], self.cfg.cell, len(self.xs) - 1, len(self.ys) - 1
-        cell = FINE_CHUNK  # flat ground: one quad per chunk
-        nx, ny = (max(1, int(math.ceil(s / cell))) for s in self.cfg.size)
-        return -nx * cell / 2, -ny * cell / 2, cell, nx, ny
+            cell, nx, ny = self.cfg.cell, len(self.xs) - 1, len(self.ys) - 1
+            x0, y0 = float(self.xs[0]), float(self.ys[0])
+        else:
+            cell = FINE_CHUNK  # flat ground: one quad per chunk
+            nx, ny = (max(1, int(math.ceil(s / cell))) for s in self.cfg.size)
+            x0, y0 = -nx * cell / 2, -ny * cell / 2
+        return x0, y0, cell, nx, ny, max(1, int(round(FINE_CHUNK / cell)))
 
     def _chunk_distance(self, key: tuple[int, int], x: float, y: float) -> float:
         """Distance from world (x, y) to chunk ``key``'s rectangle [m] (0 inside it)."""
-        x0, y0, cell, _, _ = self._chunk_grid()
-        size = max(1, int(round(FINE_CHUNK / cell))) * cell
+        x0, y0, cell, _, _, n = self._chunk_grid
+        size = n * cell
         i, j = key
         dx = max(x0 + i * size - x, 0.0, x - x0 - (i + 1) * size)
         dy = max(y0 + j * size - y, 0.0, y - y0 - (j + 1) * size)
         return math.hypot(dx, dy)
 
-    def _chunk_shape(self, key: tuple[int, int], n: int) -> int:
-        """The visual shape of chunk ``key`` (``n`` cells per edge)."""
+    def _chunk_shape(self, key: tuple[int, int]) -> int:
+        """The visual shape of chunk ``key``."""
         i, j = key
+        x0, y0, cell, nx, ny, n = self._chunk_grid
         if self.heights is not None:
-            nx, ny = len(self.xs) - 1, len(self.ys) - 1
             sx, sy = slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
             return self._mesh_shape(
                 self.xs[sx], self.ys[sy], self.heights[sy, sx], self._normals[sy, sx], self._base_z
             )
-        x0, y0, cell, _, _ = self._chunk_grid()
         xs = x0 + cell * np.array([i, i + 1], dtype=np.float64)
         ys = y0 + cell * np.array([j, j + 1], dtype=np.float64)
         gx, gy = np.meshgrid(xs, ys)
