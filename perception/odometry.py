@@ -236,7 +236,12 @@ class FlowOdometryConfig:
         """The defaults (tuned at 640 px and 60 Hz) with pixel sizes scaled to another camera.
 
         Displacements scale with the width and with the frame period; feature spacing and the
-        tracking window with the width (the window stays odd and >= 5 px).
+        tracking window with the width (the window stays odd and >= 7 px: smaller windows track
+        too noisily). Ground distances scale with the ground size of a pixel (1/width): the RANSAC
+        inlier distance, and the residual bound with it and the frame rate (a residual in m/s is a
+        pixel error times metres per pixel times the rate). The Harris quality level scales with
+        the pixel area: a small image holds far fewer corners near its strongest one, and at
+        160 px the default level keeps only ~20 features, too few for RANSAC.
 
         Args:
             width: Image width [px].
@@ -247,11 +252,14 @@ class FlowOdometryConfig:
             raise ValueError(f"width={width!r}, rate_hz={rate_hz!r}: both must be > 0")
         s = width / 640.0
         base = cls()
-        window = max(5, int(round(base.window * s)) | 1)
+        window = max(7, int(round(base.window * s)) | 1)
         scaled = dict(
             max_disp=base.max_disp * s * 60.0 / rate_hz,
             window=window,
             min_distance=max(3.0, base.min_distance * s),
+            quality_level=base.quality_level * min(1.0, s * s),
+            ransac_threshold=base.ransac_threshold / s,
+            max_residual=base.max_residual / s * rate_hz / 60.0,
         )
         scaled.update(overrides)
         return cls(**scaled)

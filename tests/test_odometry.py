@@ -112,6 +112,30 @@ def test_known_planar_motion_is_recovered(ground, twist, shadowed):
         assert est.selection.diagnostics.shadow
 
 
+@pytest.mark.parametrize("twist", [(0.8, 0.0, 0.0), (1.5, -0.2, 0.3), (0.3, 0.1, -0.2)])
+@pytest.mark.parametrize("shadowed", [False, True])
+def test_training_resolution_recovers_known_motion(ground, twist, shadowed):
+    """At 160x120 and 30 Hz (the train preset) the scaled configuration keeps enough inliers."""
+    size = (160, 120)
+    cam = mast_camera(size)
+    dt = 1 / 30
+    shadow = body_shadow(size) if shadowed else None
+    odo = FlowOdometry(cam, FlowOdometryConfig.for_camera(160, 30.0))
+    errs = []
+    for k in range(6):  # several texture patches, each a fresh pair
+        start = (START[0] + 0.2 * k, START[1] - 0.1 * k, 0.3 * k)
+        prev = render(cam, ground, start, shadow, rng=np.random.default_rng(2 * k))
+        curr = render(cam, ground, pose_after(start, twist, dt), shadow, rng=np.random.default_rng(2 * k + 1))
+        est = odo.estimate(prev, curr, dt)
+        assert est.valid, est.reason
+        assert est.n_inliers >= 20
+        errs.append((math.hypot(est.v_x - twist[0], est.v_y - twist[1]), abs(est.omega - twist[2])))
+    err_v, err_w = np.max(errs, axis=0)
+    print(f"twist {twist} shadow={shadowed}: worst speed error {err_v:.4f} m/s, yaw rate {err_w:.4f} rad/s")
+    assert err_v <= 0.03  # 1/8 px of the 8 mm pixel over a 30 Hz frame is 0.03 m/s
+    assert err_w <= 0.03
+
+
 def test_shadow_edges_are_masked_and_features_avoid_them(ground):
     cam = mast_camera()
     shadow = body_shadow()
@@ -344,8 +368,12 @@ def test_config_for_camera_scales_pixel_sizes():
     base = FlowOdometryConfig()
     c = FlowOdometryConfig.for_camera(160, 30.0)
     assert c.max_disp == pytest.approx(base.max_disp * 0.25 * 2.0)
-    assert c.window % 2 == 1 and c.window >= 5
+    assert c.window % 2 == 1 and c.window >= 7
     assert c.min_distance == pytest.approx(5.0)
+    # ground distances follow the pixel's ground size (x4) and, for the residual, the rate (/2)
+    assert c.ransac_threshold == pytest.approx(base.ransac_threshold * 4)
+    assert c.max_residual == pytest.approx(base.max_residual * 2)
+    assert c.quality_level == pytest.approx(base.quality_level / 16)
     assert FlowOdometryConfig.for_camera(640, 60.0) == base
     with pytest.raises(ValueError, match="width"):
         FlowOdometryConfig.for_camera(0, 30.0)
