@@ -62,6 +62,12 @@ class KinematicsConfig:
         acquire_span: Rotation search around the last rotation when a wheel is not being
             tracked [rad per frame].
         track_span: The same while it is: the change of rotation between frames [rad].
+        track_hold: A wheel stays tracked for this many frames after its last measurement:
+            searched within ``track_span`` of its last rotation, its decisive alignments taken
+            as they are. Its rotation per frame cannot change that much meanwhile (30 rad/s^2,
+            more than a wheel spinning up on sand, changes it by 0.17 rad in 5 frames at 30 Hz),
+            while the wide search after a loss must wait for the tread features to confirm it,
+            which at 320x240 and 1.5-2 m/s often fail for many frames in a row.
         shadow_robust: Align band-passed treads with shadow edges left out.
         roi_margin_frac: While every marker is found, each is looked for only within a quarter
             of the gate plus this share of the image width around its predicted pixel (a marker moves
@@ -91,6 +97,7 @@ class KinematicsConfig:
     max_correction: float = 0.2
     reacquire_tolerance: float = 0.06
     track_span: float = 0.25
+    track_hold: int = 5
     roi_margin_frac: float = 0.03
     geometry_refresh: tuple[float, float] = (math.radians(2.0), 0.004)
 
@@ -173,7 +180,7 @@ class KinematicStateEstimator:
             valid=dict.fromkeys(DOF_NAMES, False),
         )
         self._alpha = np.zeros(4)
-        self._locked = np.zeros(4, dtype=bool)  # measured in the last frame
+        self._missed = np.full(4, 1 << 30)  # frames since each wheel's last measurement
         self._measured = np.zeros(4, dtype=bool)  # measured since the reset
         self._strips: list = [None] * 4  # the last frame's tread strips
         self._geometry = None  # (state, (predicted marker pixels, centroid offsets))
@@ -262,16 +269,17 @@ class KinematicStateEstimator:
         if dt > 0:
             r = self.model.wheel_radius
             pairs = list(zip(self._strips, strips, strict=True))
-            spans = [cfg.track_span if self._locked[k] else cfg.acquire_span for k in range(4)]
+            tracked = self._missed <= cfg.track_hold
+            spans = [cfg.track_span if tracked[k] else cfg.acquire_span for k in range(4)]
             # while a wheel is searched for over the wide span, the features must confirm the
             # alignment (a strong false peak is possible there); while it is tracked, a strong
             # alignment is taken as it is (or checked, with check_strong)
-            check = [int(cfg.tread.check_strong) if locked else 2 for locked in self._locked]
+            check = [int(cfg.tread.check_strong) if on else 2 for on in tracked]
             rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans, check)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
             # rover their rotations differ by the turn and by slip, not by multiples
             good = [r.alpha for r in rots if r.valid]
-            again = [k for k in range(4) if not rots[k].valid and not self._locked[k]]
+            again = [k for k in range(4) if not rots[k].valid and not tracked[k]]
             if good and again:
                 more = measure_pairs(
                     [pairs[k] for k in again], r, cfg.tread, [float(np.median(good))] * len(again),
@@ -282,7 +290,7 @@ class KinematicStateEstimator:
             good = [r.alpha for r in rots if r.valid]
             for k, wheel in enumerate(WHEELS):
                 rot = rots[k]
-                self._locked[k] = rot.valid
+                self._missed[k] = 0 if rot.valid else self._missed[k] + 1
                 if rot.valid:
                     self._alpha[k] = rot.alpha
                     self._measured[k] = True

@@ -52,7 +52,9 @@ class SlipConfig:
             reaches this [m/s]; below it the ratio is noise over noise.
         max_slip_std: Slip with a larger standard deviation is not valid.
         max_age: A wheel's slip is not valid when the last odometry or its last rate is older
-            than this [s].
+            than this [s]. The default lets one 30 Hz frame go missing, not two: the random walk
+            cannot follow a wheel that spins up or brakes through a longer gap (at 3 m/s^2 the
+            tread speed changes by 0.2 m/s in two frames while the filter's rate stays put).
         event_on: |s| at which a slip event starts ...
         event_hold: ... once it has stayed there this long [s] (0: at once; the default, just
             under one 30 Hz frame, asks for two frames in a row and ignores one-frame spikes).
@@ -69,7 +71,7 @@ class SlipConfig:
     init_std: tuple[float, float, float] = (2.0, 2.0, 20.0)
     min_speed: float = 0.05
     max_slip_std: float = 0.1
-    max_age: float = 0.2
+    max_age: float = 0.05
     event_on: float = 0.2
     event_hold: float = 0.03
     event_off: float = 0.1

@@ -266,3 +266,37 @@ def test_regions_of_interest_give_the_centres_of_the_whole_frame(pose):
     cut = segment_magenta(img, cfg, np.hstack([at[:1] - 30, at[:1] + 2]))[0]
     assert len(cut) == 0
     assert mask.shape == img.shape[:2]
+
+
+def test_a_lost_wheel_stays_tracked_for_track_hold_frames(monkeypatch):
+    """After a missed rotation the wheel is searched near its last one (and may be taken on a
+    decisive alignment) for ``track_hold`` frames; then the wide, feature-confirmed search starts."""
+    import perception.fisheye_kinematics as fk
+    from perception.wheel_rotation import RotationMeasurement
+
+    model = rover_model()
+    cam = fisheye(model)
+    est = fk.KinematicStateEstimator(cam, model)
+    cfg = est.config
+    img = render_markers(model, cam, (0.0, 0.0), (0.15, 0.15), model.wheel_angles(0.0, 0.0))
+    calls = []
+
+    def fake(pairs, radius, tread, priors, spans, check=None):
+        calls.append((list(priors), list(spans), list(check)))
+        lost = len(calls) > 1  # FL's rotation is missed from the second frame pair on
+        return [RotationMeasurement(math.nan if (k == 0 and lost) else 0.5, 0, 0, 0, not (k == 0 and lost))
+                for k in range(len(pairs))]  # fmt: skip
+
+    monkeypatch.setattr(fk, "measure_pairs", fake)
+    n = cfg.track_hold + 4
+    for k in range(n + 1):
+        est.update(img, k / 30)
+    # the first pair: every wheel searched widely; then FL near its last rotation (0.5) ...
+    fl = [(c[0][0], c[1][0], c[2][0]) for c in calls if len(c[0]) == 4]
+    assert fl[0][1:] == (cfg.acquire_span, 2)
+    for prior, span, check in fl[1 : 2 + cfg.track_hold]:
+        assert (prior, span, check) == (0.5, cfg.track_span, int(cfg.tread.check_strong))
+    # ... until it has been missed track_hold + 1 times in a row
+    for _, span, check in fl[2 + cfg.track_hold :]:
+        assert (span, check) == (cfg.acquire_span, 2)
+    assert len(fl) == n

@@ -37,8 +37,11 @@ def interval_mean(f, t0: float, t1: float, n: int = 16) -> np.ndarray:
     return np.mean([f(t) for t in ts], axis=0)
 
 
-def run_stream(seconds=5.0, noise=True, seed=0, shuffle=False, blackout=None):
-    """Odometry at 60 Hz and fisheye at 30 Hz, each an average over its frame interval."""
+def run_stream(seconds=5.0, noise=True, seed=0, shuffle=False, blackout=None, lost=None):
+    """Odometry at 60 Hz and fisheye at 30 Hz, each an average over its frame interval.
+
+    ``lost``: (wheel, t0, t1): that wheel's rate is not measured in frames within [t0, t1).
+    """
     rng = np.random.default_rng(seed)
     est = SlipEstimator(XY, R_WHEEL)
     out = []
@@ -65,7 +68,10 @@ def run_stream(seconds=5.0, noise=True, seed=0, shuffle=False, blackout=None):
             if kind == "odom":
                 est.add_odometry(tm, z, fo, quality=1.0)
             else:
-                est.add_wheels(tm, z, ff, steering=truth(tm)[1])
+                ok = np.ones(4, bool)
+                if lost and lost[1] <= tm < lost[2]:
+                    ok[lost[0]] = False
+                est.add_wheels(tm, z, ff, ok, steering=truth(tm)[1])
         out.append((t, est.estimate(t)))
     return out
 
@@ -130,6 +136,21 @@ def test_blackout_gives_invalid_finite_slip_and_recovers():
     # uncertainty grows while nothing is measured
     assert during[-1].twist_std[0] > during[0].twist_std[0]
     assert all(e.valid.all() for e in after)
+
+
+def test_a_wheel_lost_while_it_spins_up_is_not_reported_with_a_stale_rate():
+    """FL's rate goes unmeasured from 2.05 s, while its slip ramps from 0.08 to 0.5 (until 2.3 s)."""
+    out = run_stream(seconds=2.6, noise=True, seed=4, lost=(0, 2.05, 2.6))
+    period = 1 / 30
+    for t, e in out:
+        if not 2.05 <= t < 2.6:
+            continue
+        err = abs(e.slip_ratio[0] - truth(t)[2][0])
+        if t >= 2.05 + period:  # the second frame missing: no longer valid
+            assert not e.valid[0] and e.slip_ratio[0] == 0.0, t
+        else:  # one frame missing: still valid, behind the ramp (0.056 per frame) by about 2 frames
+            assert e.valid[0] and err <= 0.15, (t, err)
+        assert e.valid[1:].all()  # the other wheels carry on
 
 
 def test_slip_events_hysteresis():
