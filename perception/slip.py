@@ -59,6 +59,10 @@ class SlipConfig:
         event_hold: ... once it has stayed there this long [s] (0: at once; the default, just
             under one 30 Hz frame, asks for two frames in a row and ignores one-frame spikes).
         event_off: |s| below which it ends.
+        event_min_speed: Events hold only while the wheel's tread or ground speed reaches this
+            [m/s]. Below it a ratio of ``event_on`` is a speed difference of under 0.03 m/s, the
+            size of the odometry's noise at the training resolution, and every reversal of a
+            wheel sends the ratio through +-1 for a frame or two as its speed passes zero.
         eps: Denominator floor of the slip ratio [m/s] (the ground truth's).
     """
 
@@ -75,6 +79,7 @@ class SlipConfig:
     event_on: float = 0.2
     event_hold: float = 0.03
     event_off: float = 0.1
+    event_min_speed: float = 0.15
     eps: float = 0.01
 
     def __post_init__(self) -> None:
@@ -129,7 +134,14 @@ class SlipEstimate:
     quality: float = field(default=0.0)
 
 
-def slip_events(slip: np.ndarray, on: float = 0.2, off: float = 0.1, min_frames: int = 1) -> np.ndarray:
+def slip_events(
+    slip: np.ndarray,
+    on: float = 0.2,
+    off: float = 0.1,
+    min_frames: int = 1,
+    speed: np.ndarray | None = None,
+    min_speed: float = 0.15,
+) -> np.ndarray:
     """Slip events along a sequence by hysteresis: on when |s| >= ``on``, off when |s| < ``off``.
 
     The rule :class:`SlipEstimator` applies, for labelling a slip sequence sampled once per frame.
@@ -139,6 +151,9 @@ def slip_events(slip: np.ndarray, on: float = 0.2, off: float = 0.1, min_frames:
         on: |s| at which an event starts ...
         off: |s| below which it ends.
         min_frames: ... at the ``min_frames``-th sample in a row with |s| >= ``on``.
+        speed: (T, ...) the wheels' speeds, max(|tread speed|, |ground speed|) [m/s]; with it,
+            samples below ``min_speed`` are no event (``SlipConfig.event_min_speed``).
+        min_speed: [m/s].
 
     Returns:
         (T, ...) bool.
@@ -146,6 +161,11 @@ def slip_events(slip: np.ndarray, on: float = 0.2, off: float = 0.1, min_frames:
     if min_frames < 1:
         raise ValueError(f"min_frames: {min_frames!r}; use >= 1")
     s = np.abs(np.asarray(slip, dtype=np.float64))
+    if speed is not None:
+        v = np.asarray(speed, dtype=np.float64)
+        if v.shape != s.shape:
+            raise ValueError(f"speed: shape {v.shape}; expected the slip's {s.shape}")
+        s = np.where(v >= min_speed, s, 0.0)
     out = np.zeros(s.shape, bool)
     state = np.zeros(s.shape[1:], bool)
     run = np.zeros(s.shape[1:], int)
@@ -322,13 +342,14 @@ class SlipEstimator:
         s = np.where(valid, s, 0.0)
         beta = np.where(valid, slip_angle(v_long, v_lat), 0.0)
         mag = np.abs(s)
-        above = valid & (mag >= c.event_on)
+        fast = np.maximum(np.abs(a), np.abs(v_long)) >= c.event_min_speed
+        above = valid & fast & (mag >= c.event_on)
         self._above_since = np.where(
             above, np.where(np.isnan(self._above_since), t, self._above_since), math.nan
         )
         with np.errstate(invalid="ignore"):
             start = above & (t - self._above_since >= c.event_hold - 1e-9)
-        self._events = np.where(valid, np.where(self._events, mag >= c.event_off, start), False)
+        self._events = np.where(valid & fast, np.where(self._events, mag >= c.event_off, start), False)
         return SlipEstimate(
             t=float(t),
             twist=twist,

@@ -174,6 +174,24 @@ def test_one_frame_spike_is_no_event_but_two_frames_are():
     assert seen == [False, False, False, False, False, False, True, True, False, False]
 
 
+def test_no_event_below_the_event_speed():
+    """A locked wheel (s = -1) at 0.1 m/s is resolved but no event; at 0.3 m/s it is one."""
+    c = SlipConfig(event_hold=0.0)
+    for v, event in ((0.1, False), (0.3, True)):
+        est = SlipEstimator(XY, R_WHEEL, c)
+        for _ in range(30):
+            est.add_odometry(1.0, [v, 0.0, 0.0], 0.0)
+            est.add_wheels(1.0, np.zeros(4), 0.0)
+        e = est.estimate(1.0)
+        assert e.valid.all() and np.allclose(e.slip_ratio, -1.0)
+        assert e.events.tolist() == [event] * 4
+    s = np.array([[0.0, 1.0, 1.0, 0.3, 0.3, 0.0]]).T
+    speed = np.array([[0.3, 0.1, 0.1, 0.2, 0.2, 0.2]]).T
+    assert slip_events(s, speed=speed).ravel().tolist() == [False, False, False, True, True, False]
+    with pytest.raises(ValueError, match="speed"):
+        slip_events(s, speed=speed[:3])
+
+
 def test_invalid_odometry_is_ignored_and_bad_arguments_are_named():
     est = SlipEstimator(XY, R_WHEEL)
     est.add_odometry(0.1, [math.nan, 0.0, 0.0], 1 / 60)
