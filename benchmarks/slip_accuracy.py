@@ -9,8 +9,9 @@ otherwise, event F1 and onset latency in fisheye frames). An event is |s| >= 0.2
 in a row, ending below 0.1, on a wheel whose tread or ground speed is at least 0.15 m/s
 (``SlipConfig.event_min_speed``), in the truth and in the estimate alike.
 
-Run: python benchmarks/slip_accuracy.py [--preset eval] [--seeds 201 202 203]
-(seeds the tests never use).
+Run: python benchmarks/slip_accuracy.py [--preset eval] [--seeds 201 202 203] [--ramp 0.05]
+(seeds the tests never use). With ``--ramp 0`` the speed command steps: the wheels jump by up to
+10 rad/s within a frame, beyond the tread tracker's search, and are lost for several frames.
 """
 
 from __future__ import annotations
@@ -70,8 +71,9 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--ramp",
         type=float,
-        default=0.0,
-        help="largest change of the speed action per step (0: steps; 0.05 = 3 m/s^2 at 30 Hz)",
+        default=0.05,
+        help="largest change of the speed action per step (0.05, the default, is 3 m/s^2 at 30 Hz, "
+        "a motor controller's acceleration limit; 0: steps, a stress case)",
     )
     args = ap.parse_args(argv)
     # Rover-v0's sand patch (mu 0.15) spans x 4.75..7.25 m on the first leg
