@@ -272,8 +272,8 @@ class KinematicStateEstimator:
             tracked = self._missed <= cfg.track_hold
             spans = [cfg.track_span if tracked[k] else cfg.acquire_span for k in range(4)]
             # while a wheel is searched for over the wide span, the features must confirm the
-            # alignment (a strong false peak is possible there); while it is tracked, a strong
-            # alignment is taken as it is (or checked, with check_strong)
+            # alignment (a strong false peak is possible there); while it is tracked, a strong or
+            # decisive alignment is taken as it is (strong ones are checked with check_strong)
             check = [int(cfg.tread.check_strong) if on else 2 for on in tracked]
             rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans, check)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
