@@ -337,12 +337,13 @@ class SlipEstimator:
             var = np.einsum("ij,jk,ik->i", J, P, J)
         s_std = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
         fresh = (t - self._t_odom <= c.max_age) & (t - self._t_rate <= c.max_age)
-        moving = np.maximum(np.abs(a), np.abs(v_long)) >= c.min_speed
+        speed = np.maximum(np.abs(a), np.abs(v_long))  # tread or ground [m/s]
+        moving = speed >= c.min_speed
         valid = fresh & moving & (s_std <= c.max_slip_std)
         s = np.where(valid, s, 0.0)
         beta = np.where(valid, slip_angle(v_long, v_lat), 0.0)
         mag = np.abs(s)
-        fast = np.maximum(np.abs(a), np.abs(v_long)) >= c.event_min_speed
+        fast = speed >= c.event_min_speed
         above = valid & fast & (mag >= c.event_on)
         self._above_since = np.where(
             above, np.where(np.isnan(self._above_since), t, self._above_since), math.nan
