@@ -32,7 +32,7 @@ from rover_env.task import CourseConfig
 
 RADIUS = 5.0  # [m]
 SPEED = 2.0  # [m/s]
-UNGATED = dict(min_inlier_ratio=0.0, max_residual=1e9)  # the paper has no validity decision
+UNGATED = dict(min_inlier_ratio=0.0, max_std=1e9)  # the paper has no validity decision
 CONFIGS = {
     "(a) no robustness": dict(use_mask=False, use_ransac=False, **UNGATED),
     "(b) RANSAC only": dict(use_mask=False, use_ransac=True, **UNGATED),

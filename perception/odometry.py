@@ -157,30 +157,71 @@ def rigid_ransac(
     return inl[int(np.argmax(inl.sum(axis=1)))]
 
 
-def velocity_from_points(P: np.ndarray, C: np.ndarray, dt: float) -> tuple[np.ndarray, float]:
+def velocity_from_points(
+    P: np.ndarray, C: np.ndarray, dt: float, return_cov: bool = False
+) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray]:
     """(v_x, v_y, omega) of the body from ground points seen at P then C (body frame, m), eqs. 18-19.
 
     Point velocity is the negative of the displacement over ``dt``; each point gives the rows
     [1, 0, -r_y; 0, 1, r_x] with r its position. r is the midpoint of P and C, which makes the
     linear model exact to second order in omega dt.
 
+    With 3-D points (n, 3) (each frame's points on that frame's ground plane), the fit is of the
+    full rigid motion, v + omega x r with omega = (omega_x, omega_y, omega_z): the body's roll and
+    pitch between the frames (which move the ground under a mast camera like a translation)
+    are then told apart from its planar motion; (v_x, v_y, omega_z) is returned.
+
     Returns:
-        (3,) velocity [m/s, m/s, rad/s] and the RMS residual of the fit [m/s].
+        (3,) velocity [m/s, m/s, rad/s] and the RMS residual of the fit (per horizontal
+        coordinate) [m/s]; with ``return_cov`` also the velocity's (3, 3) covariance from the
+        fit's residuals, s^2 (A^T A)^-1 (independent point errors assumed).
     """
     P = np.asarray(P, dtype=np.float64)
     C = np.asarray(C, dtype=np.float64)
     v = -(C - P) / dt
     r = 0.5 * (P + C)
     n = len(P)
-    A = np.zeros((2 * n, 3))
-    A[0::2, 0] = 1.0
-    A[0::2, 2] = -r[:, 1]
-    A[1::2, 1] = 1.0
-    A[1::2, 2] = r[:, 0]
+    if P.shape[1] == 2:
+        A = np.zeros((2 * n, 3))
+        A[0::2, 0] = 1.0
+        A[0::2, 2] = -r[:, 1]
+        A[1::2, 1] = 1.0
+        A[1::2, 2] = r[:, 0]
+        b = v.reshape(-1)
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+        res = A @ sol - b
+        rms = float(np.sqrt(np.mean(res**2)))
+        return (sol, rms, _covariance(A, res)) if return_cov else (sol, rms)
+    # unknowns (v_x, v_y, v_z, w_x, w_y, w_z); point velocity v + w x r
+    x, y, z = r[:, 0], r[:, 1], r[:, 2]
+    one, zero = np.ones(n), np.zeros(n)
+    A = np.empty((3 * n, 6))
+    A[0::3] = np.column_stack([one, zero, zero, zero, z, -y])
+    A[1::3] = np.column_stack([zero, one, zero, -z, zero, x])
+    A[2::3] = np.column_stack([zero, zero, one, y, -x, zero])
     b = v.reshape(-1)
     sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    res = A @ sol - b
-    return sol, float(np.sqrt(np.mean(res**2)))
+    res = (A @ sol - b).reshape(n, 3)[:, :2].reshape(-1)
+    rms = float(np.sqrt(np.mean(res**2)))
+    if not return_cov:
+        return sol[[0, 1, 5]], rms
+    # the horizontal rows carry the noise (the heights follow from the planes): planar design
+    A2 = np.zeros((2 * n, 3))
+    A2[0::2, 0], A2[0::2, 2], A2[1::2, 1], A2[1::2, 2] = 1.0, -y, 1.0, x
+    return sol[[0, 1, 5]], rms, _covariance(A2, res)
+
+
+def _centroid_std(P: np.ndarray, C: np.ndarray, cov: np.ndarray) -> float:
+    """Largest standard deviation of the ground velocity (x or y) at the points' centroid [m/s]."""
+    xc, yc = 0.5 * (P[:, :2] + C[:, :2]).mean(axis=0)
+    J = np.array([[1.0, 0.0, -yc], [0.0, 1.0, xc]])
+    return float(np.sqrt(np.max(np.diag(J @ cov @ J.T))))
+
+
+def _covariance(A: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """Covariance of a least-squares solution: s^2 (A^T A)^-1 with s^2 = SSR / dof."""
+    dof = max(A.shape[0] - A.shape[1], 1)
+    return np.linalg.pinv(A.T @ A) * (float(res @ res) / dof)
 
 
 # ---------------------------------------------------------------------------------------- estimator
@@ -206,7 +247,13 @@ class FlowOdometryConfig:
         ransac_iterations: RANSAC iterations.
         min_inliers: Fewest inliers for a valid estimate.
         min_inlier_ratio: Smallest inlier share of the tracked features for a valid estimate.
-        max_residual: Largest RMS residual of the velocity fit for a valid estimate [m/s].
+        max_std: Largest standard deviation of the ground velocity at the inliers' centroid
+            (either axis, from ``twist_cov``) for a valid estimate [m/s]: it catches fits that
+            went wrong; a usable fit's uncertainty goes with it in the covariance.
+        noise_scale: Factor on the fit's standard deviations for errors that the residuals do
+            not show (point errors are not independent: they share the texture's aliasing and
+            the ground's relief); 1.5 makes the deviations about right at 160 px on flat,
+            shadowed and rough ground.
         use_mask: Ablation switch: the shadow-edge feature mask.
         use_ransac: Ablation switch: RANSAC (off: every tracked feature is used).
     """
@@ -227,7 +274,8 @@ class FlowOdometryConfig:
     ransac_iterations: int = 100
     min_inliers: int = 8
     min_inlier_ratio: float = 0.3
-    max_residual: float = 0.05
+    max_std: float = 0.02
+    noise_scale: float = 1.5
     use_mask: bool = True
     use_ransac: bool = True
 
@@ -259,7 +307,7 @@ class FlowOdometryConfig:
             min_distance=max(3.0, base.min_distance * s),
             quality_level=base.quality_level * min(1.0, s * s),
             ransac_threshold=base.ransac_threshold / s,
-            max_residual=base.max_residual / s * rate_hz / 60.0,
+            max_std=base.max_std / s * rate_hz / 60.0,
         )
         scaled.update(overrides)
         return cls(**scaled)
@@ -268,7 +316,14 @@ class FlowOdometryConfig:
         w, h = self.min_level_size
         if w < 80 or h < 60:
             raise ValueError(f"min_level_size: {self.min_level_size} is below the paper's 80 x 60 minimum")
-        for name in ("bimodality_lambda", "canny_high", "max_disp", "ransac_threshold", "max_residual"):
+        for name in (
+            "bimodality_lambda",
+            "canny_high",
+            "max_disp",
+            "ransac_threshold",
+            "max_std",
+            "noise_scale",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: {getattr(self, name)!r} must be > 0")
         if not (self.window >= 5 and self.window % 2 == 1):
@@ -320,6 +375,8 @@ class Selection:
         mask: (H, W) bool, where features were allowed.
         t: Time of ``I_prev`` [s] (None if not given).
         diagnostics: Intermediate images of the mask.
+        ground_plane: The ground under the body when ``I_prev`` was taken, (a, b, c) of
+            z = a x + b y + c in the body frame [-, -, m] (None: not given).
     """
 
     gray: np.ndarray
@@ -327,6 +384,7 @@ class Selection:
     mask: np.ndarray
     t: float | None = None
     diagnostics: MaskDiagnostics | None = None
+    ground_plane: tuple[float, float, float] | None = None
 
 
 @dataclass
@@ -346,6 +404,10 @@ class OdometryEstimate:
         inlier_ratio: n_inliers / n_tracked.
         residual: RMS residual of the velocity fit [m/s].
         dt: Time between the frames [s].
+        twist_cov: (3, 3) covariance of (v_x, v_y, omega): the fit's, scaled by
+            ``FlowOdometryConfig.noise_scale`` squared (NaN when invalid). The yaw rate is the
+            least certain part (the camera sees a patch about a metre across) and its error
+            moves v_y the opposite way, which the covariance carries.
         t: Time of ``I_curr`` [s] (None if not given).
         prev_px: (n_tracked, 2) tracked features in ``I_prev`` [px].
         curr_px: (n_tracked, 2) their positions in ``I_curr`` [px].
@@ -366,6 +428,7 @@ class OdometryEstimate:
     residual: float
     dt: float
     t: float | None = None
+    twist_cov: np.ndarray = field(default_factory=lambda: np.full((3, 3), math.nan))
     prev_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
     curr_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
@@ -375,6 +438,11 @@ class OdometryEstimate:
     def twist(self) -> np.ndarray:
         """(v_x, v_y, omega)."""
         return np.array([self.v_x, self.v_y, self.omega])
+
+    @property
+    def twist_std(self) -> np.ndarray:
+        """(3,) standard deviations of (v_x, v_y, omega) [m/s, m/s, rad/s] (NaN when invalid)."""
+        return np.sqrt(np.diag(self.twist_cov))
 
 
 def to_gray(image: np.ndarray, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -461,12 +529,14 @@ class FlowOdometry:
         allowed = self._roi & ~full if cfg.use_mask else self._roi.copy()
         return allowed, diag
 
-    def select(self, image: np.ndarray, t: float | None = None) -> Selection:
+    def select(self, image: np.ndarray, t: float | None = None, ground_plane=None) -> Selection:
         """Choose features on ``I_prev`` (call before ``I_curr`` is captured).
 
         Args:
             image: ``I_prev``, uint8 grey or RGB at the camera's resolution.
             t: Its time [s].
+            ground_plane: The ground z = a x + b y + c in the body frame when ``I_prev`` was
+                taken, if known (see :meth:`track`).
         """
         cfg = self.config
         gray = to_gray(image, self.camera.image_size)
@@ -489,7 +559,8 @@ class FlowOdometry:
             xi = np.clip(np.rint(feats[:, 0]).astype(int), 0, gray.shape[1] - 1)
             yi = np.clip(np.rint(feats[:, 1]).astype(int), 0, gray.shape[0] - 1)
             feats = feats[std[yi, xi] > 1.0]
-        return Selection(gray=gray, features=feats, mask=mask, t=t, diagnostics=diag)
+        plane = None if ground_plane is None else _plane(ground_plane)
+        return Selection(gray=gray, features=feats, mask=mask, t=t, diagnostics=diag, ground_plane=plane)
 
     # ------------------------------------------------------------------ lines 5-10
     def track(
@@ -509,7 +580,11 @@ class FlowOdometry:
             t: Time of ``I_curr`` [s].
             ground_plane: The ground z = a x + b y + c in the body frame now, if known (a body on
                 soft suspension rolls and pitches over the ground; see
-                :func:`ground_plane_from_wheels`). Default: the camera's calibrated plane.
+                :func:`ground_plane_from_wheels`). Default: the camera's calibrated plane. When
+                the selection carries the plane of ``I_prev`` too, each frame's features go to
+                the ground on their own frame's plane and the fit is of the 3-D rigid motion
+                (:func:`velocity_from_points`), so the body's roll and pitch between the frames
+                are not mistaken for a translation.
         """
         cfg = self.config
         if not (dt > 0 and math.isfinite(dt)):
@@ -541,15 +616,21 @@ class FlowOdometry:
         n_tr = len(prev_px)
         if n_tr < cfg.min_inliers:
             return invalid(f"too few tracked features ({n_tr} of {n_feat})", n_tracked=n_tr)
-        H_inv = (
-            self._H_inv
-            if ground_plane is None
-            else np.linalg.inv(self.camera.ground_homography(ground_plane))
-        )
-        P = self._to_ground(prev_px, H_inv)
-        C = self._to_ground(curr_px, H_inv)
+        plane_curr = None if ground_plane is None else _plane(ground_plane)
+        if plane_curr is not None and selection.ground_plane is not None:
+            # each frame on its own ground plane, as 3-D body-frame points
+            P = self._to_ground_3d(prev_px, selection.ground_plane)
+            C = self._to_ground_3d(curr_px, plane_curr)
+        else:
+            H_inv = (
+                self._H_inv
+                if plane_curr is None
+                else np.linalg.inv(self.camera.ground_homography(plane_curr))
+            )
+            P = self._to_ground(prev_px, H_inv)
+            C = self._to_ground(curr_px, H_inv)
         if cfg.use_ransac:
-            inl = rigid_ransac(P, C, cfg.ransac_threshold, cfg.ransac_iterations, self._rng)
+            inl = rigid_ransac(P[:, :2], C[:, :2], cfg.ransac_threshold, cfg.ransac_iterations, self._rng)
         else:
             inl = np.ones(n_tr, dtype=bool)
         n_in = int(inl.sum())
@@ -557,16 +638,17 @@ class FlowOdometry:
         common = dict(n_tracked=n_tr, n_inliers=n_in, inlier_ratio=ratio)
         if n_in < cfg.min_inliers:
             return invalid(f"too few inliers ({n_in} of {n_tr})", **common)
-        vel, residual = velocity_from_points(P[inl], C[inl], dt)
+        vel, residual, cov = velocity_from_points(P[inl], C[inl], dt, return_cov=True)
+        cov = cov * cfg.noise_scale**2
         reason = ""
         if ratio < cfg.min_inlier_ratio:
             reason = f"inlier ratio {ratio:.2f} below {cfg.min_inlier_ratio}"
-        elif residual > cfg.max_residual:
-            reason = f"velocity fit residual {residual:.3f} m/s above {cfg.max_residual}"
+        elif (sc := _centroid_std(P[inl], C[inl], cov)) > cfg.max_std:
+            reason = f"velocity standard deviation {sc:.3f} m/s above {cfg.max_std}"
         valid = reason == ""
         quality = min(1.0, n_in / (2.0 * cfg.min_inliers)) * ratio if valid else 0.0
         if not valid:
-            vel = np.full(3, math.nan)
+            vel, cov = np.full(3, math.nan), np.full((3, 3), math.nan)
         return OdometryEstimate(
             float(vel[0]),
             float(vel[1]),
@@ -578,6 +660,7 @@ class FlowOdometry:
             residual=residual,
             dt=dt,
             t=t,
+            twist_cov=cov,
             prev_px=prev_px,
             curr_px=curr_px,
             inliers=inl,
@@ -589,6 +672,12 @@ class FlowOdometry:
         und = self.camera.undistort_points(px)
         q = np.column_stack([und, np.ones(len(und))]) @ H_inv.T
         return q[:, :2] / q[:, 2:3]
+
+    def _to_ground_3d(self, px: np.ndarray, plane: tuple[float, float, float]) -> np.ndarray:
+        """(n, 3) body-frame points of pixels on the ground z = a x + b y + c [m]."""
+        xy = self._to_ground(px, np.linalg.inv(self.camera.ground_homography(plane)))
+        a, b, c = plane
+        return np.column_stack([xy, a * xy[:, 0] + b * xy[:, 1] + c])
 
     # ------------------------------------------------------------------ conveniences
     def estimate(self, prev: np.ndarray, curr: np.ndarray, dt: float, ground_plane=None) -> OdometryEstimate:
@@ -609,13 +698,22 @@ class FlowOdometry:
         out = None
         if self._last is not None:
             out = self.track(self._last, image, t - self._last.t, t, ground_plane)
-        self._last = self.select(image, t)
+        self._last = self.select(image, t, ground_plane)
         return out
 
     def reset(self) -> None:
         """Forget the chained stream's last frame and restart RANSAC's random stream."""
         self._last = None
         self._rng = np.random.default_rng(0)
+
+
+def _plane(ground_plane) -> tuple[float, float, float]:
+    g = np.asarray(ground_plane, dtype=np.float64).reshape(-1)
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise ValueError(
+            f"ground_plane: {ground_plane!r}; give finite (a, b, c) of z = a x + b y + c [-, -, m]"
+        )
+    return float(g[0]), float(g[1]), float(g[2])
 
 
 def ground_plane_from_wheels(wheel_centres_body, wheel_radius: float) -> tuple[float, float, float]:

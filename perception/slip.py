@@ -220,20 +220,32 @@ class SlipEstimator:
         self._seq = 0
 
     # ------------------------------------------------------------------ inputs
-    def add_odometry(self, t: float, twist, dt: float, quality: float = 1.0) -> None:
+    def add_odometry(self, t: float, twist, dt: float, quality: float = 1.0, cov=None) -> None:
         """A body-twist measurement from the downward camera.
 
         Args:
             t: Time of the later frame of the pair [s].
             twist: (v_x, v_y, omega), the average over the pair [m/s, m/s, rad/s].
             dt: Time between the pair's frames [s]; the measurement applies at t - dt/2.
-            quality: The odometry's quality in (0, 1]; scales the noise by 1/quality.
+            quality: The odometry's quality in (0, 1]; without ``cov`` it scales the noise
+                ``odom_std`` by 1/quality.
+            cov: (3, 3) covariance of the twist (the odometry's ``twist_cov``), if known; the
+                noise is then ``cov`` plus ``odom_std`` squared on the diagonal (a floor).
         """
         z = np.asarray(twist, dtype=np.float64).reshape(-1)
         if z.shape != (3,) or not np.all(np.isfinite(z)) or not (quality > 0):
             return  # an invalid estimate carries no information
-        q = max(float(quality), self.config.min_quality)
-        R = np.diag((np.asarray(self.config.odom_std) / q) ** 2)
+        floor = np.asarray(self.config.odom_std)
+        if cov is not None:
+            C = np.asarray(cov, dtype=np.float64)
+            if C.shape != (3, 3) or not np.all(np.isfinite(C)):
+                raise ValueError(
+                    f"cov: shape {C.shape}; give a finite (3, 3) covariance of (v_x, v_y, omega)"
+                )
+            R = 0.5 * (C + C.T) + np.diag(floor**2)
+        else:
+            q = max(float(quality), self.config.min_quality)
+            R = np.diag((floor / q) ** 2)
         self._queue(t - 0.5 * max(dt, 0.0), np.arange(3), z, R)
         self._t_odom = max(self._t_odom, t)
 

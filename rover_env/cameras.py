@@ -214,6 +214,7 @@ class DownwardCamera(_RoverCamera):
             caster=self._caster(lighting),
             renderer=self.sim.renderer,
             segmentation=labels,
+            cull=self.sim.terrain.cull,
         )
 
 
@@ -263,4 +264,5 @@ class FisheyeCamera(_RoverCamera):
             lighting,
             self._caster(lighting),
             labels=labels,
+            cull=self.sim.terrain.cull,
         )

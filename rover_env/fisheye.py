@@ -352,6 +352,7 @@ def render_fisheye(
     near: float = 0.01,
     far: float = 20.0,
     renderer: str = "tiny",
+    cull=None,
 ) -> FisheyeView:
     """Render the fisheye image of the camera at ``T_world_cam`` (optical frame, world) [m].
 
@@ -365,6 +366,8 @@ def render_fisheye(
         near: Near clipping distance [m].
         far: Far clipping distance [m].
         renderer: ``"tiny"`` or ``"egl"`` (see :func:`rover_env.rendering.render_pinhole`).
+        cull: Called with each face's view planes before it is rendered (see
+            :func:`rover_env.rendering.render_pinhole`).
     """
     shadow_map = None
     if lighting.shadows:
@@ -388,6 +391,7 @@ def render_fisheye(
                 shadow_map=shadow_map,
                 renderer=renderer,
                 segmentation=labels,
+                cull=cull,
             )  # fmt: skip
         )
     rgb = remapper.remap(remapper.atlas([v.rgb for v in views]))

@@ -36,6 +36,25 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return T
 
 
+def view_planes(K: np.ndarray, size: tuple[int, int], T_world_cam: np.ndarray, near: float) -> np.ndarray:
+    """(5, 4) half-spaces n . x + d >= 0 (world frame) that bound a pinhole view.
+
+    The four sides through the image's edges and the near plane; ``K`` [px] and ``size`` = (W, H)
+    [px] as in :func:`render_K`, ``near`` [m].
+    """
+    w, h = size
+    corners = np.array([[0.0, 0.0, 1.0], [w, 0.0, 1.0], [w, h, 1.0], [0.0, h, 1.0]])
+    rays = np.linalg.solve(K, corners.T).T @ T_world_cam[:3, :3].T  # world directions
+    o, z = T_world_cam[:3, 3], T_world_cam[:3, 2]
+    planes = []
+    for a, b in zip(rays, np.roll(rays, -1, axis=0), strict=True):
+        n = np.cross(a, b)
+        n = n if n @ z > 0 else -n  # toward the optical axis
+        planes.append(np.r_[n, -n @ o])
+    planes.append(np.r_[z, -(z @ o) - near])
+    return np.array(planes)
+
+
 def gl_view_matrix(T_world_cam: np.ndarray) -> list[float]:
     """PyBullet (column-major) view matrix of a camera whose optical frame pose is ``T_world_cam``."""
     view = np.linalg.inv(T_world_cam @ _OPTICAL_TO_GL)
@@ -182,6 +201,7 @@ def render_pinhole(
     shadow_map: ShadowMap | None = None,
     renderer: str = "tiny",
     segmentation: bool = True,
+    cull=None,
 ) -> RenderedView:
     """Render an ideal pinhole view (distortion is not rendered) with sun shadows.
 
@@ -197,12 +217,14 @@ def render_pinhole(
         renderer: ``"tiny"`` (TinyRenderer, sun lighting) or ``"egl"`` (the EGL plugin must be
             loaded into ``client``; no sun direction, so no shadows: ``lighting.shadows`` must be off).
         segmentation: Also return the segmentation labels.
+        cull: Called with the view's :func:`view_planes` before it is rendered (for example
+            :meth:`rover_env.terrain.Terrain.cull`, which leaves out ground the view cannot see).
     """
     if np.any(camera.distortion):
         raise ValueError("render_pinhole renders ideal pinhole images; use a camera with zero distortion")
     return render_K(
         client, camera.K, camera.image_size, T_world_cam, lighting, near, far, caster, shadow_map, renderer,
-        segmentation,
+        segmentation, cull,
     )  # fmt: skip
 
 
@@ -218,6 +240,7 @@ def render_K(
     shadow_map: ShadowMap | None = None,
     renderer: str = "tiny",
     segmentation: bool = True,
+    cull=None,
 ) -> RenderedView:
     """:func:`render_pinhole` with intrinsics ``K`` [px] and ``size`` = (W, H) [px].
 
@@ -229,9 +252,11 @@ def render_K(
         raise ValueError(
             "the EGL renderer ignores the sun direction, so it cannot draw shadows; turn shadows off"
         )
+    if cull is not None:
+        cull(view_planes(K, size, T_world_cam, near))
     view, proj = gl_view_matrix(T_world_cam), gl_projection_from_K(K, size, near, far, renderer)
     rgb, zbuf, seg = _camera_image(client, size, view, proj, lighting, renderer, segmentation)
-    depth = (far * near / (far - (far - near) * zbuf.astype(np.float64))).astype(np.float32)
+    depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
     w, h = size
     view = RenderedView(rgb, depth, seg, np.zeros((h, w), dtype=bool), K, np.asarray(T_world_cam))
     if lighting.shadows:

@@ -136,6 +136,8 @@ class Terrain:
         self._chunks: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual body
         self._chunk_shapes: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual shape
         self._shown: dict[int, bool] = {}  # body -> drawn (alpha 1) or hidden (alpha 0)
+        self._focused: set[tuple[int, int]] = set()  # chunks that the last focus() draws
+        self._boxes: dict[tuple[int, int], np.ndarray] = {}  # chunk -> (8, 3) world bounding-box corners
         if cfg.kind == "rough":
             self.xs, self.ys, self.heights = make_heights(cfg)
             gz = np.gradient(self.heights, self.ys, self.xs)
@@ -239,8 +241,40 @@ class Terrain:
             self._shown[body] = True
             self._chunks[key] = body
         self._show(self.body_id, near is None)
+        self._focused = {k for k in self._chunks if near is None or dist.get(k, math.inf) <= near}
         for key, body in self._chunks.items():
-            self._show(body, near is None or dist.get(key, math.inf) <= near)
+            self._show(body, key in self._focused)
+
+    def cull(self, planes: np.ndarray) -> None:
+        """Of the chunks that :meth:`focus` draws, draw only those that may be inside a view.
+
+        TinyRenderer transforms every drawn triangle for every view, so on rough ground each view
+        draws only the chunks whose bounding box is not wholly outside one of its planes. Call it
+        after :meth:`focus`, before each view (flat ground has two triangles a chunk: no-op).
+
+        Args:
+            planes: (k, 4) half-spaces n . x + d >= 0 (world frame [m]) whose intersection holds
+                the view (:func:`rover_env.rendering.view_planes`).
+        """
+        if self.heights is None:
+            return
+        for key in self._focused:
+            box = self._boxes.get(key)
+            if box is None:
+                box = self._boxes[key] = self._chunk_box(key)
+            inside = box @ planes[:, :3].T + planes[:, 3] >= 0.0  # (8, k)
+            self._show(self._chunks[key], bool(inside.any(axis=0).all()))
+
+    def _chunk_box(self, key: tuple[int, int]) -> np.ndarray:
+        """(8, 3) corners of chunk ``key``'s axis-aligned bounding box in the world [m]."""
+        i, j = key
+        x0, y0, cell, nx, ny, n = self._chunk_grid
+        sx, sy = slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
+        h = self.heights[sy, sx]
+        xs, ys = self.xs[sx], self.ys[sy]
+        return np.array(
+            [[x, y, z] for x in (xs[0], xs[-1]) for y in (ys[0], ys[-1]) for z in (h.min(), h.max())]
+        )
 
     @functools.cached_property
     def _chunk_grid(self) -> tuple[float, float, float, int, int, int]:

@@ -201,3 +201,30 @@ def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
         assert terrain.ground_ids == (terrain.body_id,)
     finally:
         client.disconnect()
+
+
+def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
+    """Terrain.cull hides the exact chunks a view cannot see; the image stays the same, pixel for pixel."""
+    from perception.cameras import PinholeCamera
+    from rover_env.rendering import Lighting, look_at, render_pinhole
+
+    cfg = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness=0.03, wavelength=2.0, seed=3,
+                        texture="sand", texture_px=64)  # fmt: skip
+    client = BulletClient(connection_mode=pb.DIRECT)
+    try:
+        terrain = Terrain(client, cfg, FrictionMapConfig())
+        cam = PinholeCamera.from_fov((160, 120), np.radians(77.0), np.radians(57.0))
+        light = Lighting((0.3, 0.2, 1.0), shadows=False)
+        x, y = 0.4, -0.3
+        for target in ([x + 1.0, y, 0.0], [x + 1.5, y + 1.2, 0.2], [x, y, 0.0]):  # ahead, oblique, down
+            z = float(terrain.height_at(x, y)) + 0.8
+            T = look_at([x, y, z], target if target[:2] != [x, y] else [x + 1e-3, y, z - 1.0])
+            terrain.focus(x, y, near=2.0)
+            drawn = sum(terrain._shown[b] for b in terrain._chunks.values())
+            full = render_pinhole(client, cam, T, light)
+            culled = render_pinhole(client, cam, T, light, cull=terrain.cull)
+            kept = sum(terrain._shown[b] for b in terrain._chunks.values())
+            assert np.array_equal(culled.rgb, full.rgb) and np.array_equal(culled.depth, full.depth)
+            assert kept < drawn / 2, (kept, drawn)
+    finally:
+        client.disconnect()
