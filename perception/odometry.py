@@ -56,7 +56,10 @@ def kmeans_1d(values: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.
         labels (same shape as ``values``; 0 = dark cluster, 1 = bright), centres (c_dark,
         c_bright) and standard deviations (sigma_dark, sigma_bright).
     """
-    v = np.asarray(values, dtype=np.float32).ravel()
+    values = np.asarray(values)
+    if values.dtype == np.uint8 and values.size:
+        return _kmeans_u8(values, iterations)
+    v = values.astype(np.float32).ravel()
     c = np.percentile(v, [10.0, 90.0]).astype(np.float64)
     if c[1] - c[0] < 1e-6:
         c = np.array([v.min() - 0.5, v.max() + 0.5])
@@ -72,6 +75,47 @@ def kmeans_1d(values: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.
     bright = v > 0.5 * (c[0] + c[1])
     sig = np.array([v[~bright].std() if (~bright).any() else 0.0, v[bright].std() if bright.any() else 0.0])
     return bright.reshape(np.shape(values)).astype(np.uint8), c, sig
+
+
+def _kmeans_u8(values: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`kmeans_1d` of 8-bit values, on their histogram (the same clusters, far fewer operations)."""
+    hist = np.bincount(values.ravel(), minlength=256).astype(np.float64)
+    g = np.arange(256, dtype=np.float64)
+    cum_n, cum_s, cum_q = np.cumsum(hist), np.cumsum(hist * g), np.cumsum(hist * g * g)
+    n = cum_n[-1]
+    # the 10th and 90th percentiles (linear between order statistics, as np.percentile)
+    pos = np.array([0.1, 0.9]) * (n - 1)
+    lo = np.floor(pos)
+    v_lo = np.searchsorted(cum_n, lo, side="right")
+    v_hi = np.searchsorted(cum_n, np.minimum(lo + 1, n - 1), side="right")
+    c = v_lo + (pos - lo) * (v_hi - v_lo)
+    if c[1] - c[0] < 1e-6:
+        nz = np.flatnonzero(hist)
+        c = np.array([nz[0] - 0.5, nz[-1] + 0.5])
+
+    def split(c):  # grey levels <= k are dark
+        return int(np.clip(np.floor(0.5 * (c[0] + c[1])), -1, 255))
+
+    def stats(k):
+        nd = cum_n[k] if k >= 0 else 0.0
+        sd = cum_s[k] if k >= 0 else 0.0
+        qd = cum_q[k] if k >= 0 else 0.0
+        return nd, sd, qd, n - nd, cum_s[-1] - sd, cum_q[-1] - qd
+
+    for _ in range(iterations):
+        nd, sd, _, nb, sb, _ = stats(split(c))
+        new = np.array([sd / nd if nd else c[0], sb / nb if nb else c[1]])
+        if np.allclose(new, c, atol=1e-3):
+            c = new
+            break
+        c = new
+    k = split(c)
+    nd, sd, qd, nb, sb, qb = stats(k)
+    sig = np.array(
+        [math.sqrt(max(qd / nd - (sd / nd) ** 2, 0.0)) if nd else 0.0,
+         math.sqrt(max(qb / nb - (sb / nb) ** 2, 0.0)) if nb else 0.0]
+    )  # fmt: skip
+    return (values > k).astype(np.uint8), c, sig
 
 
 def shadow_detected(centres: np.ndarray, sigmas: np.ndarray, lam: float) -> bool:

@@ -467,3 +467,16 @@ def test_config_for_camera_scales_pixel_sizes():
     assert FlowOdometryConfig.for_camera(640, 60.0) == base
     with pytest.raises(ValueError, match="width"):
         FlowOdometryConfig.for_camera(0, 30.0)
+
+
+def test_kmeans_of_8_bit_images_equals_the_general_one():
+    """The histogram path for uint8 images gives the same labels, centres and deviations."""
+    rng = np.random.default_rng(11)
+    for k in range(60):
+        shape = [(60, 80), (1, 1), (3, 2), (61, 81)][k % 4]
+        img = np.clip(rng.normal(60, 10, shape) + (rng.random(shape) > 0.4) * 110 * (k % 3 > 0), 0, 255)
+        img = img.astype(np.uint8) if k % 5 else np.full(shape, rng.integers(0, 256), np.uint8)
+        a, b = kmeans_1d(img), kmeans_1d(img.astype(np.float32))
+        assert np.array_equal(a[0], b[0])
+        np.testing.assert_allclose(a[1], b[1], atol=1e-3)
+        np.testing.assert_allclose(a[2], b[2], atol=1e-3)
