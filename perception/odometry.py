@@ -226,11 +226,7 @@ def velocity_from_points(
     r = 0.5 * (P + C)
     n = len(P)
     if P.shape[1] == 2:
-        A = np.zeros((2 * n, 3))
-        A[0::2, 0] = 1.0
-        A[0::2, 2] = -r[:, 1]
-        A[1::2, 1] = 1.0
-        A[1::2, 2] = r[:, 0]
+        A = _planar_design(r)
         b = v.reshape(-1)
         sol, *_ = np.linalg.lstsq(A, b, rcond=None)
         res = A @ sol - b
@@ -249,10 +245,18 @@ def velocity_from_points(
     rms = float(np.sqrt(np.mean(res**2)))
     if not return_cov:
         return sol[[0, 1, 5]], rms
-    # the horizontal rows carry the noise (the heights follow from the planes): planar design
-    A2 = np.zeros((2 * n, 3))
-    A2[0::2, 0], A2[0::2, 2], A2[1::2, 1], A2[1::2, 2] = 1.0, -y, 1.0, x
-    return sol[[0, 1, 5]], rms, _covariance(A2, res)
+    # the horizontal rows carry the noise (the heights follow from the planes)
+    return sol[[0, 1, 5]], rms, _covariance(_planar_design(r), res)
+
+
+def _planar_design(r: np.ndarray) -> np.ndarray:
+    """Rows [1, 0, -r_y; 0, 1, r_x] of the planar velocity model for points r (n, >= 2) [m]."""
+    A = np.zeros((2 * len(r), 3))
+    A[0::2, 0] = 1.0
+    A[0::2, 2] = -r[:, 1]
+    A[1::2, 1] = 1.0
+    A[1::2, 2] = r[:, 0]
+    return A
 
 
 def _centroid_std(P: np.ndarray, C: np.ndarray, cov: np.ndarray) -> float:

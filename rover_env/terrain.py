@@ -265,11 +265,15 @@ class Terrain:
             inside = box @ planes[:, :3].T + planes[:, 3] >= 0.0  # (8, k)
             self._show(self._chunks[key], bool(inside.any(axis=0).all()))
 
+    def _chunk_slices(self, key: tuple[int, int]) -> tuple[slice, slice]:
+        """Grid-point slices (along x, along y) of rough-ground chunk ``key``."""
+        i, j = key
+        _, _, _, nx, ny, n = self._chunk_grid
+        return slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
+
     def _chunk_box(self, key: tuple[int, int]) -> np.ndarray:
         """(8, 3) corners of chunk ``key``'s axis-aligned bounding box in the world [m]."""
-        i, j = key
-        x0, y0, cell, nx, ny, n = self._chunk_grid
-        sx, sy = slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
+        sx, sy = self._chunk_slices(key)
         h = self.heights[sy, sx]
         xs, ys = self.xs[sx], self.ys[sy]
         return np.array(
@@ -302,7 +306,7 @@ class Terrain:
         i, j = key
         x0, y0, cell, nx, ny, n = self._chunk_grid
         if self.heights is not None:
-            sx, sy = slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
+            sx, sy = self._chunk_slices(key)
             return self._mesh_shape(
                 self.xs[sx], self.ys[sy], self.heights[sy, sx], self._normals[sy, sx], self._base_z
             )
