@@ -98,14 +98,18 @@ def test_tread_texture_has_a_white_marker_at_u_half():
     assert len(white) == pytest.approx(16, abs=2)
 
 
+# a small rough terrain with a coarse texture, for rendering tests
+SMALL_ROUGH = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness=0.03, wavelength=2.0, seed=3,
+                            texture="sand", texture_px=64)  # fmt: skip
+
+
 def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhere():
     """Level of detail: the collision triangles near the rover, a lower 1 m mesh farther away."""
     from perception.cameras import PinholeCamera
     from rover_env.rendering import Lighting, look_at, render_pinhole
     from rover_env.terrain import FINE_RADIUS
 
-    cfg = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness=0.03, wavelength=2.0, seed=3,
-                        texture="sand", texture_px=64)  # fmt: skip
+    cfg = SMALL_ROUGH
     client = BulletClient(connection_mode=pb.DIRECT)
     try:
         terrain = Terrain(client, cfg, FrictionMapConfig())
@@ -208,8 +212,7 @@ def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
     from perception.cameras import PinholeCamera
     from rover_env.rendering import Lighting, look_at, render_pinhole
 
-    cfg = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness=0.03, wavelength=2.0, seed=3,
-                        texture="sand", texture_px=64)  # fmt: skip
+    cfg = SMALL_ROUGH
     client = BulletClient(connection_mode=pb.DIRECT)
     try:
         terrain = Terrain(client, cfg, FrictionMapConfig())
