@@ -219,15 +219,21 @@ def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
         cam = PinholeCamera.from_fov((160, 120), np.radians(77.0), np.radians(57.0))
         light = Lighting((0.3, 0.2, 1.0), shadows=False)
         x, y = 0.4, -0.3
-        for target in ([x + 1.0, y, 0.0], [x + 1.5, y + 1.2, 0.2], [x, y, 0.0]):  # ahead, oblique, down
-            z = float(terrain.height_at(x, y)) + 0.8
-            T = look_at([x, y, z], target if target[:2] != [x, y] else [x + 1e-3, y, z - 1.0])
+        eye = [x, y, float(terrain.height_at(x, y)) + 0.8]
+
+        def drawn() -> int:
+            return sum(terrain._shown[b] for b in terrain._chunks.values())
+
+        # ahead, oblique, straight down
+        for target, up in (([x + 1.0, y, 0.0], (0, 0, 1)), ([x + 1.5, y + 1.2, 0.2], (0, 0, 1)),
+                           ([x, y, 0.0], (1, 0, 0))):  # fmt: skip
+            T = look_at(eye, target, up=up)
             terrain.focus(x, y, near=2.0)
-            drawn = sum(terrain._shown[b] for b in terrain._chunks.values())
+            before = drawn()
             full = render_pinhole(client, cam, T, light)
             culled = render_pinhole(client, cam, T, light, cull=terrain.cull)
-            kept = sum(terrain._shown[b] for b in terrain._chunks.values())
+            kept = drawn()
             assert np.array_equal(culled.rgb, full.rgb) and np.array_equal(culled.depth, full.depth)
-            assert kept < drawn / 2, (kept, drawn)
+            assert kept < before / 2, (kept, before)
     finally:
         client.disconnect()
