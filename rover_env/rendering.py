@@ -46,13 +46,13 @@ def view_planes(K: np.ndarray, size: tuple[int, int], T_world_cam: np.ndarray, n
     corners = np.array([[0.0, 0.0, 1.0], [w, 0.0, 1.0], [w, h, 1.0], [0.0, h, 1.0]])
     rays = np.linalg.solve(K, corners.T).T @ T_world_cam[:3, :3].T  # world directions
     o, z = T_world_cam[:3, 3], T_world_cam[:3, 2]
-    planes = []
-    for a, b in zip(rays, np.roll(rays, -1, axis=0), strict=True):
-        n = np.cross(a, b)
-        n = n if n @ z > 0 else -n  # toward the optical axis
-        planes.append(np.r_[n, -n @ o])
-    planes.append(np.r_[z, -(z @ o) - near])
-    return np.array(planes)
+    planes = np.empty((5, 4))
+    n = np.cross(rays, np.roll(rays, -1, axis=0))
+    planes[:4, :3] = n * np.sign(n @ z)[:, None]  # toward the optical axis
+    planes[4, :3] = z
+    planes[:, 3] = -(planes[:, :3] @ o)
+    planes[4, 3] -= near
+    return planes
 
 
 def gl_view_matrix(T_world_cam: np.ndarray) -> list[float]:
@@ -267,17 +267,20 @@ def render_K(
             texel = float(np.median(depth[hit])) / K[0, 0]  # ground size of a pixel [m]
             shadow_map = caster.shadow_map(lighting.sun_direction, texel)
         if shadow_map is not None:
-            view.shadow = shadow_map.lookup(view.points_world) & hit
+            view.shadow = shadow_map.lookup_view(depth, K, view.T_world_cam) & hit
         if view.shadow.any():
-            view.rgb = _darken(rgb, view.shadow, view.points_world, lighting)
+            view.rgb = _darken(rgb, view.shadow, depth, K, view.T_world_cam[:3, :3], lighting)
     return view
 
 
-def _darken(rgb: np.ndarray, shadow: np.ndarray, pts: np.ndarray, lighting: Lighting) -> np.ndarray:
+def _darken(
+    rgb: np.ndarray, shadow: np.ndarray, depth: np.ndarray, K: np.ndarray, R_world_cam: np.ndarray, lighting
+) -> np.ndarray:
     """Scale shadowed pixels from ambient + diffuse cos(i) to ambient only.
 
-    The incidence cosine comes from surface normals estimated from neighbouring 3-D points. Only
-    the bounding box of the shadow is computed.
+    The incidence cosine comes from surface normals estimated from the depth image's central
+    differences (one-sided at the image border) of the view with intrinsics ``K`` [px] and
+    orientation ``R_world_cam``. Only the bounding box of the shadow is computed.
     """
     rows = np.flatnonzero(shadow.any(axis=1))
     cols = np.flatnonzero(shadow.any(axis=0))
@@ -285,19 +288,27 @@ def _darken(rgb: np.ndarray, shadow: np.ndarray, pts: np.ndarray, lighting: Ligh
     c0, c1 = int(cols[0]), int(cols[-1]) + 1
     h, w = shadow.shape
     # the box and a one-pixel border (edge-replicated at the image border)
-    p = pts[max(r0 - 1, 0) : min(r1 + 1, h), max(c0 - 1, 0) : min(c1 + 1, w)]
-    pad = ((int(r0 == 0), int(r1 == h)), (int(c0 == 0), int(c1 == w)), (0, 0))
-    if any(any(v) for v in pad[:2]):
-        p = np.pad(p, pad, mode="edge")
-    du = p[1:-1, 2:] - p[1:-1, :-2]
-    dv = p[2:, 1:-1] - p[:-2, 1:-1]
-    # n = dv x du points toward the camera (the optical frame has y down)
-    nx = dv[..., 1] * du[..., 2] - dv[..., 2] * du[..., 1]
-    ny = dv[..., 2] * du[..., 0] - dv[..., 0] * du[..., 2]
-    nz = dv[..., 0] * du[..., 1] - dv[..., 1] * du[..., 0]
-    sx, sy, sz = (np.float32(v) for v in lighting.sun_direction)
-    norm = np.sqrt(nx * nx + ny * ny + nz * nz)
-    cos_i = np.clip((sx * nx + sy * ny + sz * nz) / np.maximum(norm, np.float32(1e-30)), 0.0, 1.0)
+    z = depth[max(r0 - 1, 0) : min(r1 + 1, h), max(c0 - 1, 0) : min(c1 + 1, w)]
+    pad = ((int(r0 == 0), int(r1 == h)), (int(c0 == 0), int(c1 == w)))
+    if any(any(v) for v in pad):
+        z = np.pad(z, pad, mode="edge")
+    # dZ/dx and dZ/dy [m/px]: central differences, one-sided where the border was replicated
+    kx = np.full(c1 - c0, 0.5, np.float32)
+    ky = np.full((r1 - r0, 1), 0.5, np.float32)
+    kx[[0, -1]] += 0.5 * np.array(pad[1], np.float32)
+    ky[[0, -1], 0] += 0.5 * np.array(pad[0], np.float32)
+    zx = (z[1:-1, 2:] - z[1:-1, :-2]) * kx
+    zy = (z[2:, 1:-1] - z[:-2, 1:-1]) * ky
+    z = z[1:-1, 1:-1]
+    x = ((np.arange(c0, c1) - K[0, 2]) / K[0, 0]).astype(np.float32)  # normalised image coordinates
+    y = ((np.arange(r0, r1) - K[1, 2]) / K[1, 1]).astype(np.float32)[:, None]
+    # the surface P = Z (x, y, 1) has the normal dP/dx x dP/dy ~ (-a, -b, nz) below, which points
+    # away from the camera; its negative is lit
+    a, b = np.float32(K[0, 0]) * zx, np.float32(K[1, 1]) * zy
+    nz = a * x + b * y + z
+    sx, sy, sz = (np.float32(v) for v in R_world_cam.T @ lighting.sun_direction)  # optical frame
+    norm = np.sqrt(a * a + b * b + nz * nz)
+    cos_i = np.clip((sx * a + sy * b - sz * nz) / np.maximum(norm, np.float32(1e-30)), 0.0, 1.0)
     a, d = np.float32(lighting.ambient), np.float32(lighting.diffuse)
     box = shadow[r0:r1, c0:c1]
     factor = np.where(box, a / (a + d * cos_i), np.float32(1.0))

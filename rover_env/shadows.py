@@ -251,6 +251,31 @@ class ShadowMap:
     M: np.ndarray
     bias: float
 
+    def lookup_view(self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
+        """:meth:`lookup` of the surface points of a pinhole view, from its depth image.
+
+        Args:
+            depth: (H, W) float32 distance along the optical axis [m].
+            K: The view's intrinsics [px].
+            T_world_cam: Pose of the view's optical frame in the world [m].
+
+        Returns:
+            (H, W) bool, True where the body lies sunward of the pixel's surface point.
+        """
+        h, w = depth.shape
+        # a pixel's point is t + depth R K^-1 (x, y, 1): its map coordinates are affine in it
+        A = self.M[:, :3] @ T_world_cam[:3, :3] @ np.linalg.inv(K)
+        b = self.M[:, :3] @ T_world_cam[:3, 3] + self.M[:, 3]
+        b[2] += self.bias
+        xs, ys = np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)[:, None]
+        uvw = [
+            (np.float32(a[0]) * xs + (np.float32(a[1]) * ys + np.float32(a[2]))) * depth + np.float32(c)
+            for a, c in zip(A, b, strict=True)
+        ]
+        caster_w = cv2.remap(self.front, uvw[0], uvw[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=-np.inf)  # fmt: skip
+        return caster_w > uvw[2]
+
     def lookup(self, points_world: np.ndarray) -> np.ndarray:
         """(...) bool: True where the body lies sunward of the points (..., 3) [m]."""
         pts = np.asarray(points_world, dtype=np.float32)

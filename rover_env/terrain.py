@@ -136,7 +136,9 @@ class Terrain:
         self._chunks: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual body
         self._chunk_shapes: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual shape
         self._shown: dict[int, bool] = {}  # body -> drawn (alpha 1) or hidden (alpha 0)
-        self._focused: set[tuple[int, int]] = set()  # chunks that the last focus() draws
+        # bodies of the rough-ground chunks that the last focus() draws, and their (n, 8, 3) world
+        # bounding-box corners
+        self._focused: tuple[list[int], np.ndarray] = ([], np.zeros((0, 8, 3)))
         self._boxes: dict[tuple[int, int], np.ndarray] = {}  # chunk -> (8, 3) world bounding-box corners
         if cfg.kind == "rough":
             self.xs, self.ys, self.heights = make_heights(cfg)
@@ -241,9 +243,17 @@ class Terrain:
             self._shown[body] = True
             self._chunks[key] = body
         self._show(self.body_id, near is None)
-        self._focused = {k for k in self._chunks if near is None or dist.get(k, math.inf) <= near}
+        focused = [k for k in self._chunks if near is None or dist.get(k, math.inf) <= near]
         for key, body in self._chunks.items():
-            self._show(body, key in self._focused)
+            self._show(body, near is None or dist.get(key, math.inf) <= near)
+        if not flat:
+            for key in focused:
+                if key not in self._boxes:
+                    self._boxes[key] = self._chunk_box(key)
+        if not flat and focused:
+            self._focused = ([self._chunks[k] for k in focused], np.array([self._boxes[k] for k in focused]))
+        else:
+            self._focused = ([], np.zeros((0, 8, 3)))
 
     def cull(self, planes: np.ndarray) -> None:
         """Of the chunks that :meth:`focus` draws, draw only those that may be inside a view.
@@ -256,14 +266,12 @@ class Terrain:
             planes: (k, 4) half-spaces n . x + d >= 0 (world frame [m]) whose intersection holds
                 the view (:func:`rover_env.rendering.view_planes`).
         """
-        if self.heights is None:
+        bodies, boxes = self._focused
+        if self.heights is None or not bodies:
             return
-        for key in self._focused:
-            box = self._boxes.get(key)
-            if box is None:
-                box = self._boxes[key] = self._chunk_box(key)
-            inside = box @ planes[:, :3].T + planes[:, 3] >= 0.0  # (8, k)
-            self._show(self._chunks[key], bool(inside.any(axis=0).all()))
+        inside = boxes @ planes[:, :3].T + planes[:, 3] >= 0.0  # (chunks, 8 corners, k planes)
+        for body, on in zip(bodies, inside.any(axis=1).all(axis=1).tolist(), strict=True):
+            self._show(body, on)
 
     def _chunk_slices(self, key: tuple[int, int]) -> tuple[slice, slice]:
         """Grid-point slices (along x, along y) of rough-ground chunk ``key``."""
@@ -326,6 +334,7 @@ class Terrain:
         for body in self._chunks.values():
             self._client.removeBody(body)
         self._chunks.clear()
+        self._focused = ([], np.zeros((0, 8, 3)))
         self._shown = {b: v for b, v in self._shown.items() if b == self.body_id}
         self._show(self.body_id, True)
 
