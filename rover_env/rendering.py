@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import pybullet as pb
 
@@ -185,9 +186,10 @@ def _camera_image(client, size, view, proj, lighting: Lighting, renderer: str = 
         flags=pb.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX if segmentation else pb.ER_NO_SEGMENTATION_MASK,
     )
     rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (h, w, 4))
+    rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
     depth = np.reshape(np.asarray(img[3], dtype=np.float32), (h, w))
     seg = np.reshape(np.asarray(img[4], dtype=np.int32), (h, w)) if segmentation else None
-    return rgba[:, :, :3], depth, seg
+    return rgb, depth, seg
 
 
 def render_pinhole(
@@ -269,14 +271,14 @@ def render_K(
         if shadow_map is not None:
             view.shadow = shadow_map.lookup_view(depth, K, view.T_world_cam) & hit
         if view.shadow.any():
-            view.rgb = _darken(rgb, view.shadow, depth, K, view.T_world_cam[:3, :3], lighting)
+            _darken(rgb, view.shadow, depth, K, view.T_world_cam[:3, :3], lighting)
     return view
 
 
 def _darken(
     rgb: np.ndarray, shadow: np.ndarray, depth: np.ndarray, K: np.ndarray, R_world_cam: np.ndarray, lighting
-) -> np.ndarray:
-    """Scale shadowed pixels from ambient + diffuse cos(i) to ambient only.
+) -> None:
+    """Scale shadowed pixels of ``rgb`` (in place) from ambient + diffuse cos(i) to ambient only.
 
     The incidence cosine comes from surface normals estimated from the depth image's central
     differences (one-sided at the image border) of the view with intrinsics ``K`` [px] and
@@ -291,7 +293,7 @@ def _darken(
     z = depth[max(r0 - 1, 0) : min(r1 + 1, h), max(c0 - 1, 0) : min(c1 + 1, w)]
     pad = ((int(r0 == 0), int(r1 == h)), (int(c0 == 0), int(c1 == w)))
     if any(any(v) for v in pad):
-        z = np.pad(z, pad, mode="edge")
+        z = cv2.copyMakeBorder(z, *pad[0], *pad[1], cv2.BORDER_REPLICATE)
     # dZ/dx and dZ/dy [m/px]: central differences, one-sided where the border was replicated
     kx = np.full(c1 - c0, 0.5, np.float32)
     ky = np.full((r1 - r0, 1), 0.5, np.float32)
@@ -312,6 +314,4 @@ def _darken(
     a, d = np.float32(lighting.ambient), np.float32(lighting.diffuse)
     box = shadow[r0:r1, c0:c1]
     factor = np.where(box, a / (a + d * cos_i), np.float32(1.0))
-    out = rgb.copy()
-    out[r0:r1, c0:c1] = np.clip(rgb[r0:r1, c0:c1] * factor[:, :, None] + 0.5, 0, 255).astype(np.uint8)
-    return out
+    rgb[r0:r1, c0:c1] = cv2.convertScaleAbs(rgb[r0:r1, c0:c1] * factor[:, :, None])  # rounded

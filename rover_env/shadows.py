@@ -264,7 +264,9 @@ class ShadowMap:
         """
         h, w = depth.shape
         # a pixel's point is t + depth R K^-1 (x, y, 1): its map coordinates are affine in it
-        A = self.M[:, :3] @ T_world_cam[:3, :3] @ np.linalg.inv(K)
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        K_inv = np.array([[1 / fx, 0.0, -cx / fx], [0.0, 1 / fy, -cy / fy], [0.0, 0.0, 1.0]])
+        A = self.M[:, :3] @ T_world_cam[:3, :3] @ K_inv
         b = self.M[:, :3] @ T_world_cam[:3, 3] + self.M[:, 3]
         b[2] += self.bias
         xs, ys = np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)[:, None]
