@@ -163,7 +163,7 @@ def rigid_ransac(
     """Largest set of 2-D points that move as one rigid pattern from ``P`` to ``C`` (eqs. 10-17).
 
     Each iteration samples ``sample_size`` pairs, subtracts their centroids, takes the rotation
-    R = U V^T from the SVD of the covariance c' p'^T / n_s, and counts the points whose error
+    R = U V^T from the SVD of the covariance c' p'^T / n_s (in closed form), and counts the points whose error
     C' - R P' (all points about the sample centroids) is under ``threshold``. The iterations are
     evaluated together as arrays; the first sample with the most inliers wins.
 
@@ -185,19 +185,24 @@ def rigid_ransac(
         return np.zeros(n, dtype=bool)
     rng = rng or np.random.default_rng(0)
     # all iterations at once: (iterations, sample_size) indices, distinct within a sample
-    s = np.argsort(rng.random((iterations, n)), axis=1)[:, :sample_size]
+    s = np.argpartition(rng.random((iterations, n)), sample_size - 1, axis=1)[:, :sample_size]
     p_bar, c_bar = P[s].mean(axis=1), C[s].mean(axis=1)  # eqs. 10-11
     p_s = P[s] - p_bar[:, None]  # eq. 12
     c_s = C[s] - c_bar[:, None]
-    sigma = np.einsum("kia,kib->kab", c_s, p_s) / sample_size  # eq. 14: c' p'^T / n_s
-    U, _, Vt = np.linalg.svd(sigma)  # eq. 15
-    R = U @ Vt  # eq. 16
-    flip = np.linalg.det(R) < 0  # a reflection is not a motion
-    U[flip, :, -1] *= -1
-    R[flip] = U[flip] @ Vt[flip]
+    # eqs. 14-16: the rotation U V^T from the SVD of c' p'^T, with a reflection turned into a
+    # rotation, is in 2-D the angle atan2(sum p' x c', sum p' . c')
+    cos = np.einsum("kia,kia->k", p_s, c_s)
+    sin = np.einsum("ki,ki->k", p_s[..., 0], c_s[..., 1]) - np.einsum("ki,ki->k", p_s[..., 1], c_s[..., 0])
+    norm = np.hypot(cos, sin)
+    cos, sin = (
+        np.where(norm > 0, cos / np.where(norm > 0, norm, 1.0), 1.0),
+        np.where(norm > 0, sin / norm, 0.0),
+    )
     # eq. 17: C' - R P', all points about the sample centroids
-    err = (C[None] - c_bar[:, None]) - np.einsum("kab,knb->kna", R, P[None] - p_bar[:, None])
-    inl = np.einsum("kna,kna->kn", err, err) < threshold**2
+    dx, dy = P[:, 0] - p_bar[:, :1], P[:, 1] - p_bar[:, 1:]  # (iterations, n)
+    ex = C[:, 0] - c_bar[:, :1] - (cos[:, None] * dx - sin[:, None] * dy)
+    ey = C[:, 1] - c_bar[:, 1:] - (sin[:, None] * dx + cos[:, None] * dy)
+    inl = ex * ex + ey * ey < threshold**2
     return inl[int(np.argmax(inl.sum(axis=1)))]
 
 

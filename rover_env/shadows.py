@@ -135,16 +135,18 @@ class ShadowCaster:
         self.body_id = body_id
         self.shapes = body_shapes(client, body_id)
         self._links = sorted({s.link for s in self.shapes if s.link >= 0})
-        self._last: tuple[np.ndarray, np.ndarray, float, ShadowMap] | None = None  # (poses, sun, texel, map)
+        self._last: tuple[tuple, tuple, float, ShadowMap] | None = None  # (poses, sun, texel, map)
 
-    def _link_poses(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    def _link_poses(self) -> tuple[tuple, dict[int, tuple[np.ndarray, np.ndarray]]]:
+        """(PyBullet's raw poses, link -> (rotation, position) in the world) of every casting link."""
         c = self.client
+        base = c.getBasePositionAndOrientation(self.body_id)
+        states = c.getLinkStates(self.body_id, self._links) if self._links else []
+        raw = (base, *((st[4], st[5]) for st in states))
         out = {}
-        pos, quat = c.getBasePositionAndOrientation(self.body_id)
-        out[-1] = (np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3), np.asarray(pos))
-        for link, st in zip(self._links, c.getLinkStates(self.body_id, self._links), strict=True):
-            out[link] = (np.array(c.getMatrixFromQuaternion(st[5])).reshape(3, 3), np.asarray(st[4]))
-        return out
+        for link, (pos, quat) in zip((-1, *self._links), raw, strict=True):
+            out[link] = (np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3), np.asarray(pos))
+        return raw, out
 
     def mask(self, points_world: np.ndarray, sun_direction, texel: float) -> np.ndarray:
         """Whether the body blocks the sun at each world point (builds a map, then looks up).
@@ -169,27 +171,22 @@ class ShadowCaster:
         """
         if not texel > 0:
             raise ValueError(f"texel: {texel!r} m must be > 0")
-        poses = self._link_poses()
+        key, poses = self._link_poses()
         # the cameras of one instant share a map: reuse the last one if nothing moved and its
         # cells are at least as fine
-        key = np.concatenate([np.r_[R.ravel(), t] for R, t in poses.values()])
-        sun = np.asarray(sun_direction, dtype=np.float64)
+        sun = tuple(float(v) for v in sun_direction)
         last = self._last
-        if (
-            last is not None
-            and last[2] <= texel
-            and np.array_equal(last[0], key)
-            and np.array_equal(last[1], sun)
-        ):
+        if last is not None and last[2] <= texel and last[0] == key and last[1] == sun:
             return last[3]
-        xs, ys, s = sun_frame(sun_direction)
+        xs, ys, s = sun_frame(sun)
+        across = np.stack([xs, ys], 1)
         o = poses[-1][1]
         world = []
         for sh in self.shapes:
             R, t = poses[sh.link]
             n = sh.normals @ R.T
-            d = sh.offsets + n @ t - n @ o
-            v = (sh.vertices @ R.T + t - o) @ np.stack([xs, ys], 1)
+            d = sh.offsets + n @ (t - o)
+            v = (sh.vertices @ R.T + (t - o)) @ across
             world.append((n, d, v))
         allv = np.concatenate([w[2] for w in world]) if world else np.zeros((1, 2))
         # the map covers the body's cross-section seen along the sun: bounded by its size
