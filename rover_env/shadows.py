@@ -17,6 +17,7 @@ sun are still darkened by the renderer's diffuse term).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,21 +106,50 @@ def body_shapes(client, body_id: int) -> list[ConvexShape]:
 
 
 def sun_frame(sun_direction) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Orthonormal (x_s, y_s, s): s toward the sun, x_s horizontal."""
+    """Orthonormal (x_s, y_s, s): s toward the sun, x_s horizontal (read-only arrays)."""
+    return _sun_frame(tuple(float(v) for v in np.ravel(sun_direction)))
+
+
+@functools.lru_cache(maxsize=16)
+def _sun_frame(sun_direction: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     s = np.asarray(sun_direction, dtype=np.float64)
     s = s / np.linalg.norm(s)
     up = np.array([0.0, 0.0, 1.0]) if abs(s[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
     x = np.cross(up, s)
     x /= np.linalg.norm(x)
-    return x, np.cross(s, x), s
+    out = (x, np.cross(s, x), s)
+    for v in out:
+        v.setflags(write=False)
+    return out
 
 
-def _lowest(p: np.ndarray, q: np.ndarray, r: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """Min over k of p_k - q_k U - r_k V on the grid U (1, 1, nu) x V (1, nv, 1), float32."""
-    p, q, r = (x.astype(np.float32)[:, None, None] for x in (p, q, r))
-    out = p - r * V
-    out = out - q * U
-    return out.min(axis=0)
+@dataclass(frozen=True)
+class _StackedShapes:
+    """The planes and vertices of all shapes in flat arrays (link frames), for batched transforms."""
+
+    links: tuple[int, ...]  # each shape's link
+    normals: np.ndarray  # (planes, 3)
+    offsets: np.ndarray  # (planes,)
+    plane_shape: np.ndarray  # (planes,) index of the plane's shape
+    vertices: np.ndarray  # (vertices, 3)
+    vertex_shape: np.ndarray  # (vertices,)
+    vertex_start: np.ndarray  # (shapes,) first vertex of each shape
+
+    @classmethod
+    def of(cls, shapes: list[ConvexShape]) -> _StackedShapes:
+        if not shapes:
+            raise ValueError("the body has no visual shape to cast a shadow")
+        k = np.arange(len(shapes))
+        counts = [len(sh.vertices) for sh in shapes]
+        return cls(
+            tuple(sh.link for sh in shapes),
+            np.concatenate([sh.normals for sh in shapes]),
+            np.concatenate([sh.offsets for sh in shapes]),
+            np.repeat(k, [len(sh.normals) for sh in shapes]),
+            np.concatenate([sh.vertices for sh in shapes]),
+            np.repeat(k, counts),
+            np.cumsum([0, *counts[:-1]]),
+        )
 
 
 class ShadowCaster:
@@ -135,6 +165,7 @@ class ShadowCaster:
         self.body_id = body_id
         self.shapes = body_shapes(client, body_id)
         self._links = sorted({s.link for s in self.shapes if s.link >= 0})
+        self._stacked = _StackedShapes.of(self.shapes)
         self._last: tuple[tuple, tuple, float, ShadowMap] | None = None  # (poses, sun, texel, map)
 
     def _link_poses(self) -> tuple[tuple, dict[int, tuple[np.ndarray, np.ndarray]]]:
@@ -179,44 +210,56 @@ class ShadowCaster:
         if last is not None and last[2] <= texel and last[0] == key and last[1] == sun:
             return last[3]
         xs, ys, s = sun_frame(sun)
-        across = np.stack([xs, ys], 1)
         o = poses[-1][1]
-        world = []
-        for sh in self.shapes:
-            R, t = poses[sh.link]
-            n = sh.normals @ R.T
-            d = sh.offsets + n @ (t - o)
-            v = (sh.vertices @ R.T + (t - o)) @ across
-            world.append((n, d, v))
-        allv = np.concatenate([w[2] for w in world]) if world else np.zeros((1, 2))
+        st = self._stacked
+        R = np.stack([poses[link][0] for link in st.links])  # (shapes, 3, 3)
+        t = np.stack([poses[link][1] for link in st.links]) - o
+        # every plane and vertex in the world, about o: sun frame coordinates
+        n = np.einsum("kij,kj->ki", R[st.plane_shape], st.normals)
+        d = st.offsets + np.einsum("ki,ki->k", n, t[st.plane_shape])
+        abc = n @ np.stack([xs, ys, s], 1)  # plane k: a u + b v + c w <= d
+        uv = (np.einsum("kij,kj->ki", R[st.vertex_shape], st.vertices) + t[st.vertex_shape]) @ np.stack(
+            [xs, ys], 1
+        )
         # the map covers the body's cross-section seen along the sun: bounded by its size
-        u0, v0 = allv.min(axis=0) - texel
-        u1, v1 = allv.max(axis=0) + texel
+        u0, v0 = uv.min(axis=0) - texel
+        u1, v1 = uv.max(axis=0) + texel
         nu = int(math.ceil((u1 - u0) / texel))
         nv = int(math.ceil((v1 - v0) / texel))
         if nu * nv > 16_000_000:
             raise ValueError(f"texel: {texel:g} m makes a {nu}x{nv} shadow map; use a coarser texel")
+        lo = np.minimum.reduceat(uv, st.vertex_start)
+        hi = np.maximum.reduceat(uv, st.vertex_start)
+        i0 = np.maximum(0, np.floor((lo[:, 0] - u0) / texel)).astype(int).tolist()
+        i1 = np.minimum(nu, np.ceil((hi[:, 0] - u0) / texel) + 1).astype(int).tolist()
+        j0 = np.maximum(0, np.floor((lo[:, 1] - v0) / texel)).astype(int).tolist()
+        j1 = np.minimum(nv, np.ceil((hi[:, 1] - v0) / texel) + 1).astype(int).tolist()
+        U = (u0 + (np.arange(nu) + 0.5) * texel).astype(np.float32)  # cell centres
+        V = (v0 + (np.arange(nv) + 0.5) * texel).astype(np.float32)[:, None]
+        # planes facing the sun bound w from above (w <= p - q u - r v), those facing away from
+        # below; planes along the sun bound (u, v) (d - a u - b v >= 0). The shape's sun-facing
+        # surface is the lowest upper bound, where it lies above every lower bound.
+        a, b, c = abc.T
+        kind = np.where(c > 1e-9, 0, np.where(c < -1e-9, 1, 2))
+        order = np.lexsort((kind, st.plane_shape))
+        a, b, c, d, kind = a[order], b[order], c[order], d[order], kind[order]
+        along = kind == 2
+        c = np.where(along, 1.0, c)
+        p, q, r = (x.astype(np.float32)[:, None, None] for x in (d / c, a / c, b / c))
+        bounds = np.searchsorted(st.plane_shape[order] * 3 + kind, np.arange(3 * len(st.links) + 1)).tolist()
         front = np.full((nv, nu), -np.inf, dtype=np.float32)
-        for n, d, v in world:
-            i0 = max(0, int(math.floor((v[:, 0].min() - u0) / texel)))
-            i1 = min(nu, int(math.ceil((v[:, 0].max() - u0) / texel)) + 1)
-            j0 = max(0, int(math.floor((v[:, 1].min() - v0) / texel)))
-            j1 = min(nv, int(math.ceil((v[:, 1].max() - v0) / texel)) + 1)
-            if i1 <= i0 or j1 <= j0:
+        for k in range(len(st.links)):
+            if i1[k] <= i0[k] or j1[k] <= j0[k]:
                 continue
-            U = (u0 + (np.arange(i0, i1) + 0.5) * texel).astype(np.float32)[None, None, :]
-            V = (v0 + (np.arange(j0, j1) + 0.5) * texel).astype(np.float32)[None, :, None]
-            a, b, c = n @ xs, n @ ys, n @ s
-            # plane k: a u + b v + c w <= d, so w <= (d - a u - b v) / c where c > 0 (faces the
-            # sun) and w >= ... where c < 0; the shape's sun-facing surface is the lowest bound
-            up, down, side = c > 1e-9, c < -1e-9, np.abs(c) <= 1e-9
-            w_hi = _lowest(d[up] / c[up], a[up] / c[up], b[up] / c[up], U, V)
+            Uk, Vk = U[i0[k] : i1[k]], V[j0[k] : j1[k]]
+            up, down, side = (slice(bounds[3 * k + m], bounds[3 * k + m + 1]) for m in range(3))
+            w_hi = (p[up] - r[up] * Vk - q[up] * Uk).min(axis=0)
             inside = np.ones(w_hi.shape, dtype=bool)
-            if down.any():
-                inside &= -_lowest(-d[down] / c[down], -a[down] / c[down], -b[down] / c[down], U, V) <= w_hi
-            if side.any():
-                inside &= _lowest(d[side], a[side], b[side], U, V) >= 0
-            crop = front[j0:j1, i0:i1]
+            if down.stop > down.start:
+                inside &= (p[down] - r[down] * Vk - q[down] * Uk).max(axis=0) <= w_hi
+            if side.stop > side.start:
+                inside &= (p[side] - r[side] * Vk - q[side] * Uk).min(axis=0) >= 0
+            crop = front[j0[k] : j1[k], i0[k] : i1[k]]
             np.maximum(crop, np.where(inside, w_hi, -np.inf), out=crop)
         # world point -> (map column, map row, height toward the sun); cell centres at integers
         M = np.zeros((3, 4))
