@@ -139,6 +139,7 @@ class Terrain:
         # bodies of the rough-ground chunks that the last focus() draws, and their (n, 8, 3) world
         # bounding-box corners
         self._focused: tuple[list[int], np.ndarray] = ([], np.zeros((0, 8, 3)))
+        self._focus_key: tuple | None = None  # (x, y, near) of the last focus()
         self._boxes: dict[tuple[int, int], np.ndarray] = {}  # chunk -> (8, 3) world bounding-box corners
         if cfg.kind == "rough":
             self.xs, self.ys, self.heights = make_heights(cfg)
@@ -203,6 +204,11 @@ class Terrain:
         """
         if near is not None and not 0.0 < near <= FINE_RADIUS:
             raise ValueError(f"near: {near!r} m; use 0 < near <= FINE_RADIUS ({FINE_RADIUS} m) or None")
+        if (x, y, near) == self._focus_key:  # the same views' place: undo only their culling
+            for body in self._focused[0]:
+                self._show(body, True)
+            return
+        self._focus_key = (x, y, near)
         flat = self.heights is None
         if flat and near is None:  # the far body alone draws flat ground exactly
             self._show(self.body_id, True)
@@ -335,6 +341,7 @@ class Terrain:
             self._client.removeBody(body)
         self._chunks.clear()
         self._focused = ([], np.zeros((0, 8, 3)))
+        self._focus_key = None
         self._shown = {b: v for b, v in self._shown.items() if b == self.body_id}
         self._show(self.body_id, True)
 
