@@ -44,11 +44,13 @@ def view_planes(K: np.ndarray, size: tuple[int, int], T_world_cam: np.ndarray, n
     [px] as in :func:`render_K`, ``near`` [m].
     """
     w, h = size
-    corners = np.array([[0.0, 0.0, 1.0], [w, 0.0, 1.0], [w, h, 1.0], [0.0, h, 1.0]])
-    rays = np.linalg.solve(K, corners.T).T @ T_world_cam[:3, :3].T  # world directions
-    o, z = T_world_cam[:3, 3], T_world_cam[:3, 2]
+    x0, x1 = -K[0, 2] / K[0, 0], (w - K[0, 2]) / K[0, 0]  # normalised image coordinates of the edges
+    y0, y1 = -K[1, 2] / K[1, 1], (h - K[1, 2]) / K[1, 1]
+    R = T_world_cam[:3, :3]
+    rays = np.array([[x0, y0, 1.0], [x1, y0, 1.0], [x1, y1, 1.0], [x0, y1, 1.0]]) @ R.T  # world directions
+    o, z = T_world_cam[:3, 3], R[:, 2]
     planes = np.empty((5, 4))
-    n = np.cross(rays, np.roll(rays, -1, axis=0))
+    n = np.cross(rays, rays[[1, 2, 3, 0]])
     planes[:4, :3] = n * np.sign(n @ z)[:, None]  # toward the optical axis
     planes[4, :3] = z
     planes[:, 3] = -(planes[:, :3] @ o)
