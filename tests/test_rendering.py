@@ -157,6 +157,20 @@ def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
     assert acne < 2.0  # no acne on lit ground
 
 
+def test_shadow_lookup_from_depth_matches_the_lookup_of_3d_points(parked_sim):
+    sim = parked_sim
+    cam = mast_camera(sim)
+    T_wc = body_pose(sim) @ cam.T_body_cam
+    sun = sun_behind(sim, 30.0)
+    view = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False))
+    smap = sim.shadow_caster.shadow_map(sun, 0.005)
+    from_points = smap.lookup(view.points_world)
+    from_depth = smap.lookup_view(view.depth, cam.K, T_wc)
+    print(f"shadowed {from_points.mean():.3f}; paths differ on {(from_points != from_depth).sum()} pixels")
+    assert 0.1 < from_points.mean() < 0.9
+    assert (from_points != from_depth).mean() < 1e-3  # cell-border rounding only
+
+
 def test_homography_turns_image_motion_of_a_known_displacement_into_metres(parked_sim):
     """Move the rover 8 cm forward and 3 cm left; measure the texture's image shift by phase
     correlation and convert both ends through H^-1 into body-frame metres."""
