@@ -163,8 +163,9 @@ def rigid_ransac(
     """Largest set of 2-D points that move as one rigid pattern from ``P`` to ``C`` (eqs. 10-17).
 
     Each iteration samples ``sample_size`` pairs, subtracts their centroids, takes the rotation
-    R = U V^T from the SVD of the covariance c' p'^T / n_s (in closed form), and counts the points whose error
-    C' - R P' (all points about the sample centroids) is under ``threshold``. The iterations are
+    R = U V^T from the SVD of the covariance c' p'^T / n_s (in its 2-D closed form), and counts
+    the points whose error C' - R P' (all points about the sample centroids) is under
+    ``threshold``. The iterations are
     evaluated together as arrays; the first sample with the most inliers wins.
 
     Args:
@@ -191,13 +192,10 @@ def rigid_ransac(
     c_s = C[s] - c_bar[:, None]
     # eqs. 14-16: the rotation U V^T from the SVD of c' p'^T, with a reflection turned into a
     # rotation, is in 2-D the angle atan2(sum p' x c', sum p' . c')
-    cos = np.einsum("kia,kia->k", p_s, c_s)
-    sin = np.einsum("ki,ki->k", p_s[..., 0], c_s[..., 1]) - np.einsum("ki,ki->k", p_s[..., 1], c_s[..., 0])
-    norm = np.hypot(cos, sin)
-    cos, sin = (
-        np.where(norm > 0, cos / np.where(norm > 0, norm, 1.0), 1.0),
-        np.where(norm > 0, sin / norm, 0.0),
-    )
+    dot = np.einsum("kia,kia->k", p_s, c_s)
+    cross = np.einsum("ki,ki->k", p_s[..., 0], c_s[..., 1]) - np.einsum("ki,ki->k", p_s[..., 1], c_s[..., 0])
+    theta = np.arctan2(cross, dot)  # 0 for coincident points
+    cos, sin = np.cos(theta), np.sin(theta)
     # eq. 17: C' - R P', all points about the sample centroids
     dx, dy = P[:, 0] - p_bar[:, :1], P[:, 1] - p_bar[:, 1:]  # (iterations, n)
     ex = C[:, 0] - c_bar[:, :1] - (cos[:, None] * dx - sin[:, None] * dy)

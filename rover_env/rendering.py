@@ -278,7 +278,12 @@ def render_K(
 
 
 def _darken(
-    rgb: np.ndarray, shadow: np.ndarray, depth: np.ndarray, K: np.ndarray, R_world_cam: np.ndarray, lighting
+    rgb: np.ndarray,
+    shadow: np.ndarray,
+    depth: np.ndarray,
+    K: np.ndarray,
+    R_world_cam: np.ndarray,
+    lighting: Lighting,
 ) -> None:
     """Scale shadowed pixels of ``rgb`` (in place) from ambient + diffuse cos(i) to ambient only.
 

@@ -251,15 +251,13 @@ class Terrain:
         self._show(self.body_id, near is None)
         focused = [k for k in self._chunks if near is None or dist.get(k, math.inf) <= near]
         for key, body in self._chunks.items():
-            self._show(body, near is None or dist.get(key, math.inf) <= near)
-        if not flat:
+            self._show(body, key in focused)
+        self._focused = ([], np.zeros((0, 8, 3)))
+        if not flat and focused:
             for key in focused:
                 if key not in self._boxes:
                     self._boxes[key] = self._chunk_box(key)
-        if not flat and focused:
             self._focused = ([self._chunks[k] for k in focused], np.array([self._boxes[k] for k in focused]))
-        else:
-            self._focused = ([], np.zeros((0, 8, 3)))
 
     def cull(self, planes: np.ndarray) -> None:
         """Of the chunks that :meth:`focus` draws, draw only those that may be inside a view.

@@ -196,6 +196,28 @@ def test_ransac_returns_the_ground_set_when_45_percent_of_tracks_are_locked_to_t
     assert np.array_equal(inl, truth)
 
 
+def test_ransac_closed_form_rotation_picks_the_inliers_of_the_papers_svd():
+    """Eqs. 14-16 by SVD (with a reflection made a rotation), sample by sample, give the same masks."""
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        n = int(rng.integers(3, 120))
+        P = rng.normal(scale=0.3, size=(n, 2))
+        th = rng.normal(scale=0.1)
+        R = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+        C = P @ R.T + rng.normal(scale=0.05, size=2) + rng.normal(scale=0.002, size=(n, 2))
+        if trial % 5 == 0:
+            C[:, 0] *= -1  # mirrored: every sample's SVD has a reflection to correct
+        # the reference: the same samples, rotations by SVD
+        s = np.argsort(np.random.default_rng(trial).random((100, n)), axis=1)[:, :3]
+        p_bar, c_bar = P[s].mean(axis=1), C[s].mean(axis=1)
+        U, _, Vt = np.linalg.svd(np.einsum("kia,kib->kab", C[s] - c_bar[:, None], P[s] - p_bar[:, None]))
+        U[np.linalg.det(U @ Vt) < 0, :, -1] *= -1
+        err = (C[None] - c_bar[:, None]) - np.einsum("kab,knb->kna", U @ Vt, P[None] - p_bar[:, None])
+        ref = np.einsum("kna,kna->kn", err, err) < 0.004**2
+        expected = ref[int(np.argmax(ref.sum(axis=1)))]
+        assert np.array_equal(rigid_ransac(P, C, 0.004, 100, np.random.default_rng(trial)), expected)
+
+
 def test_velocity_least_squares_is_exact_for_a_rigid_motion():
     rng = np.random.default_rng(4)
     P = rng.uniform([0.5, -0.6], [1.4, 0.6], size=(30, 2))
