@@ -365,9 +365,9 @@ def render_fisheye(
         labels: Also remap segmentation, shadow and 3-D points (for tests and evaluation).
         near: Near clipping distance [m].
         far: Far clipping distance [m].
-        renderer: ``"tiny"`` or ``"egl"`` (see :func:`rover_env.rendering.render_pinhole`).
+        renderer: ``"tiny"`` or ``"egl"`` (see :func:`rover_env.rendering.render_K`).
         cull: Called with each face's view planes before it is rendered (see
-            :func:`rover_env.rendering.render_pinhole`).
+            :func:`rover_env.rendering.render_K`).
     """
     shadow_map = None
     if lighting.shadows:

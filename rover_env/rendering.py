@@ -195,41 +195,16 @@ def _camera_image(client, size, view, proj, lighting: Lighting, renderer: str = 
 
 
 def render_pinhole(
-    client,
-    camera: PinholeCamera,
-    T_world_cam: np.ndarray,
-    lighting: Lighting,
-    near: float = 0.05,
-    far: float = 20.0,
-    caster: ShadowCaster | None = None,
-    shadow_map: ShadowMap | None = None,
-    renderer: str = "tiny",
-    segmentation: bool = True,
-    cull=None,
+    client, camera: PinholeCamera, T_world_cam: np.ndarray, lighting: Lighting, **options
 ) -> RenderedView:
     """Render an ideal pinhole view (distortion is not rendered) with sun shadows.
 
-    Args:
-        client: The environment's BulletClient.
-        camera: Intrinsics and image size (its distortion must be zero).
-        T_world_cam: Pose of the camera optical frame in the world [m].
-        lighting: Sun and shadow settings.
-        near: Near clipping distance [m].
-        far: Far clipping distance [m].
-        caster: The shadow-casting body; with ``lighting.shadows`` on, this or ``shadow_map``.
-        shadow_map: A shadow map already built for this instant (several views of one frame).
-        renderer: ``"tiny"`` (TinyRenderer, sun lighting) or ``"egl"`` (the EGL plugin must be
-            loaded into ``client``; no sun direction, so no shadows: ``lighting.shadows`` must be off).
-        segmentation: Also return the segmentation labels.
-        cull: Called with the view's :func:`view_planes` before it is rendered (for example
-            :meth:`rover_env.terrain.Terrain.cull`, which leaves out ground the view cannot see).
+    ``camera`` gives the intrinsics and image size (its distortion must be zero); the other
+    arguments and ``options`` are those of :func:`render_K`.
     """
     if np.any(camera.distortion):
         raise ValueError("render_pinhole renders ideal pinhole images; use a camera with zero distortion")
-    return render_K(
-        client, camera.K, camera.image_size, T_world_cam, lighting, near, far, caster, shadow_map, renderer,
-        segmentation, cull,
-    )  # fmt: skip
+    return render_K(client, camera.K, camera.image_size, T_world_cam, lighting, **options)
 
 
 def render_K(
@@ -246,9 +221,25 @@ def render_K(
     segmentation: bool = True,
     cull=None,
 ) -> RenderedView:
-    """:func:`render_pinhole` with intrinsics ``K`` [px] and ``size`` = (W, H) [px].
+    """Render the pinhole view with intrinsics ``K`` [px] and ``size`` = (W, H) [px], with sun shadows.
 
     The principal point may lie outside the image (the view is a crop of a larger one).
+
+    Args:
+        client: The environment's BulletClient.
+        K: Intrinsics [px].
+        size: Image (width, height) [px].
+        T_world_cam: Pose of the camera optical frame in the world [m].
+        lighting: Sun and shadow settings.
+        near: Near clipping distance [m].
+        far: Far clipping distance [m].
+        caster: The shadow-casting body; with ``lighting.shadows`` on, this or ``shadow_map``.
+        shadow_map: A shadow map already built for this instant (several views of one frame).
+        renderer: ``"tiny"`` (TinyRenderer, sun lighting) or ``"egl"`` (the EGL plugin must be
+            loaded into ``client``; no sun direction, so no shadows: ``lighting.shadows`` must be off).
+        segmentation: Also return the segmentation labels.
+        cull: Called with the view's :func:`view_planes` before it is rendered (for example
+            :meth:`rover_env.terrain.Terrain.cull`, which leaves out ground the view cannot see).
     """
     if renderer not in RENDERERS:
         raise ValueError(f"renderer={renderer!r}: use 'tiny' or 'egl'")

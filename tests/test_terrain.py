@@ -1,5 +1,7 @@
 """Terrain heights against Bullet's own ray casts, friction map, tiling textures."""
 
+import contextlib
+
 import numpy as np
 import pybullet as pb
 import pytest
@@ -9,6 +11,16 @@ from pybullet_utils.bullet_client import BulletClient
 from rover_env.scenario import FrictionMapConfig, FrictionPatch, TerrainConfig
 from rover_env.terrain import FrictionMap, Terrain
 from rover_env.textures import ground_texture, tread_texture
+
+
+@contextlib.contextmanager
+def terrain_client(cfg: TerrainConfig):
+    """A terrain alone in its own PyBullet client, disconnected afterwards: yields (client, terrain)."""
+    client = BulletClient(connection_mode=pb.DIRECT)
+    try:
+        yield client, Terrain(client, cfg, FrictionMapConfig())
+    finally:
+        client.disconnect()
 
 
 @pytest.mark.parametrize(
@@ -35,9 +47,7 @@ from rover_env.textures import ground_texture, tread_texture
     ],
 )
 def test_height_at_matches_bullet_ray_casts(cfg):
-    client = BulletClient(connection_mode=pb.DIRECT)
-    try:
-        terrain = Terrain(client, cfg, FrictionMapConfig())
+    with terrain_client(cfg) as (client, terrain):
         rng = np.random.default_rng(0)
         pts = rng.uniform(-0.45, 0.45, (200, 2)) * np.array(cfg.size)
         starts = np.column_stack([pts, np.full(len(pts), 50.0)])
@@ -48,8 +58,6 @@ def test_height_at_matches_bullet_ray_casts(cfg):
         np.testing.assert_allclose(terrain.height_at(pts[:, 0], pts[:, 1]), z_ray, atol=1e-5)
         if cfg.roughness > 0:
             assert terrain.heights.std() > 0.5 * cfg.roughness
-    finally:
-        client.disconnect()
 
 
 def test_rough_terrain_relief_statistics():
@@ -110,9 +118,7 @@ def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhe
     from rover_env.terrain import FINE_RADIUS
 
     cfg = SMALL_ROUGH
-    client = BulletClient(connection_mode=pb.DIRECT)
-    try:
-        terrain = Terrain(client, cfg, FrictionMapConfig())
+    with terrain_client(cfg) as (client, terrain):
         cam = PinholeCamera.from_fov((200, 200), np.radians(110.0), np.radians(110.0))
         T = look_at([1.3, -0.7, 2.5], [1.3, -0.7, 0.0], up=(1.0, 0.0, 0.0))
         light = Lighting((0.0, 0.0, 1.0), shadows=False)
@@ -141,8 +147,6 @@ def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhe
         assert np.median(dz) < -2e-3  # the view at (1.3, -0.7) sees the far mesh again
         terrain.drop_detail()
         assert terrain.ground_ids == (terrain.body_id,)
-    finally:
-        client.disconnect()
 
 
 @pytest.mark.parametrize(
@@ -174,9 +178,7 @@ def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
     from rover_env.rendering import Lighting, look_at, render_pinhole
     from rover_env.terrain import FINE_CHUNK
 
-    client = BulletClient(connection_mode=pb.DIRECT)
-    try:
-        terrain = Terrain(client, cfg, FrictionMapConfig())
+    with terrain_client(cfg) as (client, terrain):
         # an oblique view from near the focus that sees the ground far beyond the range
         cam = PinholeCamera.from_fov((160, 120), np.radians(90.0), np.radians(70.0))
         x, y, r = 1.3, -0.7, 1.0
@@ -203,8 +205,6 @@ def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
             terrain.focus(x, y, near=5.0)
         terrain.drop_detail()
         assert terrain.ground_ids == (terrain.body_id,)
-    finally:
-        client.disconnect()
 
 
 def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
@@ -213,9 +213,7 @@ def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
     from rover_env.rendering import Lighting, look_at, render_pinhole
 
     cfg = SMALL_ROUGH
-    client = BulletClient(connection_mode=pb.DIRECT)
-    try:
-        terrain = Terrain(client, cfg, FrictionMapConfig())
+    with terrain_client(cfg) as (client, terrain):
         cam = PinholeCamera.from_fov((160, 120), np.radians(77.0), np.radians(57.0))
         light = Lighting((0.3, 0.2, 1.0), shadows=False)
         x, y = 0.4, -0.3
@@ -235,5 +233,3 @@ def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
             kept = drawn()
             assert np.array_equal(culled.rgb, full.rgb) and np.array_equal(culled.depth, full.depth)
             assert kept < before / 2, (kept, before)
-    finally:
-        client.disconnect()
