@@ -63,12 +63,15 @@ class KinematicsConfig:
             tracked [rad per frame].
         track_span: The same while it is: the change of rotation between frames [rad].
         track_hold: A wheel stays tracked for this many frames after its last measurement:
-            searched within ``track_span`` of its last rotation, its decisive alignments taken
+            searched within ``track_span`` of its predicted rotation (the last rotation per
+            frame, carried on at its last change per frame), its decisive alignments taken
             as they are. Its rotation per frame cannot change that much meanwhile (30 rad/s^2,
             more than a wheel spinning up on sand, changes it by 0.17 rad in 5 frames at 30 Hz),
             while the wide search after a loss must wait for the tread features to confirm it,
             which at 320x240 and 1.5-2 m/s often fail for many frames in a row.
         shadow_robust: Align band-passed treads with shadow edges left out.
+        max_wheel_accel: Largest wheel acceleration the rotation's prediction assumes
+            [rad/s^2] (the last change of rotation per frame is clipped to it).
         roi_margin_frac: While every marker is found, each is looked for only within a quarter
             of the gate plus this share of the image width around its predicted pixel (a marker moves
             less than 5 px between frames in 99 % of the frames of a rough drive, and the
@@ -98,6 +101,7 @@ class KinematicsConfig:
     reacquire_tolerance: float = 0.06
     track_span: float = 0.25
     track_hold: int = 5
+    max_wheel_accel: float = 100.0
     roi_margin_frac: float = 0.03
     geometry_refresh: tuple[float, float] = (math.radians(2.0), 0.004)
 
@@ -179,7 +183,8 @@ class KinematicStateEstimator:
             theta_dot=np.zeros(4),
             valid=dict.fromkeys(DOF_NAMES, False),
         )
-        self._alpha = np.zeros(4)
+        self._alpha = np.zeros(4)  # each wheel's last measured rotation per frame [rad]
+        self._trend = np.zeros(4)  # its last change per frame [rad]
         self._missed = np.full(4, 1 << 30)  # frames since each wheel's last measurement
         self._measured = np.zeros(4, dtype=bool)  # measured since the reset
         self._strips: list = [None] * 4  # the last frame's tread strips
@@ -275,7 +280,10 @@ class KinematicStateEstimator:
             # alignment (a strong false peak is possible there); while it is tracked, a strong or
             # decisive alignment is taken as it is (strong ones are checked with check_strong)
             check = [int(cfg.tread.check_strong) if on else 2 for on in tracked]
-            rots = measure_pairs(pairs, r, cfg.tread, self._alpha.tolist(), spans, check)
+            # a tracked wheel's rotation per frame carries on at its last change
+            steps = np.minimum(self._missed, cfg.track_hold) + 1
+            prior = np.where(tracked, self._alpha + self._trend * steps, self._alpha)
+            rots = measure_pairs(pairs, r, cfg.tread, prior.tolist(), spans, check)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
             # rover their rotations differ by the turn and by slip, not by multiples
             good = [r.alpha for r in rots if r.valid]
@@ -290,13 +298,20 @@ class KinematicStateEstimator:
             good = [r.alpha for r in rots if r.valid]
             for k, wheel in enumerate(WHEELS):
                 rot = rots[k]
-                self._missed[k] = 0 if rot.valid else self._missed[k] + 1
                 if rot.valid:
+                    if tracked[k] and self._measured[k]:
+                        bound = cfg.max_wheel_accel * dt * dt
+                        change = (rot.alpha - self._alpha[k]) / (self._missed[k] + 1)
+                        self._trend[k] = min(max(change, -bound), bound)
+                    else:
+                        self._trend[k] = 0.0
                     self._alpha[k] = rot.alpha
                     self._measured[k] = True
                     theta[k] += rot.alpha
                     theta_dot[k] = rot.alpha / dt
+                    self._missed[k] = 0
                 else:
+                    self._missed[k] += 1
                     if not self._measured[k] and good:  # no rate of its own yet: the others'
                         theta_dot[k] = float(np.median(good)) / dt
                     theta[k] += theta_dot[k] * dt

@@ -659,6 +659,8 @@ class FlowOdometry:
             criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
         )
         p1, st1, _ = cv2.calcOpticalFlowPyrLK(selection.gray, gray, p0, None, **lk)
+        # the backward track only checks the forward one: a tenth of the threshold is precise enough
+        lk["criteria"] = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.1 * cfg.fb_threshold)
         p0r, st2, _ = cv2.calcOpticalFlowPyrLK(gray, selection.gray, p1, None, **lk)
         fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
         ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_threshold)
