@@ -178,21 +178,27 @@ def test_a_shadow_edge_fixed_in_the_image_does_not_pull_the_rotation():
     assert abs(m_blind.alpha - alpha) > 0.01 * alpha
 
 
-def test_a_decisive_alignment_of_a_tracked_wheel_stands_without_the_features():
-    """Noisy treads (correlation about 0.55): the peak stands far above any other rotation."""
+def noisy_tread_pair(tex, noise_level, cfg):
+    """Strips of the front-right wheel at angles 0.2 and 0.7 rad (0.5 rad: 1.7 m/s of tread at 30 Hz)
+    under blurred image noise of ``noise_level`` grey levels; returns (model, strips, dphi, frame, cam)."""
     model = rover_model()
     cam = fisheye(model)
     frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[1]
-    cfg = TreadConfig()
     dphi = strip_resolution(model, cam, *frame, cfg.column_px)
-    tex = tread_texture(np.random.default_rng(4))
     rng = np.random.default_rng(1)
     strips = []
-    for th in (0.2, 0.7):  # 0.5 rad: 1.7 m/s of tread at 30 Hz
+    for th in (0.2, 0.7):
         img = render_wheel(model, cam, frame, th, tex).astype(np.float32)
         noise = cv2.GaussianBlur(rng.normal(size=img.shape).astype(np.float32), (0, 0), 1.5)
-        img = np.clip(img + 40 * noise / noise.std(), 0, 255).astype(np.uint8)
+        img = np.clip(img + noise_level * noise / noise.std(), 0, 255).astype(np.uint8)
         strips.append(unwrap_tread(img, model, cam, *frame, dphi, cfg))
+    return model, strips, dphi, frame, cam
+
+
+def test_a_decisive_alignment_of_a_tracked_wheel_stands_without_the_features():
+    """Noisy treads (correlation about 0.55): the peak stands far above any other rotation."""
+    cfg = TreadConfig()
+    model, strips, dphi, frame, cam = noisy_tread_pair(tread_texture(np.random.default_rng(4)), 40, cfg)
     pair = [tuple(strips)]
     al = align_strips(*strips, cfg, 0.45, 0.25)
     assert cfg.decisive_ncc <= al.ncc < cfg.min_ncc and al.margin >= cfg.decisive_margin
@@ -212,29 +218,11 @@ def test_an_alignment_at_the_predicted_rotation_of_a_tracked_wheel_stands_withou
     Neither strong nor decisive, and the features do not confirm it; the alignment is taken
     when it lies within ``prior_tolerance`` of the predicted rotation, and not otherwise.
     """
-    model = rover_model()
-    cam = fisheye(model)
-    frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[1]
     cfg = TreadConfig()
-    dphi = strip_resolution(model, cam, *frame, cfg.column_px)
     base = tread_texture(np.random.default_rng(4))
     phi = np.arange(base.shape[1]) / base.shape[1] * 2 * np.pi
     tex = (128 + 0.4 * (base - 128) + 0.6 * 45 * np.sin(phi / 0.15 * 2 * np.pi)[None, :]).astype(np.float32)
-    rng = np.random.default_rng(1)
-    strips = []
-    for th in (0.2, 0.7):
-        img = render_wheel(model, cam, frame, th, tex).astype(np.float32)
-        noise = cv2.GaussianBlur(rng.normal(size=img.shape).astype(np.float32), (0, 0), 1.5)
-        strips.append(
-            unwrap_tread(
-                np.clip(img + 22 * noise / noise.std(), 0, 255).astype(np.uint8),
-                model,
-                cam,
-                *frame,
-                dphi,
-                cfg,
-            )
-        )
+    model, strips, _, _, _ = noisy_tread_pair(tex, 22, cfg)
     pair = [tuple(strips)]
     al = align_strips(*strips, cfg, 0.5, 0.25)
     assert cfg.prior_ncc <= al.ncc < cfg.min_ncc and cfg.min_peak_margin <= al.margin < cfg.decisive_margin
