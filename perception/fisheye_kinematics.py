@@ -281,8 +281,7 @@ class KinematicStateEstimator:
             # decisive alignment is taken as it is (strong ones are checked with check_strong)
             check = [int(cfg.tread.check_strong) if on else 2 for on in tracked]
             # a tracked wheel's rotation per frame carries on at its last change
-            steps = np.minimum(self._missed, cfg.track_hold) + 1
-            prior = np.where(tracked, self._alpha + self._trend * steps, self._alpha)
+            prior = self._alpha + np.where(tracked, self._trend * (self._missed + 1), 0.0)
             rots = measure_pairs(pairs, r, cfg.tread, prior.tolist(), spans, check)
             # a wheel not yet tracked gets a second search around the wheels that are: on one
             # rover their rotations differ by the turn and by slip, not by multiples

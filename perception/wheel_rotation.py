@@ -82,8 +82,8 @@ class TreadConfig:
             spinning up or braking on sand turns 0.3-0.6 rad per frame at 30 Hz, where the
             correlation falls to 0.5-0.7 and the features rarely confirm it; on rendered slip
             drives (train preset, about 6,000 alignments) every alignment taken by this rule
-            was within 0.033 rad of the true rotation, while false peaks (the tread's shading,
-            which does not turn) lay 0.2 rad or more from the prediction.
+            was within 0.033 rad of the true rotation; the false peaks seen there (the tread's
+            shading, which does not turn) lay near zero rotation, 0.2 rad or more from it.
         min_override: Consistent features that outvote the alignment when they disagree with it.
         peak_separation: Rotations this far from the best one count as other candidates [rad].
         min_peak_margin: The best correlation must beat every other candidate's by this much.
