@@ -142,8 +142,10 @@ class _RoverCamera(ABC):
     def capture(self) -> Frame:
         """Render one frame at the current simulation time."""
         self.sim.prepare_render(self.config.ground_range)
-        v = self._render(labels=False)
-        frame = Frame(image=v.rgb, t=self.sim.t, shadow=v.shadow)
+        return self._keep(self._render(labels=False))
+
+    def _keep(self, view) -> Frame:
+        frame = Frame(image=view.rgb, t=self.sim.t, shadow=view.shadow)
         self._last = frame
         return frame
 
@@ -251,11 +253,42 @@ class FisheyeCamera(_RoverCamera):
         roi = _kinematics_roi(cfg, sim.geometry) if cfg.roi else None
         self.remapper = CubemapRemap(self.model, oversample=cfg.oversample, roi=roi)
 
-    def render_view(self) -> FisheyeView:
-        """Render now, with segmentation, shadow and 3-D points (for tests and evaluation)."""
-        return super().render_view()
+    def render_view(self, parts: np.ndarray | None = None) -> FisheyeView:
+        """Render now, with segmentation, shadow and 3-D points (for tests and evaluation).
 
-    def _render(self, labels: bool) -> FisheyeView:
+        ``parts``: as in :meth:`capture`.
+        """
+        self.sim.prepare_render(self.config.ground_range)
+        return self._render(labels=True, parts=parts)
+
+    def capture(self, parts: np.ndarray | None = None) -> Frame:
+        """Render one frame at the current simulation time.
+
+        Args:
+            parts: (N, 3) body-frame points [m] that the frame must show, such as
+                :func:`rover_env.fisheye.joint_window_parts` about a tracker's last state: each
+                view then renders only the rectangle that holds their images (plus
+                :attr:`window_margin`), like a sensor's windowed readout, and the rest of the
+                image is black. None: the whole image (or region of interest).
+        """
+        self.sim.prepare_render(self.config.ground_range)
+        return self._keep(self._render(labels=False, parts=parts))
+
+    @property
+    def window_margin(self) -> int:
+        """Growth of each window about its parts' images [face px]: 2 % of the image width."""
+        return max(2, round(0.02 * self.config.width))
+
+    def windows(self, parts: np.ndarray) -> list[tuple[int, int, int, int]]:
+        """The rectangle of each view (:attr:`remapper` faces) that holds the images of ``parts``.
+
+        ``parts``: (N, 3) body-frame points [m]. See :meth:`CubemapRemap.windows`.
+        """
+        T = np.linalg.inv(self.T_body_cam)
+        pts = np.asarray(parts, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
+        return self.remapper.windows(pts, self.window_margin)
+
+    def _render(self, labels: bool, parts: np.ndarray | None = None) -> FisheyeView:
         lighting = self.lighting
         return render_fisheye(
             self.sim.client,
@@ -265,4 +298,5 @@ class FisheyeCamera(_RoverCamera):
             self._caster(lighting),
             labels=labels,
             cull=self.sim.terrain.cull,
+            windows=None if parts is None else self.windows(parts),
         )

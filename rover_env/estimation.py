@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perception.fisheye_kinematics import KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.kinematics import AXLES, MARKERS
 from perception.odometry import (
     FlowOdometry,
     FlowOdometryConfig,
@@ -34,7 +35,7 @@ from perception.odometry import (
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
 from rover_env.config_io import ConfigError
-from rover_env.fisheye import FisheyeCameraConfig
+from rover_env.fisheye import FisheyeCameraConfig, joint_window_parts
 from rover_env.ground_truth import GROUND_TRUTH_KEYS
 from rover_env.sim import RoverSim
 
@@ -57,12 +58,19 @@ class PerceptionPreset:
         fisheye: The fisheye (its rate is the kinematics').
         odometry: Odometry parameters that differ from
             :meth:`FlowOdometryConfig.for_camera` of the downward camera.
+        fisheye_window: (axle roll [rad/s], axle travel [m/s], wheel steering [rad/s]): while
+            the kinematics estimator tracks every marker and joint, the fisheye renders only the
+            windows that hold the wheels, arms and markers over the joint states these rates
+            reach in one frame from its last estimate (:func:`~rover_env.fisheye.joint_window_parts`),
+            as a sensor's tracker-driven windowed readout; otherwise, and with None, its whole
+            image (or region of interest).
     """
 
     name: str
     downward: DownwardCameraConfig
     fisheye: FisheyeCameraConfig
     odometry: dict = field(default_factory=dict, hash=False)
+    fisheye_window: tuple[float, float, float] | None = None
 
 
 def _presets() -> dict[str, PerceptionPreset]:
@@ -85,6 +93,10 @@ def _presets() -> dict[str, PerceptionPreset]:
             DownwardCameraConfig.preset("train", rate_hz=30.0, ground_range=2.0),
             FisheyeCameraConfig.preset("half", rate_hz=30.0, roi=True, ground_range=2.0),
             odometry={"roi_margin": 0.05, "max_features": 100},
+            # windows: roll and travel at 1.8 rad/s and 0.3 m/s (the 99th percentiles of their
+            # frame-to-frame changes on rough ground are half that), steering at 1.25x the axles'
+            # 2 rad/s limit (the inner wheel turns faster than its axle)
+            fisheye_window=(1.8, 0.3, 2.5),
         ),
     }
 
@@ -161,6 +173,8 @@ class PerceptionPipeline:
         self._count = 0
         #: Wall-clock seconds spent so far in each part: physics, rendering, perception.
         self.timing = {"physics": 0.0, "rendering": 0.0, "perception": 0.0}
+        #: Frames rendered so far: downward, fisheye, and fisheye frames rendered in windows.
+        self.frames = {"downward": 0, "fisheye": 0, "fisheye_windowed": 0}
 
     def reset(self, pose0, blackout=()) -> None:
         """Start again after the simulation's reset, at the known start pose (x, y, yaw) [m, rad].
@@ -191,17 +205,33 @@ class PerceptionPipeline:
     def _dark(self, t: float) -> bool:
         return any(t0 <= t < t1 for t0, t1 in self._blackout)
 
-    def _frame(self, camera) -> np.ndarray:
+    def _frame(self, camera, **options) -> np.ndarray:
         """Render ``camera`` now (black during a blackout); the rendering clock runs meanwhile."""
         t0 = time.perf_counter()
-        img = camera.capture().image
+        img = camera.capture(**options).image
         self.timing["rendering"] += time.perf_counter() - t0
         return np.zeros_like(img) if self._dark(self.sim.t) else img
+
+    def _window_parts(self) -> np.ndarray | None:
+        """What the fisheye's next frame must show (see ``PerceptionPreset.fisheye_window``)."""
+        rates = self.preset.fisheye_window
+        s = self.kinematics.state
+        if rates is None or s.markers_found < len(MARKERS):
+            return None
+        if not all(s.valid[f"{dof}_{a}"] for dof in ("psi", "d", "lam") for a in AXLES):
+            return None
+        spread = tuple(r * self.fisheye.period for r in rates)
+        return joint_window_parts(self.model, s.psi, s.depth, s.delta, spread)
 
     def _capture(self, downward: bool, fisheye: bool) -> None:
         t = self.sim.t
         if fisheye:
-            img = self._frame(self.fisheye)
+            t0 = time.perf_counter()
+            parts = self._window_parts()
+            self.timing["rendering"] += time.perf_counter() - t0
+            img = self._frame(self.fisheye, parts=parts)
+            self.frames["fisheye"] += 1
+            self.frames["fisheye_windowed"] += parts is not None
             t0 = time.perf_counter()
             state = self.kinematics.update(img, t)
             self.slip.add_wheels(
@@ -214,6 +244,7 @@ class PerceptionPipeline:
             self.timing["perception"] += time.perf_counter() - t0
         if downward:
             img = self._frame(self.downward)
+            self.frames["downward"] += 1
             t0 = time.perf_counter()
             s = self.kinematics.state
             centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])

@@ -14,6 +14,7 @@ readout; the rest of the image is black. Rendering time is proportional to the r
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -21,6 +22,7 @@ import cv2
 import numpy as np
 
 from perception.cameras import OmniCamera
+from perception.kinematics import AXLES, PLATE, WHEELS
 from rover_env.config_io import camera_preset, check_camera_config, check_range
 from rover_env.rendering import Lighting, render_K
 
@@ -63,6 +65,63 @@ class CubeFace:
     atlas_row: int
 
 
+@functools.lru_cache(maxsize=8)
+def _part_shapes(r: float, width: float, marker_size: float, outline: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Points [m] of one wheel in its knuckle frame, and of a ball about a marker centre.
+
+    The wheel (axle along y): its tread, 5 lines across, and its two side discs, 4 rings each.
+    The ball holds a marker's square, whatever the square's attitude. ``outline``: only what
+    bounds the parts' images (the wheel's two rims at 24 points, whose chords sag 0.9 % of the
+    radius, and the corners of the cube about the ball).
+    """
+    if outline:
+        phi = np.linspace(0.0, 2 * math.pi, 25)[:-1]
+        P, Y = np.meshgrid(phi, np.array([-0.5, 0.5]) * width)
+        wheel = np.stack([r * np.cos(P), Y, r * np.sin(P)], -1).reshape(-1, 3)
+        ball = (
+            0.75
+            * marker_size
+            * np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+        )
+        wheel.setflags(write=False)
+        ball.setflags(write=False)
+        return wheel, ball
+    phi = np.linspace(0.0, 2 * math.pi, 97)[:-1]
+    P, Y = np.meshgrid(phi, np.linspace(-0.5, 0.5, 5) * width)
+    cyl = np.stack([r * np.cos(P), Y, r * np.sin(P)], -1).reshape(-1, 3)
+    P, Q, Y = np.meshgrid(phi[::2], np.linspace(0.25, 1.0, 4) * r, np.array([-0.5, 0.5]) * width)
+    disc = np.stack([Q * np.cos(P), Y, Q * np.sin(P)], -1).reshape(-1, 3)
+    ball = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], dtype=float)
+    ball *= 0.75 * marker_size / np.maximum(np.linalg.norm(ball, axis=1, keepdims=True), 1.0)
+    wheel = np.vstack([cyl, disc])
+    wheel.setflags(write=False)
+    ball.setflags(write=False)
+    return wheel, ball
+
+
+def kinematic_parts(model, psi, depth, delta, outline: bool = False) -> list[np.ndarray]:
+    """Body-frame points [m] of everything the kinematics estimator reads, at one joint state.
+
+    One point set per part, each with a convex image: every wheel (tread and side discs), its
+    steering arm and tie-rod marker, and a ball around each of the eight marker centres.
+
+    Args:
+        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
+        psi: Axle roll (F, R) [rad].
+        depth: Axle-body distance (F, R) [m].
+        delta: Wheel steering angles (FL, FR, RL, RR) [rad].
+        outline: Only points that bound each part's image (far fewer: for bounding boxes).
+    """
+    wheel, ball = _part_shapes(model.wheel_radius, model.wheel_width, model.marker_size, outline)
+    parts = []
+    for k, (R, c) in enumerate(model.wheel_frames(psi, depth, delta)):
+        parts.append(wheel @ R.T + c)
+        parts.append(model.occluders(("FL", "FR", "RL", "RR")[k], R, c)[0])
+    centres = np.array(list(model.marker_positions(psi, depth, delta).values()))
+    parts.extend(centres[:, None, :] + ball[None])
+    return parts
+
+
 def kinematics_roi(
     camera: OmniCamera,
     model,
@@ -73,10 +132,10 @@ def kinematics_roi(
 ) -> np.ndarray:
     """Fisheye pixels in which the kinematics estimator can find a wheel, marker or steering arm.
 
-    The wheels' treads and side discs, the eight markers and the steering arms are projected over
-    the whole joint range (axle roll, travel and steering at their limits and between); the
-    convex hull of each part's image is filled, and the union is grown by ``margin``: nothing
-    the estimator reads lies outside it.
+    The wheels' treads and side discs, the eight markers and the steering arms
+    (:func:`kinematic_parts`) are projected over the whole joint range (axle roll, travel and
+    steering at their limits and between); the convex hull of each part's image is filled, and
+    the union is grown by ``margin``: nothing the estimator reads lies outside it.
 
     Args:
         camera: The fisheye model (its ``T_body_cam`` is the mount).
@@ -90,29 +149,13 @@ def kinematics_roi(
         (H, W) bool mask.
     """
     w, h = camera.image_size
-    r, width = model.wheel_radius, model.wheel_width
-    phi = np.linspace(0.0, 2 * math.pi, 97)[:-1]
-    # knuckle frame: axle along y; the tread (5 lines across) and the two side discs (4 rings)
-    P, Y = np.meshgrid(phi, np.linspace(-0.5, 0.5, 5) * width)
-    cyl = np.stack([r * np.cos(P), Y, r * np.sin(P)], -1).reshape(-1, 3)
-    P, Q, Y = np.meshgrid(phi[::2], np.linspace(0.25, 1.0, 4) * r, np.array([-0.5, 0.5]) * width)
-    disc = np.stack([Q * np.cos(P), Y, Q * np.sin(P)], -1).reshape(-1, 3)
-    wheel = np.vstack([cyl, disc])
-    # a ball around each marker centre that holds its square, whatever the square's attitude
-    ball = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], dtype=float)
-    ball *= 0.75 * model.marker_size / np.maximum(np.linalg.norm(ball, axis=1, keepdims=True), 1.0)
     T_cam_body = np.linalg.inv(camera.T_body_cam)
     mask = np.zeros((h, w), np.uint8)
     for psi in np.linspace(-roll_limit, roll_limit, 9):
         for d in model.nominal_depth + np.linspace(-travel_limit, travel_limit, 5):
             for lam in np.linspace(-steer_limit, steer_limit, 13):
-                parts = []  # point sets whose images are filled as convex polygons
                 delta = model.wheel_angles(lam, -lam)  # both axles through their range
-                for k, (R, c) in enumerate(model.wheel_frames((psi, -psi), (d, d), delta)):
-                    parts.append(wheel @ R.T + c)
-                    parts.append(model.occluders(("FL", "FR", "RL", "RR")[k], R, c)[0])
-                centres = np.array(list(model.marker_positions((psi, -psi), (d, d), delta).values()))
-                parts.extend(centres[:, None, :] + ball[None])
+                parts = kinematic_parts(model, (psi, -psi), (d, d), delta)
                 sizes = np.cumsum([len(q) for q in parts])[:-1]
                 body = np.vstack(parts)
                 pix = camera.world2cam(body @ T_cam_body[:3, :3].T + T_cam_body[:3, 3])
@@ -124,6 +167,53 @@ def kinematics_roi(
     k = max(2, int(round(margin * w)))
     mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
     return mask.astype(bool)
+
+
+def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, float]) -> np.ndarray:
+    """Body-frame points [m] bounding the images of :func:`kinematic_parts` over a box of joint states.
+
+    The outlines of the parts at the box's eight corners (each axle's roll and travel and
+    every wheel's steering angle moved together by -+ ``spread``) bound where they can be a
+    frame later, for joint changes within ``spread`` per frame: the parts move smoothly with the
+    joints, so their images between the corners stay within the corners' bounding box up to
+    curvature, which a window's pixel margin covers.
+
+    Args:
+        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
+        psi: Axle roll (F, R) [rad].
+        depth: Axle-body distance (F, R) [m].
+        delta: Wheel steering angles (FL, FR, RL, RR) [rad].
+        spread: (roll [rad], travel [m], steering [rad]) either side of the state.
+
+    Returns:
+        (N, 3) points.
+    """
+    wheel, ball = _part_shapes(model.wheel_radius, model.wheel_width, model.marker_size, True)
+    sr, st, ss = (float(v) for v in spread)
+    out = []
+    for i, axle in enumerate(AXLES):
+        local = []  # axle-frame points, (2 steering corners, n, 3)
+        for w in (axle + "L", axle + "R"):
+            arm = model.occluders(w, np.eye(3), np.zeros(3))[0]
+            knuckle = np.vstack([wheel, arm, model.tip_knuckle(w) + ball])
+            d = float(delta[WHEELS.index(w)]) + np.array([-ss, ss])
+            c, s_ = np.cos(d)[:, None], np.sin(d)[:, None]
+            x, y, z = knuckle[:, 0], knuckle[:, 1], knuckle[:, 2]
+            rot = np.stack([c * x - s_ * y, s_ * x + c * y, np.broadcast_to(z, c.shape[:1] + z.shape)], -1)
+            local.append(rot + model.kingpin_local(w))
+        plates = np.vstack([model.plate_marker_local(m) + ball for m in PLATE[axle]])
+        local = np.concatenate([*local, np.broadcast_to(plates, (2,) + plates.shape)], axis=1)
+        for roll in (psi[i] - sr, psi[i] + sr):
+            R = np.array(
+                [
+                    [1.0, 0.0, 0.0],
+                    [0.0, math.cos(roll), -math.sin(roll)],
+                    [0.0, math.sin(roll), math.cos(roll)],
+                ]
+            )
+            for d_ in (depth[i] - st, depth[i] + st):
+                out.append((local @ R.T + model.roll_centre(axle, d_)).reshape(-1, 3))
+    return np.vstack(out)
 
 
 class CubemapRemap:
@@ -240,18 +330,61 @@ class CubemapRemap:
         """Total number of rendered face pixels per fisheye frame (ROI views included)."""
         return sum(fc.size[0] * fc.size[1] for fc in self.faces)
 
-    def atlas(self, face_images, fill=0) -> np.ndarray:
-        """Pack face images (in ``faces`` order) into one atlas image."""
-        first = np.asarray(face_images[0])
+    def atlas(self, face_images, fill=0, windows=None) -> np.ndarray:
+        """Pack face images (in ``faces`` order) into one atlas image.
+
+        With ``windows`` (:meth:`windows`), image k covers window k of face k (None for an empty
+        window) and the rest of the atlas is ``fill``.
+        """
+        first = next(np.asarray(img) for img in face_images if img is not None)
         W, H = self.atlas_size
         out = np.full((H, W) + first.shape[2:], fill, dtype=first.dtype)
-        for fc, img in zip(self.faces, face_images, strict=True):
-            fw, fh = fc.size
-            if img.shape[:2] != (fh, fw):
+        if windows is None:
+            windows = [(0, 0) + fc.size for fc in self.faces]
+        for fc, img, (u0, v0, u1, v1) in zip(self.faces, face_images, windows, strict=True):
+            if u1 <= u0 or v1 <= v0:
+                continue
+            if img.shape[:2] != (v1 - v0, u1 - u0):
                 raise ValueError(
-                    f"face {fc.name}: image is {img.shape[1]}x{img.shape[0]}, expected {fw}x{fh}"
+                    f"face {fc.name}: image is {img.shape[1]}x{img.shape[0]}, expected {u1 - u0}x{v1 - v0}"
                 )
-            out[fc.atlas_row : fc.atlas_row + fh, :fw] = img
+            out[fc.atlas_row + v0 : fc.atlas_row + v1, u0:u1] = img
+        return out
+
+    def windows(self, points_cam: np.ndarray, margin: int) -> list[tuple[int, int, int, int]]:
+        """Per face, the rectangle of its image that holds the images of ``points_cam``.
+
+        Args:
+            points_cam: (N, 3) points in the fisheye's optical frame [m].
+            margin: Growth of each rectangle [face px] (>= 2 keeps the fisheye's bilinear samples
+                of the points' images inside it).
+
+        Returns:
+            (u0, v0, u1, v1) per face [face px, end exclusive], clipped to the face; (0, 0, 0, 0)
+            for a face that none of the points reach.
+        """
+        pts = np.asarray(points_cam, dtype=np.float64)
+        out = []
+        for fc in self.faces:
+            p = pts @ fc.R_cam_face  # face optical frame
+            front = p[:, 2] > 1e-6
+            z = p[front, 2]
+            u = fc.K[0, 0] * p[front, 0] / z + fc.K[0, 2]
+            v = fc.K[1, 1] * p[front, 1] / z + fc.K[1, 2]
+            W, H = fc.size
+            ins = (u > -margin) & (u < W - 1 + margin) & (v > -margin) & (v < H - 1 + margin)
+            if not ins.any():
+                out.append((0, 0, 0, 0))
+                continue
+            u, v = u[ins], v[ins]
+            out.append(
+                (
+                    max(0, math.floor(u.min()) - margin),
+                    max(0, math.floor(v.min()) - margin),
+                    min(W, math.ceil(u.max()) + margin + 1),
+                    min(H, math.ceil(v.max()) + margin + 1),
+                )
+            )
         return out
 
     def remap(self, atlas: np.ndarray) -> np.ndarray:
@@ -353,6 +486,7 @@ def render_fisheye(
     far: float = 20.0,
     renderer: str = "tiny",
     cull=None,
+    windows=None,
 ) -> FisheyeView:
     """Render the fisheye image of the camera at ``T_world_cam`` (optical frame, world) [m].
 
@@ -368,6 +502,8 @@ def render_fisheye(
         renderer: ``"tiny"`` or ``"egl"`` (see :func:`rover_env.rendering.render_K`).
         cull: Called with each face's view planes before it is rendered (see
             :func:`rover_env.rendering.render_K`).
+        windows: Render only these rectangles of the faces (:meth:`CubemapRemap.windows`); the
+            rest of the image is black (no labels, no points). None: whole faces.
     """
     shadow_map = None
     if lighting.shadows:
@@ -376,14 +512,21 @@ def render_fisheye(
         # one map for all faces, resolved like the image at the distance of the wheels
         shadow_map = caster.shadow_map(lighting.sun_direction, SHADOW_DETAIL_RANGE / remapper.focal)
     views = []
-    for fc in remapper.faces:
+    for k, fc in enumerate(remapper.faces):
+        u0, v0, u1, v1 = (0, 0) + fc.size if windows is None else windows[k]
+        if u1 <= u0 or v1 <= v0:
+            views.append(None)
+            continue
+        K = fc.K.copy()
+        K[0, 2] -= u0  # the window is a crop of the face
+        K[1, 2] -= v0
         T_face = T_world_cam.copy()
         T_face[:3, :3] = T_world_cam[:3, :3] @ fc.R_cam_face
         views.append(
             render_K(
                 client,
-                fc.K,
-                fc.size,
+                K,
+                (u1 - u0, v1 - v0),
                 T_face,
                 lighting,
                 near,
@@ -394,10 +537,22 @@ def render_fisheye(
                 cull=cull,
             )  # fmt: skip
         )
-    rgb = remapper.remap(remapper.atlas([v.rgb for v in views]))
+    w, h = remapper.model.image_size
+    if all(v is None for v in views):  # every window empty: a black frame
+        if not labels:
+            return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8))
+        return FisheyeView(
+            np.zeros((h, w, 3), np.uint8), np.full((h, w), -1, np.int32), np.zeros((h, w), bool),
+            np.full((h, w, 3), np.nan, np.float32),
+        )  # fmt: skip
+
+    def atlas(name, fill):
+        return remapper.atlas([None if v is None else getattr(v, name) for v in views], fill, windows)
+
+    rgb = remapper.remap(atlas("rgb", 0))
     if not labels:
         return FisheyeView(rgb=rgb)
-    seg = remapper.lookup(remapper.atlas([v.segmentation for v in views], fill=-1), outside=-1)
-    shadow = remapper.lookup(remapper.atlas([v.shadow for v in views], fill=False), outside=False)
-    pts = remapper.lookup(remapper.atlas([v.points_world for v in views], fill=np.nan), outside=np.nan)
+    seg = remapper.lookup(atlas("segmentation", -1), outside=-1)
+    shadow = remapper.lookup(atlas("shadow", False), outside=False)
+    pts = remapper.lookup(atlas("points_world", np.nan), outside=np.nan)
     return FisheyeView(rgb=rgb, segmentation=seg, shadow=shadow, points_world=pts)

@@ -244,10 +244,15 @@ def test_estimated_observation_tracks_the_truth_and_survives_a_blackout():
     env = RoverEnv(preset="train")
     try:
         env.reset(seed=2, options={"blackout": [(1.0, 1.5)]})
+        frames = env.pipeline.frames
         rows = []
         for _ in range(75):  # 2.5 s at 0.5 of v_max, straight
+            windowed = frames["fisheye_windowed"]
             obs, _, term, trunc, info = env.step(np.array([0.5, 0.0, 0.0], dtype=np.float32))
             assert not (term or trunc)
+            # the fisheye renders windows about the tracked joints, not after a black frame
+            prev_dark = 1.0 - 1e-9 <= info["t"] - 1 / 30 < 1.5 - 1e-9
+            assert frames["fisheye_windowed"] == windowed + (not prev_dark), info["t"]
             assert sorted(info["estimate"]) == sorted(info["ground_truth"])
             assert np.all(np.isfinite(obs))
             rows.append((info["t"], obs.copy(), info["ground_truth"]["twist"][0], info["quality"]))

@@ -10,7 +10,7 @@ from scipy.ndimage import maximum_filter, minimum_filter
 
 from rover_env.cameras import FisheyeCamera
 from rover_env.config_io import ConfigError
-from rover_env.fisheye import CubemapRemap, FisheyeCameraConfig, render_fisheye
+from rover_env.fisheye import CubemapRemap, FisheyeCameraConfig, joint_window_parts, render_fisheye
 from rover_env.geometry import AXLES, WHEELS
 from rover_env.sim import RoverSim
 
@@ -218,8 +218,7 @@ def test_roi_holds_every_wheel_and_marker_pixel_over_the_joint_range_and_renders
         view = full.render_view()
         stats, centroids = magenta_blobs(view.rgb)
         needed = np.isin(view.segmentation, wheels)
-        for k in range(1, len(stats)):
-            x, y, w, h = stats[k, :4]
+        for x, y, w, h in stats[:, :4]:
             needed[y : y + h, x : x + w] = True
         needed &= full.remapper.valid
         assert needed.sum() > 2000
@@ -240,6 +239,56 @@ def test_roi_holds_every_wheel_and_marker_pixel_over_the_joint_range_and_renders
         interior = rendered & (minimum_filter(seg, 3) == maximum_filter(seg, 3))
         same = (small.segmentation == seg)[interior]
         assert same.mean() > 0.999
+
+
+def test_windows_about_the_joint_state_render_the_parts_a_frame_later_at_under_half_the_roi(lifted_sim):
+    """A tracker's windows (joint_window_parts about the last state) still hold every wheel, arm
+    and marker pixel after the joints move within the spread, rendered as in the whole ROI."""
+    sim = lifted_sim
+    cam = FisheyeCamera(sim, FisheyeCameraConfig.preset("half", roi=True))
+    model = sim.geometry.kinematic_model(cam.T_body_cam)
+    rv = sim.rover
+    # the wheels, and the knuckles' steering arms and tie-rod markers; plate markers below
+    read = [
+        rv.body_id + ((rv.link[f"{part}_{w}"] + 1) << 24) for part in ("wheel", "knuckle") for w in WHEELS
+    ]
+    spread = (0.06, 0.01, 0.08)  # roll [rad], travel [m], wheel steering [rad]
+    rng = np.random.default_rng(11)
+    areas, diffs = [], []
+    for lam, psi, d in feasible_states(sim.geometry, 6, rng):
+        set_joints(sim, lam, psi, d, rng.uniform(-math.pi, math.pi, 4))
+        gt = sim.ground_truth()
+        parts = joint_window_parts(model, gt.axle_roll, gt.axle_height, gt.wheel_steer, spread)
+        windows = cam.windows(parts)
+        areas.append(sum((u1 - u0) * (v1 - v0) for u0, v0, u1, v1 in windows))
+        # a frame later: roll and travel moved by up to 0.9 of their spread, the axles' steering
+        # by up to 0.6 of it (the inner wheel turns up to 1.3x its axle)
+        step = rng.uniform(-1.0, 1.0, (3, 2)) * np.array(
+            [[0.9 * spread[0]], [0.9 * spread[1]], [0.6 * spread[2]]]
+        )
+        set_joints(sim, lam + step[2], psi + step[0], d + step[1], rng.uniform(-math.pi, math.pi, 4))
+        whole, win = cam.render_view(), cam.render_view(parts)
+        needed = np.isin(whole.segmentation, read)
+        stats, _ = magenta_blobs(whole.rgb)
+        assert len(stats) == 8
+        for x, y, w, h in stats[:, :4]:
+            needed[y : y + h, x : x + w] = True
+        assert needed.sum() > 3000
+        assert np.array_equal(win.segmentation[needed], whole.segmentation[needed])
+        diffs.append(np.abs(win.rgb[needed].astype(int) - whole.rgb[needed]).max(axis=1))
+        # outside the windows the image is black
+        inside = np.zeros(cam.remapper.atlas_size[::-1], bool)
+        for fc, (u0, v0, u1, v1) in zip(cam.remapper.faces, windows, strict=True):
+            inside[fc.atlas_row + v0 : fc.atlas_row + v1, u0:u1] = True
+        lit = cam.remapper.lookup(inside, outside=False)
+        assert not win.rgb[~lit & (cv2.dilate(lit.view(np.uint8), np.ones((3, 3), np.uint8)) == 0)].any()
+    diffs = np.concatenate(diffs)
+    print(
+        f"window pixels: {np.mean(areas):.0f} of {cam.remapper.face_pixels} ROI face pixels; "
+        f"part pixels within 1 grey level: {np.mean(diffs <= 1):.4f}, max difference {diffs.max()}"
+    )
+    assert max(areas) < 0.55 * cam.remapper.face_pixels
+    assert np.mean(diffs <= 1) > 0.999
 
 
 def test_fisheye_config_errors():
