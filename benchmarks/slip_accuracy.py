@@ -1,8 +1,9 @@
 """Slip accuracy of the estimator in the loop on drives that make the wheels slip.
 
-The rover cruises straight over a mission's low-friction patch; on the patch the speed command
-cycles through full throttle (the wheels spin: s > 0), a reversed command (they skid and turn
-backwards: s < 0) and a slow roll, so that every wheel goes through several slip events. The
+The rover cruises straight over each mission's first low-friction patch (every registered
+mission has one on its first leg); on the patch the speed command cycles through full throttle
+(the wheels spin: s > 0), a reversed command (they skid and turn backwards: s < 0) and a slow
+roll, so that every wheel goes through several slip events. The
 environment runs with ``obs_source="estimated"``; the estimate is compared with the simulator's
 slip every step (:func:`observation_errors.slip_metrics`: MAE while |s_true| > 0.1 and
 otherwise, event F1 and onset latency in fisheye frames). An event is |s| >= 0.2 for two frames
@@ -10,8 +11,9 @@ in a row, ending below 0.1, on a wheel whose tread or ground speed is at least 0
 (``SlipConfig.event_min_speed``), in the truth and in the estimate alike.
 
 Run: python benchmarks/slip_accuracy.py [--preset eval] [--seeds 201 202 203] [--ramp 0.05]
-(seeds the tests never use). With ``--ramp 0`` the speed command steps: the wheels jump by up to
-10 rad/s within a frame, beyond the tread tracker's search, and are lost for several frames.
+[--envs Rover-v0 ...] (seeds the tests never use); one row per mission and one for all of them.
+With ``--ramp 0`` the speed command steps: the wheels jump by up to 10 rad/s within a frame,
+beyond the tread tracker's search, and are lost for several frames.
 """
 
 from __future__ import annotations
@@ -26,7 +28,22 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from observation_errors import TRUTH, slip_metrics  # noqa: E402
 
-import rover_env  # noqa: E402,F401
+import rover_env  # noqa: E402
+
+
+def patch_span(env_id: str, margin: float = 0.05) -> tuple[float, float]:
+    """The x range [m] in which the mission's first low-friction patch crosses the course (y = 0)."""
+    patch = rover_env.load_scenario(rover_env.MISSIONS[env_id]).friction.patches[0]
+    cx, cy = patch.center
+    if patch.shape == "circle" and abs(cy) < patch.radius:
+        half = float(np.sqrt(patch.radius**2 - cy**2))
+    elif patch.shape == "rect" and patch.yaw_deg == 0.0 and abs(cy) < patch.size[1] / 2:
+        half = patch.size[0] / 2
+    else:
+        raise ValueError(
+            f"{env_id}: its first patch {patch} does not cross y = 0 as a circle or an upright rect"
+        )
+    return cx - half + margin, cx + half - margin
 
 
 def drive(
@@ -75,23 +92,30 @@ def main(argv=None) -> int:
         help="largest change of the speed action per step (0.05, the default, is 3 m/s^2 at 30 Hz, "
         "a motor controller's acceleration limit; 0: steps, a stress case)",
     )
+    ap.add_argument("--envs", nargs="+", default=list(rover_env.ENV_IDS), choices=rover_env.ENV_IDS)
     args = ap.parse_args(argv)
-    # Rover-v0's sand patch (mu 0.15) spans x 4.75..7.25 m on the first leg
-    runs = [drive(s, args.preset, "Rover-v0", (4.8, 7.2), args.seconds, args.ramp) for s in args.seeds]
-    m = slip_metrics(runs)
+    print(f"preset {args.preset}, seeds {args.seeds}, ramp {args.ramp}", flush=True)
     print(
-        f"preset {args.preset}, seeds {args.seeds}, ramp {args.ramp}, {sum(len(r['t']) for r in runs)} steps"
-    )
-    print(
-        "| slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events | precision | recall | F1 "
+        "| mission | steps | slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events | precision | recall | F1 "
         "| latency median / max [frames] | within 2 frames |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
-    print(
-        f"| {m['mae_slip']:.3f} ({m['n_slip']} wheel-steps) | {m['mae_calm']:.3f} | {m['events']} | "
-        f"{m['precision']:.2f} | {m['recall']:.2f} | {m['f1']:.2f} | "
-        f"{m['latency_median']:.1f} / {m['latency_max']:.1f} | {100 * m['within_2']:.0f} % |"
-    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    every = []
+    for env_id in args.envs + (["all"] if len(args.envs) > 1 else []):
+        if env_id == "all":
+            runs = every
+        else:
+            span = patch_span(env_id)
+            runs = [drive(s, args.preset, env_id, span, args.seconds, args.ramp) for s in args.seeds]
+            every += runs
+        m = slip_metrics(runs)
+        steps = sum(len(r["t"]) for r in runs)
+        print(
+            f"| {env_id} | {steps} | {m['mae_slip']:.3f} ({m['n_slip']} wheel-steps) | {m['mae_calm']:.3f} "
+            f"| {m['events']} | {m['precision']:.2f} | {m['recall']:.2f} | {m['f1']:.2f} "
+            f"| {m['latency_median']:.1f} / {m['latency_max']:.1f} | {100 * m['within_2']:.0f} % |",
+            flush=True,
+        )
     return 0
 
 

@@ -480,7 +480,8 @@ def test_config_for_camera_scales_pixel_sizes():
     base = FlowOdometryConfig()
     c = FlowOdometryConfig.for_camera(160, 30.0)
     assert c.max_disp == pytest.approx(base.max_disp * 0.25 * 2.0)
-    assert c.window % 2 == 1 and c.window >= 7
+    assert c.window == 9  # the floor (5.25 px scaled)
+    assert FlowOdometryConfig.for_camera(320, 60.0).window == 11
     assert c.min_distance == pytest.approx(5.0)
     # ground distances follow the pixel's ground size (x4) and, for the residual, the rate (/2)
     assert c.ransac_threshold == pytest.approx(base.ransac_threshold * 4)
