@@ -93,22 +93,29 @@ def _kmeans_u8(values: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndar
         nz = np.flatnonzero(hist)
         c = np.array([nz[0] - 0.5, nz[-1] + 0.5])
 
+    # the iterations in Python floats (the same float64 arithmetic, without numpy's per-call cost)
+    cn, cs, cq = cum_n.tolist(), cum_s.tolist(), cum_q.tolist()
+    n = cn[-1]
+
     def split(c):  # grey levels <= k are dark
-        return int(np.clip(np.floor(0.5 * (c[0] + c[1])), -1, 255))
+        return int(min(max(math.floor(0.5 * (c[0] + c[1])), -1), 255))
 
     def stats(k):
-        nd = cum_n[k] if k >= 0 else 0.0
-        sd = cum_s[k] if k >= 0 else 0.0
-        qd = cum_q[k] if k >= 0 else 0.0
-        return nd, sd, qd, n - nd, cum_s[-1] - sd, cum_q[-1] - qd
+        nd = cn[k] if k >= 0 else 0.0
+        sd = cs[k] if k >= 0 else 0.0
+        qd = cq[k] if k >= 0 else 0.0
+        return nd, sd, qd, n - nd, cs[-1] - sd, cq[-1] - qd
 
+    c = [float(c[0]), float(c[1])]
     for _ in range(iterations):
         nd, sd, _, nb, sb, _ = stats(split(c))
-        new = np.array([sd / nd if nd else c[0], sb / nb if nb else c[1]])
-        if np.allclose(new, c, atol=1e-3):
-            c = new
-            break
+        new = [sd / nd if nd else c[0], sb / nb if nb else c[1]]
+        # np.allclose(new, c, atol=1e-3)
+        done = all(abs(a - b) <= 1e-3 + 1e-5 * abs(b) for a, b in zip(new, c, strict=True))
         c = new
+        if done:
+            break
+    c = np.array(c)
     k = split(c)
     nd, sd, qd, nb, sb, qb = stats(k)
     sig = np.array(
@@ -336,9 +343,10 @@ class FlowOdometryConfig:
 
         Displacements scale with the width and with the frame period; feature spacing and the
         tracking window with the width (the window stays odd and >= 9 px: at 160 px a 7 px window
-        tracks more noisily, and often runs all 30 iterations: twice the time). Ground distances scale with the ground size of a pixel (1/width): the RANSAC
-        inlier distance, and the residual bound with it and the frame rate (a residual in m/s is a
-        pixel error times metres per pixel times the rate). The Harris quality level scales with
+        tracks more noisily, and often runs all 30 iterations: twice the time). Ground distances
+        scale with the ground size of a pixel (1/width): the RANSAC inlier distance, and the
+        residual bound with it and the frame rate (a residual in m/s is a pixel error times
+        metres per pixel times the rate). The Harris quality level scales with
         the pixel area: a small image holds far fewer corners near its strongest one, and at
         160 px the default level keeps only ~20 features, too few for RANSAC.
 
