@@ -63,7 +63,8 @@ class PerceptionPreset:
             windows that hold the wheels, arms and markers over the joint states these rates
             reach in one frame from its last estimate (:func:`~rover_env.fisheye.joint_window_parts`),
             as a sensor's tracker-driven windowed readout; otherwise, and with None, its whole
-            image (or region of interest).
+            image (or region of interest). The steering rate is raised to 1.25 times the
+            rover's ``steer_max_rate`` if it is below (an inner wheel turns faster than its axle).
     """
 
     name: str
@@ -94,9 +95,8 @@ def _presets() -> dict[str, PerceptionPreset]:
             FisheyeCameraConfig.preset("half", rate_hz=30.0, roi=True, ground_range=2.0),
             odometry={"roi_margin": 0.05, "max_features": 100},
             # windows: roll and travel at 1.8 rad/s and 0.3 m/s (the 99th percentiles of their
-            # frame-to-frame changes on rough ground are half that), steering at 1.25x the axles'
-            # 2 rad/s limit (the inner wheel turns faster than its axle)
-            fisheye_window=(1.8, 0.3, 2.5),
+            # frame-to-frame changes on rough ground are half that), steering at the rover's limit
+            fisheye_window=(1.8, 0.3, 0.0),
         ),
     }
 
@@ -220,7 +220,9 @@ class PerceptionPipeline:
             return None
         if not all(s.valid[f"{dof}_{a}"] for dof in ("psi", "d", "lam") for a in AXLES):
             return None
-        spread = tuple(r * self.fisheye.period for r in rates)
+        roll, travel, steer = rates
+        steer = max(steer, 1.25 * self.sim.geometry.steer_max_rate)
+        spread = (roll * self.fisheye.period, travel * self.fisheye.period, steer * self.fisheye.period)
         return joint_window_parts(self.model, s.psi, s.depth, s.delta, spread)
 
     def _capture(self, downward: bool, fisheye: bool) -> None:
