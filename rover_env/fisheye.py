@@ -192,27 +192,28 @@ def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, flo
     sr, st, ss = (float(v) for v in spread)
     out = []
     for i, axle in enumerate(AXLES):
-        local = []  # axle-frame points, (2 steering corners, n, 3)
+        # axle-frame points at the two steering corners: (2, n, 3) with the marker centres last
+        local, centres = [], []
         for w in (axle + "L", axle + "R"):
-            arm = model.occluders(w, np.eye(3), np.zeros(3))[0]
-            knuckle = np.vstack([wheel, arm, model.tip_knuckle(w) + ball])
+            knuckle = np.vstack([wheel, model.occluders(w, np.eye(3), np.zeros(3))[0], model.tip_knuckle(w)])
             d = float(delta[WHEELS.index(w)]) + np.array([-ss, ss])
             c, s_ = np.cos(d)[:, None], np.sin(d)[:, None]
             x, y, z = knuckle[:, 0], knuckle[:, 1], knuckle[:, 2]
             rot = np.stack([c * x - s_ * y, s_ * x + c * y, np.broadcast_to(z, c.shape[:1] + z.shape)], -1)
-            local.append(rot + model.kingpin_local(w))
-        plates = np.vstack([model.plate_marker_local(m) + ball for m in PLATE[axle]])
-        local = np.concatenate([*local, np.broadcast_to(plates, (2,) + plates.shape)], axis=1)
+            rot += model.kingpin_local(w)
+            local.append(rot[:, :-1])
+            centres.append(rot[:, -1:])  # the tie-rod marker
+        plates = np.array([model.plate_marker_local(m) for m in PLATE[axle]])
+        local = np.concatenate([*local, *centres, np.broadcast_to(plates, (2,) + plates.shape)], axis=1)
+        n_markers = 2 + len(plates)
         for roll in (psi[i] - sr, psi[i] + sr):
-            R = np.array(
-                [
-                    [1.0, 0.0, 0.0],
-                    [0.0, math.cos(roll), -math.sin(roll)],
-                    [0.0, math.sin(roll), math.cos(roll)],
-                ]
-            )
+            cr, sn = math.cos(roll), math.sin(roll)
+            R = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sn], [0.0, sn, cr]])
             for d_ in (depth[i] - st, depth[i] + st):
-                out.append((local @ R.T + model.roll_centre(axle, d_)).reshape(-1, 3))
+                body = local @ R.T + model.roll_centre(axle, d_)
+                out.append(body[:, :-n_markers].reshape(-1, 3))
+                # each marker's ball, axis-aligned in the body frame as in kinematic_parts
+                out.append((body[:, -n_markers:, None, :] + ball).reshape(-1, 3))
     return np.vstack(out)
 
 

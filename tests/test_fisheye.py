@@ -10,8 +10,14 @@ from scipy.ndimage import maximum_filter, minimum_filter
 
 from rover_env.cameras import FisheyeCamera
 from rover_env.config_io import ConfigError
-from rover_env.fisheye import CubemapRemap, FisheyeCameraConfig, joint_window_parts, render_fisheye
-from rover_env.geometry import AXLES, WHEELS
+from rover_env.fisheye import (
+    CubemapRemap,
+    FisheyeCameraConfig,
+    joint_window_parts,
+    kinematic_parts,
+    render_fisheye,
+)
+from rover_env.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.sim import RoverSim
 
 
@@ -239,6 +245,27 @@ def test_roi_holds_every_wheel_and_marker_pixel_over_the_joint_range_and_renders
         interior = rendered & (minimum_filter(seg, 3) == maximum_filter(seg, 3))
         same = (small.segmentation == seg)[interior]
         assert same.mean() > 0.999
+
+
+def test_joint_window_parts_are_the_part_outlines_at_the_corners_of_the_joint_box():
+    """The vectorised corners equal kinematic_parts (the model's own geometry) at each corner."""
+    g = RoverGeometry()
+    model = g.kinematic_model(np.eye(4))
+    psi, depth = np.array([0.05, -0.08]), np.array([0.16, 0.14])
+    delta = model.wheel_angles(0.3, -0.2)
+    spread = (0.06, 0.01, 0.08)
+    corners = [
+        np.vstack(kinematic_parts(model, psi + a, depth + b, delta + c, outline=True))
+        for a in (-spread[0], spread[0])
+        for b in (-spread[1], spread[1])
+        for c in (-spread[2], spread[2])
+    ]
+    got = joint_window_parts(model, psi, depth, delta, spread)
+    want = np.vstack(corners)
+    assert got.shape == want.shape
+    # the same points (in another order): compare them sorted
+    order = lambda a: a[np.lexsort(np.round(a, 9).T)]  # noqa: E731
+    np.testing.assert_allclose(order(got), order(want), atol=1e-12)
 
 
 def test_windows_about_the_joint_state_render_the_parts_a_frame_later_at_under_half_the_roi(lifted_sim):
