@@ -116,7 +116,7 @@ def kinematic_parts(model, psi, depth, delta, outline: bool = False) -> list[np.
     parts = []
     for k, (R, c) in enumerate(model.wheel_frames(psi, depth, delta)):
         parts.append(wheel @ R.T + c)
-        parts.append(model.occluders(("FL", "FR", "RL", "RR")[k], R, c)[0])
+        parts.append(model.occluders(WHEELS[k], R, c)[0])
     centres = np.array(list(model.marker_positions(psi, depth, delta).values()))
     parts.extend(centres[:, None, :] + ball[None])
     return parts
