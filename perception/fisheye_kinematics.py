@@ -283,14 +283,20 @@ class KinematicStateEstimator:
             # a tracked wheel's rotation per frame carries on at its last change
             prior = self._alpha + np.where(tracked, self._trend * (self._missed + 1), 0.0)
             rots = measure_pairs(pairs, r, cfg.tread, prior.tolist(), spans, check)
-            # a wheel not yet tracked gets a second search around the wheels that are: on one
-            # rover their rotations differ by the turn and by slip, not by multiples
+            # a wheel not measured gets a second search around the wheels that were: on one
+            # rover their rotations differ by the turn and by slip, not by multiples. Within
+            # track_span of them, the rules of a tracked wheel hold (the other wheels are its
+            # prediction); a wheel not yet tracked is then searched over acquire_span, where
+            # the features must confirm
             good = [r.alpha for r in rots if r.valid]
-            again = [k for k in range(4) if not rots[k].valid and not tracked[k]]
-            if good and again:
+            for near in (True, False):
+                again = [k for k in range(4) if not rots[k].valid and (near or not tracked[k])]
+                if not (good and again):
+                    continue
                 more = measure_pairs(
                     [pairs[k] for k in again], r, cfg.tread, [float(np.median(good))] * len(again),
-                    [cfg.acquire_span] * len(again), [2] * len(again),
+                    [cfg.track_span if near else cfg.acquire_span] * len(again),
+                    [int(cfg.tread.check_strong) if near else 2] * len(again),
                 )  # fmt: skip
                 for k, m in zip(again, more, strict=True):
                     rots[k] = m

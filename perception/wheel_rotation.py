@@ -84,6 +84,12 @@ class TreadConfig:
             drives (train preset, about 6,000 alignments) every alignment taken by this rule
             was within 0.033 rad of the true rotation; the false peaks seen there (the tread's
             shading, which does not turn) lay near zero rotation, 0.2 rad or more from it.
+        static_band: An alignment less than this from zero rotation [rad] (0: off) and farther than
+            ``prior_tolerance`` from the predicted rotation must be confirmed by the features
+            (as ``check`` 2): the tread's shading and the shadows on it do not turn with the
+            wheel and can fit there. On a rendered low-sun drive (shadow mission, wheel at 0.23
+            rad per frame) the rules above took such peaks (NCC 0.45-0.5, margin 0.2-0.25) at
+            -0.03 to 0.
         min_override: Consistent features that outvote the alignment when they disagree with it.
         peak_separation: Rotations this far from the best one count as other candidates [rad].
         min_peak_margin: The best correlation must beat every other candidate's by this much.
@@ -112,6 +118,7 @@ class TreadConfig:
     decisive_margin: float = 0.2
     prior_ncc: float = 0.5
     prior_tolerance: float = 0.03
+    static_band: float = 0.04
     min_override: int = 10
     peak_separation: float = 0.1
     min_peak_margin: float = 0.08
@@ -812,6 +819,8 @@ def measure_pairs(
     als = align_pairs([pairs[i] for i in ok], cfg, [priors[i] for i in ok], [spans[i] for i in ok])
     go = []
     for i, al in zip(ok, als, strict=True):
+        if abs(al.alpha) < cfg.static_band and abs(al.alpha - priors[i]) > cfg.prior_tolerance:
+            check[i] = 2  # the tread's shading and shadows, which do not turn, may fit at 0
         decisive = check[i] == 0 and (
             (al.ncc >= cfg.decisive_ncc and al.margin >= cfg.decisive_margin)
             or (al.ncc >= cfg.prior_ncc and abs(al.alpha - priors[i]) <= cfg.prior_tolerance)

@@ -178,16 +178,17 @@ def test_a_shadow_edge_fixed_in_the_image_does_not_pull_the_rotation():
     assert abs(m_blind.alpha - alpha) > 0.01 * alpha
 
 
-def noisy_tread_pair(tex, noise_level, cfg):
-    """Strips of the front-right wheel at angles 0.2 and 0.7 rad (0.5 rad: 1.7 m/s of tread at 30 Hz)
-    under blurred image noise of ``noise_level`` grey levels; returns (model, strips, dphi, frame, cam)."""
+def noisy_tread_pair(tex, noise_level, cfg, angles=(0.2, 0.7)):
+    """Strips of the front-right wheel at ``angles`` [rad] (default 0.5 rad apart: 1.7 m/s of tread
+    at 30 Hz) under blurred image noise of ``noise_level`` grey levels; returns (model, strips, dphi,
+    frame, cam)."""
     model = rover_model()
     cam = fisheye(model)
     frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[1]
     dphi = strip_resolution(model, cam, *frame, cfg.column_px)
     rng = np.random.default_rng(1)
     strips = []
-    for th in (0.2, 0.7):
+    for th in angles:
         img = render_wheel(model, cam, frame, th, tex).astype(np.float32)
         noise = cv2.GaussianBlur(rng.normal(size=img.shape).astype(np.float32), (0, 0), 1.5)
         img = np.clip(img + noise_level * noise / noise.std(), 0, 255).astype(np.uint8)
@@ -230,6 +231,24 @@ def test_an_alignment_at_the_predicted_rotation_of_a_tracked_wheel_stands_withou
     assert at_prior.valid and abs(at_prior.alpha - 0.5) <= 0.005
     assert not measure_pairs(pair, model.wheel_radius, cfg, [0.45], [0.25], [0])[0].valid  # 0.05 off
     assert not measure_pairs(pair, model.wheel_radius, cfg, [0.49], [0.8], [2])[0].valid  # after a loss
+
+
+def test_a_still_tread_seen_by_a_turning_wheel_needs_the_features():
+    """Rotation 0 under noise: a decisive peak at 0, where still shading and shadows also fit.
+
+    Taken as it is for a wheel predicted to stand still; for one predicted to turn 0.23 rad
+    per frame, the features must confirm it (``static_band``), and on this noise they do not.
+    """
+    cfg = TreadConfig()
+    model, strips, _, _, _ = noisy_tread_pair(tread_texture(np.random.default_rng(4)), 40, cfg, (0.2, 0.2))
+    pair = [tuple(strips)]
+    al = align_strips(*strips, cfg, 0.0, 0.25)
+    assert abs(al.alpha) <= 0.005 and al.ncc < cfg.min_ncc and al.margin >= cfg.decisive_margin
+    standing = measure_pairs(pair, model.wheel_radius, cfg, [0.0], [0.25], [0])[0]
+    assert standing.valid and abs(standing.alpha) <= 0.005
+    assert not measure_pairs(pair, model.wheel_radius, cfg, [0.23], [0.25], [0])[0].valid
+    unguarded = TreadConfig(static_band=0.0)
+    assert measure_pairs(pair, model.wheel_radius, unguarded, [0.23], [0.25], [0])[0].valid
 
 
 def test_strips_of_all_wheels_together_equal_each_wheel_alone():
