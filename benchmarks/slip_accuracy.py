@@ -6,9 +6,10 @@ mission has one on its first leg); on the patch the speed command cycles through
 roll, so that every wheel goes through several slip events. The
 environment runs with ``obs_source="estimated"``; the estimate is compared with the simulator's
 slip every step (:func:`observation_errors.slip_metrics`: MAE while |s_true| > 0.1 and
-otherwise, event F1 and onset latency in fisheye frames). An event is |s| >= 0.2 for two frames
-in a row, ending below 0.1, on a wheel whose tread or ground speed is at least 0.15 m/s
-(``SlipConfig.event_min_speed``), in the truth and in the estimate alike.
+otherwise, F1 and onset latency in fisheye frames of the filter's slip-event detection,
+``info["slip"]["events"]``). An event is |s| >= 0.2 for two frames in a row, ending below 0.1, on
+a wheel whose tread or ground speed is at least 0.15 m/s (``SlipConfig.event_min_speed``): the
+filter's rule, applied to the true slip to label the truth.
 
 Run: python benchmarks/slip_accuracy.py [--preset eval] [--seeds 201 202 203] [--ramp 0.05]
 [--envs Rover-v0 ...] (seeds the tests never use); one row per mission and one for all of them.
@@ -53,7 +54,7 @@ def drive(
     try:
         obs, info = env.reset(seed=seed)
         r = env.unwrapped.geometry.wheel_radius
-        est, tru, speed, t = [], [], [], []
+        est, ev, tru, speed, t = [], [], [], [], []
         rng = np.random.default_rng(seed)
         burst = int(rng.integers(15, 25))  # steps per phase
         v = 0.0
@@ -67,6 +68,7 @@ def drive(
             obs, _, term, trunc, info = env.step(np.array([v, 0.0, 0.0], np.float32))
             gt = info["ground_truth"]
             est.append(obs[:17].astype(np.float64))
+            ev.append(info["slip"]["events"])
             tru.append([gt[key][i] for key, i in TRUTH])
             speed.append(np.maximum(np.abs(gt["wheel_rate"] * r), np.abs(gt["twist"][0])))
             t.append(info["t"])
@@ -76,7 +78,13 @@ def drive(
     finally:
         env.close()
     return dict(
-        est=np.array(est), tru=np.array(tru), speed=np.array(speed), t=np.array(t), frame=frame, radius=r
+        est=np.array(est),
+        events=np.array(ev),
+        tru=np.array(tru),
+        speed=np.array(speed),
+        t=np.array(t),
+        frame=frame,
+        radius=r,
     )
 
 

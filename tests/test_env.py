@@ -255,10 +255,15 @@ def test_estimated_observation_tracks_the_truth_and_survives_a_blackout():
             assert frames["fisheye_windowed"] == windowed + (not prev_dark), info["t"]
             assert sorted(info["estimate"]) == sorted(info["ground_truth"])
             assert np.all(np.isfinite(obs))
-            rows.append((info["t"], obs.copy(), info["ground_truth"]["twist"][0], info["quality"]))
+            sl = info["slip"]
+            assert sorted(sl) == ["events", "slip_ratio_std", "valid"]
+            assert all(sl[k].shape == (4,) for k in sl) and not np.any(sl["events"] & ~sl["valid"])
+            rows.append((info["t"], obs.copy(), info["ground_truth"]["twist"][0], info["quality"], sl))
         dark = [r for r in rows if 1.1 <= r[0] < 1.5]
         assert dark and all(r[1][17] == 0.0 and r[1][18] == 0.0 for r in dark)
-        assert all(r[3]["slip"] == 0.0 for r in dark if r[0] >= 1.25)  # stale after max_age
+        stale = [r for r in dark if r[0] >= 1.25]  # after max_age: no slip valid, none reported
+        assert all(r[3]["slip"] == 0.0 and not r[4]["valid"].any() for r in stale)
+        assert all(np.all(r[1][7:11] == 0.0) and np.all(np.isinf(r[4]["slip_ratio_std"])) for r in stale)
         # before and well after the blackout the estimated forward speed follows the truth
         lit = [r for r in rows if 0.6 <= r[0] < 1.0 or r[0] >= 2.0]
         err = np.array([r[1][0] - r[2] for r in lit])

@@ -98,6 +98,35 @@ def test_noise_free_slip_matches_the_definition():
     assert e.events.tolist() == [True, False, False, False]  # FL at s = 0.5
 
 
+def test_imprecise_slip_is_reported_but_not_valid_and_starts_no_event():
+    """A spin (tread 0.6 m/s, ground 0.3 m/s: s = 0.5) under poor odometry (quality 0.05).
+
+    The filter's slip is reported with its standard deviation, not replaced by a zero that would
+    read as a confident "no slip"; it is not valid (std above ``max_slip_std``), so no event.
+    """
+    cfg = SlipConfig(event_hold=0.0)
+    est = SlipEstimator(XY, R_WHEEL, cfg)
+    twist, steer = np.array([0.3, 0.0, 0.0]), np.zeros(4)
+    rng = np.random.default_rng(3)
+    for k in range(1, 61):
+        t = k / 30
+        est.add_odometry(t, twist + rng.normal(0, 0.01, 3), 1 / 30, quality=0.05)
+        est.add_wheels(t, np.full(4, 0.6 / R_WHEEL), 1 / 30, steering=steer)
+    e = est.estimate(60 / 30)
+    assert np.all(e.slip_ratio_std > cfg.max_slip_std) and np.all(np.isfinite(e.slip_ratio_std))
+    assert not e.valid.any() and not e.events.any() and e.quality == 0.0
+    np.testing.assert_allclose(e.slip_ratio, 0.5, atol=0.15)
+    # with precise odometry the same drive is valid slip and an event
+    sharp = SlipEstimator(XY, R_WHEEL, cfg)
+    for k in range(1, 61):
+        t = k / 30
+        sharp.add_odometry(t, twist, 1 / 30, quality=1.0)
+        sharp.add_wheels(t, np.full(4, 0.6 / R_WHEEL), 1 / 30, steering=steer)
+    e = sharp.estimate(60 / 30)
+    assert e.valid.all() and e.events.all()
+    np.testing.assert_allclose(e.slip_ratio, 0.5, atol=0.02)
+
+
 def test_noisy_stream_accuracy_and_events():
     out = run_stream(seconds=5.0, noise=True, seed=1)
     fisheye_period = 1 / 30

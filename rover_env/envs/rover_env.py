@@ -117,7 +117,9 @@ class RoverEnv(gym.Env):
             fisheye kinematics, the slip filter) and the task features from the dead-reckoned
             pose; ``info["estimate"]`` then holds the estimate under the keys of
             ``info["ground_truth"]`` (its ``pose`` dead-reckoned: x, y, the start height and
-            the yaw) and ``info["quality"]`` the odometry, kinematics and slip quality.
+            the yaw), ``info["quality"]`` the odometry, kinematics and slip quality, and
+            ``info["slip"]`` the slip filter's per-wheel ``valid``, ``events`` (its slip-event
+            detection) and ``slip_ratio_std``.
             ``"ground_truth"``: the same layout from the simulator (for ablations).
         preset: Cameras of the estimator in the loop: ``"train"`` (low resolution, fast) or
             ``"eval"`` (the papers' 640x480 at 60 and 30 Hz); see
@@ -454,5 +456,11 @@ class RoverEnv(gym.Env):
                 "odometry": self._est.odometry_quality,
                 "kinematics": self._est.kinematics_quality,
                 "slip": float(self._est.slip.quality),
+            }
+            sl = self._est.slip
+            out["slip"] = {
+                "valid": sl.valid.copy(),
+                "events": sl.events.copy(),
+                "slip_ratio_std": sl.slip_ratio_std.copy(),
             }
         return out
