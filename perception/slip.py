@@ -11,7 +11,8 @@ from the filtered state (DESIGN.md):
     s_i = (theta_dot_i r - v_i,long) / max(|theta_dot_i r|, |v_i,long|, eps)
     beta_i = atan2(v_i,lat, v_i,long)
 
-with its standard deviation from the filter's covariance (first order). Slip events switch on
+with its standard deviation from the filter's covariance (first order, then through the clip to
+[-1, 1] as a censored normal). Slip events switch on
 when |s| reaches ``event_on`` and off when it falls below ``event_off`` (hysteresis).
 
 Frames: body frame x forward, y left, z up; wheel order FL, FR, RL, RR.
@@ -24,6 +25,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import ndtr
 
 from perception.wheel_kinematics import slip_angle, slip_ratio, wheel_ground_velocity
 
@@ -351,6 +353,11 @@ class SlipEstimator:
             J[np.arange(N_WHEELS), 3 + np.arange(N_WHEELS)] = ds_da * self.wheel_radius
             var = np.einsum("ij,jk,ik->i", J, P, J)
         s_std = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+        # the ratio is clipped to [-1, 1]: where the tread and the ground move apart (opposite
+        # signs, or one at rest) it sits at +-1 however uncertain the speeds, so its deviation
+        # is that of the clipped normal, not the first-order one of the unclipped ratio
+        raw = (a - v_long) / np.maximum(np.maximum(np.abs(a), np.abs(v_long)), c.eps)
+        s_std = clipped_normal_std(raw, s_std)
         fresh = (t - self._t_odom <= c.max_age) & (t - self._t_rate <= c.max_age)
         speed = np.maximum(np.abs(a), np.abs(v_long))  # tread or ground [m/s]
         moving = speed >= c.min_speed
@@ -384,3 +391,33 @@ class SlipEstimator:
             events=self._events.copy(),
             quality=float(valid.mean()),
         )
+
+
+def clipped_normal_std(mean, std) -> np.ndarray:
+    """Standard deviation of clip(X, -1, 1) for X ~ N(mean, std^2) (a normal censored at +-1).
+
+    Args:
+        mean: Means (any shape).
+        std: Standard deviations (same shape; inf and NaN pass through, 0 gives 0).
+    """
+    m = np.asarray(mean, dtype=np.float64)
+    out = np.array(std, dtype=np.float64, copy=True)
+    ok = np.isfinite(m) & np.isfinite(out) & (out > 0)
+    if not ok.any():
+        return out
+    mu, sd = m[ok], out[ok]
+    lo, hi = (-1.0 - mu) / sd, (1.0 - mu) / sd
+    p_lo, p_hi = ndtr(lo), ndtr(hi)
+    f_lo, f_hi = np.exp(-0.5 * lo**2) / math.sqrt(2 * math.pi), np.exp(-0.5 * hi**2) / math.sqrt(2 * math.pi)
+    inside = p_hi - p_lo
+    # E[Y] and E[Y^2]: the mass beyond each bound sits at it; inside, the truncated moments
+    e1 = -p_lo + (1.0 - p_hi) + mu * inside + sd * (f_lo - f_hi)
+    e2 = (
+        p_lo
+        + (1.0 - p_hi)
+        + (mu * mu + sd * sd) * inside
+        + 2 * mu * sd * (f_lo - f_hi)
+        + sd * sd * (lo * f_lo - hi * f_hi)
+    )
+    out[ok] = np.sqrt(np.maximum(e2 - e1 * e1, 0.0))
+    return out

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from perception import SlipConfig, SlipEstimator, slip_events, slip_ratio, wheel_ground_velocity
+from perception.slip import clipped_normal_std
 
 R_WHEEL = 0.115
 XY = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])
@@ -125,6 +126,33 @@ def test_imprecise_slip_is_reported_but_not_valid_and_starts_no_event():
     e = sharp.estimate(60 / 30)
     assert e.valid.all() and e.events.all()
     np.testing.assert_allclose(e.slip_ratio, 0.5, atol=0.02)
+
+
+def test_the_deviation_of_the_clipped_ratio_is_that_of_a_censored_normal():
+    rng = np.random.default_rng(0)
+    for mean, std in ((0.0, 0.1), (0.9, 0.1), (1.0, 0.3), (-1.2, 0.5), (-3.0, 0.2), (0.3, 2.0)):
+        mc = np.clip(rng.normal(mean, std, 400_000), -1.0, 1.0).std()
+        assert clipped_normal_std(np.array([mean]), np.array([std]))[0] == pytest.approx(mc, abs=2e-3)
+    out = clipped_normal_std(np.array([0.5, 0.5, 0.5]), np.array([0.0, np.inf, np.nan]))
+    assert out[0] == 0.0 and np.isinf(out[1]) and np.isnan(out[2])
+
+
+def test_a_wheel_turning_against_the_ground_is_sure_slip_at_minus_one():
+    """Tread -0.2 m/s, ground +0.3 m/s under poor odometry (quality 0.1): s = -1 whatever the noise.
+
+    The first-order deviation of the unclipped ratio (-2.5) is about 0.3; that of the clipped
+    ratio is nearly 0, so the slip is valid and an event.
+    """
+    cfg = SlipConfig(event_hold=0.0)
+    est = SlipEstimator(XY, R_WHEEL, cfg)
+    rng = np.random.default_rng(4)
+    for k in range(1, 61):
+        t = k / 30
+        est.add_odometry(t, np.array([0.3, 0.0, 0.0]) + rng.normal(0, 0.01, 3), 1 / 30, quality=0.1)
+        est.add_wheels(t, np.full(4, -0.2 / R_WHEEL), 1 / 30, steering=np.zeros(4))
+    e = est.estimate(2.0)
+    np.testing.assert_allclose(e.slip_ratio, -1.0)
+    assert np.all(e.slip_ratio_std < 0.01) and e.valid.all() and e.events.all()
 
 
 def test_noisy_stream_accuracy_and_events():
