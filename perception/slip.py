@@ -339,7 +339,8 @@ class SlipEstimator:
         twist, rates = x[:3], x[3:]
         v_long, v_lat = wheel_ground_velocity(twist, self.wheel_xy, self._steer)
         a = rates * self.wheel_radius
-        s = slip_ratio(a, v_long, c.eps)
+        raw = slip_ratio(a, v_long, c.eps, clip=False)
+        s = np.clip(raw, -1.0, 1.0)
         # first-order standard deviation: ds/da and ds/dv_long on the side of the larger speed
         big_a = np.abs(a) >= np.abs(v_long)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -356,7 +357,6 @@ class SlipEstimator:
         # the ratio is clipped to [-1, 1]: where the tread and the ground move apart (opposite
         # signs, or one at rest) it sits at +-1 however uncertain the speeds, so its deviation
         # is that of the clipped normal, not the first-order one of the unclipped ratio
-        raw = (a - v_long) / np.maximum(np.maximum(np.abs(a), np.abs(v_long)), c.eps)
         s_std = clipped_normal_std(raw, s_std)
         fresh = (t - self._t_odom <= c.max_age) & (t - self._t_rate <= c.max_age)
         speed = np.maximum(np.abs(a), np.abs(v_long))  # tread or ground [m/s]

@@ -17,7 +17,10 @@ SLIP_EPS = 0.01  # [m/s] speed below which slip is not resolvable; keeps s finit
 
 
 def slip_ratio(
-    tread_speed: np.ndarray | float, ground_speed: np.ndarray | float, eps: float = SLIP_EPS
+    tread_speed: np.ndarray | float,
+    ground_speed: np.ndarray | float,
+    eps: float = SLIP_EPS,
+    clip: bool = True,
 ) -> np.ndarray:
     """Longitudinal slip ratio.
 
@@ -25,6 +28,8 @@ def slip_ratio(
         tread_speed: Wheel spin rate times radius, omega * r [m/s].
         ground_speed: Longitudinal ground velocity of the wheel centre [m/s].
         eps: Denominator floor [m/s].
+        clip: Clip to [-1, 1] (the definition); False gives the ratio before the clip, which
+            passes +-1 where the tread and the ground move in opposite directions.
 
     Returns:
         Slip ratio in [-1, 1], same shape as the inputs.
@@ -32,7 +37,8 @@ def slip_ratio(
     ws = np.asarray(tread_speed, dtype=np.float64)
     v = np.asarray(ground_speed, dtype=np.float64)
     den = np.maximum(np.maximum(np.abs(ws), np.abs(v)), eps)
-    return np.clip((ws - v) / den, -1.0, 1.0)
+    ratio = (ws - v) / den
+    return np.clip(ratio, -1.0, 1.0) if clip else ratio
 
 
 def slip_angle(v_long: np.ndarray | float, v_lat: np.ndarray | float) -> np.ndarray:
