@@ -32,7 +32,7 @@ def slip_ratio(
             passes +-1 where the tread and the ground move in opposite directions.
 
     Returns:
-        Slip ratio in [-1, 1], same shape as the inputs.
+        Slip ratio (in [-1, 1] when clipped), same shape as the inputs.
     """
     ws = np.asarray(tread_speed, dtype=np.float64)
     v = np.asarray(ground_speed, dtype=np.float64)
