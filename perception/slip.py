@@ -113,13 +113,14 @@ class SlipEstimate:
         wheel_rate_std: Their standard deviations.
         v_long: Ground velocity of each wheel centre along its heading [m/s].
         v_lat: Across it, left + [m/s].
-        slip_ratio: Longitudinal slip ratio in [-1, 1]: the filter's, wherever the wheel moves
-            (``min_speed``) and both streams are fresh (``max_age``), however uncertain; 0
-            elsewhere (no information).
-        slip_ratio_std: Its standard deviation (first order; inf where it is 0 for lack of data).
-        slip_angle: Slip angle [rad] (0 where the slip ratio is).
-        valid: Whether each wheel's slip is resolved: moving, fresh data and a standard deviation
-            of at most ``max_slip_std``. Events hold only while it is.
+        slip_ratio: Longitudinal slip ratio in [-1, 1] (0 where not valid: ``info`` and
+            ``valid`` tell such a 0 from a measured one).
+        slip_ratio_std: Its standard deviation (first order, through the clip; inf where not
+            valid).
+        slip_angle: Slip angle [rad] (0 where not valid).
+        valid: Whether each wheel's slip is resolved: moving (``min_speed``), fresh data of both
+            streams (``max_age``) and a standard deviation of at most ``max_slip_std``. Events
+            hold only while it is.
         events: Whether each wheel is in a slip event (hysteresis on |slip_ratio|).
         quality: Share of the wheels whose slip is valid (0-1).
     """
@@ -361,12 +362,9 @@ class SlipEstimator:
         fresh = (t - self._t_odom <= c.max_age) & (t - self._t_rate <= c.max_age)
         speed = np.maximum(np.abs(a), np.abs(v_long))  # tread or ground [m/s]
         moving = speed >= c.min_speed
-        # the filter's slip wherever it rests on fresh data of a moving wheel, precise or not
-        # (a zero there would read as a confident "no slip"); valid: precise enough for events
-        shown = fresh & moving
-        valid = shown & (s_std <= c.max_slip_std)
-        s = np.where(shown, s, 0.0)
-        beta = np.where(shown, slip_angle(v_long, v_lat), 0.0)
+        valid = fresh & moving & (s_std <= c.max_slip_std)
+        s = np.where(valid, s, 0.0)
+        beta = np.where(valid, slip_angle(v_long, v_lat), 0.0)
         mag = np.abs(s)
         fast = speed >= c.event_min_speed
         above = valid & fast & (mag >= c.event_on)
@@ -385,7 +383,7 @@ class SlipEstimator:
             v_long=v_long,
             v_lat=v_lat,
             slip_ratio=s,
-            slip_ratio_std=np.where(shown, s_std, np.inf),
+            slip_ratio_std=np.where(valid, s_std, np.inf),
             slip_angle=beta,
             valid=valid,
             events=self._events.copy(),
