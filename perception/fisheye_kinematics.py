@@ -26,6 +26,7 @@ from perception.markers import (
     measure_axles,
     segment_magenta,
 )
+from perception.wheel_kinematics import rolling_speeds
 from perception.wheel_rotation import TreadConfig, measure_pairs, strip_resolution, unwrap_treads
 
 DOF_NAMES: tuple[str, ...] = (
@@ -283,18 +284,20 @@ class KinematicStateEstimator:
             # a tracked wheel's rotation per frame carries on at its last change
             prior = self._alpha + np.where(tracked, self._trend * (self._missed + 1), 0.0)
             rots = measure_pairs(pairs, r, cfg.tread, prior.tolist(), spans, check)
-            # a wheel not measured gets a second search around the wheels that were: on one
-            # rover their rotations differ by the turn and by slip, not by multiples. Within
-            # track_span of them, the rules of a tracked wheel hold (the other wheels are its
-            # prediction); a wheel not yet tracked is then searched over acquire_span, where
-            # the features must confirm
-            good = [r.alpha for r in rots if r.valid]
+            # a wheel not measured gets a second search around the rotation the wheels that
+            # were predict for it: scaled by the steering geometry (wheels that roll turn in
+            # proportion to their distance from the centre of rotation), they differ by slip,
+            # not by multiples. Within track_span of it, the rules of a tracked wheel hold (the
+            # other wheels are its prediction); a wheel not yet tracked is then searched over
+            # acquire_span, where the features must confirm
+            good = [k for k in range(4) if rots[k].valid]
+            peer = self._peer_rotations(curr_frames, delta, {k: rots[k].alpha for k in good})
             for near in (True, False):
                 again = [k for k in range(4) if not rots[k].valid and (near or not tracked[k])]
                 if not (good and again):
                     continue
                 more = measure_pairs(
-                    [pairs[k] for k in again], r, cfg.tread, [float(np.median(good))] * len(again),
+                    [pairs[k] for k in again], r, cfg.tread, [peer[k] for k in again],
                     [cfg.track_span if near else cfg.acquire_span] * len(again),
                     [int(cfg.tread.check_strong) if near else 2] * len(again),
                 )  # fmt: skip
@@ -351,6 +354,23 @@ class KinematicStateEstimator:
             t, psi, depth, lam, delta, theta, theta_dot, valid, len(found), tuple(corrected)
         )
         return self._state
+
+    @staticmethod
+    def _peer_rotations(frames, delta: np.ndarray, measured: dict[int, float]) -> list[float]:
+        """Each wheel's rotation [rad] as the measured wheels predict it.
+
+        Theirs scaled by the ratio of the wheels' rolling speeds (:func:`rolling_speeds`),
+        median over them; a wheel near the centre of rotation (under a fifth of the fastest
+        speed) would scale its noise without bound and predicts nothing.
+        """
+        speeds = rolling_speeds(np.array([c[:2] for _, c in frames]), delta)
+        usable = [j for j in measured if abs(speeds[j]) >= 0.2]
+        if not usable:
+            return [float(np.median(list(measured.values()))) if measured else math.nan] * len(frames)
+        return [
+            float(np.median([measured[j] * speeds[k] / speeds[j] for j in usable]))
+            for k in range(len(frames))
+        ]
 
     def _carry(self, t: float, dt: float) -> KinematicState:
         prev = self._state

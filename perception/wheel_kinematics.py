@@ -65,3 +65,29 @@ def wheel_ground_velocity(
     vwy = vy + wz * xy[:, 0]
     c, s = np.cos(steering), np.sin(steering)
     return c * vwx + s * vwy, -s * vwx + c * vwy
+
+
+def rolling_speeds(wheel_xy: np.ndarray, steering: np.ndarray) -> np.ndarray:
+    """Relative wheel speeds of a rigid body whose steered wheels all roll without side slip.
+
+    The body twist (v_x, v_y, omega) that moves every wheel centre along its heading is the
+    least-squares null vector of the wheels' lateral-velocity constraints (the instantaneous
+    centre of rotation that best fits the steering); each wheel's speed along its heading
+    follows (:func:`wheel_ground_velocity`). Their ratios are the ratios of the wheels' spin
+    rates when none slips.
+
+    Args:
+        wheel_xy: (N, 2) wheel centres in the body frame [m].
+        steering: (N,) steering angles [rad], positive left.
+
+    Returns:
+        (N,) speeds along each heading, scaled so that the largest magnitude is 1 (the common
+        sign is arbitrary).
+    """
+    xy = np.asarray(wheel_xy, dtype=np.float64)
+    c, s = np.cos(steering), np.sin(steering)
+    # lateral velocity of wheel i: -s (v_x - omega y_i) + c (v_y + omega x_i) = 0
+    A = np.column_stack([-s, c, s * xy[:, 1] + c * xy[:, 0]])
+    twist = np.linalg.svd(A)[2][-1]
+    v_long = wheel_ground_velocity(twist, xy, steering)[0]
+    return v_long / max(float(np.abs(v_long).max()), 1e-12)

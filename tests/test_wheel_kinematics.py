@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from perception import slip_angle, slip_ratio, wheel_ground_velocity
+from perception.wheel_kinematics import rolling_speeds
 
 
 def test_slip_ratio_values():
@@ -24,3 +25,16 @@ def test_wheel_velocity_of_a_pure_rotation():
     np.testing.assert_allclose(vl, [0.5, 0.5], atol=1e-12)  # |omega| * radius
     np.testing.assert_allclose(vt, [0.0, 0.0], atol=1e-12)
     assert slip_angle(1.0, 1.0) == pytest.approx(np.pi / 4)
+
+
+def test_rolling_speeds_are_proportional_to_the_distance_from_the_centre_of_rotation():
+    xy = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])
+    np.testing.assert_allclose(np.abs(rolling_speeds(xy, np.zeros(4))), 1.0)
+    # double Ackermann left, front-only Ackermann left (rear axle on the centre's line), right
+    for icr in ((0.0, 2.0), (-0.4, 1.5), (0.3, -3.0)):
+        rel = xy - np.array(icr)
+        steer = np.arctan(-rel[:, 0] / rel[:, 1])  # each wheel heads across its line to the centre
+        speeds = rolling_speeds(xy, steer)
+        dist = np.hypot(rel[:, 0], rel[:, 1])
+        np.testing.assert_allclose(np.abs(speeds), dist / dist.max(), atol=1e-9)
+        assert np.all(np.sign(speeds) == np.sign(speeds[0]))  # all roll the same way
