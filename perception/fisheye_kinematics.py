@@ -291,10 +291,15 @@ class KinematicStateEstimator:
             # other wheels are its prediction); a wheel not yet tracked is then searched over
             # acquire_span, where the features must confirm
             good = [k for k in range(4) if rots[k].valid]
-            peer = self._peer_rotations(curr_frames, delta, {k: rots[k].alpha for k in good})
+            lost = [k for k in range(4) if not rots[k].valid]
+            peer = (
+                self._peer_rotations(curr_frames, delta, {k: rots[k].alpha for k in good})
+                if good and lost
+                else []
+            )
             for near in (True, False):
-                again = [k for k in range(4) if not rots[k].valid and (near or not tracked[k])]
-                if not (good and again):
+                again = [k for k in lost if not rots[k].valid and (near or not tracked[k])]
+                if not (peer and again):
                     continue
                 more = measure_pairs(
                     [pairs[k] for k in again], r, cfg.tread, [peer[k] for k in again],
@@ -357,7 +362,7 @@ class KinematicStateEstimator:
 
     @staticmethod
     def _peer_rotations(frames, delta: np.ndarray, measured: dict[int, float]) -> list[float]:
-        """Each wheel's rotation [rad] as the measured wheels predict it.
+        """Each wheel's rotation [rad] as the measured wheels (at least one) predict it.
 
         Theirs scaled by the ratio of the wheels' rolling speeds (:func:`rolling_speeds`),
         median over them; a wheel near the centre of rotation (under a fifth of the fastest
@@ -366,7 +371,7 @@ class KinematicStateEstimator:
         speeds = rolling_speeds(np.array([c[:2] for _, c in frames]), delta)
         usable = [j for j in measured if abs(speeds[j]) >= 0.2]
         if not usable:
-            return [float(np.median(list(measured.values()))) if measured else math.nan] * len(frames)
+            return [float(np.median(list(measured.values())))] * len(frames)
         return [
             float(np.median([measured[j] * speeds[k] / speeds[j] for j in usable]))
             for k in range(len(frames))
