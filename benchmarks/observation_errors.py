@@ -43,41 +43,47 @@ TRUTH = (
 )
 
 
+class StepLog:
+    """A drive's rows for :func:`slip_metrics`: per step the estimate, the filter's slip events,
+    the truth, the wheels' speeds (tread or ground, [m/s]) and the time [s]."""
+
+    def __init__(self, radius: float) -> None:
+        self.radius = radius
+        self.est, self.events, self.tru, self.speed, self.t = [], [], [], [], []
+
+    def add(self, obs: np.ndarray, info: dict) -> None:
+        gt = info["ground_truth"]
+        self.est.append(obs[:17].astype(np.float64))
+        self.events.append(info["slip"]["events"])
+        self.tru.append([gt[k][i] for k, i in TRUTH])
+        self.speed.append(np.maximum(np.abs(gt["wheel_rate"] * self.radius), np.abs(gt["twist"][0])))
+        self.t.append(info["t"])
+
+    def arrays(self, frame: float) -> dict:
+        """The rows as arrays, with the fisheye's frame period [s] and the wheel radius [m]."""
+        names = ("est", "events", "tru", "speed", "t")
+        return {k: np.array(getattr(self, k)) for k in names} | {"frame": frame, "radius": self.radius}
+
+
 def run(env_id: str, seed: int, preset: str, seconds: float) -> dict:
     env = gym.make(env_id, obs_source="estimated", preset=preset)
     try:
         ctrl = PurePursuit(OBS_FIELDS)
         obs, info = env.reset(seed=seed)
         ctrl.reset()
-        est, ev, tru, speed, t = [], [], [], [], []
-        r = env.unwrapped.geometry.wheel_radius
+        log = StepLog(env.unwrapped.geometry.wheel_radius)
         steps = int(round(seconds * env.unwrapped.control_hz))
         wall = time.perf_counter()
         for _ in range(steps):
             obs, _, term, trunc, info = env.step(ctrl.act(obs))
-            gt = info["ground_truth"]
-            est.append(obs[:17].astype(np.float64))
-            ev.append(info["slip"]["events"])
-            tru.append([gt[k][i] for k, i in TRUTH])
-            speed.append(np.maximum(np.abs(gt["wheel_rate"] * r), np.abs(gt["twist"][0])))
-            t.append(info["t"])
+            log.add(obs, info)
             if term or trunc:
                 break
         wall = time.perf_counter() - wall
         fisheye_period = env.unwrapped.pipeline.fisheye.period
     finally:
         env.close()
-    return dict(
-        est=np.array(est),
-        events=np.array(ev),
-        tru=np.array(tru),
-        speed=np.array(speed),
-        t=np.array(t),
-        frame=fisheye_period,
-        radius=r,
-        wall=wall,
-        success=bool(info["is_success"]),
-    )
+    return log.arrays(fisheye_period) | {"wall": wall, "success": bool(info["is_success"])}
 
 
 def events(on: np.ndarray) -> list[tuple[int, int]]:

@@ -27,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from observation_errors import TRUTH, slip_metrics  # noqa: E402
+from observation_errors import StepLog, slip_metrics  # noqa: E402
 
 import rover_env  # noqa: E402
 
@@ -53,8 +53,7 @@ def drive(
     env = gym.make(env_id, obs_source="estimated", preset=preset)
     try:
         obs, info = env.reset(seed=seed)
-        r = env.unwrapped.geometry.wheel_radius
-        est, ev, tru, speed, t = [], [], [], [], []
+        log = StepLog(env.unwrapped.geometry.wheel_radius)
         rng = np.random.default_rng(seed)
         burst = int(rng.integers(15, 25))  # steps per phase
         v = 0.0
@@ -66,26 +65,13 @@ def drive(
             # the command ramps like a drive with an acceleration limit (ramp_rate per step)
             v = float(np.clip(target, v - ramp, v + ramp)) if ramp > 0 else target
             obs, _, term, trunc, info = env.step(np.array([v, 0.0, 0.0], np.float32))
-            gt = info["ground_truth"]
-            est.append(obs[:17].astype(np.float64))
-            ev.append(info["slip"]["events"])
-            tru.append([gt[key][i] for key, i in TRUTH])
-            speed.append(np.maximum(np.abs(gt["wheel_rate"] * r), np.abs(gt["twist"][0])))
-            t.append(info["t"])
+            log.add(obs, info)
             if term or trunc or x > patch_x[1] + 0.5:
                 break
         frame = env.unwrapped.pipeline.fisheye.period
     finally:
         env.close()
-    return dict(
-        est=np.array(est),
-        events=np.array(ev),
-        tru=np.array(tru),
-        speed=np.array(speed),
-        t=np.array(t),
-        frame=frame,
-        radius=r,
-    )
+    return log.arrays(frame)
 
 
 def main(argv=None) -> int:
