@@ -12,7 +12,16 @@ from the filtered state (DESIGN.md):
     beta_i = atan2(v_i,lat, v_i,long)
 
 with its standard deviation from the filter's covariance (first order, then through the clip to
-[-1, 1] as a censored normal). Slip events switch on
+[-1, 1] as a censored normal).
+
+Wheels mostly grip, so each measured wheel rate also brings a pseudo-measurement of zero slip,
+s_i ~ N(0, grip_std^2), i.e. v_i,long = theta_dot_i r with a deviation of grip_std times the
+wheel's speed: the wheel odometry that rovers fuse with visual odometry. It is gated: a wheel whose
+innovation exceeds ``grip_gate`` standard deviations slips and adds nothing, so slip well above the
+odometry's noise is measured as before, while the noise of the visual odometry on rough ground
+(its planar model leaves out pitch and relief) no longer reads as slip. It is used only where the
+data could refute it (a slip of ``event_on`` would fall outside the gate): under poor odometry a
+wheel that spins with all the others is not taken for a gripping one. Slip events switch on
 when |s| reaches ``event_on`` and off when it falls below ``event_off`` (hysteresis).
 
 Frames: body frame x forward, y left, z up; wheel order FL, FR, RL, RR.
@@ -66,6 +75,12 @@ class SlipConfig:
             size of the odometry's noise at the training resolution, and every reversal of a
             wheel sends the ratio through +-1 for a frame or two as its speed passes zero.
         eps: Denominator floor of the slip ratio [m/s] (the ground truth's).
+        grip_std: Slip standard deviation of a gripping wheel, the zero-slip pseudo-measurement
+            that each measured wheel rate brings (0: none; the filter then rests on the visual
+            odometry alone). Applied while the wheel's speed reaches ``event_min_speed``.
+        grip_gate: The pseudo-measurement is left out for a wheel whose innovation exceeds
+            this many standard deviations (that wheel slips), and for one whose gate is wider
+            than a slip of ``event_on`` (the data could not tell).
     """
 
     velocity_rw: float = 0.15
@@ -83,6 +98,8 @@ class SlipConfig:
     event_off: float = 0.1
     event_min_speed: float = 0.15
     eps: float = 0.01
+    grip_std: float = 0.03
+    grip_gate: float = 2.5
 
     def __post_init__(self) -> None:
         for name in ("velocity_rw", "yaw_rate_rw", "wheel_rate_rw", "min_quality", "min_speed", "max_age"):
@@ -92,6 +109,10 @@ class SlipConfig:
             raise ValueError(f"SlipConfig.odom_std: {self.odom_std!r}; give three values > 0")
         if len(self.rate_std) != 2 or self.rate_std[0] <= 0 or self.rate_std[1] < 0:
             raise ValueError(f"SlipConfig.rate_std: {self.rate_std!r}; give (floor > 0, share >= 0)")
+        if not (self.grip_std >= 0 and self.grip_gate > 0):
+            raise ValueError(
+                f"SlipConfig: grip_std={self.grip_std!r} must be >= 0 and grip_gate={self.grip_gate!r} > 0"
+            )
         if not self.event_hold >= 0:
             raise ValueError(f"SlipConfig.event_hold: {self.event_hold!r} s must be >= 0")
         if not 0 < self.event_off < self.event_on <= 1:
@@ -323,11 +344,37 @@ class SlipEstimator:
                 self._t = t
             H = np.zeros((len(idx), len(self._x)))
             H[np.arange(len(idx)), idx] = 1.0
-            S = H @ self._P @ H.T + R
-            K = np.linalg.solve(S, H @ self._P).T
-            self._x = self._x + K @ (z - H @ self._x)
-            IKH = np.eye(len(self._x)) - K @ H
-            self._P = IKH @ self._P @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric PSD
+            self._update(H, z, R)
+            if idx[0] >= 3 and self.config.grip_std > 0:
+                self._grip(idx - 3)
+
+    def _update(self, H: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
+        """Kalman update with measurements z = H x + noise of covariance R."""
+        S = H @ self._P @ H.T + R
+        K = np.linalg.solve(S, H @ self._P).T
+        self._x = self._x + K @ (z - H @ self._x)
+        IKH = np.eye(len(self._x)) - K @ H
+        self._P = IKH @ self._P @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric PSD
+
+    def _grip(self, wheels: np.ndarray) -> None:
+        """Zero-slip pseudo-measurements v_i,long - theta_dot_i r = 0 of the gripping ``wheels``."""
+        c = self.config
+        x, P = self._x, self._P
+        v_long, _ = wheel_ground_velocity(x[:3], self.wheel_xy, self._steer)
+        speed = np.maximum(np.abs(x[3:] * self.wheel_radius), np.abs(v_long))
+        w = wheels[speed[wheels] >= c.event_min_speed]
+        if not len(w):
+            return
+        H = np.zeros((len(w), len(x)))
+        H[:, :3] = _long_jacobian(self.wheel_xy, self._steer)[w]
+        H[np.arange(len(w)), 3 + w] = -self.wheel_radius
+        var = (c.grip_std * speed[w]) ** 2
+        S = np.einsum("ij,jk,ik->i", H, P, H) + var
+        innov = -(H @ x)
+        # only where the data could refute it: a slip of event_on would fall outside the gate
+        grip = (innov**2 <= c.grip_gate**2 * S) & (S - var <= (c.max_slip_std * speed[w]) ** 2)
+        if grip.any():
+            self._update(H[grip], np.zeros(int(grip.sum())), np.diag(var[grip]))
 
     def estimate(self, t: float) -> SlipEstimate:
         """The filtered state and slip at time ``t`` [s] (measurements up to ``t`` applied)."""
@@ -347,11 +394,9 @@ class SlipEstimator:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             ds_da = np.where(big_a, v_long / a**2, 1.0 / v_long)
             ds_dv = np.where(big_a, -1.0 / a, -a / v_long**2)
-        cos, sin = np.cos(self._steer), np.sin(self._steer)
-        xw, yw = self.wheel_xy[:, 0], self.wheel_xy[:, 1]
-        J = np.zeros((N_WHEELS, len(x)))  # d v_long / d (v_x, v_y, omega), then d a / d rate
+        J = np.zeros((N_WHEELS, len(x)))  # d s / d (v_x, v_y, omega), then d s / d rate
         with np.errstate(invalid="ignore"):
-            J[:, 0], J[:, 1], J[:, 2] = cos * ds_dv, sin * ds_dv, (-cos * yw + sin * xw) * ds_dv
+            J[:, :3] = _long_jacobian(self.wheel_xy, self._steer) * ds_dv[:, None]
             J[np.arange(N_WHEELS), 3 + np.arange(N_WHEELS)] = ds_da * self.wheel_radius
             var = np.einsum("ij,jk,ik->i", J, P, J)
         s_std = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
@@ -389,6 +434,12 @@ class SlipEstimator:
             events=self._events.copy(),
             quality=float(valid.mean()),
         )
+
+
+def _long_jacobian(wheel_xy: np.ndarray, steering: np.ndarray) -> np.ndarray:
+    """(4, 3) d v_long / d (v_x, v_y, omega) of the wheel centres at ``wheel_xy`` [m], ``steering`` [rad]."""
+    cos, sin = np.cos(steering), np.sin(steering)
+    return np.stack([cos, sin, -cos * wheel_xy[:, 1] + sin * wheel_xy[:, 0]], axis=1)
 
 
 def clipped_normal_std(mean, std) -> np.ndarray:
