@@ -41,18 +41,18 @@ def view_planes(K: np.ndarray, size: tuple[int, int], T_world_cam: np.ndarray, n
     """(5, 4) half-spaces n . x + d >= 0 (world frame) that bound a pinhole view.
 
     The four sides through the image's edges and the near plane; ``K`` [px] and ``size`` = (W, H)
-    [px] as in :func:`render_K`, ``near`` [m].
+    [px] as in :func:`render_K` (the principal point may lie outside the image: a crop), ``near`` [m].
     """
     w, h = size
-    x0, x1 = -K[0, 2] / K[0, 0], (w - K[0, 2]) / K[0, 0]  # normalised image coordinates of the edges
-    y0, y1 = -K[1, 2] / K[1, 1], (h - K[1, 2]) / K[1, 1]
-    R = T_world_cam[:3, :3]
-    rays = np.array([[x0, y0, 1.0], [x1, y0, 1.0], [x1, y1, 1.0], [x0, y1, 1.0]]) @ R.T  # world directions
-    o, z = T_world_cam[:3, 3], R[:, 2]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    x0, x1 = -cx / fx, (w - cx) / fx  # normalised image coordinates of the edges
+    y0, y1 = -cy / fy, (h - cy) / fy
+    # inward normals in the camera frame: x - x0 >= 0, x1 - x >= 0, y - y0 >= 0, y1 - y >= 0 on
+    # the ray (x, y, 1) scaled by its depth; then the near plane z >= near
+    n_cam = np.array([[1.0, 0.0, -x0], [-1.0, 0.0, x1], [0.0, 1.0, -y0], [0.0, -1.0, y1], [0.0, 0.0, 1.0]])
+    R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
     planes = np.empty((5, 4))
-    n = np.cross(rays, rays[[1, 2, 3, 0]])
-    planes[:4, :3] = n * np.sign(n @ z)[:, None]  # toward the optical axis
-    planes[4, :3] = z
+    planes[:, :3] = n_cam @ R.T
     planes[:, 3] = -(planes[:, :3] @ o)
     planes[4, 3] -= near
     return planes

@@ -11,7 +11,7 @@ from scipy.ndimage import minimum_filter
 
 from perception.cameras import PinholeCamera
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-from rover_env.rendering import Lighting, render_pinhole
+from rover_env.rendering import Lighting, look_at, render_pinhole, view_planes
 from rover_env.sim import RoverSim, quat_to_yaw
 
 
@@ -294,3 +294,35 @@ def test_cameras_ground_range_leaves_the_pixels_they_need_unchanged(preset):
             assert same.mean() > 0.999, f"{cls.__name__}: {np.sum(~same)} of {inside.sum()} px differ"
     finally:
         sim.close()
+
+
+@pytest.mark.parametrize("principal", [(80.0, 60.0), (-50.0, -40.0), (210.0, 170.0), (-30.0, 60.0)])
+def test_view_planes_hold_exactly_the_points_the_view_sees(principal):
+    """Points back-projected from pixels inside the image, beyond ``near``, are inside every plane;
+    pixels past an edge, or points nearer than ``near``, are outside one. Crops whose principal
+    point lies outside the image (a fisheye face's window) included."""
+    rng = np.random.default_rng(0)
+    K = np.array([[100.0, 0.0, principal[0]], [0.0, 90.0, principal[1]], [0.0, 0.0, 1.0]])
+    w, h, near = 160, 120, 0.05
+    T = look_at([0.3, -0.2, 1.0], [0.5, 0.1, 0.0])
+    planes = view_planes(K, (w, h), T, near)
+
+    def world(u, v, z):
+        ray = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+        return (ray * z[:, None]) @ T[:3, :3].T + T[:3, 3]
+
+    def margin(x):  # smallest signed distance to the planes
+        return (x @ planes[:, :3].T + planes[:, 3]).min(axis=1)
+
+    n = 2000
+    u, v, z = rng.uniform(0.5, w - 0.5, n), rng.uniform(0.5, h - 0.5, n), rng.uniform(near + 0.01, 5.0, n)
+    assert (margin(world(u, v, z)) > 0).all()
+    outside = [
+        world(rng.uniform(-50, -0.5, n), v, z),  # left of the image
+        world(rng.uniform(w + 0.5, w + 50, n), v, z),
+        world(u, rng.uniform(-50, -0.5, n), z),
+        world(u, rng.uniform(h + 0.5, h + 50, n), z),
+        world(u, v, rng.uniform(0.001, near - 0.001, n)),  # nearer than near
+    ]
+    for x in outside:
+        assert (margin(x) < 0).all()
