@@ -216,7 +216,7 @@ class DownwardCamera(_RoverCamera):
             caster=self._caster(lighting),
             renderer=self.sim.renderer,
             segmentation=labels,
-            cull=self.sim.terrain.cull,
+            cull=self.sim.terrain.view_cull,
         )
 
 
@@ -284,9 +284,13 @@ class FisheyeCamera(_RoverCamera):
 
         ``parts``: (N, 3) body-frame points [m]. See :meth:`CubemapRemap.windows`.
         """
-        T = np.linalg.inv(self.T_body_cam)
+        T = self._T_cam_body
         pts = np.asarray(parts, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
         return self.remapper.windows(pts, self.window_margin)
+
+    @functools.cached_property
+    def _T_cam_body(self) -> np.ndarray:
+        return np.linalg.inv(self.T_body_cam)
 
     def _render(self, labels: bool, parts: np.ndarray | None = None) -> FisheyeView:
         lighting = self.lighting
@@ -297,6 +301,6 @@ class FisheyeCamera(_RoverCamera):
             lighting,
             self._caster(lighting),
             labels=labels,
-            cull=self.sim.terrain.cull,
+            cull=self.sim.terrain.view_cull,
             windows=None if parts is None else self.windows(parts),
         )

@@ -364,29 +364,39 @@ class CubemapRemap:
             (u0, v0, u1, v1) per face [face px, end exclusive], clipped to the face; (0, 0, 0, 0)
             for a face that none of the points reach.
         """
-        pts = np.asarray(points_cam, dtype=np.float64)
+        pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+        R, K, size = self._face_arrays
+        p = np.einsum("nj,fjk->fnk", pts, R)  # every face's optical frame, (faces, N, 3)
+        z = p[..., 2]
+        front = z > 1e-6
+        z = np.where(front, z, 1.0)
+        u = K[:, 0, None] * p[..., 0] / z + K[:, 1, None]
+        v = K[:, 2, None] * p[..., 1] / z + K[:, 3, None]
+        W, H = size[:, 0, None], size[:, 1, None]
+        ins = front & (u > -margin) & (u < W - 1 + margin) & (v > -margin) & (v < H - 1 + margin)
+        lo_u, hi_u = np.where(ins, u, np.inf).min(axis=1), np.where(ins, u, -np.inf).max(axis=1)
+        lo_v, hi_v = np.where(ins, v, np.inf).min(axis=1), np.where(ins, v, -np.inf).max(axis=1)
         out = []
-        for fc in self.faces:
-            p = pts @ fc.R_cam_face  # face optical frame
-            front = p[:, 2] > 1e-6
-            z = p[front, 2]
-            u = fc.K[0, 0] * p[front, 0] / z + fc.K[0, 2]
-            v = fc.K[1, 1] * p[front, 1] / z + fc.K[1, 2]
-            W, H = fc.size
-            ins = (u > -margin) & (u < W - 1 + margin) & (v > -margin) & (v < H - 1 + margin)
-            if not ins.any():
+        for k, (w, h) in enumerate(size.tolist()):
+            if not ins[k].any():
                 out.append((0, 0, 0, 0))
                 continue
-            u, v = u[ins], v[ins]
             out.append(
                 (
-                    max(0, math.floor(u.min()) - margin),
-                    max(0, math.floor(v.min()) - margin),
-                    min(W, math.ceil(u.max()) + margin + 1),
-                    min(H, math.ceil(v.max()) + margin + 1),
+                    max(0, math.floor(lo_u[k]) - margin),
+                    max(0, math.floor(lo_v[k]) - margin),
+                    min(w, math.ceil(hi_u[k]) + margin + 1),
+                    min(h, math.ceil(hi_v[k]) + margin + 1),
                 )
             )
         return out
+
+    @functools.cached_property
+    def _face_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The faces' rotations (F, 3, 3), (fx, cx, fy, cy) (F, 4) and sizes (F, 2), stacked."""
+        R = np.stack([fc.R_cam_face for fc in self.faces])
+        K = np.array([[fc.K[0, 0], fc.K[0, 2], fc.K[1, 1], fc.K[1, 2]] for fc in self.faces])
+        return R, K, np.array([fc.size for fc in self.faces])
 
     def remap(self, atlas: np.ndarray) -> np.ndarray:
         """The fisheye image from an atlas image, bilinear; 0 outside the field of view."""

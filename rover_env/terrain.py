@@ -259,6 +259,11 @@ class Terrain:
                     self._boxes[key] = self._chunk_box(key)
             self._focused = ([self._chunks[k] for k in focused], np.array([self._boxes[k] for k in focused]))
 
+    @property
+    def view_cull(self):
+        """:meth:`cull` where it has work (rough ground), else None: flat chunks are two triangles each."""
+        return self.cull if self.heights is not None else None
+
     def cull(self, planes: np.ndarray) -> None:
         """Of the chunks that :meth:`focus` draws, draw only those that may be inside a view.
 
