@@ -20,8 +20,9 @@ wheel's speed: the wheel odometry that rovers fuse with visual odometry. It is g
 innovation exceeds ``grip_gate`` standard deviations slips and adds nothing, so slip well above the
 odometry's noise is measured as before, while the noise of the visual odometry on rough ground
 (its planar model leaves out pitch and relief) no longer reads as slip. It is used only where the
-data could refute it (a slip of ``event_on`` would fall outside the gate): under poor odometry a
-wheel that spins with all the others is not taken for a gripping one. Slip events switch on
+measurements alone resolve the slip (the filter's deviation of v_i,long - theta_dot_i r is at most
+``max_slip_std`` times the wheel's speed): under poor odometry a wheel that spins with all the
+others is not taken for a gripping one. Slip events switch on
 when |s| reaches ``event_on`` and off when it falls below ``event_off`` (hysteresis).
 
 Frames: body frame x forward, y left, z up; wheel order FL, FR, RL, RR.
@@ -79,8 +80,8 @@ class SlipConfig:
             that each measured wheel rate brings (0: none; the filter then rests on the visual
             odometry alone). Applied while the wheel's speed reaches ``event_min_speed``.
         grip_gate: The pseudo-measurement is left out for a wheel whose innovation exceeds
-            this many standard deviations (that wheel slips), and for one whose gate is wider
-            than a slip of ``event_on`` (the data could not tell).
+            this many standard deviations (that wheel slips). It is also left out where the
+            measurements alone do not resolve the wheel's slip to ``max_slip_std``.
     """
 
     velocity_rw: float = 0.15
@@ -371,7 +372,7 @@ class SlipEstimator:
         var = (c.grip_std * speed[w]) ** 2
         S = np.einsum("ij,jk,ik->i", H, P, H) + var
         innov = -(H @ x)
-        # only where the data could refute it: a slip of event_on would fall outside the gate
+        # only where the measurements alone resolve the slip to max_slip_std
         grip = (innov**2 <= c.grip_gate**2 * S) & (S - var <= (c.max_slip_std * speed[w]) ** 2)
         if grip.any():
             self._update(H[grip], np.zeros(int(grip.sum())), np.diag(var[grip]))
