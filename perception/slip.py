@@ -361,13 +361,13 @@ class SlipEstimator:
         """Zero-slip pseudo-measurements v_i,long - theta_dot_i r = 0 of the gripping ``wheels``."""
         c = self.config
         x, P = self._x, self._P
-        v_long, _ = wheel_ground_velocity(x[:3], self.wheel_xy, self._steer)
-        speed = np.maximum(np.abs(x[3:] * self.wheel_radius), np.abs(v_long))
+        J = _long_jacobian(self.wheel_xy, self._steer)  # v_long = J @ twist
+        speed = np.maximum(np.abs(x[3:] * self.wheel_radius), np.abs(J @ x[:3]))
         w = wheels[speed[wheels] >= c.event_min_speed]
         if not len(w):
             return
         H = np.zeros((len(w), len(x)))
-        H[:, :3] = _long_jacobian(self.wheel_xy, self._steer)[w]
+        H[:, :3] = J[w]
         H[np.arange(len(w)), 3 + w] = -self.wheel_radius
         var = (c.grip_std * speed[w]) ** 2
         S = np.einsum("ij,jk,ik->i", H, P, H) + var
