@@ -377,6 +377,17 @@ class SlipEstimator:
         if grip.any():
             self._update(H[grip], np.zeros(int(grip.sum())), np.diag(var[grip]))
 
+    def twist_at(self, t: float) -> np.ndarray:
+        """The filtered body twist (v_x, v_y, omega) at ``t`` [s] [m/s, m/s, rad/s], body frame.
+
+        Applies the measurements up to ``t`` like :meth:`estimate`, without advancing the slip
+        events; for dead reckoning between estimates.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"t={t!r}: the query time must be finite")
+        self._apply(t)
+        return self._x[:3].copy()
+
     def estimate(self, t: float) -> SlipEstimate:
         """The filtered state and slip at time ``t`` [s] (measurements up to ``t`` applied)."""
         if not math.isfinite(t):

@@ -132,6 +132,31 @@ def test_the_zero_slip_prior_removes_odometry_noise_and_leaves_a_spin_alone():
     assert abs(spin[0.03]) < 0.05 and abs(spin[0.0]) < 0.05, spin
 
 
+def test_twist_between_estimates_changes_nothing():
+    """Dead reckoning asks for the twist at every tick; the estimates stay exactly those of a filter
+    that is never asked, and the twist asked for at t is the estimate's at t."""
+    rng = np.random.default_rng(5)
+    plain, asked = SlipEstimator(XY, R_WHEEL), SlipEstimator(XY, R_WHEEL)
+    ff = 1 / 30
+    previous, fl_events = None, 0
+    for k in range(1, 121):
+        t = k * ff
+        twist_before = asked.twist_at(t - ff)  # the tick's start, before this frame's measurements
+        if previous is not None:
+            np.testing.assert_array_equal(twist_before, previous)
+        tw, steer, _ = truth(t - ff / 2)
+        z_odo = tw + rng.normal(0, 0.01, 3)
+        z_rate = interval_mean(wheel_rates, t - ff, t) + rng.normal(0, 0.02, 4)
+        for est in (plain, asked):
+            est.add_odometry(t, z_odo, ff)
+            est.add_wheels(t, z_rate, ff, steering=steer)
+        a, b = plain.estimate(t), asked.estimate(t)
+        for name in ("twist", "wheel_rate", "slip_ratio", "slip_ratio_std", "events", "valid"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        previous, fl_events = b.twist, fl_events + int(b.events[0])
+    assert fl_events > 10  # the stream went through FL's spin (2-3.5 s)
+
+
 def test_imprecise_slip_is_not_valid_and_starts_no_event():
     """A spin (tread 0.6 m/s, ground 0.3 m/s: s = 0.5) under poor odometry (quality 0.05).
 
