@@ -114,7 +114,7 @@ def run_mission(
             rec.axle_roll.append(gt["axle_roll"])
             rec.steering.append(gt["steering"])
             rec.friction.append(info["wheel_contact"]["friction"])
-            rec.cross_track.append(float(obs[21]))
+            rec.cross_track.append(float(info["cross_track"]))
             energy += info["wheel_power"] * env.control_dt
             # stuck: commanding motion but the body barely moves for 2 s
             commanded = (
@@ -256,20 +256,19 @@ def run_demo(
     video: bool = True,
     progress: Callable[[float], None] | None = None,
 ) -> MissionMetrics:
-    """The headless demo: pure pursuit through ``scenario``; writes everything into ``out``.
+    """The headless demo: the slip-aware controller on estimated observations through ``scenario``.
 
-    Writes ``demo.mp4`` (chase view, downward and fisheye images), ``trajectory.png``, ``velocity_slip.png``,
-    ``joints.png``, ``metrics.json`` and ``trajectory.tum``.
+    The path follower with per-wheel traction control (:class:`~controllers.SlipAwareController`,
+    ``action_mode="wheels"``) drives on perception's estimates (``obs_source="estimated"``).
+    Writes ``demo.mp4`` (chase view, downward and fisheye images), ``trajectory.png``,
+    ``velocity_slip.png``, ``joints.png``, ``metrics.json`` and ``trajectory.tum`` into ``out``.
     """
-    from controllers.pure_pursuit import PurePursuit, PurePursuitConfig
-    from rover_env.envs.rover_env import OBS_FIELDS
+    from controllers.traction import SlipAwareController
 
     out.mkdir(parents=True, exist_ok=True)
-    env = RoverEnv(scenario=scenario, render_mode="rgb_array" if video else None)
+    env = RoverEnv(scenario=scenario, action_mode="wheels", render_mode="rgb_array" if video else None)
     try:
-        ctrl = PurePursuit(
-            OBS_FIELDS, PurePursuitConfig(cruise_speed=env.scenario.course.speed, v_max=env.v_max)
-        )
+        ctrl = SlipAwareController.for_env(env)
         metrics, rec = run_mission(
             env, ctrl, seed=seed, video_path=out / "demo.mp4" if video else None, progress=progress
         )

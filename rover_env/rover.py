@@ -35,37 +35,6 @@ def quat_to_matrix(quat_xyzw) -> np.ndarray:
     )
 
 
-def ackermann_wheel_speeds(
-    geom: RoverGeometry, speed: float, steer_front: float, steer_rear: float
-) -> np.ndarray:
-    """Ground speed of each wheel centre for a body-centre speed and axle steering commands.
-
-    The instantaneous centre of rotation (ICR) is where the normals of the two axles' virtual
-    centre wheels meet; each wheel's speed is proportional to its distance from it, so no
-    wheel is dragged. Parallel axle angles (straight or crab driving) give equal speeds.
-
-    Args:
-        geom: Rover geometry.
-        speed: Signed speed of the body centre [m/s].
-        steer_front: lambda_F [rad].
-        steer_rear: lambda_R [rad].
-
-    Returns:
-        (4,) wheel-centre speeds [m/s], order FL, FR, RL, RR, with the sign of ``speed``.
-    """
-    tf, tr = math.tan(steer_front), math.tan(steer_rear)
-    if abs(tf - tr) < 1e-9:
-        return np.full(4, float(speed))
-    yc = geom.wheelbase / (tf - tr)
-    xc = geom.axle_x - yc * tf
-    r_body = math.hypot(xc, yc)
-    half = geom.track / 2.0
-    ax = geom.axle_x
-    # wheel centres FL, FR, RL, RR in the body x-y plane
-    r_wheels = [math.hypot(x - xc, y - yc) for x, y in ((ax, half), (ax, -half), (-ax, half), (-ax, -half))]
-    return np.array([speed * r / r_body for r in r_wheels])
-
-
 class Rover:
     """The rover's multibody, its motors and passive springs.
 

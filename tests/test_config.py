@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from rover_env import ConfigError, RoverGeometry, list_scenarios, load_scenario
-from rover_env.rover import ackermann_wheel_speeds, axle_steering_from_wheels
+from rover_env.geometry import ackermann_wheel_speeds
+from rover_env.rover import axle_steering_from_wheels
 from rover_env.task import WaypointCourse
 
 

@@ -89,7 +89,7 @@ def test_wheel_rates_from_rendered_treads_within_3_percent_rms_at_half_and_two_m
     from conftest import flat_scenario
 
     from perception.fisheye_kinematics import KinematicStateEstimator
-    from rover_env.rover import ackermann_wheel_speeds
+    from rover_env.geometry import ackermann_wheel_speeds
     from rover_env.scenario import SunConfig
     from rover_env.sim import RoverSim
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import flat_scenario, rough_scenario
 
-from rover_env.rover import ackermann_wheel_speeds
+from rover_env.geometry import ackermann_wheel_speeds
 from rover_env.scenario import FrictionPatch
 from rover_env.sim import RoverSim, quat_to_yaw
 

@@ -16,10 +16,9 @@ from perception.cameras import PinholeCamera
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
 from rover_env.estimation import PERCEPTION_PRESETS, PerceptionPipeline, StepEstimate
 from rover_env.fisheye import FisheyeCameraConfig
-from rover_env.geometry import RoverGeometry
+from rover_env.geometry import RoverGeometry, ackermann_wheel_speeds
 from rover_env.ground_truth import GROUND_TRUTH_KEYS, GroundTruth
 from rover_env.rendering import Lighting, look_at, render_pinhole
-from rover_env.rover import ackermann_wheel_speeds
 from rover_env.scenario import ScenarioConfig, load_scenario
 from rover_env.sim import RoverSim, quat_to_yaw, yaw_to_quat
 from rover_env.task import RewardConfig, WaypointCourse
@@ -107,8 +106,8 @@ class RoverEnv(gym.Env):
 
     **Info**: ``ground_truth`` (exact state, keys of DESIGN.md), ``wheel_contact`` (friction,
     normal force, contact flag and point per wheel), ``reward_terms``, ``t`` [s],
-    ``waypoint_index``, ``progress`` [m], ``is_success``, ``termination``, ``wheel_power``
-    (drive motors' mechanical power [W]).
+    ``waypoint_index``, ``progress`` [m], ``cross_track`` (of the true pose, [m], left +),
+    ``is_success``, ``termination``, ``wheel_power`` (drive motors' mechanical power [W]).
 
     Args:
         scenario: Preset name, YAML path or :class:`ScenarioConfig`.
@@ -447,6 +446,7 @@ class RoverEnv(gym.Env):
             "t": gt.t,
             "waypoint_index": self.course.index,
             "progress": feats.progress,
+            "cross_track": feats.cross_track,
             "is_success": bool(success),
             "termination": reason,
         }
