@@ -1,5 +1,6 @@
-"""Trajectories: planar poses to TUM files (``t x y z qx qy qz qw``, readable by ``evo``), and the
-odometry paper's path-segment error.
+"""Trajectories: planar poses to TUM files, and the odometry paper's path-segment error.
+
+TUM lines are ``t x y z qx qy qz qw`` (readable by ``evo``).
 """
 
 from __future__ import annotations
