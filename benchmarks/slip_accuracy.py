@@ -5,7 +5,7 @@ mission has one on its first leg); on the patch the speed command cycles through
 (the wheels spin: s > 0), a reversed command (they skid and turn backwards: s < 0) and a slow
 roll, so that every wheel goes through several slip events. The
 environment runs with ``obs_source="estimated"``; the estimate is compared with the simulator's
-slip every step (:func:`observation_errors.slip_metrics`: MAE while |s_true| > 0.1 and
+slip every step (:func:`rover_env.estimator_metrics.slip_metrics`: MAE while |s_true| > 0.1 and
 otherwise, F1 and onset latency in fisheye frames of the filter's slip-event detection,
 ``info["slip"]["events"]``). An event is |s| >= 0.2 for two frames in a row, ending below 0.1, on
 a wheel whose tread or ground speed is at least 0.15 m/s (``SlipConfig.event_min_speed``): the
@@ -20,16 +20,12 @@ beyond the tread tracker's search, and are lost for several frames.
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-from observation_errors import StepLog, slip_metrics  # noqa: E402
-
-import rover_env  # noqa: E402
+import rover_env
+from rover_env.estimator_metrics import EstimateLog, slip_metrics
 
 
 def patch_span(env_id: str, margin: float = 0.05) -> tuple[float, float]:
@@ -53,7 +49,7 @@ def drive(
     env = gym.make(env_id, obs_source="estimated", preset=preset)
     try:
         obs, info = env.reset(seed=seed)
-        log = StepLog(env.unwrapped.geometry.wheel_radius)
+        log = EstimateLog(env.unwrapped.geometry.wheel_radius)
         rng = np.random.default_rng(seed)
         burst = int(rng.integers(15, 25))  # steps per phase
         v = 0.0

@@ -28,11 +28,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     bar = _progress_bar(f"demo {args.scenario}")
-    metrics = run_demo(out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar)
+    result = run_demo(out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar)
     bar(1.0)
     sys.stderr.write("\n")
-    print(json.dumps(asdict(metrics), indent=2))
-    print(f"wrote video, plots, metrics.json and trajectory.tum to {out.resolve()}")
+    print(json.dumps({"metrics": asdict(result.metrics), "estimator": result.estimator}, indent=2))
+    print(f"wrote video, plots, metrics.json and the TUM trajectories to {out.resolve()}")
     return 0
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +13,7 @@ import numpy as np
 from controllers.base import Controller
 from perception import trajectory as tum
 from rover_env.envs.rover_env import RoverEnv
+from rover_env.estimator_metrics import EstimateLog, estimator_summary
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +54,7 @@ class MissionLog:
     steering: list[np.ndarray]
     friction: list[np.ndarray]
     cross_track: list[float]
+    estimates: EstimateLog | None = None
 
     @classmethod
     def empty(cls) -> MissionLog:
@@ -60,8 +62,30 @@ class MissionLog:
         return cls([], [], [], [], [], [], [], [], [])
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Every record stacked into an array, by field name."""
-        return {k: np.asarray(v) for k, v in asdict(self).items()}
+        """Every ground-truth record stacked into an array, by field name."""
+        return {k: np.asarray(getattr(self, k)) for k in self._truth_fields()}
+
+    @classmethod
+    def _truth_fields(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls) if f.name != "estimates")
+
+
+@dataclass
+class MissionResult:
+    """What :func:`run_mission` returns.
+
+    Attributes:
+        metrics: The mission's summary.
+        log: Per-step ground truth (and estimates, with ``obs_source="estimated"``).
+        estimator: The estimator's errors against the truth
+            (:func:`~rover_env.estimator_metrics.estimator_summary`), or None without estimates.
+        estimate_arrays: The estimates' rows (:meth:`EstimateLog.arrays`), or None.
+    """
+
+    metrics: MissionMetrics
+    log: MissionLog
+    estimator: dict[str, float] | None = None
+    estimate_arrays: dict | None = None
 
 
 def run_mission(
@@ -71,8 +95,8 @@ def run_mission(
     video_path: Path | None = None,
     video_every: int = 2,
     progress: Callable[[float], None] | None = None,
-) -> tuple[MissionMetrics, MissionLog]:
-    """Drive one episode with ``controller`` and collect metrics and a log.
+) -> MissionResult:
+    """Drive one episode with ``controller`` and collect metrics, a log and the estimator's errors.
 
     Args:
         env: The environment (``render_mode="rgb_array"`` if a video is wanted).
@@ -87,6 +111,8 @@ def run_mission(
     obs, info = env.reset(seed=seed)
     controller.reset()
     rec = MissionLog.empty()
+    if env.pipeline is not None:
+        rec.estimates = EstimateLog(env.geometry.wheel_radius)
     writer = None
     if video_path is not None:
         fps = env.control_hz / video_every
@@ -116,6 +142,8 @@ def run_mission(
             rec.friction.append(info["wheel_contact"]["friction"])
             rec.cross_track.append(float(info["cross_track"]))
             energy += info["wheel_power"] * env.control_dt
+            if rec.estimates is not None:
+                rec.estimates.add(obs, info)
             # stuck: commanding motion but the body barely moves for 2 s
             commanded = (
                 abs(float(action[0])) > 0.05
@@ -162,7 +190,10 @@ def run_mission(
         stuck_events=stuck,
         total_reward=float(total_reward),
     )
-    return metrics, rec
+    if rec.estimates is None:
+        return MissionResult(metrics, rec)
+    est = rec.estimates.arrays(env.pipeline.fisheye.period)
+    return MissionResult(metrics, rec, estimator_summary(est), est)
 
 
 def write_tum(path: Path, rec: MissionLog) -> None:
@@ -171,14 +202,20 @@ def write_tum(path: Path, rec: MissionLog) -> None:
     tum.write_tum(path, arr["t"], arr["pose"][:, :3], arr["pose"][:, 3:7])
 
 
-def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:
-    """Trajectory, speed/slip and joint-angle plots (PNG); returns the written paths."""
+def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
+    """Trajectory, velocity and slip, and joint-angle plots (PNG), estimates against the truth.
+
+    Returns the written paths: ``trajectory.png`` (course, friction map, true and dead-reckoned
+    paths), ``velocity_slip.png`` (body twist and wheel slip ratios; the friction under each
+    wheel) and ``joints.png`` (axle roll and steering).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    arr = rec.arrays()
+    arr = result.log.arrays()
+    est = result.estimate_arrays
     t = arr["t"]
     paths = []
     fig, ax = plt.subplots(figsize=(7, 6))
@@ -201,9 +238,13 @@ def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:
     course = env.course.points
     ax.plot(course[:, 0], course[:, 1], "k--o", label="course")
     ax.plot(arr["pose"][:, 0], arr["pose"][:, 1], "b-", label="rover (ground truth)")
+    shown = [course, arr["pose"][:, :2]]
+    if est is not None:
+        ax.plot(est["est_pose"][:, 0], est["est_pose"][:, 1], "r-", lw=1, label="dead reckoning (estimate)")
+        shown.append(est["est_pose"][:, :2])
     pad = 2.0
-    lo = np.minimum(course.min(0), arr["pose"][:, :2].min(0)) - pad
-    hi = np.maximum(course.max(0), arr["pose"][:, :2].max(0)) + pad
+    lo = np.min([p.min(0) for p in shown], axis=0) - pad
+    hi = np.max([p.max(0) for p in shown], axis=0) + pad
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
@@ -216,15 +257,19 @@ def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:
     plt.close(fig)
 
     names = ("FL", "FR", "RL", "RR")
+    colours = ("C0", "C1", "C2", "C3")
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
-    axes[0].plot(t, arr["twist"][:, 0], label="v_x [m/s]")
-    axes[0].plot(t, arr["twist"][:, 1], label="v_y [m/s]")
-    axes[0].plot(t, arr["twist"][:, 2], label="omega [rad/s]")
+    for i, label in enumerate(("v_x [m/s]", "v_y [m/s]", "omega [rad/s]")):
+        axes[0].plot(t, arr["twist"][:, i], colours[i], label=label)
+        if est is not None:
+            axes[0].plot(est["t"], est["est"][:, i], colours[i], ls=":", lw=1)
     axes[0].legend(loc="upper right")
-    axes[0].set_title("body twist")
+    axes[0].set_title("body twist" + (": truth (solid), estimate (dotted)" if est is not None else ""))
     for i, n in enumerate(names):
-        axes[1].plot(t, arr["slip"][:, i], label=n)
-        axes[2].plot(t, arr["friction"][:, i], label=n)
+        axes[1].plot(t, arr["slip"][:, i], colours[i], label=n)
+        if est is not None:
+            axes[1].plot(est["t"], est["est"][:, 7 + i], colours[i], ls=":", lw=1)
+        axes[2].plot(t, arr["friction"][:, i], colours[i], label=n)
     axes[1].set_ylabel("slip ratio")
     axes[1].legend(loc="upper right")
     axes[2].set_ylabel("friction under wheel")
@@ -234,18 +279,40 @@ def write_plots(out: Path, env: RoverEnv, rec: MissionLog) -> list[Path]:
     plt.close(fig)
 
     fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
-    axes[0].plot(t, np.degrees(arr["axle_roll"][:, 0]), label="psi_F")
-    axes[0].plot(t, np.degrees(arr["axle_roll"][:, 1]), label="psi_R")
-    axes[0].set_ylabel("axle roll [deg]")
-    axes[0].legend(loc="upper right")
-    axes[1].plot(t, np.degrees(arr["steering"][:, 0]), label="lambda_F")
-    axes[1].plot(t, np.degrees(arr["steering"][:, 1]), label="lambda_R")
-    axes[1].set_ylabel("steering [deg]")
+    for ax, key, col, label in (
+        (axes[0], "axle_roll", 11, "axle roll [deg]"),
+        (axes[1], "steering", 15, "steering [deg]"),
+    ):
+        for i, a in enumerate(("F", "R")):
+            ax.plot(t, np.degrees(arr[key][:, i]), colours[i], label=f"{a}")
+            if est is not None:
+                ax.plot(est["t"], np.degrees(est["est"][:, col + i]), colours[i], ls=":", lw=1)
+        ax.set_ylabel(label)
+        ax.legend(loc="upper right")
+    axes[0].set_title("joints" + (": truth (solid), estimate (dotted)" if est is not None else ""))
     axes[1].set_xlabel("time [s]")
-    axes[1].legend(loc="upper right")
     paths.append(out / "joints.png")
     fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
     plt.close(fig)
+    return paths
+
+
+def write_outputs(out: Path, env: RoverEnv, result: MissionResult, plots: bool = True) -> list[Path]:
+    """Write a mission's ``metrics.json`` (with the estimator's errors), TUM trajectories and plots.
+
+    ``trajectory.tum`` is the true pose; ``estimate.tum`` the dead-reckoned one (with estimates),
+    both readable by ``evo``. Returns the written paths.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / "metrics.json", out / "trajectory.tum"]
+    data = {"metrics": asdict(result.metrics), "estimator": result.estimator}
+    paths[0].write_text(json.dumps(data, indent=2) + "\n")
+    write_tum(paths[1], result.log)
+    if result.estimate_arrays is not None:
+        e = result.estimate_arrays
+        paths.append(tum.write_planar_tum(out / "estimate.tum", e["t"], e["est_pose"]))
+    if plots:
+        paths += write_plots(out, env, result)
     return paths
 
 
@@ -255,13 +322,13 @@ def run_demo(
     seed: int = 0,
     video: bool = True,
     progress: Callable[[float], None] | None = None,
-) -> MissionMetrics:
+) -> MissionResult:
     """The headless demo: the slip-aware controller on estimated observations through ``scenario``.
 
     The path follower with per-wheel traction control (:class:`~controllers.SlipAwareController`,
     ``action_mode="wheels"``) drives on perception's estimates (``obs_source="estimated"``).
-    Writes ``demo.mp4`` (chase view, downward and fisheye images), ``trajectory.png``,
-    ``velocity_slip.png``, ``joints.png``, ``metrics.json`` and ``trajectory.tum`` into ``out``.
+    Writes ``demo.mp4`` (chase view, downward and fisheye images), the plots, ``metrics.json``
+    and the TUM trajectories (:func:`write_outputs`) into ``out``.
     """
     from controllers.traction import SlipAwareController
 
@@ -269,13 +336,11 @@ def run_demo(
     env = RoverEnv(scenario=scenario, action_mode="wheels", render_mode="rgb_array" if video else None)
     try:
         ctrl = SlipAwareController.for_env(env)
-        metrics, rec = run_mission(
+        result = run_mission(
             env, ctrl, seed=seed, video_path=out / "demo.mp4" if video else None, progress=progress
         )
-        write_plots(out, env, rec)
-        write_tum(out / "trajectory.tum", rec)
-        (out / "metrics.json").write_text(json.dumps(asdict(metrics), indent=2) + "\n")
+        write_outputs(out, env, result)
     finally:
         env.close()
-    log.info("demo finished: success=%s time=%.1f s", metrics.success, metrics.time)
-    return metrics
+    log.info("demo finished: success=%s time=%.1f s", result.metrics.success, result.metrics.time)
+    return result

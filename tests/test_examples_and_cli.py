@@ -36,14 +36,20 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
         "joints.png",
         "metrics.json",
         "trajectory.tum",
+        "estimate.tum",
     ):
         assert (out / name).stat().st_size > 300, name
-    metrics = json.loads((out / "metrics.json").read_text())
+    data = json.loads((out / "metrics.json").read_text())
+    metrics, est = data["metrics"], data["estimator"]
     assert metrics["success"] is True
     assert 3.0 < metrics["path_length"] < 5.0
-    tum = np.loadtxt(out / "trajectory.tum")
-    assert tum.shape[1] == 8
+    # the demo drives on estimates: their errors against the truth are reported, and small
+    assert est["mae_v_x"] < 0.05 and est["mae_steering"] < 0.02
+    assert est["position_error_final"] < 0.3
+    tum, tum_est = np.loadtxt(out / "trajectory.tum"), np.loadtxt(out / "estimate.tum")
+    assert tum.shape[1] == tum_est.shape[1] == 8 and len(tum) == len(tum_est)
     np.testing.assert_allclose(np.linalg.norm(tum[:, 4:], axis=1), 1.0, atol=1e-6)
+    assert np.abs(tum[-1, 1:3] - tum_est[-1, 1:3]).max() < 0.3
     import cv2
 
     cap = cv2.VideoCapture(str(out / "demo.mp4"))

@@ -1,0 +1,193 @@
+"""Errors of the estimator in the loop against the simulator's truth: per field, slip, and path.
+
+:class:`EstimateLog` records, at every control step of an ``obs_source="estimated"`` episode,
+the observation's state fields, the slip filter's events, the truth of the same fields and the
+dead-reckoned and true planar poses. From it:
+
+- :func:`field_errors`: per observation field, MAE and 95th percentile of |estimate - truth|;
+- :func:`slip_metrics`: per-wheel slip-ratio MAE while |s_true| > 0.1 and otherwise, and
+  slip-event detection (precision, recall, F1, onset latency in camera frames);
+- :func:`perception.trajectory.path_segment_errors` on the logged poses (the odometry paper's
+  path-segment error).
+
+The first second of each episode (the filters' start-up) is left out of every figure.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from perception.slip import SlipConfig, slip_events
+from perception.trajectory import path_segment_errors
+from rover_env.envs.rover_env import OBS_FIELDS
+from rover_env.sim import quat_to_yaw
+
+#: Observation fields with a ground truth: twist, wheel rates, slip, axle roll and height, steering.
+FIELDS: tuple[str, ...] = OBS_FIELDS[:17]
+#: (ground-truth key, index) of each of :data:`FIELDS`.
+TRUTH: tuple[tuple[str, int], ...] = tuple(
+    [("twist", i) for i in range(3)]
+    + [("wheel_rate", i) for i in range(4)]
+    + [("slip_ratio", i) for i in range(4)]
+    + [("axle_roll", i) for i in range(2)]
+    + [("axle_height", i) for i in range(2)]
+    + [("steering", i) for i in range(2)]
+)
+EVENT_FRAMES = 2  # frames in a row with |s| >= 0.2 that make a true event (SlipConfig.event_hold)
+EVENT_SPEED = SlipConfig().event_min_speed  # [m/s] no event on a slower wheel
+START_UP = 1.0  # [s] left out at the start of an episode
+
+
+class EstimateLog:
+    """Per-step rows of an estimated-observation episode.
+
+    Args:
+        radius: Wheel radius [m] (tread speeds from wheel rates).
+    """
+
+    def __init__(self, radius: float) -> None:
+        self.radius = radius
+        self.est, self.events, self.tru, self.speed, self.t = [], [], [], [], []
+        self.est_pose, self.true_pose = [], []
+
+    def add(self, obs: np.ndarray, info: dict) -> None:
+        """Record one step from the observation and ``info`` of ``env.step`` (estimated source)."""
+        gt = info["ground_truth"]
+        self.est.append(np.asarray(obs[: len(FIELDS)], dtype=np.float64))
+        self.events.append(info["slip"]["events"])
+        self.tru.append([gt[k][i] for k, i in TRUTH])
+        self.speed.append(np.maximum(np.abs(gt["wheel_rate"] * self.radius), abs(gt["twist"][0])))
+        self.t.append(info["t"])
+        for poses, p in ((self.est_pose, info["estimate"]["pose"]), (self.true_pose, gt["pose"])):
+            poses.append((p[0], p[1], quat_to_yaw(p[3:7])))
+
+    def arrays(self, frame: float) -> dict:
+        """The rows as arrays, with the fisheye's frame period ``frame`` [s] and the wheel radius."""
+        names = ("est", "events", "tru", "speed", "t", "est_pose", "true_pose")
+        return {k: np.array(getattr(self, k), dtype=float) for k in names} | {
+            "frame": frame,
+            "radius": self.radius,
+        }
+
+
+def field_errors(runs: list[dict]) -> dict[str, tuple[float, float]]:
+    """Per field of :data:`FIELDS`: (MAE, 95th percentile) of |estimate - truth| over ``runs``."""
+    err = np.vstack([np.abs(r["est"] - r["tru"])[r["t"] >= START_UP] for r in runs])
+    if len(err) == 0:
+        return {name: (math.nan, math.nan) for name in FIELDS}
+    return {
+        name: (float(err[:, j].mean()), float(np.percentile(err[:, j], 95))) for j, name in enumerate(FIELDS)
+    }
+
+
+def _runs_of(on: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end) index ranges of the True runs of ``on``."""
+    d = np.diff(np.r_[0, on.astype(int), 0])
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
+
+
+def slip_metrics(runs: list[dict]) -> dict:
+    """Slip-ratio accuracy and slip-event detection over ``runs`` (:meth:`EstimateLog.arrays`).
+
+    MAE of the four wheels' slip ratios while |s_true| > 0.1 and otherwise, over steps where the
+    wheel's tread or ground speed is at least 5 cm/s. Events: the slip filter's own
+    (``info["slip"]["events"]``) against the truth labelled by the same rule
+    (:func:`perception.slip.slip_events`: |s| >= 0.2 for two frames in a row on a wheel at 0.15 m/s
+    or more, ending below 0.1); an estimated event matches a true one it overlaps. Latency runs
+    from the truth's first frame at 0.2 and is counted in fisheye frames.
+    """
+    err_slip, err_calm, tp, fp, fn, lat = [], [], 0, 0, 0, []
+    for rr in runs:
+        keep = rr["t"] >= START_UP
+        s_est, s_true = rr["est"][keep, 7:11], rr["tru"][keep, 7:11]
+        moving = rr["speed"][keep] >= 0.05
+        big = np.abs(s_true) > 0.1
+        err = np.abs(s_est - s_true)
+        err_slip.extend(err[moving & big].tolist())
+        err_calm.extend(err[moving & ~big].tolist())
+        ev_est = np.asarray(rr["events"], bool)[keep]
+        ev_true = slip_events(s_true, min_frames=EVENT_FRAMES, speed=rr["speed"][keep], min_speed=EVENT_SPEED)
+        for w in range(4):
+            e_runs, t_runs = _runs_of(ev_est[:, w]), _runs_of(ev_true[:, w])
+            matched = set()
+            for a0, a1 in t_runs:
+                hit = [k for k, (b0, b1) in enumerate(e_runs) if b0 < a1 and a0 < b1]
+                if hit:
+                    tp += 1
+                    matched.update(hit)
+                    lat.append(max(0, e_runs[hit[0]][0] - (a0 - (EVENT_FRAMES - 1))))
+                else:
+                    fn += 1
+            fp += len(e_runs) - len(matched)
+    prec = tp / max(tp + fp, 1)
+    rec = tp / max(tp + fn, 1)
+    f1 = 2 * prec * rec / max(prec + rec, 1e-12)
+    # latencies are counted in control steps; a fisheye frame spans frame / (step time) of them
+    step = float(np.median(np.diff(runs[0]["t"]))) if runs and len(runs[0]["t"]) > 1 else math.nan
+    lat_frames = np.array(lat) * step / runs[0]["frame"] if lat else np.zeros(0)
+    return dict(
+        mae_slip=float(np.mean(err_slip)) if err_slip else math.nan,
+        n_slip=len(err_slip),
+        mae_calm=float(np.mean(err_calm)) if err_calm else math.nan,
+        events=tp + fn,
+        precision=prec,
+        recall=rec,
+        f1=f1,
+        latency_median=float(np.median(lat_frames)) if len(lat_frames) else math.nan,
+        latency_max=float(lat_frames.max()) if len(lat_frames) else math.nan,
+        within_2=float(np.mean(lat_frames <= 2 + 1e-9)) if len(lat_frames) else math.nan,
+    )
+
+
+def estimator_summary(run: dict, segment_lengths=(2.0, 5.0, 10.0)) -> dict[str, float]:
+    """One episode's estimator errors as flat ``name: value`` pairs (for tables and JSON).
+
+    Keys: ``mae_<field>`` and ``p95_<field>`` for the twist, and the mean over wheels or axles of
+    the wheel rates, slip ratios, axle roll and height and steering; the slip metrics
+    (``slip_mae_slipping``, ``slip_mae_otherwise``, ``slip_f1``, ...); the dead-reckoned
+    position's final and mean error [m]; and ``segment_<L>m_percent``, the mean path-segment
+    error as a share of the length.
+    """
+    errs = field_errors([run])
+    out: dict[str, float] = {}
+    groups = {
+        "v_x": ["v_x"],
+        "v_y": ["v_y"],
+        "omega": ["omega"],
+        "wheel_rate": [f for f in FIELDS if f.startswith("wheel_rate")],
+        "slip": [f for f in FIELDS if f.startswith("slip_")],
+        "axle_roll": ["axle_roll_F", "axle_roll_R"],
+        "axle_height": ["axle_height_F", "axle_height_R"],
+        "steering": ["steering_F", "steering_R"],
+    }
+    for g, names in groups.items():
+        out[f"mae_{g}"] = float(np.mean([errs[n][0] for n in names]))
+        out[f"p95_{g}"] = float(np.mean([errs[n][1] for n in names]))
+    s = slip_metrics([run])
+    out.update(
+        slip_mae_slipping=s["mae_slip"],
+        slip_mae_otherwise=s["mae_calm"],
+        slip_events=float(s["events"]),
+        slip_precision=s["precision"],
+        slip_recall=s["recall"],
+        slip_f1=s["f1"],
+        slip_latency_max=s["latency_max"],
+    )
+    d = np.linalg.norm(run["est_pose"][:, :2] - run["true_pose"][:, :2], axis=1)
+    out["position_error_final"] = float(d[-1]) if len(d) else math.nan
+    out["position_error_mean"] = float(d.mean()) if len(d) else math.nan
+    for e in path_segment_errors(run["true_pose"], run["est_pose"], segment_lengths):
+        out[f"segment_{e.length:g}m_percent"] = e.mean_percent
+    return out
+
+
+__all__ = [
+    "FIELDS",
+    "TRUTH",
+    "EstimateLog",
+    "estimator_summary",
+    "field_errors",
+    "slip_metrics",
+]
