@@ -1,4 +1,4 @@
-"""The ``rover`` command line: ``rover demo``, ``bench``, ``odometry``, ``kinematics``, ``scenarios``."""
+"""The ``rover`` command line: ``demo``, ``eval``, ``bench``, ``odometry``, ``kinematics``, ``scenarios``."""
 
 from __future__ import annotations
 
@@ -33,6 +33,41 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     sys.stderr.write("\n")
     print(json.dumps({"metrics": asdict(result.metrics), "estimator": result.estimator}, indent=2))
     print(f"wrote video, plots, metrics.json and the TUM trajectories to {out.resolve()}")
+    return 0
+
+
+def _seeds(text: str) -> list[int]:
+    """``"0-19"`` or ``"3"`` -> seeds."""
+    lo, sep, hi = text.partition("-")
+    try:
+        return list(range(int(lo), int(hi) + 1)) if sep else [int(lo)]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seeds: {text!r} is not N or N-M") from None
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from rover_env.evaluation import jobs_for, run_sweep, write_report
+
+    seeds = sorted({s for part in args.seeds for s in part})
+    jobs = jobs_for(args.controllers, args.missions, seeds, args.preset, args.out, args.videos)
+    start = time.perf_counter()
+    fails = []
+
+    def show(done: int, total: int, row: dict) -> None:
+        if not row["success"]:
+            fails.append(f"{row['controller']} {row['mission']} seed {row['seed']}: {row['termination']}")
+        n = int(done / total * 30)
+        sys.stderr.write(
+            f"\reval [{'#' * n}{'.' * (30 - n)}] {done}/{total} runs {time.perf_counter() - start:7.1f} s"
+        )
+        sys.stderr.flush()
+
+    sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
+    rows = run_sweep(jobs, executor=args.executor, workers=args.workers, progress=show)
+    sys.stderr.write("\n")
+    report = write_report(rows, args.out)
+    print(report.read_text())
+    print(f"wrote report.md, results.csv, results.json, summary.csv and runs/ to {Path(args.out).resolve()}")
     return 0
 
 
@@ -100,6 +135,28 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
     d.set_defaults(func=_cmd_demo)
+    from rover_env.evaluation import CONTROLLERS
+
+    e = sub.add_parser(
+        "eval",
+        help="sweep controllers x missions x seeds; one merged report",
+        description="Controllers: "
+        + "; ".join(f"{k} ({v.description})" for k, v in CONTROLLERS.items())
+        + ". Append @ground_truth to drive on the simulator's state instead of the estimates.",
+    )
+    e.add_argument(
+        "--controllers", nargs="+", default=["slip_unaware", "slip_aware", "slip_aware@ground_truth"]
+    )
+    e.add_argument("--missions", nargs="+", default=["Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0"],
+                   help="environment ids, scenario presets or YAML paths")  # fmt: skip
+    e.add_argument("--seeds", nargs="+", type=_seeds, default=[[0, 1, 2]], help="seeds: N or N-M")
+    e.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
+    e.add_argument("--executor", default="local", choices=("local", "ray"),
+                   help="local processes, or a Ray cluster (RAY_ADDRESS, else a local one)")  # fmt: skip
+    e.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
+    e.add_argument("--videos", action="store_true", help="write each run's video")
+    e.add_argument("--out", required=True, help="output folder (created if missing)")
+    e.set_defaults(func=_cmd_eval)
     b = sub.add_parser("bench", help="simulation speed benchmarks")
     b.add_argument("--scenarios", nargs="+", default=["flat_patches", "rough"])
     b.add_argument("--steps", type=int, default=600, help="environment steps per scenario")

@@ -95,8 +95,9 @@ def slip_metrics(runs: list[dict]) -> dict:
     wheel's tread or ground speed is at least 5 cm/s. Events: the slip filter's own
     (``info["slip"]["events"]``) against the truth labelled by the same rule
     (:func:`perception.slip.slip_events`: |s| >= 0.2 for two frames in a row on a wheel at 0.15 m/s
-    or more, ending below 0.1); an estimated event matches a true one it overlaps. Latency runs
-    from the truth's first frame at 0.2 and is counted in fisheye frames.
+    or more, ending below 0.1); an estimated event matches a true one it overlaps (F1 is NaN
+    when neither side has one). Latency runs from the truth's first frame at 0.2 and is counted
+    in fisheye frames.
     """
     err_slip, err_calm, tp, fp, fn, lat = [], [], 0, 0, 0, []
     for rr in runs:
@@ -123,7 +124,8 @@ def slip_metrics(runs: list[dict]) -> dict:
             fp += len(e_runs) - len(matched)
     prec = tp / max(tp + fp, 1)
     rec = tp / max(tp + fn, 1)
-    f1 = 2 * prec * rec / max(prec + rec, 1e-12)
+    # no event on either side: detection is not scored
+    f1 = 2 * prec * rec / max(prec + rec, 1e-12) if tp + fp + fn else math.nan
     # latencies are counted in control steps; a fisheye frame spans frame / (step time) of them
     step = float(np.median(np.diff(runs[0]["t"]))) if runs and len(runs[0]["t"]) > 1 else math.nan
     lat_frames = np.array(lat) * step / runs[0]["frame"] if lat else np.zeros(0)

@@ -1,0 +1,361 @@
+"""Sweeps of controllers x missions x seeds, in local processes or on a Ray cluster, into one report.
+
+A run is named by an :class:`EvalJob`: a controller name (:data:`CONTROLLERS`, optionally with
+``@ground_truth`` to drive on the simulator's state instead of perception's estimates), a
+mission (a registered environment id or a scenario), a seed and a camera preset. Each run is a
+fresh environment in its own process (:func:`run_job`); it returns one flat row of metrics
+(:class:`~rover_env.mission.MissionMetrics`) and, on estimated observations, the estimator's
+errors (:func:`~rover_env.estimator_metrics.estimator_summary`). :func:`run_sweep` runs the jobs
+with the ``local`` executor (a process pool; one worker runs them in this process) or the
+``ray`` executor (``ray.init()`` joins the cluster named by ``RAY_ADDRESS`` or starts a local
+one); the rows are the same either way. :func:`write_report` writes ``results.csv``,
+``results.json``, ``summary.csv`` and ``report.md``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """How to build a named controller.
+
+    Attributes:
+        action_mode: The environment's action mode it needs.
+        make: Builds the controller for an environment (``make(env)``).
+        description: One line for listings.
+    """
+
+    action_mode: str
+    make: Callable
+    description: str
+
+
+def _slip_unaware(env):
+    from controllers import PathFollower
+
+    return PathFollower.for_env(env)
+
+
+def _slip_aware(env):
+    from controllers import SlipAwareController
+
+    return SlipAwareController.for_env(env)
+
+
+def _pure_pursuit(env):
+    from controllers import PurePursuit, PurePursuitConfig
+    from rover_env.envs.rover_env import OBS_FIELDS
+
+    base = env.unwrapped
+    return PurePursuit(
+        OBS_FIELDS, PurePursuitConfig(cruise_speed=base.scenario.course.speed, v_max=base.v_max)
+    )
+
+
+#: Named controllers for sweeps.
+CONTROLLERS: dict[str, ControllerSpec] = {
+    "slip_unaware": ControllerSpec("drive", _slip_unaware, "path follower, no traction control"),
+    "slip_aware": ControllerSpec("wheels", _slip_aware, "path follower with per-wheel traction control"),
+    "pure_pursuit": ControllerSpec("drive", _pure_pursuit, "pure pursuit toward the next waypoint"),
+}
+OBS_SOURCES = ("estimated", "ground_truth")
+
+
+def parse_controller(name: str) -> tuple[ControllerSpec, str]:
+    """(spec, observation source) of ``name``: ``<controller>`` or ``<controller>@<obs_source>``."""
+    base, _, source = name.partition("@")
+    source = source or "estimated"
+    if base not in CONTROLLERS:
+        raise ValueError(f"controller {base!r}: unknown; choose one of {sorted(CONTROLLERS)}")
+    if source not in OBS_SOURCES:
+        raise ValueError(f"controller {name!r}: observation source {source!r} is not one of {OBS_SOURCES}")
+    return CONTROLLERS[base], source
+
+
+@dataclass(frozen=True)
+class EvalJob:
+    """One run of a sweep.
+
+    Attributes:
+        controller: :data:`CONTROLLERS` name, optionally ``@ground_truth`` or ``@estimated``.
+        mission: A registered environment id (``rover_env.ENV_IDS``), or a scenario preset name
+            or YAML path (run in ``Rover-v0``).
+        seed: Episode seed.
+        preset: Camera preset of the estimator (``train`` or ``eval``).
+        out: Folder for this run's metrics, TUM trajectories and plots (None: none written).
+        video: Also write ``video.mp4`` there (composite camera view).
+    """
+
+    controller: str
+    mission: str
+    seed: int
+    preset: str = "train"
+    out: str | None = None
+    video: bool = False
+
+    @property
+    def name(self) -> str:
+        """A file-name-safe label: controller, mission and seed."""
+        ctrl = self.controller.replace("@", "-")
+        mission = Path(self.mission).stem if self.mission.endswith((".yaml", ".yml")) else self.mission
+        return f"{ctrl}_{mission}_{self.seed}"
+
+
+def run_job(job: EvalJob) -> dict:
+    """Run one job in a fresh environment; one flat row (JSON-serialisable) of its results.
+
+    The row has the job's fields, ``obs_source``, the mission metrics, the estimator's errors
+    (``est_*``, NaN on ground-truth runs) and the wall-clock time [s].
+    """
+    import time
+
+    import gymnasium as gym
+
+    import rover_env
+    from rover_env.mission import run_mission, write_outputs
+
+    spec, source = parse_controller(job.controller)
+    env_id, kw = (
+        (job.mission, {}) if job.mission in rover_env.ENV_IDS else ("Rover-v0", {"scenario": job.mission})
+    )
+    render = "rgb_array" if (job.video and job.out) else None
+    env = gym.make(
+        env_id, obs_source=source, action_mode=spec.action_mode, preset=job.preset, render_mode=render, **kw
+    )
+    start = time.perf_counter()
+    try:
+        ctrl = spec.make(env)
+        out = Path(job.out) if job.out else None
+        video = out / "video.mp4" if (out is not None and job.video) else None
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+        result = run_mission(env.unwrapped, ctrl, seed=job.seed, video_path=video)
+        if out is not None:
+            write_outputs(out, env.unwrapped, result)
+    finally:
+        env.close()
+    row = {"controller": job.controller, "mission": job.mission, "seed": job.seed, "preset": job.preset}
+    row["obs_source"] = source
+    row.update(asdict(result.metrics))
+    row["wall_time"] = time.perf_counter() - start
+    for k, v in (result.estimator or {}).items():
+        row[f"est_{k}"] = v
+    return row
+
+
+def _init_worker() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # one core per run
+
+
+def run_sweep(
+    jobs: Sequence[EvalJob],
+    executor: str = "local",
+    workers: int | None = None,
+    progress: Callable[[int, int, dict], None] | None = None,
+) -> list[dict]:
+    """Run ``jobs``; their rows in the order of ``jobs``.
+
+    Args:
+        jobs: The runs.
+        executor: ``"local"`` (a pool of ``workers`` processes; 1 runs them here) or ``"ray"``.
+        workers: Local processes (default: the CPU count); with Ray, ignored (one CPU per run).
+        progress: Called after each finished run with (finished, total, its row).
+    """
+    if executor not in ("local", "ray"):
+        raise ValueError(f"executor {executor!r}: use 'local' or 'ray'")
+    for job in jobs:  # fail before starting anything
+        parse_controller(job.controller)
+    rows: list[dict | None] = [None] * len(jobs)
+
+    def done(i: int, row: dict) -> None:
+        rows[i] = row
+        if progress is not None:
+            progress(sum(r is not None for r in rows), len(jobs), row)
+
+    if executor == "ray":
+        _run_ray(jobs, done)
+    else:
+        n = workers or os.cpu_count() or 1
+        if n <= 1 or len(jobs) <= 1:
+            _init_worker()
+            for i, job in enumerate(jobs):
+                done(i, run_job(job))
+        else:
+            ctx = get_context("spawn")  # a clean interpreter: no inherited PyBullet or thread state
+            with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker) as pool:
+                futures = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
+                for fut in as_completed(futures):
+                    done(futures[fut], fut.result())
+    return [r for r in rows if r is not None]
+
+
+def _run_ray(jobs: Sequence[EvalJob], done: Callable[[int, dict], None]) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise ImportError(
+            "the ray executor needs Ray: pip install 'rover-vision[ray]' (or pip install ray)"
+        ) from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=os.environ.get("RAY_ADDRESS"), logging_level=logging.WARNING, log_to_driver=False)
+    try:
+
+        def remote_job(job: EvalJob) -> dict:
+            _init_worker()
+            return run_job(job)
+
+        remote = ray.remote(num_cpus=1)(remote_job)
+        pending = {remote.remote(job): i for i, job in enumerate(jobs)}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                done(pending.pop(ref), ray.get(ref))
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def jobs_for(
+    controllers: Iterable[str],
+    missions: Iterable[str],
+    seeds: Iterable[int],
+    preset: str = "train",
+    out: str | Path | None = None,
+    video: bool = False,
+) -> list[EvalJob]:
+    """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""
+    jobs = []
+    for c in controllers:
+        for m in missions:
+            for s in seeds:
+                job = EvalJob(c, m, int(s), preset)
+                if out is not None:
+                    job = EvalJob(c, m, int(s), preset, str(Path(out) / "runs" / job.name), video)
+                jobs.append(job)
+    return jobs
+
+
+#: Summary columns: (row key, heading, how the runs are combined).
+SUMMARY = (
+    ("success", "success rate", "mean"),
+    ("time", "time [s]", "success_mean"),
+    ("cross_track_rms", "cross-track RMS [m]", "mean"),
+    ("energy", "energy [J]", "mean"),
+    ("time_in_slip", "time in slip [s]", "mean"),
+    ("stuck_events", "stuck events", "mean"),
+    ("progress", "progress [m]", "mean"),
+)
+ESTIMATOR_SUMMARY = (
+    ("est_mae_v_x", "v_x MAE [m/s]"),
+    ("est_mae_omega", "omega MAE [rad/s]"),
+    ("est_mae_slip", "slip MAE"),
+    ("est_slip_mae_slipping", "slip MAE, abs(s) > 0.1"),
+    ("est_slip_f1", "slip-event F1"),
+    ("est_mae_steering", "steering MAE [rad]"),
+    ("est_position_error_final", "final position error [m]"),
+    ("est_segment_5m_percent", "5 m segment error [%]"),
+)
+
+
+def summarize(rows: Sequence[dict]) -> list[dict]:
+    """One row per (mission, controller): run count and the :data:`SUMMARY` and estimator columns.
+
+    ``time`` is averaged over the successful runs only (NaN if none succeeded); the rest over all.
+    """
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["mission"], r["controller"]), []).append(r)
+    out = []
+    for (mission, ctrl), rs in groups.items():
+        s = {"mission": mission, "controller": ctrl, "runs": len(rs)}
+        for key, _, how in SUMMARY:
+            vals = [float(r[key]) for r in rs if how != "success_mean" or r["success"]]
+            s[key] = float(np.mean(vals)) if vals else math.nan
+        for key, _ in ESTIMATOR_SUMMARY:
+            vals = [float(r[key]) for r in rs if key in r and np.isfinite(r[key])]
+            s[key] = float(np.mean(vals)) if vals else math.nan
+        out.append(s)
+    return out
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return "–" if not math.isfinite(v) else f"{v:.3g}"
+    return str(v)
+
+
+def write_report(rows: Sequence[dict], out: str | Path, title: str = "Mission evaluation") -> Path:
+    """Write ``results.csv``, ``results.json``, ``summary.csv`` and ``report.md`` into ``out``.
+
+    Returns the path of ``report.md``.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    with open(out / "results.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    (out / "results.json").write_text(json.dumps(list(rows), indent=1, default=float) + "\n")
+    summary = summarize(rows)
+    with open(out / "summary.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(summary[0]) if summary else ["mission"])
+        w.writeheader()
+        w.writerows(summary)
+    seeds = sorted({r["seed"] for r in rows})
+    lines = [
+        f"# {title}",
+        "",
+        f"{len(rows)} runs; seeds {seeds[0]}–{seeds[-1]} ({len(seeds)})." if seeds else "",
+    ]
+    for mission in dict.fromkeys(s["mission"] for s in summary):
+        lines += ["", f"## {mission}", ""]
+        lines.append("| controller | runs | " + " | ".join(h for _, h, _ in SUMMARY) + " |")
+        lines.append("|---|---:|" + "---:|" * len(SUMMARY))
+        for s in summary:
+            if s["mission"] == mission:
+                cells = [s["controller"], str(s["runs"])] + [_fmt(s[k]) for k, _, _ in SUMMARY]
+                lines.append("| " + " | ".join(cells) + " |")
+        est = [s for s in summary if s["mission"] == mission and np.isfinite(s["est_mae_v_x"])]
+        if est:
+            lines += ["", "Estimator errors on the estimated-observation runs (means over runs):", ""]
+            lines.append("| controller | " + " | ".join(h for _, h in ESTIMATOR_SUMMARY) + " |")
+            lines.append("|---|" + "---:|" * len(ESTIMATOR_SUMMARY))
+            for s in est:
+                lines.append(
+                    "| " + " | ".join([s["controller"]] + [_fmt(s[k]) for k, _ in ESTIMATOR_SUMMARY]) + " |"
+                )
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+__all__ = [
+    "CONTROLLERS",
+    "ControllerSpec",
+    "EvalJob",
+    "jobs_for",
+    "parse_controller",
+    "run_job",
+    "run_sweep",
+    "summarize",
+    "write_report",
+]

@@ -1,0 +1,104 @@
+"""Mission sweeps: jobs, reports, the rover eval command, and the Ray executor against the local one."""
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from rover_env.cli import main
+from rover_env.evaluation import EvalJob, jobs_for, parse_controller, run_sweep, summarize, write_report
+
+TINY = (
+    "name: tiny\n"
+    "course: {waypoints: [[2.5, 0.0], [3.5, 1.0]], tolerance: 0.5, speed: 0.8}\n"
+    "terrain: {kind: flat, size: [12.0, 12.0], texture: gravel, texture_px: 128}\n"
+    "friction: {patches: [{center: [1.5, 0.0], size: [1.0, 2.0], mu: 0.15}]}\n"
+    "start: {jitter_position: 0.2, jitter_yaw_deg: 5.0}\n"
+    "duration: 12.0\n"
+)
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    path = tmp_path / "tiny.yaml"
+    path.write_text(TINY)
+    return str(path)
+
+
+def test_controller_names_and_bad_input():
+    spec, source = parse_controller("slip_aware@ground_truth")
+    assert spec.action_mode == "wheels" and source == "ground_truth"
+    assert parse_controller("slip_unaware")[1] == "estimated"
+    with pytest.raises(ValueError, match="unknown"):
+        parse_controller("no_such")
+    with pytest.raises(ValueError, match="observation source"):
+        parse_controller("slip_aware@truth")
+    with pytest.raises(ValueError, match="executor"):
+        run_sweep([], executor="slurm")
+    jobs = jobs_for(["a", "b@ground_truth"], ["m"], [1, 2], out="/o")
+    assert [j.name for j in jobs] == ["a_m_1", "a_m_2", "b-ground_truth_m_1", "b-ground_truth_m_2"]
+    assert jobs[2].out == "/o/runs/b-ground_truth_m_1"
+
+
+def test_summary_and_report_from_known_rows(tmp_path):
+    rows = [
+        dict(
+            controller="c",
+            mission="m",
+            seed=s,
+            success=ok,
+            time=t,
+            cross_track_rms=0.1 * s,
+            energy=10.0,
+            time_in_slip=0.0,
+            stuck_events=0,
+            progress=5.0,
+            est_mae_v_x=0.01,
+        )  # fmt: skip
+        for s, ok, t in ((0, True, 10.0), (1, False, 30.0), (2, True, 20.0))
+    ]
+    (s,) = summarize(rows)
+    assert s["runs"] == 3 and s["success"] == pytest.approx(2 / 3)
+    assert s["time"] == pytest.approx(15.0)  # over the successful runs only
+    assert s["cross_track_rms"] == pytest.approx(0.1)
+    assert s["est_mae_v_x"] == pytest.approx(0.01) and math.isnan(s["est_slip_f1"])
+    report = write_report(rows, tmp_path).read_text()
+    assert "| c | 3 | 0.667 | 15 | 0.1 | 10 |" in report
+    with open(tmp_path / "results.csv") as fh:
+        assert len(list(csv.DictReader(fh))) == 3
+    assert len(json.loads((tmp_path / "results.json").read_text())) == 3
+
+
+def test_rover_eval_writes_one_report_of_all_runs(tiny, tmp_path, capsys):
+    out = tmp_path / "eval"
+    argv = ["eval", "--controllers", "slip_unaware@ground_truth", "slip_aware@ground_truth"]
+    assert main(argv + ["--missions", tiny, "--seeds", "0-1", "--workers", "1", "--out", str(out)]) == 0
+    rows = json.loads((out / "results.json").read_text())
+    assert len(rows) == 4 and all(r["success"] for r in rows)
+    assert {r["controller"] for r in rows} == {"slip_unaware@ground_truth", "slip_aware@ground_truth"}
+    assert (out / "runs" / "slip_aware-ground_truth_tiny_1" / "trajectory.png").stat().st_size > 1000
+    report = (out / "report.md").read_text()
+    assert "## " + tiny in report and "slip_aware@ground_truth | 2 | 1 |" in report
+    assert "report.md" in capsys.readouterr().out
+
+
+def _metrics(rows):
+    keep = ("controller", "seed", "success", "time", "path_length", "cross_track_rms", "energy")
+    return sorted(
+        (tuple(r[k] for k in keep), tuple(r[k] for k in sorted(r) if k.startswith("est_"))) for r in rows
+    )
+
+
+def test_ray_executor_gives_the_local_executor_s_metrics(tiny):
+    pytest.importorskip("ray", reason="the ray extra is not installed: pip install 'rover-vision[ray]'")
+    jobs = [EvalJob(c, tiny, s) for c in ("slip_unaware@ground_truth", "slip_aware") for s in (0, 1)]
+    local = run_sweep(jobs, executor="local", workers=2)
+    ray_rows = run_sweep(jobs, executor="ray")
+    assert len(local) == len(ray_rows) == 4
+    a, b = _metrics(local), _metrics(ray_rows)
+    assert [x[0] for x in a] == [x[0] for x in b]  # identical mission metrics
+    for (_, ea), (_, eb) in zip(a, b, strict=True):  # and estimator errors
+        np.testing.assert_array_equal(ea, eb)
+    assert any(len(e) > 0 for _, e in a)  # the estimated run was scored
