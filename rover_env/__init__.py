@@ -16,6 +16,7 @@ MISSIONS: dict[str, str] = {
     "Rover-v0": "flat_patches",  # flat, with low-friction patches (the default mission)
     "RoverRoughSlippery-v0": "rough_slippery",  # rough sand with loose-sand pockets
     "RoverShadows-v0": "shadow_heavy",  # low sun behind the rover, slip patches
+    "RoverSlopeLoose-v0": "slope_loose",  # start up a loose-sand slope that gives way under spinning wheels
 }
 
 ENV_IDS: tuple[str, ...] = tuple(MISSIONS)

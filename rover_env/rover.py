@@ -139,6 +139,7 @@ class Rover:
                 self.body_id, link, textureUniqueId=self._tread_tex, rgbaColor=[1, 1, 1, 1]
             )
         self._mu = [-1.0] * 4
+        self.dig = np.zeros(4)  # how far each wheel has dug into loose soil (0-1)
         self.wheel_rate_cmd = np.zeros(4)
         self.steer_cmd = np.zeros(2)
 
@@ -151,6 +152,7 @@ class Rover:
         for j in self.joint.values():
             c.resetJointState(self.body_id, j, 0.0, 0.0)
         self._mu = [-1.0] * 4
+        self.dig = np.zeros(4)
         self.command(np.zeros(4), 0.0, 0.0)
 
     def command(self, wheel_rates: np.ndarray, steer_front: float, steer_rear: float) -> None:
@@ -192,21 +194,32 @@ class Rover:
 
         The contact point is taken below the wheel centre along the body's -z axis; PyBullet
         multiplies the two bodies' coefficients and the ground's is 1, so the wheel's value is
-        the contact's.
+        the contact's. On loose soil it is reduced by the wheel's :attr:`dig`
+        (:meth:`update_dig`).
         """
         x, y, z, w = self._read_base()[1]
         r = self.geom.wheel_radius
         # body z axis (third column of the rotation matrix) times r, x and y components
         zx = 2.0 * (x * z + w * y) * r
         zy = 2.0 * (y * z - w * x) * r
-        mu_at = terrain.friction.mu_at
+        fmap = terrain.friction
+        mu_at, loose, dig = fmap.mu_at, fmap.loose, self.dig
         current = self._mu
         for i, st in enumerate(self._read_wheels()):
             p = st[4]
-            mu = mu_at(p[0] - zx, p[1] - zy)
+            if loose:
+                mu, loss = fmap.mu_loss_at(p[0] - zx, p[1] - zy)
+                mu *= 1.0 - loss * float(dig[i])
+            else:
+                mu = mu_at(p[0] - zx, p[1] - zy)
             if mu != current[i]:
                 self.client.changeDynamics(self.body_id, self.wheel_links[i], lateralFriction=mu)
                 current[i] = mu
+
+    def update_dig(self, gt: GroundTruth, terrain: Terrain) -> None:
+        """Set how far each wheel has dug into loose soil from its slip now (``FrictionMapConfig``)."""
+        slip_speed = gt.wheel_rate * self.geom.wheel_radius - gt.wheel_v_long
+        self.dig = terrain.friction.dig(gt.slip_ratio, slip_speed)
 
     # ------------------------------------------------------------------ ground truth
     def ground_truth(self, t: float, terrain_id: int) -> GroundTruth:

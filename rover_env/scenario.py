@@ -104,6 +104,8 @@ class FrictionPatch:
         size: Rectangle extent along its own x and y before rotation [m].
         yaw_deg: Rectangle rotation about world z [deg].
         radius: Circle radius [m].
+        slip_loss: Loose soil: the share of ``mu`` a wheel loses by digging in when it spins
+            (or skids) fully (0: firm ground). See :class:`FrictionMapConfig`.
     """
 
     mu: float
@@ -112,9 +114,11 @@ class FrictionPatch:
     size: tuple[float, float] = (2.0, 2.0)
     yaw_deg: float = 0.0
     radius: float = 1.0
+    slip_loss: float = 0.0
 
     def __post_init__(self) -> None:
         check_range("mu", self.mu, 0.05, 1.5)
+        check_range("slip_loss", self.slip_loss, 0.0, 0.9)
         for i, v in enumerate(self.size):
             check_range(f"size[{i}]", v, 0.0, 1000.0, lo_open=True)
         check_range("radius", self.radius, 0.0, 1000.0, lo_open=True)
@@ -122,13 +126,33 @@ class FrictionPatch:
 
 @dataclass(frozen=True)
 class FrictionMapConfig:
-    """Friction over the ground: a default and patches; later patches override earlier ones."""
+    """Friction over the ground: a default and patches; later patches override earlier ones.
+
+    On a loose-soil patch (``slip_loss`` > 0) a wheel that spins or skids digs in and loses grip,
+    as sand shears under it (slip sinkage): its friction is mu (1 - slip_loss * dig) with
+
+        dig = clip((|s| - critical_slip) / (1 - critical_slip), 0, 1) * clip(u / dig_speed, 0, 1),
+
+    s the wheel's slip ratio and u = |omega r - v_long| its slip speed, updated at every control
+    step from the simulator's state. Up to ``critical_slip`` the soil holds, and a wheel that
+    creeps (u small) does not dig, so a rover can start from rest.
+
+    Attributes:
+        default_mu: Friction outside the patches.
+        patches: Regions of other friction.
+        critical_slip: Slip ratio up to which loose soil keeps its grip.
+        dig_speed: Slip speed [m/s] at and above which a wheel past ``critical_slip`` digs fully.
+    """
 
     default_mu: float = 0.9
     patches: tuple[FrictionPatch, ...] = ()
+    critical_slip: float = 0.2
+    dig_speed: float = 0.2
 
     def __post_init__(self) -> None:
         check_range("default_mu", self.default_mu, 0.05, 1.5)
+        check_range("critical_slip", self.critical_slip, 0.0, 1.0, hi_open=True)
+        check_range("dig_speed", self.dig_speed, 0.0, 10.0, lo_open=True)
 
 
 @dataclass(frozen=True)

@@ -153,6 +153,8 @@ class RoverSim:
             raise RuntimeError("this RoverSim is closed; create a new one")
         for _ in range(max(1, int(round(duration / self.dt)))):
             self._substep()
+        if self.terrain.friction.loose:  # the soil under spinning wheels gives way
+            self.rover.update_dig(self.ground_truth(), self.terrain)
 
     def prepare_render(self, ground_range: float | None = None) -> None:
         """Draw the ground around the rover; call before rendering views near it.

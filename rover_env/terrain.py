@@ -56,25 +56,38 @@ class FrictionMap:
                     p.size[1] / 2,
                     p.radius * p.radius,
                     p.mu,
+                    p.slip_loss,
                 )
             )
+        #: Whether any patch is loose soil (grip lost to slip, :class:`FrictionMapConfig`).
+        self.loose = any(p.slip_loss > 0 for p in cfg.patches)
 
     def mu_at(self, x: float, y: float) -> float:
         """Friction coefficient at world point (x, y) [m] (scalar fast path)."""
-        mu = self.cfg.default_mu
-        for circle, cx, cy, c, s, hx, hy, r2, pmu in self._patches:
+        return self.mu_loss_at(x, y)[0]
+
+    def mu_loss_at(self, x: float, y: float) -> tuple[float, float]:
+        """(friction coefficient, loose soil's ``slip_loss``) at world point (x, y) [m]."""
+        mu, loss = self.cfg.default_mu, 0.0
+        for circle, cx, cy, c, s, hx, hy, r2, pmu, ploss in self._patches:
             dx, dy = x - cx, y - cy
             if circle:
                 if dx * dx + dy * dy <= r2:
-                    mu = pmu
+                    mu, loss = pmu, ploss
             elif abs(c * dx + s * dy) <= hx and abs(-s * dx + c * dy) <= hy:
-                mu = pmu
-        return mu
+                mu, loss = pmu, ploss
+        return mu, loss
+
+    def dig(self, slip_ratio: np.ndarray, slip_speed: np.ndarray) -> np.ndarray:
+        """How far each wheel has dug in (0-1) at slip ratios and slip speeds [m/s] (see the config)."""
+        c = self.cfg
+        by_slip = np.clip((np.abs(slip_ratio) - c.critical_slip) / (1.0 - c.critical_slip), 0.0, 1.0)
+        return by_slip * np.clip(np.abs(slip_speed) / c.dig_speed, 0.0, 1.0)
 
     def mu_grid(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Vectorised :meth:`mu_at` over arrays of equal shape [m]."""
         mu = np.full(np.broadcast(x, y).shape, self.cfg.default_mu, dtype=np.float64)
-        for circle, cx, cy, c, s, hx, hy, r2, pmu in self._patches:
+        for circle, cx, cy, c, s, hx, hy, r2, pmu, _ in self._patches:
             dx, dy = x - cx, y - cy
             if circle:
                 inside = dx * dx + dy * dy <= r2

@@ -151,3 +151,20 @@ def test_traction_control_on_the_estimated_slip():
     assert np.median(slips["unaware"]) > 0.5
     assert np.median(slips["aware"]) < setpoint + 0.1
     assert np.percentile(slips["aware"], 90) < 0.4
+
+
+def test_on_a_loose_slope_traction_control_climbs_where_the_slip_unaware_follower_slides_off():
+    # RoverSlopeLoose-v0: from rest up 10 degrees of loose sand (mu 0.35, 0.105 once dug in)
+    out = {}
+    for name, mode in (("unaware", "drive"), ("aware", "wheels")):
+        env = gym.make("RoverSlopeLoose-v0", obs_source="ground_truth", action_mode=mode)
+        try:
+            ctrl = SlipAwareController.for_env(env) if name == "aware" else PathFollower.for_env(env)
+            out[name] = drive(env, ctrl, 60.0)
+        finally:
+            env.close()
+    xy, _, _, _, info = out["unaware"]
+    assert info["termination"] == "left_terrain" and xy[-1, 0] < -15.0  # slid down the slope
+    xy, _, slip, _, info = out["aware"]
+    assert info["is_success"]
+    assert np.abs(slip[30:]).max() < 0.3  # never dug in

@@ -102,6 +102,40 @@ def test_low_friction_patch_spins_only_the_wheels_on_it():
         sim.close()
 
 
+def test_loose_soil_gives_way_under_a_spinning_wheel_and_holds_a_creeping_one():
+    firm = FrictionPatch(mu=0.15, center=(-3.0, 0.0), size=(4.0, 4.0))
+    loose = FrictionPatch(mu=0.15, center=(3.0, 0.0), size=(4.0, 4.0), slip_loss=0.7)
+    sc = flat_scenario(mu=1.0, patches=[firm, loose])
+    fmap = sc.friction
+    sim = RoverSim(sc)
+    try:
+        dig = sim.terrain.friction.dig
+        # no dig up to the critical slip, full past it at the dig speed, in proportion below
+        np.testing.assert_allclose(dig(np.array([0.2, 1.0, 1.0, -0.6]), np.array([1.0, 0.5, 0.1, 0.5])),
+                                   [0.0, 1.0, 0.5, 0.5])  # fmt: skip
+        applied = {}
+        for name, x in (("firm", -3.0), ("loose", 3.0)):
+            sim.reset(x, 0.0, 0.0)
+            drive(sim, 2.0, 0.0, 0.0)  # full command from rest: the wheels spin
+            for _ in range(9):  # 0.3 s at the control rate: the soil follows each step's slip
+                sim.step(1 / 30)
+            gt = sim.ground_truth()
+            assert gt.slip_ratio.min() > 0.5
+            applied[name] = gt.friction.copy()
+        np.testing.assert_allclose(applied["firm"], 0.15)
+        # spinning (|s| > 0.5 at a slip speed over dig_speed): at most 0.15 (1 - 0.7 dig(0.5))
+        least_dig = (0.5 - fmap.critical_slip) / (1 - fmap.critical_slip)
+        assert applied["loose"].max() < 0.15 * (1 - 0.7 * least_dig)
+        # a wheel creeping from rest at 2 cm/s does not dig
+        sim.reset(3.0, 0.0, 0.0)
+        drive(sim, 0.02, 0.0, 0.0)
+        for _ in range(15):
+            sim.step(1 / 30)
+        np.testing.assert_allclose(sim.ground_truth().friction, 0.15)
+    finally:
+        sim.close()
+
+
 def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Algebraic (Kasa) circle fit; returns centre, radius and RMS radial residual."""
     a = np.column_stack([2 * xy[:, 0], 2 * xy[:, 1], np.ones(len(xy))])
