@@ -1,4 +1,4 @@
-"""The ``rover`` command line: ``demo``, ``eval``, ``bench``, ``odometry``, ``kinematics``, ``scenarios``."""
+"""The ``rover`` command line: demo, eval, train, bench, odometry, kinematics, scenarios."""
 
 from __future__ import annotations
 
@@ -68,6 +68,32 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     report = write_report(rows, args.out)
     print(report.read_text())
     print(f"wrote report.md, results.csv, results.json, summary.csv and runs/ to {Path(args.out).resolve()}")
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from controllers.rl import TrainConfig, train
+
+    residual = None if args.no_residual else tuple(args.residual)
+    cfg = TrainConfig(
+        algo=args.algo,
+        missions=tuple(args.missions),
+        total_steps=args.steps,
+        n_envs=args.envs,
+        obs_source=args.obs_source,
+        preset=args.preset,
+        residual=residual,
+        seed=args.seed,
+        eval_every=args.eval_every,
+        checkpoint_every=args.eval_every,
+    )
+    start = time.perf_counter()
+    sys.stderr.write(
+        f"training {args.algo} for {args.steps} steps on {args.envs} environments; logs: {args.out}/tb\n"
+    )
+    out = train(cfg, args.out, progress=True)
+    print(f"wrote {out / 'policy.zip'} in {(time.perf_counter() - start) / 60:.1f} min; "
+          f"evaluate it with: rover eval --controllers policy:{out} ...")  # fmt: skip
     return 0
 
 
@@ -157,6 +183,23 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--videos", action="store_true", help="write each run's video")
     e.add_argument("--out", required=True, help="output folder (created if missing)")
     e.set_defaults(func=_cmd_eval)
+    t = sub.add_parser("train", help="train a PPO (or SAC) policy on the estimated-observation environments")
+    t.add_argument(
+        "--out", required=True, help="output folder: policy, normalisation, checkpoints, TensorBoard"
+    )
+    t.add_argument("--algo", default="ppo", choices=("ppo", "sac"))
+    t.add_argument("--missions", nargs="+", default=["Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0",
+                                                      "RoverSlopeLoose-v0"])  # fmt: skip
+    t.add_argument("--steps", type=int, default=200_000, help="environment steps in all")
+    t.add_argument("--envs", type=int, default=2, help="environments, one process each")
+    t.add_argument("--obs-source", default="estimated", choices=("estimated", "ground_truth"))
+    t.add_argument("--preset", default="train", choices=("train", "eval"))
+    t.add_argument("--residual", type=float, nargs=3, default=[0.5, 0.3, 0.3],
+                   help="residual range on the path follower's (speed, lam_F, lam_R) action")  # fmt: skip
+    t.add_argument("--no-residual", action="store_true", help="learn the whole action")
+    t.add_argument("--eval-every", type=int, default=20_000, help="steps between evaluations and checkpoints")
+    t.add_argument("--seed", type=int, default=0)
+    t.set_defaults(func=_cmd_train)
     b = sub.add_parser("bench", help="simulation speed benchmarks")
     b.add_argument("--scenarios", nargs="+", default=["flat_patches", "rough"])
     b.add_argument("--steps", type=int, default=600, help="environment steps per scenario")

@@ -76,15 +76,36 @@ CONTROLLERS: dict[str, ControllerSpec] = {
 OBS_SOURCES = ("estimated", "ground_truth")
 
 
+def _policy_spec(path: str) -> ControllerSpec:
+    def make(env):
+        from controllers.rl import PolicyController
+
+        return PolicyController(path, env)
+
+    return ControllerSpec("drive", make, f"the trained policy in {path}")
+
+
 def parse_controller(name: str) -> tuple[ControllerSpec, str]:
-    """(spec, observation source) of ``name``: ``<controller>`` or ``<controller>@<obs_source>``."""
-    base, _, source = name.partition("@")
+    """(spec, observation source) of ``name``: ``<controller>`` or ``<controller>@<obs_source>``.
+
+    ``policy:<folder>`` is a policy that ``rover train`` wrote to ``<folder>``.
+    """
+    base, _, source = name.rpartition("@") if "@" in name else (name, "", "")
     source = source or "estimated"
-    if base not in CONTROLLERS:
-        raise ValueError(f"controller {base!r}: unknown; choose one of {sorted(CONTROLLERS)}")
+    if base.startswith("policy:"):
+        folder = base[len("policy:") :]
+        if not Path(folder).is_dir():
+            raise ValueError(f"controller {name!r}: no folder {folder!r}; train one with `rover train --out`")
+        spec = _policy_spec(folder)
+    elif base in CONTROLLERS:
+        spec = CONTROLLERS[base]
+    else:
+        raise ValueError(
+            f"controller {base!r}: unknown; choose one of {sorted(CONTROLLERS)} or policy:<folder>"
+        )
     if source not in OBS_SOURCES:
         raise ValueError(f"controller {name!r}: observation source {source!r} is not one of {OBS_SOURCES}")
-    return CONTROLLERS[base], source
+    return spec, source
 
 
 @dataclass(frozen=True)
@@ -111,9 +132,25 @@ class EvalJob:
     @property
     def name(self) -> str:
         """A file-name-safe label: controller, mission and seed."""
-        ctrl = self.controller.replace("@", "-")
+        base, at, source = (
+            self.controller.rpartition("@") if "@" in self.controller else (self.controller, "", "")
+        )
+        if base.startswith("policy:"):
+            base = "policy-" + Path(base[len("policy:") :]).name
+        ctrl = f"{base}-{source}" if at else base
         mission = Path(self.mission).stem if self.mission.endswith((".yaml", ".yml")) else self.mission
         return f"{ctrl}_{mission}_{self.seed}"
+
+
+def make_mission_env(mission: str, **kwargs):
+    """``gymnasium.make`` of a registered id, or of ``Rover-v0`` with ``mission`` as its scenario."""
+    import gymnasium as gym
+
+    import rover_env
+
+    if mission in rover_env.ENV_IDS:
+        return gym.make(mission, **kwargs)
+    return gym.make("Rover-v0", scenario=mission, **kwargs)
 
 
 def run_job(job: EvalJob) -> dict:
@@ -124,18 +161,12 @@ def run_job(job: EvalJob) -> dict:
     """
     import time
 
-    import gymnasium as gym
-
-    import rover_env
     from rover_env.mission import run_mission, write_outputs
 
     spec, source = parse_controller(job.controller)
-    env_id, kw = (
-        (job.mission, {}) if job.mission in rover_env.ENV_IDS else ("Rover-v0", {"scenario": job.mission})
-    )
     render = "rgb_array" if (job.video and job.out) else None
-    env = gym.make(
-        env_id, obs_source=source, action_mode=spec.action_mode, preset=job.preset, render_mode=render, **kw
+    env = make_mission_env(
+        job.mission, obs_source=source, action_mode=spec.action_mode, preset=job.preset, render_mode=render
     )
     start = time.perf_counter()
     try:
@@ -350,6 +381,7 @@ def write_report(rows: Sequence[dict], out: str | Path, title: str = "Mission ev
 
 __all__ = [
     "CONTROLLERS",
+    "make_mission_env",
     "ControllerSpec",
     "EvalJob",
     "jobs_for",

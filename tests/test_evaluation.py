@@ -10,22 +10,6 @@ import pytest
 from rover_env.cli import main
 from rover_env.evaluation import EvalJob, jobs_for, parse_controller, run_sweep, summarize, write_report
 
-TINY = (
-    "name: tiny\n"
-    "course: {waypoints: [[2.5, 0.0], [3.5, 1.0]], tolerance: 0.5, speed: 0.8}\n"
-    "terrain: {kind: flat, size: [12.0, 12.0], texture: gravel, texture_px: 128}\n"
-    "friction: {patches: [{center: [1.5, 0.0], size: [1.0, 2.0], mu: 0.15}]}\n"
-    "start: {jitter_position: 0.2, jitter_yaw_deg: 5.0}\n"
-    "duration: 12.0\n"
-)
-
-
-@pytest.fixture
-def tiny(tmp_path):
-    path = tmp_path / "tiny.yaml"
-    path.write_text(TINY)
-    return str(path)
-
 
 def test_controller_names_and_bad_input():
     spec, source = parse_controller("slip_aware@ground_truth")
@@ -71,16 +55,18 @@ def test_summary_and_report_from_known_rows(tmp_path):
     assert len(json.loads((tmp_path / "results.json").read_text())) == 3
 
 
-def test_rover_eval_writes_one_report_of_all_runs(tiny, tmp_path, capsys):
+def test_rover_eval_writes_one_report_of_all_runs(tiny_scenario, tmp_path, capsys):
     out = tmp_path / "eval"
     argv = ["eval", "--controllers", "slip_unaware@ground_truth", "slip_aware@ground_truth"]
-    assert main(argv + ["--missions", tiny, "--seeds", "0-1", "--workers", "1", "--out", str(out)]) == 0
+    assert (
+        main(argv + ["--missions", tiny_scenario, "--seeds", "0-1", "--workers", "1", "--out", str(out)]) == 0
+    )
     rows = json.loads((out / "results.json").read_text())
     assert len(rows) == 4 and all(r["success"] for r in rows)
     assert {r["controller"] for r in rows} == {"slip_unaware@ground_truth", "slip_aware@ground_truth"}
     assert (out / "runs" / "slip_aware-ground_truth_tiny_1" / "trajectory.png").stat().st_size > 1000
     report = (out / "report.md").read_text()
-    assert "## " + tiny in report and "slip_aware@ground_truth | 2 | 1 |" in report
+    assert "## " + tiny_scenario in report and "slip_aware@ground_truth | 2 | 1 |" in report
     assert "report.md" in capsys.readouterr().out
 
 
@@ -91,9 +77,9 @@ def _metrics(rows):
     )
 
 
-def test_ray_executor_gives_the_local_executor_s_metrics(tiny):
+def test_ray_executor_gives_the_local_executor_s_metrics(tiny_scenario):
     pytest.importorskip("ray", reason="the ray extra is not installed: pip install 'rover-vision[ray]'")
-    jobs = [EvalJob(c, tiny, s) for c in ("slip_unaware@ground_truth", "slip_aware") for s in (0, 1)]
+    jobs = [EvalJob(c, tiny_scenario, s) for c in ("slip_unaware@ground_truth", "slip_aware") for s in (0, 1)]
     local = run_sweep(jobs, executor="local", workers=2)
     ray_rows = run_sweep(jobs, executor="ray")
     assert len(local) == len(ray_rows) == 4
