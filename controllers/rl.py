@@ -28,6 +28,8 @@ from controllers.path_follower import PathFollower
 
 log = logging.getLogger(__name__)
 
+#: The policy shipped with the package (``rover train`` output, see the README).
+SHIPPED = Path(__file__).parent / "policies" / "ppo_residual"
 POLICY_FILE = "policy.zip"
 NORMALIZE_FILE = "vecnormalize.pkl"
 META_FILE = "policy.json"
@@ -254,6 +256,38 @@ SAC_DEFAULTS = dict(
 )  # fmt: skip
 
 
+def save_policy(model, cfg: TrainConfig, out: str | Path) -> Path:
+    """Write a policy folder that :class:`PolicyController` loads.
+
+    It holds the model, its observation statistics and ``policy.json`` (the training
+    configuration, the observation fields and the steps trained).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    model.save(out / POLICY_FILE)
+    model.get_vec_normalize_env().save(str(out / NORMALIZE_FILE))
+    meta = asdict(cfg) | {
+        "action_mode": "drive",
+        "obs_fields": _obs_fields(),
+        "steps": int(model.num_timesteps),
+    }
+    (out / META_FILE).write_text(json.dumps(meta, indent=2) + "\n")
+    return out
+
+
+def _save_callback(cfg: TrainConfig, out: Path):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class SaveBest(BaseCallback):
+        """Saves the policy folder when the evaluation finds a new best."""
+
+        def _on_step(self) -> bool:
+            save_policy(self.model, cfg, out)
+            return True
+
+    return SaveBest()
+
+
 def _slip_callback():
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -312,7 +346,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
 
     Observations (not rewards at evaluation) are normalised by a running mean and variance
     (``VecNormalize``); the statistics are saved with the policy. TensorBoard logs go to
-    ``out/tb``, checkpoints to ``out/checkpoints``, the best evaluated policy to ``out/best``.
+    ``out/tb``, checkpoints to ``out/checkpoints``, the best evaluated policy (a folder like ``out``
+    itself) to ``out/best``.
 
     Args:
         cfg: The run.
@@ -363,7 +398,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
                 eval_env,
                 n_eval_episodes=cfg.eval_episodes,
                 eval_freq=max(cfg.eval_every // per_env, 1),
-                best_model_save_path=str(out / "best"),
+                callback_on_new_best=_save_callback(cfg, out / "best"),
                 deterministic=True,
                 verbose=0,
             ),
@@ -371,10 +406,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
     )
     try:
         model.learn(total_timesteps=cfg.total_steps, callback=callbacks, tb_log_name=cfg.algo)
-        model.save(out / POLICY_FILE)
-        venv.save(str(out / NORMALIZE_FILE))
-        meta = asdict(cfg) | {"action_mode": "drive", "obs_fields": _obs_fields()}
-        (out / META_FILE).write_text(json.dumps(meta, indent=2) + "\n")
+        save_policy(model, cfg, out)
     finally:
         venv.close()
         eval_env.close()
@@ -385,6 +417,15 @@ def _obs_fields() -> list[str]:
     from rover_env.envs.rover_env import OBS_FIELDS
 
     return list(OBS_FIELDS)
+
+
+def shipped_policy() -> Path:
+    """The folder of the policy shipped with the package (:class:`PolicyController` loads it)."""
+    if not (SHIPPED / POLICY_FILE).is_file():
+        raise FileNotFoundError(
+            f"{SHIPPED} holds no policy; reinstall the package or train one (rover train)"
+        )
+    return SHIPPED
 
 
 class PolicyController:
@@ -444,5 +485,6 @@ __all__ = [
     "ResidualDrive",
     "TrainConfig",
     "make_env",
+    "shipped_policy",
     "train",
 ]

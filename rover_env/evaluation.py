@@ -67,11 +67,18 @@ def _pure_pursuit(env):
     )
 
 
+def _shipped_policy(env):
+    from controllers.rl import PolicyController, shipped_policy
+
+    return PolicyController(shipped_policy(), env)
+
+
 #: Named controllers for sweeps.
 CONTROLLERS: dict[str, ControllerSpec] = {
     "slip_unaware": ControllerSpec("drive", _slip_unaware, "path follower, no traction control"),
     "slip_aware": ControllerSpec("wheels", _slip_aware, "path follower with per-wheel traction control"),
     "pure_pursuit": ControllerSpec("drive", _pure_pursuit, "pure pursuit toward the next waypoint"),
+    "ppo": ControllerSpec("drive", _shipped_policy, "the shipped residual PPO policy (controllers/policies)"),
 }
 OBS_SOURCES = ("estimated", "ground_truth")
 
