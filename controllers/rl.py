@@ -175,6 +175,7 @@ def make_env(
     preset: str = "train",
     residual: Sequence[float] | None = (0.5, 0.3, 0.3),
     seed: int | None = None,
+    reward: dict | None = None,
 ) -> gym.Env:
     """A training or evaluation environment: Monitor(EpisodeStats(ResidualDrive(env))).
 
@@ -185,14 +186,20 @@ def make_env(
         preset: Camera preset.
         residual: Residual scale (None: the policy's action is the action).
         seed: Seed of the action space (episodes are seeded by ``reset``).
+        reward: Weights of the reward terms that differ from :class:`~rover_env.task.RewardConfig`'s.
     """
     from stable_baselines3.common.monitor import Monitor
 
     from rover_env.evaluation import make_mission_env
+    from rover_env.task import RewardConfig
+
+    weights = RewardConfig(**(reward or {}))
 
     def one(mission: str):
         def make():
-            env = make_mission_env(mission, obs_source=obs_source, preset=preset, action_mode="drive")
+            env = make_mission_env(
+                mission, obs_source=obs_source, preset=preset, action_mode="drive", reward=weights
+            )
             if residual is not None:
                 env = ResidualDrive(env, residual)
             return EpisodeStats(env)
@@ -224,6 +231,7 @@ class TrainConfig:
         eval_episodes: Episodes per evaluation.
         checkpoint_every: Save a checkpoint every this many steps.
         hyper: Algorithm keyword arguments (override the defaults).
+        reward: Reward weights that differ from the environment's (:class:`~rover_env.task.RewardConfig`).
     """
 
     algo: str = "ppo"
@@ -238,6 +246,7 @@ class TrainConfig:
     eval_episodes: int = 4
     checkpoint_every: int = 20_000
     hyper: dict = field(default_factory=dict)
+    reward: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.algo not in ("ppo", "sac"):
@@ -366,7 +375,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
     missions = list(cfg.missions)
 
     def factory(names, seed: int):
-        return lambda: make_env(names, cfg.obs_source, cfg.preset, cfg.residual, seed)
+        return lambda: make_env(names, cfg.obs_source, cfg.preset, cfg.residual, seed, cfg.reward)
 
     # every process cycles through all missions, each from its own starting point
     fns = [

@@ -45,6 +45,17 @@ def _seeds(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(f"seeds: {text!r} is not N or N-M") from None
 
 
+def _weight(text: str) -> tuple[str, float]:
+    """``"slip=5"`` -> ("slip", 5.0)."""
+    key, sep, value = text.partition("=")
+    try:
+        if not sep:
+            raise ValueError
+        return key, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"reward weight: {text!r} is not TERM=NUMBER") from None
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from rover_env.evaluation import jobs_for, run_sweep, write_report
 
@@ -86,6 +97,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         seed=args.seed,
         eval_every=args.eval_every,
         checkpoint_every=args.eval_every,
+        reward=dict(args.reward),
     )
     start = time.perf_counter()
     sys.stderr.write(
@@ -198,6 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="residual range on the path follower's (speed, lam_F, lam_R) action")  # fmt: skip
     t.add_argument("--no-residual", action="store_true", help="learn the whole action")
     t.add_argument("--eval-every", type=int, default=20_000, help="steps between evaluations and checkpoints")
+    t.add_argument("--reward", nargs="+", type=_weight, default=[], metavar="TERM=WEIGHT",
+                   help="reward weights unlike the environment's (RewardConfig), e.g. slip=5")  # fmt: skip
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(func=_cmd_train)
     b = sub.add_parser("bench", help="simulation speed benchmarks")
