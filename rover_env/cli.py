@@ -76,7 +76,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
     rows = run_sweep(jobs, executor=args.executor, workers=args.workers, progress=show)
     sys.stderr.write("\n")
-    report = write_report(rows, args.out)
+    report = write_report(rows, args.out, command="rover " + " ".join(sys.argv[1:]))
     print(report.read_text())
     print(f"wrote report.md, results.csv, results.json, summary.csv and runs/ to {Path(args.out).resolve()}")
     return 0

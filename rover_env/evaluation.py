@@ -306,7 +306,7 @@ ESTIMATOR_SUMMARY = (
     ("est_mae_omega", "omega MAE [rad/s]"),
     ("est_mae_slip", "slip MAE"),
     ("est_slip_mae_slipping", "slip MAE, abs(s) > 0.1"),
-    ("est_slip_f1", "slip-event F1"),
+    ("est_slip_f1", "slip-event F1 (pooled)"),
     ("est_mae_steering", "steering MAE [rad]"),
     ("est_position_error_final", "final position error [m]"),
     ("est_segment_5m_percent", "5 m segment error [%]"),
@@ -316,7 +316,8 @@ ESTIMATOR_SUMMARY = (
 def summarize(rows: Sequence[dict]) -> list[dict]:
     """One row per (mission, controller): run count and the :data:`SUMMARY` and estimator columns.
 
-    ``time`` is averaged over the successful runs only (NaN if none succeeded); the rest over all.
+    ``time`` is averaged over the successful runs only (NaN if none succeeded), the slip-event F1
+    is pooled over the runs' events, and the rest are means over all runs.
     """
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
@@ -330,6 +331,12 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
         for key, _ in ESTIMATOR_SUMMARY:
             vals = [float(r[key]) for r in rs if key in r and np.isfinite(r[key])]
             s[key] = float(np.mean(vals)) if vals else math.nan
+        # slip-event F1 over the events of all runs (a run's own F1 is 0 for one false event)
+        counts = [
+            [r.get(f"est_slip_events_{k}", math.nan) for r in rs] for k in ("matched", "false", "missed")
+        ]
+        tp, fp, fn = (float(np.sum(c)) if c and np.all(np.isfinite(c)) else math.nan for c in counts)
+        s["est_slip_f1"] = 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn > 0 else math.nan
         out.append(s)
     return out
 
@@ -340,9 +347,12 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def write_report(rows: Sequence[dict], out: str | Path, title: str = "Mission evaluation") -> Path:
+def write_report(
+    rows: Sequence[dict], out: str | Path, title: str = "Mission evaluation", command: str | None = None
+) -> Path:
     """Write ``results.csv``, ``results.json``, ``summary.csv`` and ``report.md`` into ``out``.
 
+    ``command``, if given, is quoted under the title (the command that produced the rows).
     Returns the path of ``report.md``.
     """
     out = Path(out)
@@ -362,6 +372,7 @@ def write_report(rows: Sequence[dict], out: str | Path, title: str = "Mission ev
     lines = [
         f"# {title}",
         "",
+        f"`{command}`\n" if command else "",
         f"{len(rows)} runs; seeds {seeds[0]}–{seeds[-1]} ({len(seeds)})." if seeds else "",
     ]
     for mission in dict.fromkeys(s["mission"] for s in summary):

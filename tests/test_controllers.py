@@ -103,28 +103,35 @@ def accelerating(vx, lo=0.3, hi=0.7):
     return (vx > lo) & (vx < hi)
 
 
-def test_traction_control_holds_the_slip_set_point_where_the_slip_unaware_follower_spins():
-    setpoint = 0.15
+SETPOINT = 0.15
+
+
+def unaware_and_aware(env_id, seconds, **make):
+    """``drive`` of the slip-unaware follower (drive mode) and of traction control (wheels mode)."""
     runs = {}
-    for name in ("unaware", "aware"):
-        mode = "wheels" if name == "aware" else "drive"
-        env = gym.make("Rover-v0", scenario=slope_on_sand(), obs_source="ground_truth", action_mode=mode)
+    for name, mode in (("unaware", "drive"), ("aware", "wheels")):
+        env = gym.make(env_id, action_mode=mode, **make)
         try:
             ctrl = (
-                SlipAwareController.for_env(env, TractionConfig(slip_setpoint=setpoint))
+                SlipAwareController.for_env(env, TractionConfig(slip_setpoint=SETPOINT))
                 if name == "aware"
                 else PathFollower.for_env(env)
             )
-            runs[name] = drive(env, ctrl, 25.0)
+            runs[name] = drive(env, ctrl, seconds)
         finally:
             env.close()
+    return runs
+
+
+def test_traction_control_holds_the_slip_set_point_where_the_slip_unaware_follower_spins():
+    runs = unaware_and_aware("Rover-v0", 25.0, scenario=slope_on_sand(), obs_source="ground_truth")
     _, vx_u, slip_u, energy_u, _ = runs["unaware"]
     xy_a, vx_a, slip_a, energy_a, info_a = runs["aware"]
     s_u, s_a = slip_u[accelerating(vx_u)], slip_a[accelerating(vx_a)]
     assert len(s_u) > 100 and len(s_a) > 100
     assert np.median(s_u) > 0.5  # the commanded speed spins the wheels on sand
-    assert abs(np.median(s_a) - setpoint) < 0.03
-    assert np.percentile(s_a, 95) < setpoint + 0.03
+    assert abs(np.median(s_a) - SETPOINT) < 0.03
+    assert np.percentile(s_a, 95) < SETPOINT + 0.03
     # the same climb: Coulomb friction gives the same force at any slip, for less work
     assert info_a["is_success"]
     assert len(vx_a) <= 1.05 * len(vx_u)
@@ -133,36 +140,16 @@ def test_traction_control_holds_the_slip_set_point_where_the_slip_unaware_follow
 
 def test_traction_control_on_the_estimated_slip():
     # the same climb with the estimator in the loop: the estimates drive the bounds
-    setpoint = 0.15
-    slips = {}
-    for name in ("unaware", "aware"):
-        mode = "wheels" if name == "aware" else "drive"
-        env = gym.make("Rover-v0", scenario=slope_on_sand(), obs_source="estimated", action_mode=mode)
-        try:
-            ctrl = (
-                SlipAwareController.for_env(env, TractionConfig(slip_setpoint=setpoint))
-                if name == "aware"
-                else PathFollower.for_env(env)
-            )
-            _, vx, slip, _, _ = drive(env, ctrl, 25.0)
-        finally:
-            env.close()
-        slips[name] = slip[accelerating(vx)]
+    runs = unaware_and_aware("Rover-v0", 25.0, scenario=slope_on_sand(), obs_source="estimated")
+    slips = {name: r[2][accelerating(r[1])] for name, r in runs.items()}
     assert np.median(slips["unaware"]) > 0.5
-    assert np.median(slips["aware"]) < setpoint + 0.1
+    assert np.median(slips["aware"]) < SETPOINT + 0.1
     assert np.percentile(slips["aware"], 90) < 0.4
 
 
 def test_on_a_loose_slope_traction_control_climbs_where_the_slip_unaware_follower_slides_off():
     # RoverSlopeLoose-v0: from rest up 10 degrees of loose sand (mu 0.35, 0.105 once dug in)
-    out = {}
-    for name, mode in (("unaware", "drive"), ("aware", "wheels")):
-        env = gym.make("RoverSlopeLoose-v0", obs_source="ground_truth", action_mode=mode)
-        try:
-            ctrl = SlipAwareController.for_env(env) if name == "aware" else PathFollower.for_env(env)
-            out[name] = drive(env, ctrl, 60.0)
-        finally:
-            env.close()
+    out = unaware_and_aware("RoverSlopeLoose-v0", 60.0, obs_source="ground_truth")
     xy, _, _, _, info = out["unaware"]
     assert info["termination"] == "left_terrain" and xy[-1, 0] < -15.0  # slid down the slope
     xy, _, slip, _, info = out["aware"]

@@ -47,7 +47,13 @@ def test_summary_and_report_from_known_rows(tmp_path):
     assert s["runs"] == 3 and s["success"] == pytest.approx(2 / 3)
     assert s["time"] == pytest.approx(15.0)  # over the successful runs only
     assert s["cross_track_rms"] == pytest.approx(0.1)
-    assert s["est_mae_v_x"] == pytest.approx(0.01) and math.isnan(s["est_slip_f1"])
+    assert s["est_mae_v_x"] == pytest.approx(0.01) and math.isnan(s["est_slip_f1"])  # no event counts
+    counts = [(2, 0, 1), (0, 1, 0), (1, 0, 0)]  # (matched, false, missed) per run
+    for r, (tp, fp, fn) in zip(rows, counts, strict=True):
+        r |= dict(
+            est_slip_events_matched=tp, est_slip_events_false=fp, est_slip_events_missed=fn, est_slip_f1=0.0
+        )
+    assert summarize(rows)[0]["est_slip_f1"] == pytest.approx(2 * 3 / (2 * 3 + 1 + 1))  # pooled, not 0
     report = write_report(rows, tmp_path).read_text()
     assert "| c | 3 | 0.667 | 15 | 0.1 | 10 |" in report
     with open(tmp_path / "results.csv") as fh:
