@@ -353,8 +353,8 @@ def _progress_callback(total: int):
 def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
     """Train a policy; write ``policy.zip``, ``vecnormalize.pkl``, ``policy.json``, checkpoints and logs.
 
-    Observations (not rewards at evaluation) are normalised by a running mean and variance
-    (``VecNormalize``); the statistics are saved with the policy. TensorBoard logs go to
+    Observations, and in training the rewards, are normalised by running statistics
+    (``VecNormalize``); the observation statistics are saved with the policy. TensorBoard logs go to
     ``out/tb``, checkpoints to ``out/checkpoints``, the best evaluated policy (a folder like ``out``
     itself) to ``out/best``.
 
