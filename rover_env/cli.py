@@ -24,14 +24,14 @@ def _progress_bar(label: str):
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from rover_env.mission import run_demo
+    from rover_env.mission import json_safe, run_demo
 
     out = Path(args.out)
     bar = _progress_bar(f"demo {args.scenario}")
     result = run_demo(out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar)
     bar(1.0)
     sys.stderr.write("\n")
-    print(json.dumps({"metrics": asdict(result.metrics), "estimator": result.estimator}, indent=2))
+    print(json.dumps(json_safe({"metrics": asdict(result.metrics), "estimator": result.estimator}), indent=2))
     print(f"wrote video, plots, metrics.json and the TUM trajectories to {out.resolve()}")
     return 0
 

@@ -313,6 +313,11 @@ ESTIMATOR_SUMMARY = (
 )
 
 
+def _num(v) -> float:
+    """A row's value as a float; missing (None, as JSON stores NaN) is NaN."""
+    return math.nan if v is None else float(v)
+
+
 def summarize(rows: Sequence[dict]) -> list[dict]:
     """One row per (mission, controller): run count and the :data:`SUMMARY` and estimator columns.
 
@@ -329,12 +334,10 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
             vals = [float(r[key]) for r in rs if how != "success_mean" or r["success"]]
             s[key] = float(np.mean(vals)) if vals else math.nan
         for key, _ in ESTIMATOR_SUMMARY:
-            vals = [float(r[key]) for r in rs if key in r and np.isfinite(r[key])]
+            vals = [v for v in (_num(r.get(key)) for r in rs) if math.isfinite(v)]
             s[key] = float(np.mean(vals)) if vals else math.nan
         # slip-event F1 over the events of all runs (a run's own F1 is 0 for one false event)
-        counts = [
-            [r.get(f"est_slip_events_{k}", math.nan) for r in rs] for k in ("matched", "false", "missed")
-        ]
+        counts = [[_num(r.get(f"est_slip_events_{k}")) for r in rs] for k in ("matched", "false", "missed")]
         tp, fp, fn = (float(np.sum(c)) if c and np.all(np.isfinite(c)) else math.nan for c in counts)
         s["est_slip_f1"] = 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn > 0 else math.nan
         out.append(s)
@@ -362,7 +365,9 @@ def write_report(
         w = csv.DictWriter(fh, fieldnames=keys)
         w.writeheader()
         w.writerows(rows)
-    (out / "results.json").write_text(json.dumps(list(rows), indent=1, default=float) + "\n")
+    from rover_env.mission import json_safe
+
+    (out / "results.json").write_text(json.dumps(json_safe(list(rows)), indent=1) + "\n")
     summary = summarize(rows)
     with open(out / "summary.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(summary[0]) if summary else ["mission"])

@@ -196,6 +196,21 @@ def run_mission(
     return MissionResult(metrics, rec, estimator_summary(est), est)
 
 
+def json_safe(obj):
+    """``obj`` with NaN and infinities as None and numpy scalars as Python numbers (strict JSON)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
 def write_tum(path: Path, rec: MissionLog) -> None:
     """Trajectory in TUM format: ``t x y z qx qy qz qw`` per line (world frame)."""
     arr = rec.arrays()
@@ -306,7 +321,7 @@ def write_outputs(out: Path, env: RoverEnv, result: MissionResult, plots: bool =
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "metrics.json", out / "trajectory.tum"]
     data = {"metrics": asdict(result.metrics), "estimator": result.estimator}
-    paths[0].write_text(json.dumps(data, indent=2) + "\n")
+    paths[0].write_text(json.dumps(json_safe(data), indent=2) + "\n")
     write_tum(paths[1], result.log)
     if result.estimate_arrays is not None:
         e = result.estimate_arrays

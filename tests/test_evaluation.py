@@ -59,6 +59,12 @@ def test_summary_and_report_from_known_rows(tmp_path):
     with open(tmp_path / "results.csv") as fh:
         assert len(list(csv.DictReader(fh))) == 3
     assert len(json.loads((tmp_path / "results.json").read_text())) == 3
+    # strict JSON: NaN is written as null, and a report made from the file reads it back as NaN
+    rows[0]["est_mae_v_x"] = math.nan
+    write_report(rows, tmp_path)
+    text = (tmp_path / "results.json").read_text()
+    assert "NaN" not in text and '"est_mae_v_x": null' in text
+    assert summarize(json.loads(text))[0]["est_mae_v_x"] == pytest.approx(0.01)
 
 
 def test_rover_eval_writes_one_report_of_all_runs(tiny_scenario, tmp_path, capsys):
