@@ -25,6 +25,9 @@ class RewardConfig:
         cross_track: Penalty per metre of |cross-track error| per second [1/(m s)].
         heading: Penalty per radian of |heading error| per second [1/(rad s)].
         slip: Penalty per unit of mean |slip ratio| of the wheels per second [1/s].
+        slip_speed: Penalty per m/s of mean wheel slip speed |omega r - v_long| per second
+            [1/m]: unlike the ratio, which saturates at 1, it keeps falling as a spinning wheel
+            slows toward its ground speed (0: off).
         energy: Penalty per joule of wheel-motor mechanical work [1/J].
         time: Penalty per second [1/s].
         success: Bonus for reaching the last waypoint.
@@ -35,6 +38,7 @@ class RewardConfig:
     cross_track: float = 0.2
     heading: float = 0.05
     slip: float = 0.5
+    slip_speed: float = 0.0
     energy: float = 0.002
     time: float = 0.05
     success: float = 10.0

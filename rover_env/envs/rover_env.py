@@ -418,7 +418,21 @@ class RoverEnv(gym.Env):
 
     @staticmethod
     def _term_names() -> tuple[str, ...]:
-        return ("progress", "cross_track", "heading", "slip", "energy", "time", "success", "failure")
+        return (
+            "progress",
+            "cross_track",
+            "heading",
+            "slip",
+            "slip_speed",
+            "energy",
+            "time",
+            "success",
+            "failure",
+        )
+
+    def _slip_speed(self, gt: GroundTruth) -> float:
+        """Mean over the wheels of |omega r - v_long| [m/s]."""
+        return float(np.mean(np.abs(gt.wheel_rate * self.geometry.wheel_radius - gt.wheel_v_long)))
 
     def _reward_terms(self, gt: GroundTruth, feats, success: bool, failure: bool) -> dict[str, float]:
         w = self.reward_cfg
@@ -429,6 +443,7 @@ class RoverEnv(gym.Env):
             "cross_track": -w.cross_track * abs(feats.cross_track) * dt,
             "heading": -w.heading * abs(feats.heading_error) * dt,
             "slip": -w.slip * float(np.mean(np.abs(gt.slip_ratio))) * dt,
+            "slip_speed": -w.slip_speed * self._slip_speed(gt) * dt,
             "energy": -w.energy * power * dt,
             "time": -w.time * dt,
             "success": w.success if success else 0.0,
