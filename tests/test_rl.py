@@ -81,3 +81,19 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
     with pytest.raises(ValueError, match="action_mode"):
         PolicyController(out, wheels)
     wheels.close()
+
+
+def test_the_shipped_policy_loads_and_drives():
+    from controllers.rl import shipped_policy
+
+    env = gym.make("Rover-v0", obs_source="ground_truth")
+    try:
+        ctrl = PolicyController(shipped_policy(), env)
+        assert ctrl.meta["reward"] == {"slip_speed": 5.0} and ctrl.residual is not None
+        obs, _ = env.reset(seed=0)
+        ctrl.reset()
+        for _ in range(60):  # two seconds: it drives off along the course
+            obs, _, _, _, info = env.step(ctrl.act(obs))
+        assert info["progress"] > 1.0
+    finally:
+        env.close()
