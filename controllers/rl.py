@@ -464,9 +464,7 @@ class PolicyController:
         cls = {"ppo": PPO, "sac": SAC}[self.meta["algo"]]
         self.model = cls.load(path / POLICY_FILE, device="cpu")
         with open(path / NORMALIZE_FILE, "rb") as fh:
-            norm = pickle.load(fh)
-        self._mean, self._var = norm.obs_rms.mean, norm.obs_rms.var
-        self._eps, self._clip = norm.epsilon, norm.clip_obs
+            self._normalize = pickle.load(fh)  # VecNormalize: its normalize_obs, no environment needed
         scale = self.meta["residual"]
         self.residual = None if scale is None else Residual(PathFollower.for_env(env), scale)
         self.deterministic = deterministic
@@ -478,8 +476,7 @@ class PolicyController:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Drive-mode action for ``obs`` (raw, as the environment returns it)."""
-        x = (np.asarray(obs, np.float64) - self._mean) / np.sqrt(self._var + self._eps)
-        x = np.clip(x, -self._clip, self._clip).astype(np.float32)
+        x = self._normalize.normalize_obs(np.asarray(obs)).astype(np.float32)
         a, _ = self.model.predict(x, deterministic=self.deterministic)
         if self.residual is not None:
             return self.residual.compose(obs, a)
