@@ -1,14 +1,18 @@
 """Reinforcement learning with stable-baselines3: residual policies on the estimator, and their loader.
 
 The learned policy is residual (Johannink et al. 2019, "Residual reinforcement learning for robot
-control"): its action is added to the path follower's (:class:`~controllers.PathFollower`, drive
-mode), scaled by ``scale`` per component (speed, lambda_F, lambda_R), and the sum is clipped
-to [-1, 1]. At the start of training the rover already follows the course, so the policy learns
-only what the follower lacks, here what slip asks of the speed and steering, from far fewer
-steps than driving from scratch. :class:`ResidualDrive` is that wrapper; :func:`train` runs PPO
-(default) or SAC on vectorised estimated-observation environments with observation
-normalisation, checkpoints, periodic evaluation and TensorBoard logs (with slip metrics);
-:class:`PolicyController` turns a saved run into a :class:`~controllers.Controller`.
+control"): its action is added to the path follower's drive command (speed, lambda_F,
+lambda_R), scaled by ``scale`` per component, and the sum is clipped to [-1, 1]. By default
+the slip-aware traction controller (:class:`~controllers.SlipAwareController`) then turns
+that command into per-wheel speeds within its slip bounds: the policy learns speed and
+steering, the classical layer keeps the wheels from digging in (base ``"traction"``,
+``wheels`` action mode). Base ``"follower"`` sends the command to the environment as it is
+(``drive`` mode). At the start of training the rover already follows the course, so the
+policy learns only what its base lacks, from far fewer steps than driving from scratch.
+:class:`ResidualDrive` is that wrapper; :func:`train` runs PPO (default) or SAC on vectorised
+estimated-observation environments with observation normalisation, checkpoints, periodic
+evaluation and TensorBoard logs (with slip metrics); :class:`PolicyController` turns a saved
+run into a :class:`~controllers.Controller`.
 
 Needs the ``rl`` extra: ``pip install 'rover-vision[rl]'``.
 """
@@ -25,6 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 from controllers.path_follower import PathFollower
+from controllers.traction import SlipAwareController
 
 log = logging.getLogger(__name__)
 
@@ -35,31 +40,71 @@ NORMALIZE_FILE = "vecnormalize.pkl"
 META_FILE = "policy.json"
 
 
+#: Bases of a residual policy: the environment action mode each acts in.
+BASES = {"traction": "wheels", "follower": "drive"}
+
+
 class Residual:
-    """The path follower's drive action plus a scaled residual, clipped to [-1, 1].
+    """A base controller's drive command plus a scaled residual.
+
+    The drive command is the path follower's (speed, lambda_F, lambda_R) in action units; the
+    residual, times ``scale``, is added to it and the sum clipped to [-1, 1]. With a
+    :class:`~controllers.PathFollower` base that sum is the environment's action (``drive``
+    mode); with a :class:`~controllers.SlipAwareController` base its traction control turns it
+    into per-wheel commands within the slip bounds (``wheels`` mode), so the policy chooses
+    speed and steering while the wheels stay near the slip set-point.
 
     Args:
-        follower: The base controller.
+        base: The base controller.
         scale: Residual range per component (speed, lambda_F, lambda_R), in action units.
     """
 
-    def __init__(self, follower: PathFollower, scale: Sequence[float]) -> None:
-        self.follower = follower
+    def __init__(self, base: PathFollower | SlipAwareController, scale: Sequence[float]) -> None:
+        if not isinstance(base, (PathFollower, SlipAwareController)):
+            raise TypeError(f"base: {type(base).__name__}; expected a PathFollower or a SlipAwareController")
+        self.base = base
         self.scale = np.asarray(scale, dtype=np.float32)
         if self.scale.shape != (3,) or np.any(self.scale < 0):
             raise ValueError(f"scale: {scale!r}; expected three non-negative numbers")
 
+    @classmethod
+    def for_env(cls, env: gym.Env, scale: Sequence[float]) -> Residual:
+        """The residual for ``env``'s action mode: traction base for ``wheels``, follower for ``drive``."""
+        mode = env.unwrapped.action_mode.value
+        if mode == "wheels":
+            return cls(SlipAwareController.for_env(env), scale)
+        if mode == "drive":
+            return cls(PathFollower.for_env(env), scale)
+        raise ValueError(f"a residual policy acts in action_mode 'drive' or 'wheels', not {mode!r}")
+
+    @property
+    def follower(self) -> PathFollower:
+        """The path follower that gives the drive command."""
+        return self.base.follower if isinstance(self.base, SlipAwareController) else self.base
+
+    def reset(self) -> None:
+        """Reset the base controller (start of an episode)."""
+        self.base.reset()
+
     def compose(self, obs: np.ndarray, residual: np.ndarray) -> np.ndarray:
-        """The environment action for the follower at ``obs`` plus ``residual`` (advances the follower)."""
-        base = self.follower.act(obs)
-        return np.clip(base + self.scale * np.asarray(residual, dtype=np.float32), -1.0, 1.0)
+        """The environment action for ``obs`` and ``residual`` (advances the base controller)."""
+        drive = np.clip(
+            self.follower.act(obs) + self.scale * np.asarray(residual, dtype=np.float32), -1.0, 1.0
+        )
+        if isinstance(self.base, PathFollower):
+            return drive
+        f = self.follower.cfg
+        lam_f, lam_r = float(drive[1]) * f.steer_limit, float(drive[2]) * f.steer_limit
+        commands = self.base.limit(obs, float(drive[0]) * f.v_max, lam_f, lam_r)
+        return self.base.action(commands, lam_f, lam_r)
 
 
 class ResidualDrive(gym.Wrapper):
-    """Drive-mode actions as residuals on the path follower's (:class:`Residual`).
+    """Actions as residuals on a base controller's drive command (:class:`Residual`).
 
-    The wrapped environment must use ``action_mode="drive"``; the action space stays
-    Box(-1, 1, (3,)).
+    The base follows from the wrapped environment's action mode: ``wheels`` (traction control)
+    or ``drive`` (the path follower alone). The action space is Box(-1, 1, (3,)): residuals on
+    (speed, lambda_F, lambda_R).
 
     Args:
         env: The environment.
@@ -68,20 +113,19 @@ class ResidualDrive(gym.Wrapper):
 
     def __init__(self, env: gym.Env, scale: Sequence[float] = (0.5, 0.3, 0.3)) -> None:
         super().__init__(env)
-        if env.unwrapped.action_mode.value != "drive":
-            raise ValueError("ResidualDrive needs action_mode='drive'")
-        self.residual = Residual(PathFollower.for_env(env), scale)
+        self.residual = Residual.for_env(env, scale)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
         self._obs: np.ndarray | None = None
 
     def reset(self, **kwargs):
-        """Reset the environment and the follower."""
+        """Reset the environment and the base controller."""
         obs, info = self.env.reset(**kwargs)
-        self.residual.follower.reset()
+        self.residual.reset()
         self._obs = obs
         return obs, info
 
     def step(self, action):
-        """Step with the follower's action plus the residual ``action``."""
+        """Step with the base controller's action for the residual ``action``."""
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
         obs, reward, term, trunc, info = self.env.step(self.residual.compose(self._obs, action))
@@ -176,6 +220,7 @@ def make_env(
     residual: Sequence[float] | None = (0.5, 0.3, 0.3),
     seed: int | None = None,
     reward: dict | None = None,
+    base: str = "traction",
 ) -> gym.Env:
     """A training or evaluation environment: Monitor(EpisodeStats(ResidualDrive(env))).
 
@@ -187,7 +232,10 @@ def make_env(
         residual: Residual scale (None: the policy's action is the action).
         seed: Seed of the action space (episodes are seeded by ``reset``).
         reward: Weights of the reward terms that differ from :class:`~rover_env.task.RewardConfig`'s.
+        base: The residual's base, a key of :data:`BASES` (sets the action mode).
     """
+    if base not in BASES:
+        raise ValueError(f"base {base!r}: choose one of {sorted(BASES)}")
     from stable_baselines3.common.monitor import Monitor
 
     from rover_env.evaluation import make_mission_env
@@ -198,7 +246,7 @@ def make_env(
     def one(mission: str):
         def make():
             env = make_mission_env(
-                mission, obs_source=obs_source, preset=preset, action_mode="drive", reward=weights
+                mission, obs_source=obs_source, preset=preset, action_mode=BASES[base], reward=weights
             )
             if residual is not None:
                 env = ResidualDrive(env, residual)
@@ -225,7 +273,9 @@ class TrainConfig:
         n_envs: Environments, each in its own process.
         obs_source: ``"estimated"`` (default) or ``"ground_truth"``.
         preset: Camera preset.
-        residual: Residual scale on the path follower (None: learn the whole action).
+        residual: Residual scale on the drive command (None: learn the whole action).
+        base: What the residual is added to: ``"traction"`` (the slip-aware traction
+            controller, wheels action mode) or ``"follower"`` (the path follower, drive mode).
         seed: Random seed.
         eval_every: Evaluate every this many steps (over all environments).
         eval_episodes: Episodes per evaluation.
@@ -241,6 +291,7 @@ class TrainConfig:
     obs_source: str = "estimated"
     preset: str = "train"
     residual: tuple[float, float, float] | None = (0.5, 0.3, 0.3)
+    base: str = "traction"
     seed: int = 0
     eval_every: int = 20_000
     eval_episodes: int = 4
@@ -253,6 +304,8 @@ class TrainConfig:
             raise ValueError(f"algo {self.algo!r}: use 'ppo' or 'sac'")
         if self.total_steps < 1 or self.n_envs < 1:
             raise ValueError("total_steps and n_envs must be at least 1")
+        if self.base not in BASES:
+            raise ValueError(f"base {self.base!r}: choose one of {sorted(BASES)}")
 
 
 PPO_DEFAULTS = dict(
@@ -276,7 +329,7 @@ def save_policy(model, cfg: TrainConfig, out: str | Path) -> Path:
     model.save(out / POLICY_FILE)
     model.get_vec_normalize_env().save(str(out / NORMALIZE_FILE))
     meta = asdict(cfg) | {
-        "action_mode": "drive",
+        "action_mode": BASES[cfg.base],
         "obs_fields": _obs_fields(),
         "steps": int(model.num_timesteps),
     }
@@ -375,7 +428,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
     missions = list(cfg.missions)
 
     def factory(names, seed: int):
-        return lambda: make_env(names, cfg.obs_source, cfg.preset, cfg.residual, seed, cfg.reward)
+        return lambda: make_env(names, cfg.obs_source, cfg.preset, cfg.residual, seed, cfg.reward, cfg.base)
 
     # every process cycles through all missions, each from its own starting point
     fns = [
@@ -428,6 +481,20 @@ def _obs_fields() -> list[str]:
     return list(OBS_FIELDS)
 
 
+def policy_action_mode(path: str | Path) -> str:
+    """The environment action mode (``"wheels"`` or ``"drive"``) of the policy saved in ``path``."""
+    meta = Path(path) / META_FILE
+    if not meta.is_file():
+        raise FileNotFoundError(f"{meta} is missing; point to the folder `rover train` wrote")
+    try:
+        mode = json.loads(meta.read_text())["action_mode"]
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"{meta}: malformed ({exc}); retrain or restore the file") from exc
+    if mode not in BASES.values():
+        raise ValueError(f"{meta}: action_mode {mode!r} is not one of {sorted(BASES.values())}")
+    return mode
+
+
 def shipped_policy() -> Path:
     """The folder of the policy shipped with the package (:class:`PolicyController` loads it)."""
     if not (SHIPPED / POLICY_FILE).is_file():
@@ -442,8 +509,9 @@ class PolicyController:
 
     Args:
         path: The training run's folder (``policy.zip``, ``vecnormalize.pkl``, ``policy.json``).
-        env: The environment it will drive (``action_mode="drive"``): the residual's path
-            follower is built for it.
+        env: The environment it will drive, in the policy's action mode (``policy.json``:
+            ``wheels`` for a traction base, ``drive`` for a follower base); the residual's base
+            controller is built for it.
         deterministic: Act on the policy's mean (default) or sample.
     """
 
@@ -466,16 +534,16 @@ class PolicyController:
         with open(path / NORMALIZE_FILE, "rb") as fh:
             self._normalize = pickle.load(fh)  # VecNormalize: its normalize_obs, no environment needed
         scale = self.meta["residual"]
-        self.residual = None if scale is None else Residual(PathFollower.for_env(env), scale)
+        self.residual = None if scale is None else Residual.for_env(env, scale)
         self.deterministic = deterministic
 
     def reset(self) -> None:
-        """Reset the residual's path follower."""
+        """Reset the residual's base controller."""
         if self.residual is not None:
-            self.residual.follower.reset()
+            self.residual.reset()
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Drive-mode action for ``obs`` (raw, as the environment returns it)."""
+        """The action for ``obs`` (raw, as the environment returns it), in the policy's action mode."""
         x = self._normalize.normalize_obs(np.asarray(obs)).astype(np.float32)
         a, _ = self.model.predict(x, deterministic=self.deterministic)
         if self.residual is not None:
@@ -484,6 +552,7 @@ class PolicyController:
 
 
 __all__ = [
+    "BASES",
     "EpisodeStats",
     "MissionCycle",
     "PolicyController",
@@ -491,6 +560,7 @@ __all__ = [
     "ResidualDrive",
     "TrainConfig",
     "make_env",
+    "policy_action_mode",
     "shipped_policy",
     "train",
 ]

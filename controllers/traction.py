@@ -120,14 +120,27 @@ class SlipAwareController:
 
     def wheel_commands(self, obs: np.ndarray) -> tuple[np.ndarray, float]:
         """(tread-speed commands (4,) [m/s], axle steering lambda [rad]) for ``obs``."""
+        speed, kappa = self.follower.command(np.asarray(obs, dtype=np.float64))
+        lam = self.follower.steering(kappa)
+        return self.limit(obs, speed, lam, -lam), lam
+
+    def limit(self, obs: np.ndarray, speed: float, lam_f: float, lam_r: float) -> np.ndarray:
+        """Tread-speed commands (4,) [m/s] for a drive command, within each wheel's slip bounds.
+
+        Args:
+            obs: The observation (estimated twist, slip, steering and odometry quality).
+            speed: Commanded body-centre speed [m/s], forward +.
+            lam_f: Front axle steering command [rad].
+            lam_r: Rear axle steering command [rad].
+
+        Advances the bounds' integrals by one control period.
+        """
         c, g = self.cfg, self.geometry
         obs = np.asarray(obs, dtype=np.float64)
-        speed, kappa = self.follower.command(obs)
-        lam = self.follower.steering(kappa)
-        nominal = ackermann_wheel_speeds(g, speed, lam, -lam)
+        nominal = ackermann_wheel_speeds(g, speed, lam_f, lam_r)
         self.limited[:] = False
         if obs[self._i_quality] < c.min_quality:
-            return nominal, lam
+            return nominal
         delta = g.ackermann_angles(*obs[self._i_steer])
         v_long, _ = wheel_ground_velocity(obs[self._i_twist], self._wheel_xy, delta)
         sgn = np.sign(nominal)
@@ -151,14 +164,18 @@ class SlipAwareController:
             np.clip(self.correction + c.gain * err * dt, lo, hi),
             np.where(self.limited, self.correction, self.correction * math.exp(-dt)),
         )
-        return sgn * cmd, lam
+        return sgn * cmd
+
+    def action(self, commands: np.ndarray, lam_f: float, lam_r: float) -> np.ndarray:
+        """Wheels-mode action for tread speeds (4,) [m/s] and axle angles [rad], scaled to [-1, 1]."""
+        f = self.follower.cfg
+        act = np.concatenate([np.asarray(commands) / f.v_max, [lam_f / f.steer_limit, lam_r / f.steer_limit]])
+        return np.clip(act, -1.0, 1.0).astype(np.float32)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Wheels-mode action (w_FL, w_FR, w_RL, w_RR, lambda_F, lambda_R), scaled to [-1, 1]."""
-        f = self.follower.cfg
         cmd, lam = self.wheel_commands(obs)
-        act = np.concatenate([cmd / f.v_max, [lam / f.steer_limit, -lam / f.steer_limit]])
-        return np.clip(act, -1.0, 1.0).astype(np.float32)
+        return self.action(cmd, lam, -lam)
 
 
 __all__ = ["SlipAwareController", "TractionConfig"]

@@ -94,6 +94,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         obs_source=args.obs_source,
         preset=args.preset,
         residual=residual,
+        base=args.base,
         seed=args.seed,
         eval_every=args.eval_every,
         checkpoint_every=args.eval_every,
@@ -207,7 +208,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--obs-source", default="estimated", choices=("estimated", "ground_truth"))
     t.add_argument("--preset", default="train", choices=("train", "eval"))
     t.add_argument("--residual", type=float, nargs=3, default=[0.5, 0.3, 0.3],
-                   help="residual range on the path follower's (speed, lam_F, lam_R) action")  # fmt: skip
+                   help="residual range on the drive command (speed, lam_F, lam_R)")  # fmt: skip
+    t.add_argument("--base", default="traction", choices=("traction", "follower"),
+                   help="the residual's base: traction control on each wheel (wheels action mode) "
+                        "or the path follower alone (drive mode)")  # fmt: skip
     t.add_argument("--no-residual", action="store_true", help="learn the whole action")
     t.add_argument("--eval-every", type=int, default=20_000, help="steps between evaluations and checkpoints")
     t.add_argument("--reward", nargs="+", type=_weight, default=[], metavar="TERM=WEIGHT",

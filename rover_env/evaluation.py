@@ -35,14 +35,20 @@ class ControllerSpec:
     """How to build a named controller.
 
     Attributes:
-        action_mode: The environment's action mode it needs.
+        mode: The environment's action mode it needs, or a function that reads it (a saved
+            policy's, from its folder).
         make: Builds the controller for an environment (``make(env)``).
         description: One line for listings.
     """
 
-    action_mode: str
+    mode: str | Callable[[], str]
     make: Callable
     description: str
+
+    @property
+    def action_mode(self) -> str:
+        """The environment's action mode the controller needs."""
+        return self.mode() if callable(self.mode) else self.mode
 
 
 def _slip_unaware(env):
@@ -73,12 +79,20 @@ def _shipped_policy(env):
     return PolicyController(shipped_policy(), env)
 
 
+def _shipped_policy_mode() -> str:
+    from controllers.rl import policy_action_mode, shipped_policy
+
+    return policy_action_mode(shipped_policy())
+
+
 #: Named controllers for sweeps.
 CONTROLLERS: dict[str, ControllerSpec] = {
     "slip_unaware": ControllerSpec("drive", _slip_unaware, "path follower, no traction control"),
     "slip_aware": ControllerSpec("wheels", _slip_aware, "path follower with per-wheel traction control"),
     "pure_pursuit": ControllerSpec("drive", _pure_pursuit, "pure pursuit toward the next waypoint"),
-    "ppo": ControllerSpec("drive", _shipped_policy, "the shipped residual PPO policy (controllers/policies)"),
+    "ppo": ControllerSpec(
+        _shipped_policy_mode, _shipped_policy, "the shipped residual PPO policy (controllers/policies)"
+    ),
 }
 OBS_SOURCES = ("estimated", "ground_truth")
 
@@ -89,7 +103,12 @@ def _policy_spec(path: str) -> ControllerSpec:
 
         return PolicyController(path, env)
 
-    return ControllerSpec("drive", make, f"the trained policy in {path}")
+    def mode() -> str:
+        from controllers.rl import policy_action_mode
+
+        return policy_action_mode(path)
+
+    return ControllerSpec(mode, make, f"the trained policy in {path}")
 
 
 def parse_controller(name: str) -> tuple[ControllerSpec, str]:

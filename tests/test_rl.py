@@ -1,5 +1,6 @@
 """Reinforcement learning: the residual wrapper, the mission cycle, training and the policy loader."""
 
+import copy
 import json
 
 import gymnasium as gym
@@ -8,8 +9,16 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from controllers import PathFollower  # noqa: E402
-from controllers.rl import MissionCycle, PolicyController, ResidualDrive, TrainConfig, make_env, train  # noqa: E402
+from controllers import PathFollower, SlipAwareController  # noqa: E402
+from controllers.rl import (  # noqa: E402
+    MissionCycle,
+    PolicyController,
+    ResidualDrive,
+    TrainConfig,
+    make_env,
+    policy_action_mode,
+    train,
+)
 from rover_env.evaluation import EvalJob, run_sweep  # noqa: E402
 
 
@@ -30,8 +39,43 @@ def test_residual_drive_adds_the_scaled_residual_to_the_follower():
         assert "ground_truth" in info
     finally:
         env.close()
-    with pytest.raises(ValueError, match="action_mode='drive'"):
-        ResidualDrive(gym.make("Rover-v0", obs_source="ground_truth", action_mode="wheels"))
+
+
+def test_traction_residual_is_the_slip_aware_controller_plus_a_drive_change_within_the_slip_bounds():
+    """Wheels mode: a zero residual drives exactly like SlipAwareController. A policy that always
+    asks for more speed (residual +1) spins the wheels on the loose slope through the path
+    follower alone, but not through the traction base."""
+    env = ResidualDrive(gym.make("RoverSlopeLoose-v0", obs_source="ground_truth", action_mode="wheels"))
+    ref = SlipAwareController.for_env(env)
+    try:
+        assert env.action_space.shape == (3,)
+        obs, _ = env.reset(seed=0)
+        ref.reset()
+        for _ in range(90):
+            # a copy: compose advances the base controller, and step composes again
+            action = copy.deepcopy(env.residual).compose(obs, np.zeros(3))
+            np.testing.assert_allclose(action, ref.act(obs), atol=1e-6)
+            obs, *_ = env.step(np.zeros(3, np.float32))
+    finally:
+        env.close()
+    median_slip, progress = {}, {}
+    for mode in ("drive", "wheels"):
+        env = ResidualDrive(gym.make("RoverSlopeLoose-v0", obs_source="ground_truth", action_mode=mode))
+        try:
+            env.reset(seed=0)
+            slips = []
+            for _ in range(240):  # 8 s, speed residual +1 (the follower's 0.8 m/s + 1 m/s)
+                _, _, term, _, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
+                slips.append(np.abs(info["ground_truth"]["slip_ratio"]).mean())
+                if term:
+                    break
+            median_slip[mode] = float(np.median(slips))
+            progress[mode] = float(info["progress"])
+        finally:
+            env.close()
+    assert median_slip["drive"] > 0.5, median_slip
+    assert median_slip["wheels"] < 0.1, median_slip
+    assert progress["wheels"] > 5.0 > progress["drive"], progress  # and it climbs
 
 
 def test_mission_cycle_runs_each_mission_in_turn():
@@ -62,14 +106,15 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
     out = train(cfg, tmp_path / "run")
     meta = json.loads((out / "policy.json").read_text())
     assert meta["algo"] == "ppo" and meta["residual"] == [0.5, 0.3, 0.3]
+    assert meta["base"] == "traction" and policy_action_mode(out) == "wheels"
     assert (out / "tb").is_dir()
-    env = gym.make("Rover-v0", scenario=tiny_scenario, obs_source="ground_truth")
+    env = gym.make("Rover-v0", scenario=tiny_scenario, obs_source="ground_truth", action_mode="wheels")
     try:
         ctrl = PolicyController(out, env)
         obs, _ = env.reset(seed=0)
         ctrl.reset()
         a = ctrl.act(obs)
-        assert a.shape == (3,) and a.dtype == np.float32 and np.all(np.abs(a) <= 1)
+        assert a.shape == (6,) and a.dtype == np.float32 and np.all(np.abs(a) <= 1)
     finally:
         env.close()
     # barely trained: the residual is near zero, so the policy follows the course like its follower
@@ -77,16 +122,16 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
     assert row["success"]
     with pytest.raises(FileNotFoundError, match="policy.zip"):
         PolicyController(tmp_path, env)
-    wheels = gym.make("Rover-v0", scenario=tiny_scenario, obs_source="ground_truth", action_mode="wheels")
+    drive = gym.make("Rover-v0", scenario=tiny_scenario, obs_source="ground_truth", action_mode="drive")
     with pytest.raises(ValueError, match="action_mode"):
-        PolicyController(out, wheels)
-    wheels.close()
+        PolicyController(out, drive)
+    drive.close()
 
 
 def test_the_shipped_policy_loads_and_drives():
     from controllers.rl import shipped_policy
 
-    env = gym.make("Rover-v0", obs_source="ground_truth")
+    env = gym.make("Rover-v0", obs_source="ground_truth", action_mode=policy_action_mode(shipped_policy()))
     try:
         ctrl = PolicyController(shipped_policy(), env)
         assert ctrl.meta["reward"] == {"slip_speed": 5.0} and ctrl.residual is not None
@@ -97,3 +142,16 @@ def test_the_shipped_policy_loads_and_drives():
         assert info["progress"] > 1.0
     finally:
         env.close()
+
+
+def test_policy_action_mode_reads_the_policy_folder_and_names_what_is_wrong(tmp_path):
+    with pytest.raises(FileNotFoundError, match="policy.json"):
+        policy_action_mode(tmp_path)
+    (tmp_path / "policy.json").write_text("{not json")
+    with pytest.raises(ValueError, match="malformed"):
+        policy_action_mode(tmp_path)
+    (tmp_path / "policy.json").write_text(json.dumps({"action_mode": "torque"}))
+    with pytest.raises(ValueError, match="'torque'"):
+        policy_action_mode(tmp_path)
+    (tmp_path / "policy.json").write_text(json.dumps({"action_mode": "wheels"}))
+    assert policy_action_mode(tmp_path) == "wheels"
