@@ -536,6 +536,14 @@ class PolicyController:
         scale = self.meta["residual"]
         self.residual = None if scale is None else Residual.for_env(env, scale)
         self.deterministic = deterministic
+        # fields that never varied in training (the quality fields on ground truth): their variance
+        # is only what the running statistics' prior (variance 1, weight 1e-4) left, and any change
+        # there normalises to far outside what the policy saw
+        rms = self._normalize.obs_rms
+        prior = 2e-4 * (1.0 + rms.mean**2) / max(float(rms.count), 1e-4)
+        self._constant = np.flatnonzero(rms.var <= prior)
+        self._constant_mean = rms.mean[self._constant]
+        self._warned = False
 
     def reset(self) -> None:
         """Reset the residual's base controller."""
@@ -544,6 +552,17 @@ class PolicyController:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The action for ``obs`` (raw, as the environment returns it), in the policy's action mode."""
+        if not self._warned and np.any(np.abs(np.asarray(obs)[self._constant] - self._constant_mean) > 1e-3):
+            fields = self.meta["obs_fields"]
+            names = [
+                fields[i] if i < len(fields) else f"previous action {i - len(fields)}" for i in self._constant
+            ]
+            log.warning(
+                "observation fields %s vary but were constant in training (obs_source=%r): the "
+                "policy sees inputs it never saw; train it on the observation source it drives on",
+                names, self.meta.get("obs_source"),
+            )  # fmt: skip
+            self._warned = True
         x = self._normalize.normalize_obs(np.asarray(obs)).astype(np.float32)
         a, _ = self.model.predict(x, deterministic=self.deterministic)
         if self.residual is not None:

@@ -93,7 +93,7 @@ def test_mission_cycle_runs_each_mission_in_turn():
         env.close()
 
 
-def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, tiny_scenario):
+def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, tiny_scenario, caplog):
     cfg = TrainConfig(
         missions=(tiny_scenario,),
         total_steps=256,
@@ -115,6 +115,10 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
         ctrl.reset()
         a = ctrl.act(obs)
         assert a.shape == (6,) and a.dtype == np.float32 and np.all(np.abs(a) <= 1)
+        assert not caplog.records
+        # trained on ground truth, the quality fields were always 1: an estimator's 0.5 gets a warning
+        ctrl.act(np.where(np.arange(obs.size) == 17, 0.5, obs).astype(np.float32))
+        assert "odometry_quality" in caplog.text and "never saw" in caplog.text
     finally:
         env.close()
     # barely trained: the residual is near zero, so the policy follows the course like its follower
