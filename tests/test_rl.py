@@ -159,3 +159,10 @@ def test_policy_action_mode_reads_the_policy_folder_and_names_what_is_wrong(tmp_
         policy_action_mode(tmp_path)
     (tmp_path / "policy.json").write_text(json.dumps({"action_mode": "wheels"}))
     assert policy_action_mode(tmp_path) == "wheels"
+
+
+def test_an_unknown_residual_base_is_refused_with_the_choices():
+    with pytest.raises(ValueError, match="'torque'.*follower.*traction"):
+        TrainConfig(base="torque")
+    with pytest.raises(ValueError, match="'torque'"):
+        make_env("Rover-v0", base="torque")
