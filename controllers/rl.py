@@ -87,13 +87,19 @@ class Residual:
         self.base.reset()
 
     def compose(self, obs: np.ndarray, residual: np.ndarray) -> np.ndarray:
-        """The environment action for ``obs`` and ``residual`` (advances the base controller)."""
+        """The environment action for ``obs`` and ``residual`` (advances the base controller).
+
+        The speed stays at or above the follower's ``min_speed``: the policy can slow the rover
+        but not stop it (a rover stopped mid-turn on a slope, its wheels held at its ground
+        speed by traction control, stays stopped: a deadlock the policy's mean can fall into).
+        """
+        f = self.follower.cfg
         drive = np.clip(
             self.follower.act(obs) + self.scale * np.asarray(residual, dtype=np.float32), -1.0, 1.0
         )
+        drive[0] = max(drive[0], f.min_speed / f.v_max)
         if isinstance(self.base, PathFollower):
             return drive
-        f = self.follower.cfg
         lam_f, lam_r = float(drive[1]) * f.steer_limit, float(drive[2]) * f.steer_limit
         commands = self.base.limit(obs, float(drive[0]) * f.v_max, lam_f, lam_r)
         return self.base.action(commands, lam_f, lam_r)
