@@ -35,6 +35,11 @@ def test_residual_drive_adds_the_scaled_residual_to_the_follower():
             atol=1e-6,
         )
         assert np.all(np.abs(env.residual.compose(obs, np.full(3, 10.0))) <= 1.0)  # clipped
+        # the policy can slow the rover to the follower's lowest speed, not stop or reverse it
+        f = follower.cfg
+        assert env.residual.compose(obs, np.array([-1.0, 0.0, 0.0]))[0] == pytest.approx(
+            f.min_speed / f.v_max
+        )
         _, _, _, _, info = env.step(np.zeros(3, np.float32))
         assert "ground_truth" in info
     finally:
