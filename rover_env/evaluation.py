@@ -134,6 +134,14 @@ def parse_controller(name: str) -> tuple[ControllerSpec, str]:
     return spec, source
 
 
+def _path_label(path: str) -> str:
+    """``<stem>-<6 hex digits of the absolute path>``: two files of one name get two labels."""
+    import hashlib
+
+    p = Path(path)
+    return f"{p.stem}-{hashlib.sha1(str(p.resolve()).encode()).hexdigest()[:6]}"
+
+
 @dataclass(frozen=True)
 class EvalJob:
     """One run of a sweep.
@@ -162,9 +170,9 @@ class EvalJob:
             self.controller.rpartition("@") if "@" in self.controller else (self.controller, "", "")
         )
         if base.startswith("policy:"):
-            base = "policy-" + Path(base[len("policy:") :]).name
+            base = "policy-" + _path_label(base[len("policy:") :])
         ctrl = f"{base}-{source}" if at else base
-        mission = Path(self.mission).stem if self.mission.endswith((".yaml", ".yml")) else self.mission
+        mission = _path_label(self.mission) if self.mission.endswith((".yaml", ".yml")) else self.mission
         return f"{ctrl}_{mission}_{self.seed}"
 
 

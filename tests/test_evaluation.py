@@ -23,6 +23,10 @@ def test_controller_names_and_bad_input():
         run_sweep([], executor="slurm")
     jobs = jobs_for(["a", "b@ground_truth"], ["m"], [1, 2], out="/o")
     assert [j.name for j in jobs] == ["a_m_1", "a_m_2", "b-ground_truth_m_1", "b-ground_truth_m_2"]
+    # policies (and scenario files) of one name in two folders get two run folders
+    names = [EvalJob(f"policy:{p}@ground_truth", m, 0).name for p, m in [("/x/run", "/a/s.yaml"),
+             ("/y/run", "/a/s.yaml"), ("/x/run", "/b/s.yaml"), ("/x/run", "/a/s.yaml")]]  # fmt: skip
+    assert len(set(names)) == 3 and names[0] == names[3] and names[0].startswith("policy-run-")
     assert jobs[2].out == "/o/runs/b-ground_truth_m_1"
 
 
@@ -76,7 +80,8 @@ def test_rover_eval_writes_one_report_of_all_runs(tiny_scenario, tmp_path, capsy
     rows = json.loads((out / "results.json").read_text())
     assert len(rows) == 4 and all(r["success"] for r in rows)
     assert {r["controller"] for r in rows} == {"slip_unaware@ground_truth", "slip_aware@ground_truth"}
-    assert (out / "runs" / "slip_aware-ground_truth_tiny_1" / "trajectory.png").stat().st_size > 1000
+    (run,) = (out / "runs").glob("slip_aware-ground_truth_tiny-*_1")  # the scenario file's stem and hash
+    assert (run / "trajectory.png").stat().st_size > 1000
     report = (out / "report.md").read_text()
     assert "## " + tiny_scenario in report and "slip_aware@ground_truth | 2 | 1 |" in report
     assert "report.md" in capsys.readouterr().out
