@@ -144,6 +144,7 @@ def test_the_shipped_policy_loads_and_drives():
     try:
         ctrl = PolicyController(shipped_policy(), env)
         assert ctrl.meta["reward"] == {"slip_speed": 5.0} and ctrl.residual is not None
+        assert ctrl.meta["obs_source"] == "estimated" and ctrl.meta["base"] == "traction"
         obs, _ = env.reset(seed=0)
         ctrl.reset()
         for _ in range(60):  # two seconds: it drives off along the course
