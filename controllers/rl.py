@@ -44,6 +44,11 @@ META_FILE = "policy.json"
 BASES = {"traction": "wheels", "follower": "drive"}
 
 
+def _check_base(base: str) -> None:
+    if base not in BASES:
+        raise ValueError(f"base {base!r}: choose one of {sorted(BASES)}")
+
+
 class Residual:
     """A base controller's drive command plus a scaled residual.
 
@@ -240,8 +245,7 @@ def make_env(
         reward: Weights of the reward terms that differ from :class:`~rover_env.task.RewardConfig`'s.
         base: The residual's base, a key of :data:`BASES` (sets the action mode).
     """
-    if base not in BASES:
-        raise ValueError(f"base {base!r}: choose one of {sorted(BASES)}")
+    _check_base(base)
     from stable_baselines3.common.monitor import Monitor
 
     from rover_env.evaluation import make_mission_env
@@ -310,8 +314,7 @@ class TrainConfig:
             raise ValueError(f"algo {self.algo!r}: use 'ppo' or 'sac'")
         if self.total_steps < 1 or self.n_envs < 1:
             raise ValueError("total_steps and n_envs must be at least 1")
-        if self.base not in BASES:
-            raise ValueError(f"base {self.base!r}: choose one of {sorted(BASES)}")
+        _check_base(self.base)
 
 
 PPO_DEFAULTS = dict(

@@ -73,16 +73,26 @@ def _pure_pursuit(env):
     )
 
 
-def _shipped_policy(env):
-    from controllers.rl import PolicyController, shipped_policy
+def _shipped_policy_folder() -> Path:
+    from controllers.rl import shipped_policy
 
-    return PolicyController(shipped_policy(), env)
+    return shipped_policy()
 
 
-def _shipped_policy_mode() -> str:
-    from controllers.rl import policy_action_mode, shipped_policy
+def _policy_spec(folder: Callable[[], str | Path], description: str) -> ControllerSpec:
+    """A saved policy's spec; ``folder()`` gives its folder, read only when the spec is used."""
 
-    return policy_action_mode(shipped_policy())
+    def make(env):
+        from controllers.rl import PolicyController
+
+        return PolicyController(folder(), env)
+
+    def mode() -> str:
+        from controllers.rl import policy_action_mode
+
+        return policy_action_mode(folder())
+
+    return ControllerSpec(mode, make, description)
 
 
 #: Named controllers for sweeps.
@@ -90,25 +100,9 @@ CONTROLLERS: dict[str, ControllerSpec] = {
     "slip_unaware": ControllerSpec("drive", _slip_unaware, "path follower, no traction control"),
     "slip_aware": ControllerSpec("wheels", _slip_aware, "path follower with per-wheel traction control"),
     "pure_pursuit": ControllerSpec("drive", _pure_pursuit, "pure pursuit toward the next waypoint"),
-    "ppo": ControllerSpec(
-        _shipped_policy_mode, _shipped_policy, "the shipped residual PPO policy (controllers/policies)"
-    ),
+    "ppo": _policy_spec(_shipped_policy_folder, "the shipped residual PPO policy (controllers/policies)"),
 }
 OBS_SOURCES = ("estimated", "ground_truth")
-
-
-def _policy_spec(path: str) -> ControllerSpec:
-    def make(env):
-        from controllers.rl import PolicyController
-
-        return PolicyController(path, env)
-
-    def mode() -> str:
-        from controllers.rl import policy_action_mode
-
-        return policy_action_mode(path)
-
-    return ControllerSpec(mode, make, f"the trained policy in {path}")
 
 
 def parse_controller(name: str) -> tuple[ControllerSpec, str]:
@@ -122,7 +116,7 @@ def parse_controller(name: str) -> tuple[ControllerSpec, str]:
         folder = base[len("policy:") :]
         if not Path(folder).is_dir():
             raise ValueError(f"controller {name!r}: no folder {folder!r}; train one with `rover train --out`")
-        spec = _policy_spec(folder)
+        spec = _policy_spec(lambda: folder, f"the trained policy in {folder}")
     elif base in CONTROLLERS:
         spec = CONTROLLERS[base]
     else:
