@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 from perception.fisheye_kinematics import KinematicStateEstimator  # noqa: E402
 from rover_env.cameras import FisheyeCamera  # noqa: E402
 from rover_env.fisheye import FisheyeCameraConfig  # noqa: E402
-from rover_env.geometry import ackermann_wheel_speeds  # noqa: E402
+
 from rover_env.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig  # noqa: E402
 from rover_env.sim import RoverSim  # noqa: E402
 from rover_env.task import CourseConfig  # noqa: E402
@@ -50,7 +50,7 @@ def drive(speed: float, seconds: float, preset: str, steer: float, sun_elevation
         g = sim.geometry
         cam = FisheyeCamera(sim, FisheyeCameraConfig.preset(preset))
         est = KinematicStateEstimator(cam.model, g.kinematic_model(cam.T_body_cam))
-        sim.rover.command(ackermann_wheel_speeds(g, speed, steer, -steer) / g.wheel_radius, steer, -steer)
+        sim.rover.command(g.drive.wheel_speeds(speed, steer, -steer) / g.wheel_radius, steer, -steer)
         sim.step(1.0)
         # the drive is rendered and recorded first, with a second estimator in the render loop
         # (whose caches the renderer flushes between frames)

@@ -33,7 +33,7 @@ import numpy as np
 from perception.fisheye_kinematics import DOF_NAMES, KinematicStateEstimator
 from rover_env.cameras import FisheyeCamera
 from rover_env.fisheye import FisheyeCameraConfig
-from rover_env.geometry import ackermann_wheel_speeds
+
 from rover_env.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.sim import RoverSim, quat_to_yaw
 from rover_env.task import CourseConfig
@@ -106,7 +106,7 @@ def drive(index: int, scale: float = 1.0) -> dict:
             estimate.append(np.r_[frame.t, s.psi, s.depth, s.lam, s.theta, s.theta_dot])
             valid.append([s.valid[k] for k in DOF_NAMES])
             speed, lam_f, lam_r = commands(frame.t, *gt.pose[:2], quat_to_yaw(gt.pose[3:]))
-            sim.rover.command(ackermann_wheel_speeds(g, speed, lam_f, lam_r) / g.wheel_radius, lam_f, lam_r)
+            sim.rover.command(g.drive.wheel_speeds(speed, lam_f, lam_r) / g.wheel_radius, lam_f, lam_r)
             sim.step(cam.period)
     finally:
         sim.close()

@@ -25,7 +25,7 @@ import numpy as np
 
 from perception.odometry import FlowOdometry, FlowOdometryConfig, ground_plane_from_wheels, integrate_twist
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-from rover_env.geometry import ackermann_wheel_speeds
+
 from rover_env.scenario import ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.sim import RoverSim, quat_to_yaw
 from rover_env.task import CourseConfig
@@ -54,7 +54,7 @@ def record(seconds: float, preset: str, sun_elevation: float, sun_azimuth: float
         sim.reset(-4.0, -6.0, 0.0)
         g = sim.geometry
         lam = math.atan(g.axle_x / RADIUS)  # equal and opposite axle steering: radius RADIUS
-        sim.rover.command(ackermann_wheel_speeds(g, SPEED, lam, -lam) / g.wheel_radius, lam, -lam)
+        sim.rover.command(g.drive.wheel_speeds(SPEED, lam, -lam) / g.wheel_radius, lam, -lam)
         sim.step(1.5)  # up to speed
         cam = DownwardCamera(sim, DownwardCameraConfig.preset(preset))
         frames, poses, planes, shadow_share = [], [], [], []

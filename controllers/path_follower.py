@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rover_env.config_io import check_range
+from perception.observation import OBS_FIELDS, field_index
+from perception.validation import check_range
 
 
 @dataclass(frozen=True)
@@ -78,28 +79,30 @@ class PathFollowerConfig:
         check_range("dt", self.dt, 0.0, 10.0, lo_open=True)
 
 
-def _field_index(fields: list[str], name: str) -> int:
+def _field_index(fields: Sequence[str], name: str) -> int:
     try:
-        return fields.index(name)
-    except ValueError:
-        raise ValueError(
-            f"the observation has no field {name!r}; pass the environment's OBS_FIELDS "
-            "(rover_env.envs.OBS_FIELDS)"
-        ) from None
+        return field_index(fields, name)
+    except KeyError as exc:
+        raise ValueError(f"{exc.args[0]}; pass the environment's field names (env.unwrapped.obs_fields)") from None
+
+
+def env_field_names(env) -> list[str]:
+    """Names of the observation fields of a :class:`~rover_env.envs.RoverEnv` (or a wrapper of one)."""
+    return [f.name for f in env.unwrapped.obs_fields]
 
 
 class PathFollower:
     """Follow the waypoint course on the observation's task features (drive action mode).
 
     Args:
-        obs_fields: Names of the observation's entries (``rover_env.envs.OBS_FIELDS``); the
-            follower reads ``cross_track``, ``heading_error``, ``v_x`` and the two quality fields.
+        obs_fields: Names of the observation's entries (default
+            :data:`perception.observation.OBS_FIELDS`, the environments' layout); the follower reads ``cross_track``, ``heading_error``, ``v_x`` and the two quality fields.
         config: Gains and limits; :meth:`for_env` fills the rover's from an environment.
     """
 
-    def __init__(self, obs_fields: Sequence[str], config: PathFollowerConfig | None = None) -> None:
+    def __init__(self, obs_fields: Sequence[str] | None = None, config: PathFollowerConfig | None = None) -> None:
         self.cfg = config or PathFollowerConfig()
-        fields = list(obs_fields)
+        fields = list(OBS_FIELDS if obs_fields is None else obs_fields)
         self._i = {
             name: _field_index(fields, name)
             for name in ("v_x", "cross_track", "heading_error", "odometry_quality", "kinematics_quality")
@@ -115,8 +118,6 @@ class PathFollower:
         The course speed, ``v_max``, the rover's steering limit and axle position and the
         control period come from the environment; ``overrides`` set any other field.
         """
-        from rover_env.envs.rover_env import OBS_FIELDS
-
         base = env.unwrapped
         g = base.geometry
         kw = dict(
@@ -127,7 +128,7 @@ class PathFollower:
             dt=base.control_dt,
         )
         kw.update(overrides)
-        return cls(OBS_FIELDS, PathFollowerConfig(**kw))
+        return cls(env_field_names(env), PathFollowerConfig(**kw))
 
     def reset(self) -> None:
         """Clear the integral at the start of an episode."""

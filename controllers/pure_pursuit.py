@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perception.observation import OBS_FIELDS
+
 
 @dataclass(frozen=True)
 class PurePursuitConfig:
@@ -40,14 +42,15 @@ class PurePursuit:
     turns about a centre on the body's lateral axis with kappa = tan(lambda) / half_wheelbase.
 
     Args:
-        obs_fields: Names of the observation entries (``rover_env.envs.OBS_FIELDS``); the
+        obs_fields: Names of the observation entries (default
+            :data:`perception.observation.OBS_FIELDS`); the
             controller reads ``waypoint_distance`` and ``waypoint_bearing``.
         config: Gains and limits.
     """
 
-    def __init__(self, obs_fields: Sequence[str], config: PurePursuitConfig | None = None):
+    def __init__(self, obs_fields: Sequence[str] | None = None, config: PurePursuitConfig | None = None):
         self.cfg = config or PurePursuitConfig()
-        fields = list(obs_fields)
+        fields = list(OBS_FIELDS if obs_fields is None else obs_fields)
         try:
             self._i_dist = fields.index("waypoint_distance")
             self._i_bear = fields.index("waypoint_bearing")

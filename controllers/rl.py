@@ -485,7 +485,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
 
 
 def _obs_fields() -> list[str]:
-    from rover_env.envs.rover_env import OBS_FIELDS
+    from perception.observation import OBS_FIELDS
 
     return list(OBS_FIELDS)
 

@@ -26,12 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.path_follower import PathFollower, PathFollowerConfig, _field_index
+from controllers.path_follower import PathFollower, PathFollowerConfig, _field_index, env_field_names
+from perception.drive_geometry import WHEELS, DriveGeometry
+from perception.observation import OBS_FIELDS
+from perception.validation import check_range
 from perception.wheel_kinematics import wheel_ground_velocity
-from rover_env.config_io import check_range
-from rover_env.geometry import RoverGeometry, ackermann_wheel_speeds
 
-WHEELS = ("FL", "FR", "RL", "RR")
 
 
 @dataclass(frozen=True)
@@ -72,28 +72,31 @@ class SlipAwareController:
     """Path following with per-wheel traction control (``action_mode="wheels"``).
 
     Args:
-        obs_fields: Names of the observation's entries (``rover_env.envs.OBS_FIELDS``).
-        geometry: The rover's geometry (wheel positions, Ackermann steering).
+        obs_fields: Names of the observation's entries (default
+            :data:`perception.observation.OBS_FIELDS`).
+        geometry: The rover's drive geometry (wheel positions, Ackermann steering); a
+            ``RoverGeometry`` is accepted for its ``drive``.
         follower: Path-following gains and limits.
         traction: Traction-control parameters.
     """
 
     def __init__(
         self,
-        obs_fields: Sequence[str],
-        geometry: RoverGeometry | None = None,
+        obs_fields: Sequence[str] | None = None,
+        geometry: DriveGeometry | None = None,
         follower: PathFollowerConfig | None = None,
         traction: TractionConfig | None = None,
     ) -> None:
-        self.geometry = geometry or RoverGeometry()
+        geometry = getattr(geometry, "drive", geometry)
+        self.geometry: DriveGeometry = geometry if geometry is not None else DriveGeometry()
         self.follower = PathFollower(obs_fields, follower)
         self.cfg = traction or TractionConfig()
-        fields = list(obs_fields)
+        fields = list(OBS_FIELDS if obs_fields is None else obs_fields)
         self._i_twist = [_field_index(fields, n) for n in ("v_x", "v_y", "omega")]
         self._i_slip = [_field_index(fields, f"slip_{w}") for w in WHEELS]
         self._i_steer = [_field_index(fields, f"steering_{a}") for a in ("F", "R")]
         self._i_quality = _field_index(fields, "odometry_quality")
-        self._wheel_xy = self.geometry.wheel_positions_body()[:, :2]
+        self._wheel_xy = self.geometry.wheel_xy()
         self.reset()
 
     @classmethod
@@ -108,9 +111,7 @@ class SlipAwareController:
                 f"action_mode='wheels' (it has {base.action_mode.value!r})"
             )
         follower = PathFollower.for_env(env, **follower_overrides).cfg
-        from rover_env.envs.rover_env import OBS_FIELDS
-
-        return cls(OBS_FIELDS, base.geometry, follower, traction)
+        return cls(env_field_names(env), base.geometry.drive, follower, traction)
 
     def reset(self) -> None:
         """Clear the follower's integral and the wheels' bound corrections."""
@@ -137,7 +138,7 @@ class SlipAwareController:
         """
         c, g = self.cfg, self.geometry
         obs = np.asarray(obs, dtype=np.float64)
-        nominal = ackermann_wheel_speeds(g, speed, lam_f, lam_r)
+        nominal = g.wheel_speeds(speed, lam_f, lam_r)
         self.limited[:] = False
         if obs[self._i_quality] < c.min_quality:
             return nominal

@@ -5,7 +5,7 @@ import numpy as np
 
 import rover_env  # noqa: F401  (registers Rover-v0)
 from controllers import PurePursuit
-from rover_env.envs import OBS_FIELDS
+from perception.observation import OBS_FIELDS
 
 
 def run(max_steps: int = 3000, seed: int = 0) -> dict:

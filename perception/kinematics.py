@@ -17,10 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from perception.drive_geometry import AXLES, WHEELS, ackermann_arms, axle_steering_angles, wheel_steering_angles
 from perception.calib_io import CalibrationError, as_array, check_rigid, read_mapping, write_mapping
 
-WHEELS = ("FL", "FR", "RL", "RR")
-AXLES = ("F", "R")
 PLATE = {"F": ("A1", "A2"), "R": ("C1", "C2")}
 ROD = {"F": ("B1", "B2"), "R": ("D1", "D2")}
 MARKERS = ("A1", "A2", "B1", "B2", "C1", "C2", "D1", "D2")
@@ -192,29 +191,17 @@ class RoverKinematicModel:
 
     def ackermann_arms(self) -> tuple[np.ndarray, np.ndarray]:
         """(arm to the turn-centre line, y) of each wheel, order FL, FR, RL, RR."""
-        arms = np.array(
-            [self.axle_sign(w[0]) * self.axle_x - self.ackermann_center_x for w in WHEELS], dtype=np.float64
-        )
-        ys = np.array([self.kingpin_local(w)[1] for w in WHEELS])
-        return arms, ys
+        return ackermann_arms(self.axle_x, self.track, self.ackermann_center_x)
 
     def wheel_angles(self, lam_front: float, lam_rear: float) -> np.ndarray:
         """Per-wheel steering angles for axle commands (the tie rods' Ackermann mapping) [rad]."""
-        arms, ys = self.ackermann_arms()
-        out = []
-        for k, lam in enumerate((lam_front, lam_front, lam_rear, lam_rear)):
-            t = math.tan(lam)
-            out.append(math.atan(arms[k] * t / (arms[k] - ys[k] * t)))
-        return np.array(out)
+        return wheel_steering_angles(self.ackermann_arms(), lam_front, lam_rear)
 
     def axle_steering(self, delta) -> np.ndarray:
         """(lambda_F, lambda_R) from 4 wheel angles: the inverse Ackermann map, averaged per axle."""
-        arms, ys = self.ackermann_arms()
-        lam = [
-            math.atan(a * math.tan(d) / (a + y * math.tan(d)))
-            for a, y, d in zip(arms, ys, delta, strict=True)
-        ]
-        return np.array([0.5 * (lam[0] + lam[1]), 0.5 * (lam[2] + lam[3])])
+        if len(delta) != 4:
+            raise ValueError(f"delta has {len(delta)} angles; give 4 (FL, FR, RL, RR) [rad]")
+        return axle_steering_angles(self.ackermann_arms(), delta)
 
     # ------------------------------------------------------------------ YAML
     _KEYS = frozenset(

@@ -44,7 +44,7 @@ def bench_physics(
     Time inside ``stepSimulation`` is accumulated during the same run, so the split between
     PyBullet and the Python around it is measured, not estimated.
     """
-    env = RoverEnv(scenario=scenario, control_hz=control_hz)
+    env = RoverEnv(scenario=scenario, control_hz=control_hz, obs_source="ground_truth")
     try:
         env.reset(seed=seed)
         actions = [

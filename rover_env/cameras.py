@@ -102,6 +102,9 @@ class _RoverCamera(ABC):
                 "frame pairs must be whole physics steps apart (e.g. 30, 60, 80, 120 Hz at 240 Hz)"
             )
         self._last: Frame | None = None
+        #: (t0, t1) windows of simulation time [s] in which :meth:`sample` delivers black frames
+        #: (a camera fault: the estimator sees only the images).
+        self.blackout: list[tuple[float, float]] = []
         if sim.renderer == "egl" and config.shadows:
             raise ConfigError(
                 "shadows: the simulation renders with EGL, which ignores the sun and draws no "
@@ -143,6 +146,37 @@ class _RoverCamera(ABC):
         """Render one frame at the current simulation time."""
         self.sim.prepare_render(self.config.ground_range)
         return self._keep(self._render(labels=False))
+
+    def set_blackout(self, windows) -> None:
+        """Deliver black frames from :meth:`sample` within each (t0, t1) window [s] of simulation time.
+
+        Raises:
+            ValueError: a window is not two finite times with t0 < t1.
+        """
+        out = []
+        for w in windows:
+            try:
+                t0, t1 = (float(v) for v in w)
+            except (TypeError, ValueError):
+                raise ValueError(f"blackout window {w!r}: give (t0, t1) with t0 < t1 [s]") from None
+            if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
+                raise ValueError(f"blackout window {w!r}: give (t0, t1) with t0 < t1 [s]")
+            out.append((t0, t1))
+        self.blackout = out
+
+    def _dark(self) -> bool:
+        t = self.sim.t
+        return any(t0 <= t < t1 for t0, t1 in self.blackout)
+
+    def _black(self) -> np.ndarray:
+        return np.zeros((self.config.height, self.config.width, 3), dtype=np.uint8)
+
+    def sample(self) -> np.ndarray:
+        """The image the camera delivers now, as a sensor attached to the simulation: a rendered
+        frame, or a black one inside a :attr:`blackout` window. (H, W, 3) uint8 RGB."""
+        if self._dark():
+            return self._black()
+        return self.capture().image
 
     def _keep(self, view) -> Frame:
         frame = Frame(image=view.rgb, t=self.sim.t, shadow=view.shadow)
@@ -252,6 +286,28 @@ class FisheyeCamera(_RoverCamera):
         self.model = cfg.model(T)
         roi = _kinematics_roi(cfg, sim.geometry) if cfg.roi else None
         self.remapper = CubemapRemap(self.model, oversample=cfg.oversample, roi=roi)
+        self._window: tuple[float, np.ndarray] | None = None
+        #: Frames sampled so far: all, and those rendered in windows.
+        self.sampled = {"frames": 0, "windowed": 0}
+
+    def request_window(self, t: float, parts: np.ndarray | None) -> None:
+        """Render only the windows holding ``parts`` in the frame sampled at time ``t`` [s].
+
+        A tracker-driven windowed readout: the estimator asks, after each frame, for the parts
+        the next one must show (see :meth:`capture`). The request holds for that one frame; a
+        frame at any other time is rendered whole.
+        """
+        self._window = None if parts is None else (float(t), np.asarray(parts, dtype=np.float64))
+
+    def sample(self) -> np.ndarray:
+        """The image delivered now (see :meth:`_RoverCamera.sample`), windowed if requested for now."""
+        req, self._window = self._window, None
+        parts = req[1] if req is not None and abs(req[0] - self.sim.t) < 1e-9 else None
+        self.sampled["frames"] += 1
+        if self._dark():
+            return self._black()
+        self.sampled["windowed"] += parts is not None
+        return self.capture(parts=parts).image
 
     def render_view(self, parts: np.ndarray | None = None) -> FisheyeView:
         """Render now, with segmentation, shadow and 3-D points (for tests and evaluation).

@@ -10,8 +10,8 @@ times only, never the simulator):
 - both -> :class:`perception.SlipEstimator` -> fused twist and wheel rates, slip ratio and angle;
 - the fused twist integrated from the start pose -> the dead-reckoned planar pose.
 
-It advances the physics itself, one camera tick at a time, so that every frame is taken at its
-camera's exact time.
+The simulation samples the cameras at their exact times while it steps; the pipeline consumes
+the timestamped images and never steps the physics.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamer
 from rover_env.config_io import ConfigError
 from rover_env.fisheye import FisheyeCameraConfig, joint_window_parts
 from rover_env.ground_truth import GROUND_TRUTH_KEYS
-from rover_env.sim import RoverSim
+from rover_env.sim import RoverSim, SensorMessage
 
 log = logging.getLogger(__name__)
 
@@ -126,10 +126,16 @@ class StepEstimate:
 
 
 class PerceptionPipeline:
-    """The cameras and estimators of one simulated rover.
+    """The cameras of one simulated rover and the estimators that consume their images.
+
+    The cameras are attached to the simulation as sensors (``"fisheye"`` then ``"downward"``);
+    the simulation samples them while it steps. The pipeline never steps the physics and reads
+    no simulator state: it gets the sensor messages and the time the step ended
+    (:meth:`process`), and the start fix at :meth:`reset`. What a camera fault does reaches it
+    only as the images the camera delivers.
 
     Args:
-        sim: The simulation (one per environment).
+        sim: The simulation the cameras are attached to (one per environment).
         preset: A :data:`PERCEPTION_PRESETS` name or a :class:`PerceptionPreset`.
         odometry: Odometry parameters.
         kinematics: Fisheye-kinematics parameters.
@@ -149,10 +155,13 @@ class PerceptionPipeline:
                 raise ConfigError(f"preset: {preset!r}; use one of {sorted(PERCEPTION_PRESETS)}")
             preset = PERCEPTION_PRESETS[preset]
         self.preset = preset
-        self.sim = sim
         self.downward = DownwardCamera(sim, preset.downward)
         self.fisheye = FisheyeCamera(sim, preset.fisheye)
+        sim.attach_sensor("fisheye", self.fisheye)
+        sim.attach_sensor("downward", self.downward)
+        self._sim_timing = sim.timing
         g = sim.geometry
+        self._steer_max_rate = g.steer_max_rate
         self.model = g.kinematic_model(self.fisheye.T_body_cam)
         down = preset.downward
         self.odometry = FlowOdometry(
@@ -162,53 +171,47 @@ class PerceptionPipeline:
         self.kinematics = KinematicStateEstimator(self.fisheye.model, self.model, kinematics)
         nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
         self.slip = SlipEstimator(np.array([c[:2] for _, c in nominal]), g.wheel_radius, slip)
-        # physics steps per frame of each camera; the pipeline ticks at their greatest common divisor
-        steps = [round(c.period / sim.dt) for c in (self.downward, self.fisheye)]
-        self._tick = math.gcd(*steps)
-        self._every = [n // self._tick for n in steps]
-        self._blackout: list[tuple[float, float]] = []
         self._pose = np.zeros(3)
+        self._t_pose = 0.0
+        self._t = 0.0
         self._last_odom: OdometryEstimate | None = None
-        self._count = 0
-        #: Wall-clock seconds spent so far in each part: physics, rendering, perception.
-        self.timing = {"physics": 0.0, "rendering": 0.0, "perception": 0.0}
-        #: Frames rendered so far: downward, fisheye, and fisheye frames rendered in windows.
+        self._perception_s = 0.0
+        self._window_s = 0.0
+        #: Frames processed so far: downward, fisheye, and fisheye frames rendered in windows.
         self.frames = {"downward": 0, "fisheye": 0, "fisheye_windowed": 0}
 
-    def reset(self, pose0, blackout=()) -> None:
-        """Start again after the simulation's reset, at the known start pose (x, y, yaw) [m, rad].
+    @property
+    def timing(self) -> dict[str, float]:
+        """Wall-clock seconds spent so far: physics, rendering (sensor sampling), perception."""
+        return {
+            "physics": self._sim_timing["physics"],
+            "rendering": self._sim_timing["sensors"] + self._window_s,
+            "perception": self._perception_s,
+        }
 
-        Call it after every :meth:`RoverSim.reset`: it takes the first frame of each camera.
+    def reset(self, pose0, messages: list[SensorMessage], t: float = 0.0) -> StepEstimate:
+        """Start again after the simulation's reset, from the start fix (x, y, yaw) [m, rad].
 
         Args:
-            pose0: The start pose in the world (dead reckoning starts there).
-            blackout: (t0, t1) windows of episode time [s] in which both cameras deliver black
-                frames (a camera fault, for robustness tests).
+            pose0: Where the rover believes it starts (world frame); dead reckoning starts there.
+            messages: The sensor messages of the reset (each camera's first frame).
+            t: Simulation time of the reset [s].
+
+        Returns:
+            The estimate after the first frames.
         """
+        pose0 = np.asarray(pose0, dtype=np.float64)
+        if pose0.shape != (3,) or not np.all(np.isfinite(pose0)):
+            raise ValueError(f"pose0={pose0.tolist()}: give a finite (x, y, yaw) [m, rad]")
         self.odometry.reset()
         self.kinematics.reset()
         self.slip.reset()
-        self._pose = np.array(pose0, dtype=np.float64)
-        self._last_odom: OdometryEstimate | None = None
-        self._count = 0
-        windows = []
-        for w in blackout:
-            t0, t1 = (float(v) for v in w)
-            if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
-                raise ValueError(f"blackout window {w!r}: give (t0, t1) with t0 < t1 [s]")
-            windows.append((t0, t1))
-        self._blackout = windows
-        self._capture(downward=True, fisheye=True)
-
-    def _dark(self, t: float) -> bool:
-        return any(t0 <= t < t1 for t0, t1 in self._blackout)
-
-    def _frame(self, camera, **options) -> np.ndarray:
-        """Render ``camera`` now (black during a blackout); the rendering clock runs meanwhile."""
-        t0 = time.perf_counter()
-        img = camera.capture(**options).image
-        self.timing["rendering"] += time.perf_counter() - t0
-        return np.zeros_like(img) if self._dark(self.sim.t) else img
+        self._pose = pose0.copy()
+        self._t_pose = float(t)
+        self._t = float(t)
+        self._last_odom = None
+        self.fisheye.request_window(0.0, None)
+        return self.process(messages, t)
 
     def _window_parts(self) -> np.ndarray | None:
         """What the fisheye's next frame must show (see ``PerceptionPreset.fisheye_window``)."""
@@ -219,81 +222,81 @@ class PerceptionPipeline:
         if not all(s.valid[f"{dof}_{a}"] for dof in ("psi", "d", "lam") for a in AXLES):
             return None
         roll, travel, steer = rates
-        steer = max(steer, 1.25 * self.sim.geometry.steer_max_rate)
-        spread = (roll * self.fisheye.period, travel * self.fisheye.period, steer * self.fisheye.period)
-        return joint_window_parts(self.model, s.psi, s.depth, s.delta, spread)
+        steer = max(steer, 1.25 * self._steer_max_rate)
+        period = self.fisheye.period
+        return joint_window_parts(self.model, s.psi, s.depth, s.delta, (roll * period, travel * period, steer * period))
 
-    def _capture(self, downward: bool, fisheye: bool) -> None:
-        t = self.sim.t
-        if fisheye:
-            t0 = time.perf_counter()
-            parts = self._window_parts()
-            self.timing["rendering"] += time.perf_counter() - t0
-            img = self._frame(self.fisheye, parts=parts)
-            self.frames["fisheye"] += 1
-            self.frames["fisheye_windowed"] += parts is not None
-            t0 = time.perf_counter()
-            state = self.kinematics.update(img, t)
-            self.slip.add_wheels(
-                t,
-                state.theta_dot,
-                self.fisheye.period,
-                [state.valid[f"theta_{w}"] for w in ("FL", "FR", "RL", "RR")],
-                state.delta,
-            )
-            self.timing["perception"] += time.perf_counter() - t0
-        if downward:
-            img = self._frame(self.downward)
-            self.frames["downward"] += 1
-            t0 = time.perf_counter()
-            s = self.kinematics.state
-            centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
-            plane = ground_plane_from_wheels(centres, self.model.wheel_radius)
-            est = self.odometry.update(img, t, ground_plane=plane)
-            if est is not None:
-                self._last_odom = est
-                if est.valid:
-                    self.slip.add_odometry(t, est.twist, est.dt, est.quality, cov=est.twist_cov)
-            self.timing["perception"] += time.perf_counter() - t0
+    def _on_fisheye(self, img: np.ndarray, t: float) -> None:
+        state = self.kinematics.update(img, t)
+        self.frames["fisheye"] += 1
+        self.frames["fisheye_windowed"] = self.fisheye.sampled["windowed"]
+        self.slip.add_wheels(
+            t,
+            state.theta_dot,
+            self.fisheye.period,
+            [state.valid[f"theta_{w}"] for w in ("FL", "FR", "RL", "RR")],
+            state.delta,
+        )
+        t0 = time.perf_counter()
+        self.fisheye.request_window(t + self.fisheye.period, self._window_parts())
+        self._window_s += time.perf_counter() - t0
 
-    @property
-    def tick(self) -> float:
-        """The pipeline's time step [s]: the greatest common divisor of the camera periods."""
-        return self.sim.dt * self._tick
+    def _on_downward(self, img: np.ndarray, t: float) -> None:
+        self.frames["downward"] += 1
+        s = self.kinematics.state
+        centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
+        plane = ground_plane_from_wheels(centres, self.model.wheel_radius)
+        est = self.odometry.update(img, t, ground_plane=plane)
+        if est is not None:
+            self._last_odom = est
+            if est.valid:
+                self.slip.add_odometry(t, est.twist, est.dt, est.quality, cov=est.twist_cov)
 
-    def advance(self, duration: float) -> None:
-        """Run the physics for ``duration`` [s], capturing and processing every camera frame."""
-        dt = self.tick
-        n = round(duration / dt)
-        if abs(n * dt - duration) > 1e-9:
-            raise ValueError(f"duration {duration} s is not a whole number of camera ticks ({dt} s)")
-        for _ in range(n):
-            t_prev = self.sim.t
-            t0 = time.perf_counter()
-            self.sim.step(dt)
-            self.timing["physics"] += time.perf_counter() - t0
-            self._count += 1
-            self._integrate(t_prev, self.sim.t)
-            self._capture(
-                downward=self._count % self._every[0] == 0, fisheye=self._count % self._every[1] == 0
-            )
+    def process(self, messages: list[SensorMessage], t: float) -> StepEstimate:
+        """Consume the sensor messages of one step, in time order, and estimate the state at ``t``.
 
-    def _integrate(self, t0: float, t1: float) -> None:
-        """Dead reckoning: the slip filter's twist at the tick's start held over the tick, as an arc.
+        Args:
+            messages: Messages of the attached cameras (others are ignored), sampled at or before
+                ``t`` and after the previous call's time.
+            t: The time the step ended [s].
+        """
+        t0 = time.perf_counter()
+        handlers = {"fisheye": self._on_fisheye, "downward": self._on_downward}
+        for msg in messages:
+            handler = handlers.get(msg.sensor)
+            if handler is None:
+                continue
+            if msg.t < self._t_pose - 1e-9 or msg.t > t + 1e-9:
+                raise ValueError(
+                    f"{msg.sensor} message at t={msg.t} s is outside this step ({self._t_pose} to {t} s); "
+                    "pass each step's messages once, in time order"
+                )
+            self._integrate(msg.t)
+            handler(msg.data, msg.t)
+        self._integrate(t)
+        self._t = float(t)
+        out = self.estimate()
+        self._perception_s += time.perf_counter() - t0
+        return out
+
+    def _integrate(self, t1: float) -> None:
+        """Dead reckoning to ``t1``: the slip filter's twist after the last frame held as an arc.
 
         That twist is the visual odometry fused with the wheels' rates where they grip (on rough
         ground the odometry's planar model errs by 0.05-0.07 m/s); with no new measurement (a
         blackout) it is the last one.
         """
-        self._pose = arc_step(self._pose, self.slip.twist_at(t0), t1 - t0)
+        if t1 > self._t_pose:
+            self._pose = arc_step(self._pose, self.slip.twist_at(self._t_pose), t1 - self._t_pose)
+            self._t_pose = t1
 
     def estimate(self) -> StepEstimate:
-        """The estimate now (after :meth:`reset` or :meth:`advance`)."""
-        t = self.sim.t
+        """The estimate at the last processed time (after :meth:`reset` or :meth:`process`)."""
+        t = self._t
         sl = self.slip.estimate(t)
         ks = self.kinematics.state
         odo = self._last_odom
-        q_odo = float(odo.quality) if odo is not None and odo.valid and not self._dark(t) else 0.0
+        q_odo = float(odo.quality) if odo is not None and odo.valid else 0.0
         q_kin = float(ks.quality)
         values = {
             "odometry_pose": self._pose.copy(),

@@ -21,20 +21,24 @@ import numpy as np
 
 from perception.slip import SlipConfig, slip_events
 from perception.trajectory import path_segment_errors
-from rover_env.envs.rover_env import OBS_FIELDS
+from perception.drive_geometry import AXLES, WHEELS
+from perception.observation import OBS_FIELDS, field_index
 from rover_env.sim import quat_to_yaw
 
+#: Observation fields with a ground truth, and the (ground-truth key, index) of each.
+_TRUTH_OF: dict[str, tuple[str, int]] = {
+    **{n: ("twist", i) for i, n in enumerate(("v_x", "v_y", "omega"))},
+    **{f"wheel_rate_{w}": ("wheel_rate", i) for i, w in enumerate(WHEELS)},
+    **{f"slip_{w}": ("slip_ratio", i) for i, w in enumerate(WHEELS)},
+    **{f"axle_roll_{a}": ("axle_roll", i) for i, a in enumerate(AXLES)},
+    **{f"axle_height_{a}": ("axle_height", i) for i, a in enumerate(AXLES)},
+    **{f"steering_{a}": ("steering", i) for i, a in enumerate(AXLES)},
+}
 #: Observation fields with a ground truth: twist, wheel rates, slip, axle roll and height, steering.
-FIELDS: tuple[str, ...] = OBS_FIELDS[:17]
+FIELDS: tuple[str, ...] = tuple(n for n in OBS_FIELDS if n in _TRUTH_OF)
 #: (ground-truth key, index) of each of :data:`FIELDS`.
-TRUTH: tuple[tuple[str, int], ...] = tuple(
-    [("twist", i) for i in range(3)]
-    + [("wheel_rate", i) for i in range(4)]
-    + [("slip_ratio", i) for i in range(4)]
-    + [("axle_roll", i) for i in range(2)]
-    + [("axle_height", i) for i in range(2)]
-    + [("steering", i) for i in range(2)]
-)
+TRUTH: tuple[tuple[str, int], ...] = tuple(_TRUTH_OF[n] for n in FIELDS)
+_OBS_INDEX = np.array([field_index(OBS_FIELDS, n) for n in FIELDS])
 EVENT_FRAMES = 2  # frames in a row with |s| >= 0.2 that make a true event (SlipConfig.event_hold)
 EVENT_SPEED = SlipConfig().event_min_speed  # [m/s] no event on a slower wheel
 START_UP = 1.0  # [s] left out at the start of an episode
@@ -55,7 +59,7 @@ class EstimateLog:
     def add(self, obs: np.ndarray, info: dict) -> None:
         """Record one step from the observation and ``info`` of ``env.step`` (estimated source)."""
         gt = info["ground_truth"]
-        self.est.append(np.asarray(obs[: len(FIELDS)], dtype=np.float64))
+        self.est.append(np.asarray(obs, dtype=np.float64)[_OBS_INDEX])
         self.events.append(info["slip"]["events"])
         self.tru.append([gt[k][i] for k, i in TRUTH])
         self.speed.append(np.maximum(np.abs(gt["wheel_rate"] * self.radius), abs(gt["twist"][0])))

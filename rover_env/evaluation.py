@@ -65,11 +65,11 @@ def _slip_aware(env):
 
 def _pure_pursuit(env):
     from controllers import PurePursuit, PurePursuitConfig
-    from rover_env.envs.rover_env import OBS_FIELDS
 
     base = env.unwrapped
     return PurePursuit(
-        OBS_FIELDS, PurePursuitConfig(cruise_speed=base.scenario.course.speed, v_max=base.v_max)
+        [f.name for f in base.obs_fields],
+        PurePursuitConfig(cruise_speed=base.scenario.course.speed, v_max=base.v_max),
     )
 
 

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rover_env.config_io import ConfigError, check_range
+from perception.drive_geometry import AXLES, WHEELS, DriveGeometry, ackermann_arms, wheel_steering_angles
+from perception.validation import ConfigError, check_range
 
-WHEELS: tuple[str, ...] = ("FL", "FR", "RL", "RR")
-AXLES: tuple[str, ...] = ("F", "R")
+__all__ = ["AXLES", "WHEELS", "Fiducial", "RoverGeometry"]
 
 
 @dataclass(frozen=True)
@@ -202,28 +202,25 @@ class RoverGeometry:
         """Nominal wheel centres, shape (4, 3), order FL, FR, RL, RR [m]."""
         return np.stack([self.wheel_position_body(w) for w in WHEELS])
 
+    @property
+    def drive(self) -> DriveGeometry:
+        """The drive geometry controllers use (wheel layout, radius, steering limit)."""
+        return DriveGeometry(
+            axle_x=self.axle_x,
+            track=self.track,
+            wheel_radius=self.wheel_radius,
+            steer_limit=self.steer_limit,
+            ackermann_center_x=self.ackermann_center_x,
+        )
+
     def ackermann_angles(self, steer_front: float, steer_rear: float) -> np.ndarray:
         """Per-wheel steering angles for the axle commands, order FL, FR, RL, RR [rad].
 
-        The axle command is the angle of a virtual wheel at the axle centre. Each axle's tie rod
-        is designed for a turn centre on the lateral line x = ``ackermann_center_x``, so the
-        two wheels of an axle are Ackermann-consistent for their own command: for wheel i at
-        (x_a, y_i), tan(delta_i) = (x_a - x_c) tan(lambda) / ((x_a - x_c) - y_i tan(lambda)).
-        Equal-and-opposite commands then turn the whole rover about a point on that line.
-
-        Args:
-            steer_front: Front axle command lambda_F [rad], positive turns left.
-            steer_rear: Rear axle command lambda_R [rad].
+        See :func:`perception.drive_geometry.wheel_steering_angles`.
         """
-        half = self.track / 2.0
-        out = []
-        for lam, arm in (
-            (steer_front, self.axle_x - self.ackermann_center_x),
-            (steer_rear, -self.axle_x - self.ackermann_center_x),
-        ):
-            t = math.tan(lam)
-            out += [math.atan(arm * t / (arm - y * t)) for y in (half, -half)]  # left, right
-        return np.array(out)
+        return wheel_steering_angles(
+            ackermann_arms(self.axle_x, self.track, self.ackermann_center_x), steer_front, steer_rear
+        )
 
     def turning_radius(self, steer: float) -> float:
         """Radius of the body-centre path for equal-and-opposite axle steering ``steer`` [m].
@@ -330,34 +327,3 @@ class RoverGeometry:
             if f.name == name:
                 return f
         raise KeyError(f"no fiducial named {name!r}")
-
-
-def ackermann_wheel_speeds(
-    geom: RoverGeometry, speed: float, steer_front: float, steer_rear: float
-) -> np.ndarray:
-    """Ground speed of each wheel centre for a body-centre speed and axle steering commands.
-
-    The instantaneous centre of rotation (ICR) is where the normals of the two axles' virtual
-    centre wheels meet; each wheel's speed is proportional to its distance from it, so no
-    wheel is dragged. Parallel axle angles (straight or crab driving) give equal speeds.
-
-    Args:
-        geom: Rover geometry.
-        speed: Signed speed of the body centre [m/s].
-        steer_front: lambda_F [rad].
-        steer_rear: lambda_R [rad].
-
-    Returns:
-        (4,) wheel-centre speeds [m/s], order FL, FR, RL, RR, with the sign of ``speed``.
-    """
-    tf, tr = math.tan(steer_front), math.tan(steer_rear)
-    if abs(tf - tr) < 1e-9:
-        return np.full(4, float(speed))
-    yc = geom.wheelbase / (tf - tr)
-    xc = geom.axle_x - yc * tf
-    r_body = math.hypot(xc, yc)
-    half = geom.track / 2.0
-    ax = geom.axle_x
-    # wheel centres FL, FR, RL, RR in the body x-y plane
-    r_wheels = [math.hypot(x - xc, y - yc) for x, y in ((ax, half), (ax, -half), (-ax, half), (-ax, -half))]
-    return np.array([speed * r / r_body for r in r_wheels])

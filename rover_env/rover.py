@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pybullet as pb
 
+from perception.drive_geometry import ackermann_arms, axle_steering_angles
 from perception.wheel_kinematics import slip_ratio
 from rover_env.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.ground_truth import GroundTruth
@@ -92,6 +93,9 @@ class Rover:
             pb.getLinkStates, self.body_id, self.wheel_links, computeLinkVelocity=1, physicsClientId=cid
         )
         self._read_knuckles = partial(pb.getLinkStates, self.body_id, self.knuckle_links, physicsClientId=cid)
+        self._read_wheel_joints = partial(
+            pb.getJointStates, self.body_id, self.wheel_joints, physicsClientId=cid
+        )
         self._read_base_velocity = partial(pb.getBaseVelocity, self.body_id, physicsClientId=cid)
         self._read_all_joints = partial(
             pb.getJointStates,
@@ -216,10 +220,33 @@ class Rover:
                 self.client.changeDynamics(self.body_id, self.wheel_links[i], lateralFriction=mu)
                 current[i] = mu
 
-    def update_dig(self, gt: GroundTruth, terrain: Terrain) -> None:
-        """Set how far each wheel has dug into loose soil from its slip now (``FrictionMapConfig``)."""
-        slip_speed = gt.wheel_rate * self.geom.wheel_radius - gt.wheel_v_long
-        self.dig = terrain.friction.dig(gt.slip_ratio, slip_speed)
+    def _wheel_velocities(self) -> tuple[list[float], list[float]]:
+        """Per wheel: centre velocity along its knuckle's x (rolling) and y (lateral) axes [m/s]."""
+        v_long_l, v_lat_l = [], []
+        for w_st, k_st in zip(self._read_wheels_with_velocity(), self._read_knuckles()):
+            vx, vy, vz = w_st[6]
+            kx, ky, kz, kw = k_st[5]
+            v_long_l.append(
+                vx * (1 - 2 * (ky * ky + kz * kz))
+                + vy * 2 * (kx * ky + kz * kw)
+                + vz * 2 * (kx * kz - ky * kw)
+            )
+            v_lat_l.append(
+                vx * 2 * (kx * ky - kz * kw)
+                + vy * (1 - 2 * (kx * kx + kz * kz))
+                + vz * 2 * (ky * kz + kx * kw)
+            )
+        return v_long_l, v_lat_l
+
+    def update_dig(self, terrain: Terrain) -> None:
+        """Set how far each wheel has dug into loose soil from its exact slip now (call every substep).
+
+        See ``FrictionMapConfig``: the dig follows the slip ratio and slip speed |omega r - v_long|.
+        """
+        v_long = np.array(self._wheel_velocities()[0])
+        rate = np.array([s[1] for s in self._read_wheel_joints()])
+        surface = rate * self.geom.wheel_radius
+        self.dig = terrain.friction.dig(slip_ratio(surface, v_long), surface - v_long)
 
     # ------------------------------------------------------------------ ground truth
     def ground_truth(self, t: float, terrain_id: int) -> GroundTruth:
@@ -234,21 +261,7 @@ class Rover:
         q = [s[0] for s in joints]
         qd = [s[1] for s in joints]
         wheel_steer = np.array([q[j] for j in self.steer_joints])
-        v_long_l, v_lat_l = [], []
-        for w_st, k_st in zip(self._read_wheels_with_velocity(), self._read_knuckles()):
-            vx, vy, vz = w_st[6]
-            kx, ky, kz, kw = k_st[5]
-            # wheel-centre velocity along the knuckle's x (rolling) and y (lateral) axes
-            v_long_l.append(
-                vx * (1 - 2 * (ky * ky + kz * kz))
-                + vy * 2 * (kx * ky + kz * kw)
-                + vz * 2 * (kx * kz - ky * kw)
-            )
-            v_lat_l.append(
-                vx * 2 * (kx * ky - kz * kw)
-                + vy * (1 - 2 * (kx * kx + kz * kz))
-                + vz * 2 * (ky * kz + kx * kw)
-            )
+        v_long_l, v_lat_l = self._wheel_velocities()
         r = g.wheel_radius
         wheel_rate = np.array([qd[j] for j in self.wheel_joints])
         v_long = np.array(v_long_l)
@@ -287,8 +300,7 @@ class Rover:
 
 def _ackermann_arms(geom: RoverGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Per wheel: arm from the turn-centre line along x [m], lateral offset y [m] (read-only)."""
-    arm = np.array([geom.axle_x if w[0] == "F" else -geom.axle_x for w in WHEELS]) - geom.ackermann_center_x
-    y = np.array([geom.wheel_offset(w)[1] for w in WHEELS])
+    arm, y = ackermann_arms(geom.axle_x, geom.track, geom.ackermann_center_x)
     arm.flags.writeable = False
     y.flags.writeable = False
     return arm, y
@@ -297,14 +309,5 @@ def _ackermann_arms(geom: RoverGeometry) -> tuple[np.ndarray, np.ndarray]:
 def axle_steering_from_wheels(
     geom: RoverGeometry, wheel_steer: np.ndarray, arms: tuple[np.ndarray, np.ndarray] | None = None
 ) -> np.ndarray:
-    """Invert the per-axle Ackermann mapping: (lambda_F, lambda_R) from 4 wheel angles [rad].
-
-    From tan(delta) = a t / (a - y t) with a the arm to the turn-centre line and t = tan(lambda):
-    t = a tan(delta) / (a + y tan(delta)). The two wheels of an axle are averaged.
-    """
-    arm, y = arms if arms is not None else _ackermann_arms(geom)
-    lam = []
-    for a, yy, d in zip(arm.tolist(), y.tolist(), np.asarray(wheel_steer, dtype=np.float64).tolist()):
-        td = math.tan(d)
-        lam.append(math.atan(a * td / (a + yy * td)))
-    return np.array([0.5 * (lam[0] + lam[1]), 0.5 * (lam[2] + lam[3])])  # WHEELS: FL, FR, RL, RR
+    """(lambda_F, lambda_R) from 4 wheel angles [rad]: :func:`perception.drive_geometry.axle_steering_angles`."""
+    return axle_steering_angles(arms if arms is not None else _ackermann_arms(geom), wheel_steer)

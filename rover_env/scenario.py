@@ -208,17 +208,27 @@ class StartConfig:
         yaw_deg: Start heading, counter-clockwise from world x [deg].
         jitter_position: Radius of a uniform random offset added at reset [m].
         jitter_yaw_deg: Half-width of a uniform random heading offset at reset [deg].
+        fix_std: Standard deviations of the start fix with estimated observations: (position
+            per axis [m], yaw [deg]). Dead reckoning starts from the true start pose plus
+            Gaussian noise of these deviations, drawn from the episode's seeded generator: what
+            a rover's localisation gives before a traverse. (0, 0) starts it at the exact true
+            pose, an oracle no real rover has.
     """
 
     position: tuple[float, float] = (0.0, 0.0)
     yaw_deg: float = 0.0
     jitter_position: float = 0.0
     jitter_yaw_deg: float = 0.0
+    fix_std: tuple[float, float] = (0.05, 1.0)
 
     def __post_init__(self) -> None:
         check_range("yaw_deg", self.yaw_deg, -360.0, 360.0)
         check_range("jitter_position", self.jitter_position, 0.0, 5.0)
         check_range("jitter_yaw_deg", self.jitter_yaw_deg, 0.0, 180.0)
+        if len(self.fix_std) != 2:
+            raise ConfigError(f"fix_std: give [position std in m, yaw std in deg], got {list(self.fix_std)!r}")
+        check_range("fix_std[0]", self.fix_std[0], 0.0, 10.0)
+        check_range("fix_std[1]", self.fix_std[1], 0.0, 180.0)
 
     @property
     def yaw(self) -> float:

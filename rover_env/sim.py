@@ -1,14 +1,21 @@
 """RoverSim: one PyBullet client with a terrain and a rover, stepped at a fixed physics rate.
 
 Each simulation owns its own ``BulletClient`` (never the global pybullet module), so any number
-of them coexist in one process. Nothing here renders; cameras attach to the client later.
+of them coexist in one process. The simulation owns the clock: every physics model (springs,
+friction map, loose-soil dig; motors inside PyBullet) updates at every physics substep, so the
+trajectory does not depend on how :meth:`RoverSim.step` calls are chunked. Sensors attached with
+:meth:`RoverSim.attach_sensor` are sampled at their own rates, at the exact substep of each
+sample, and hand out timestamped :class:`SensorMessage` objects (no simulator state).
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import time
+from dataclasses import dataclass
 from functools import partial
+from typing import Protocol
 
 import numpy as np
 import pybullet as pb
@@ -21,6 +28,34 @@ from rover_env.rover import Rover
 from rover_env.scenario import ScenarioConfig
 from rover_env.shadows import ShadowCaster
 from rover_env.terrain import Terrain
+
+
+@dataclass(frozen=True)
+class SensorMessage:
+    """One sample of an attached sensor.
+
+    Attributes:
+        sensor: Name the sensor was attached under.
+        t: Simulation time of the sample [s].
+        data: The sample (a camera: (H, W, 3) uint8 RGB image).
+    """
+
+    sensor: str
+    t: float
+    data: np.ndarray
+
+
+class Sensor(Protocol):
+    """What :meth:`RoverSim.attach_sensor` needs of a sensor."""
+
+    @property
+    def period(self) -> float:
+        """Time between samples [s]; a whole number of physics steps."""
+        ...
+
+    def sample(self) -> np.ndarray:
+        """The sensor's output now (at the simulation's current time)."""
+        ...
 
 
 def yaw_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -99,6 +134,47 @@ class RoverSim:
         self._steps = 0
         self._step_physics = partial(pb.stepSimulation, physicsClientId=c._client)
         self._state_id = c.saveState()
+        self._sensors: list[tuple[str, Sensor, int]] = []
+        self._inbox: list[SensorMessage] = []
+        #: Wall-clock seconds spent so far in physics (substeps and their models) and in sampling
+        #: sensors (rendering).
+        self.timing = {"physics": 0.0, "sensors": 0.0}
+
+    # ------------------------------------------------------------------ sensors
+    def attach_sensor(self, name: str, sensor: Sensor) -> None:
+        """Sample ``sensor`` every ``sensor.period`` seconds of simulation time from now on.
+
+        Samples are taken at t = 0 after each :meth:`reset` and then at every whole multiple of
+        the period, at the exact physics substep; sensors attached earlier are sampled first at
+        equal times. Collect them with :meth:`take_messages`.
+
+        Raises:
+            ValueError: ``name`` is taken, or the period is not a whole number of physics steps.
+        """
+        if any(n == name for n, _, _ in self._sensors):
+            raise ValueError(f"a sensor named {name!r} is already attached; give each sensor its own name")
+        every = sensor.period / self.dt
+        if not math.isfinite(every) or round(every) < 1 or abs(every - round(every)) > 1e-6:
+            raise ValueError(
+                f"sensor {name!r}: period {sensor.period!r} s is not a whole number of physics steps "
+                f"({self.dt:g} s); use a rate that divides {1 / self.dt:g} Hz"
+            )
+        self._sensors.append((name, sensor, int(round(every))))
+
+    def take_messages(self) -> list[SensorMessage]:
+        """The sensor messages sampled since the last call, in time order (then attach order)."""
+        out, self._inbox = self._inbox, []
+        return out
+
+    def _sample_sensors(self, first: bool = False) -> None:
+        if not self._sensors:
+            return
+        t0 = time.perf_counter()
+        t = self.t
+        for name, sensor, every in self._sensors:
+            if first or self._steps % every == 0:
+                self._inbox.append(SensorMessage(name, t, sensor.sample()))
+        self.timing["sensors"] += time.perf_counter() - t0
 
     # ------------------------------------------------------------------ episode
     def reset(self, x: float, y: float, yaw: float) -> GroundTruth:
@@ -134,12 +210,17 @@ class RoverSim:
         for _ in range(int(round(self.settle_time / self.dt))):
             self._substep()
         self._steps = 0
+        self._inbox = []
+        self._sample_sensors(first=True)
         return self.ground_truth()
 
     def _substep(self) -> None:
-        self.rover.apply_passive()
-        self.rover.apply_friction(self.terrain)
+        rover = self.rover
+        rover.apply_passive()
+        rover.apply_friction(self.terrain)
         self._step_physics()
+        if self.terrain.friction.loose:  # the soil under spinning wheels gives way
+            rover.update_dig(self.terrain)
         self._steps += 1
 
     @property
@@ -148,13 +229,22 @@ class RoverSim:
         return self._steps * self.dt
 
     def step(self, duration: float) -> None:
-        """Advance physics by ``duration`` seconds (rounded to whole physics steps)."""
+        """Advance physics by ``duration`` seconds (rounded to whole physics steps, at least one).
+
+        Attached sensors are sampled at every substep where their period falls due. The result
+        is the same whether a second is run as one call or as 240.
+        """
         if self._closed:
             raise RuntimeError("this RoverSim is closed; create a new one")
+        if not math.isfinite(duration) or duration < 0:
+            raise ValueError(f"duration={duration!r}: give a finite, non-negative time [s]")
+        sensors = bool(self._sensors)
         for _ in range(max(1, int(round(duration / self.dt)))):
+            t0 = time.perf_counter()
             self._substep()
-        if self.terrain.friction.loose:  # the soil under spinning wheels gives way
-            self.rover.update_dig(self.ground_truth(), self.terrain)
+            self.timing["physics"] += time.perf_counter() - t0
+            if sensors:
+                self._sample_sensors()
 
     def prepare_render(self, ground_range: float | None = None) -> None:
         """Draw the ground around the rover; call before rendering views near it.

@@ -122,8 +122,15 @@ class WaypointCourse:
             reached = True
         return reached
 
-    def features(self, xy: np.ndarray, yaw: float) -> CourseFeatures:
-        """Task features of a body at ``xy`` [m] heading ``yaw`` [rad] (world frame)."""
+    def features(self, xy: np.ndarray, yaw: float, clamp_finished: bool = True) -> CourseFeatures:
+        """Task features of a body at ``xy`` [m] heading ``yaw`` [rad] (world frame).
+
+        Args:
+            xy: Position [m].
+            yaw: Heading [rad].
+            clamp_finished: Once the course is finished, report the whole course length as the
+                progress (else the arc length of ``xy``'s projection onto the last segment).
+        """
         k = min(self.index, self.num_waypoints - 1)
         ax, ay = self._pts[k]
         bx, by = self._pts[k + 1]
@@ -139,5 +146,5 @@ class WaypointCourse:
         dist = math.hypot(bx - x, by - y)
         bearing = wrap_angle(math.atan2(by - y, bx - x) - yaw)
         heading_err = wrap_angle(math.atan2(ty, tx) - yaw)
-        progress = self._cum_list[k] + along if not self.finished else self.length
+        progress = self.length if (self.finished and clamp_finished) else self._cum_list[k] + along
         return CourseFeatures(dist, bearing, cross, heading_err, progress)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rover_env import ConfigError, RoverGeometry, list_scenarios, load_scenario
-from rover_env.geometry import ackermann_wheel_speeds
+
 from rover_env.rover import axle_steering_from_wheels
 from rover_env.task import WaypointCourse
 
@@ -113,7 +113,7 @@ def test_ackermann_wheels_share_one_turn_centre(lam_deg):
         # the wheel heading is perpendicular to the ray from the ICR to the wheel
         assert heading @ (np.array([x, y]) - icr) == pytest.approx(0.0, abs=1e-9)
     np.testing.assert_allclose(axle_steering_from_wheels(g, delta), [lam, -lam], atol=1e-12)
-    speeds = ackermann_wheel_speeds(g, 1.0, lam, -lam)
+    speeds = g.drive.wheel_speeds(1.0, lam, -lam)
     dists = np.linalg.norm(g.wheel_positions_body()[:, :2] - icr, axis=1)
     np.testing.assert_allclose(speeds, dists / abs(radius), rtol=1e-12)
 

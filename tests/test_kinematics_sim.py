@@ -89,7 +89,7 @@ def test_wheel_rates_from_rendered_treads_within_3_percent_rms_at_half_and_two_m
     from conftest import flat_scenario
 
     from perception.fisheye_kinematics import KinematicStateEstimator
-    from rover_env.geometry import ackermann_wheel_speeds
+
     from rover_env.scenario import SunConfig
     from rover_env.sim import RoverSim
 
@@ -102,7 +102,7 @@ def test_wheel_rates_from_rendered_treads_within_3_percent_rms_at_half_and_two_m
             cam = FisheyeCamera(sim)
             est = KinematicStateEstimator(cam.model, g.kinematic_model(cam.T_body_cam))
             lam = math.radians(8.0)
-            sim.rover.command(ackermann_wheel_speeds(g, speed, lam, -lam) / g.wheel_radius, lam, -lam)
+            sim.rover.command(g.drive.wheel_speeds(speed, lam, -lam) / g.wheel_radius, lam, -lam)
             sim.step(1.0)
             errors, valid, last = [], [], None
             for _ in range(16):

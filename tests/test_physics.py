@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 from conftest import flat_scenario, rough_scenario
 
-from rover_env.geometry import ackermann_wheel_speeds
 from rover_env.scenario import FrictionPatch
 from rover_env.sim import RoverSim, quat_to_yaw
 
 
 def drive(sim: RoverSim, speed: float, lam_f: float, lam_r: float) -> None:
     g = sim.geometry
-    sim.rover.command(ackermann_wheel_speeds(g, speed, lam_f, lam_r) / g.wheel_radius, lam_f, lam_r)
+    sim.rover.command(g.drive.wheel_speeds(speed, lam_f, lam_r) / g.wheel_radius, lam_f, lam_r)
 
 
 @pytest.fixture(scope="module")

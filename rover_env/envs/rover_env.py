@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from pathlib import Path
@@ -12,11 +13,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from perception import observation as obs_table
 from perception.cameras import PinholeCamera
+from perception.observation import OBS_FIELDS
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
 from rover_env.estimation import PERCEPTION_PRESETS, PerceptionPipeline, StepEstimate
 from rover_env.fisheye import FisheyeCameraConfig
-from rover_env.geometry import RoverGeometry, ackermann_wheel_speeds
+from rover_env.geometry import RoverGeometry
 from rover_env.ground_truth import GROUND_TRUTH_KEYS, GroundTruth
 from rover_env.rendering import Lighting, look_at, render_pinhole
 from rover_env.scenario import ScenarioConfig, load_scenario
@@ -38,17 +41,14 @@ class ObsSource(str, enum.Enum):
     ESTIMATED = "estimated"
 
 
-#: Names of the observation fields before the previous action, in order.
-OBS_FIELDS: tuple[str, ...] = (
-    "v_x", "v_y", "omega",
-    "wheel_rate_FL", "wheel_rate_FR", "wheel_rate_RL", "wheel_rate_RR",
-    "slip_FL", "slip_FR", "slip_RL", "slip_RR",
-    "axle_roll_F", "axle_roll_R",
-    "axle_height_F", "axle_height_R",
-    "steering_F", "steering_R",
-    "odometry_quality", "kinematics_quality",
-    "waypoint_distance", "waypoint_bearing", "cross_track", "heading_error",
-)  # fmt: skip
+def task_values(feats) -> dict[str, float]:
+    """The task fields of the observation from :class:`~rover_env.task.CourseFeatures`."""
+    return {
+        "waypoint_distance": feats.distance,
+        "waypoint_bearing": feats.bearing,
+        "cross_track": feats.cross_track,
+        "heading_error": feats.heading_error,
+    }
 
 
 def wheel_power(gt: GroundTruth) -> float:
@@ -189,34 +189,17 @@ class RoverEnv(gym.Env):
         self.pipeline: PerceptionPipeline | None = None
         if self.obs_source is ObsSource.ESTIMATED:
             self.pipeline = PerceptionPipeline(self.sim, preset)
-            tick = self.pipeline.tick
-            if abs(self.control_dt / tick - round(self.control_dt / tick)) > 1e-9:
-                raise ValueError(
-                    f"control_hz={control_hz} is not a whole number of camera ticks ({1 / tick:g} Hz) "
-                    f"of preset {preset!r}"
-                )
         self._est: StepEstimate | None = None
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
-        # Finite bounds far outside anything physical; observations are clipped to them.
-        bound = (
-            [20.0, 20.0, 20.0]
-            + [100.0] * 4
-            + [1.0] * 4
-            + [math.pi] * 2
-            + [1.0] * 2
-            + [math.pi / 2] * 2
-            + [1.0] * 2
-            + [1000.0, math.pi, 1000.0, math.pi]
-            + [1.0] * n_act
-        )
-        high = np.asarray(bound, dtype=np.float32)
-        low = -high
-        low[17:19] = 0.0
-        low[19] = 0.0
+        #: The observation's fields in order (name, unit, bounds, source): :mod:`perception.observation`.
+        self.obs_fields = obs_table.observation_fields(self.action_mode.value)
+        low, high = obs_table.bounds(self.obs_fields)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._prev_action = np.zeros(n_act, dtype=np.float32)
         self._gt: GroundTruth | None = None
+        self._nav = np.zeros(3)  # the pose the on-board tracker is fed (x, y, yaw)
+        self._start_fix = np.zeros(3)
         self._progress = 0.0
         self._closed = False
         self._views: dict | None = None
@@ -225,8 +208,12 @@ class RoverEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Start an episode at the scenario's start pose plus random jitter from ``seed``.
 
+        With estimated observations the rover starts from a *start fix*: the true start pose
+        plus Gaussian noise of the scenario's ``start.fix_std``, drawn from the same seeded
+        generator (the draw is made for both observation sources, so the true start is the same).
+
         ``options``: ``{"blackout": [(t0, t1), ...]}`` makes both cameras deliver black frames
-        between t0 and t1 [s] of episode time (a camera fault; the estimator flags it).
+        between t0 and t1 [s] of episode time (a camera fault; the estimator sees only the images).
         """
         options = dict(options or {})
         unknown = set(options) - {"blackout"}
@@ -234,25 +221,35 @@ class RoverEnv(gym.Env):
             raise ValueError(f"reset options {sorted(unknown)} are unknown; the only option is 'blackout'")
         super().reset(seed=seed)
         st = self.scenario.start
-        r = st.jitter_position * math.sqrt(self.np_random.uniform())
-        ang = self.np_random.uniform(-math.pi, math.pi)
+        rng = self.np_random
+        r = st.jitter_position * math.sqrt(rng.uniform())
+        ang = rng.uniform(-math.pi, math.pi)
         x = st.position[0] + r * math.cos(ang)
         y = st.position[1] + r * math.sin(ang)
-        yaw = st.yaw + math.radians(st.jitter_yaw_deg) * self.np_random.uniform(-1.0, 1.0)
-        self._gt = self.sim.reset(x, y, yaw)
+        yaw = st.yaw + math.radians(st.jitter_yaw_deg) * rng.uniform(-1.0, 1.0)
+        fix_noise = rng.normal(size=3) * np.array([st.fix_std[0], st.fix_std[0], math.radians(st.fix_std[1])])
         if self.pipeline is not None:
-            # dead reckoning starts at the start pose, which a mission knows
-            self.pipeline.reset((x, y, yaw), blackout=options.get("blackout", ()))
-            self._est = self.pipeline.estimate()
-            self._z0 = float(self._gt.pose[2])
+            for cam in (self.pipeline.downward, self.pipeline.fisheye):
+                cam.set_blackout(options.get("blackout", ()))
         elif options.get("blackout"):
             raise ValueError("reset option 'blackout' needs obs_source='estimated' (there are no cameras)")
-        self.course.reset(self._gt.pose[:2])
+        self._gt = self.sim.reset(x, y, yaw)
+        messages = self.sim.take_messages()
+        if self.pipeline is not None:
+            self._start_fix = np.array([x, y, yaw]) + fix_noise
+            self._est = self.pipeline.reset(self._start_fix, messages, self.sim.t)
+            self._z0 = float(self._gt.pose[2])
+        else:
+            self._start_fix = np.array([x, y, yaw])
+        # the mission's course starts where the rover believes it is
+        self.course.reset(self._start_fix[:2])
         self._prev_action = np.zeros_like(self._prev_action)
-        feats = self.course.features(self._gt.pose[:2], quat_to_yaw(self._gt.pose[3:]))
-        self._progress = feats.progress
+        self._nav = self._nav_pose()
+        feats = self.course.features(self._nav[:2], self._nav[2])
+        judge = self._judge_features()
+        self._progress = judge.progress
         terms = dict.fromkeys(self._term_names(), 0.0)
-        return self._observation(feats), self._info(feats, terms, False, None)
+        return self._observation(feats), self._info(judge, terms, False, None)
 
     def step(self, action):
         """Apply ``action`` for one control period and advance physics."""
@@ -263,45 +260,70 @@ class RoverEnv(gym.Env):
         lam_f = float(act[-2]) * g.steer_limit
         lam_r = float(act[-1]) * g.steer_limit
         if self.action_mode is ActionMode.DRIVE:
-            speeds = ackermann_wheel_speeds(g, float(act[0]) * self.v_max, lam_f, lam_r)
+            speeds = g.drive.wheel_speeds(float(act[0]) * self.v_max, lam_f, lam_r)
         else:
             speeds = act[:4].astype(np.float64) * self.v_max
         self.sim.rover.command(speeds / g.wheel_radius, lam_f, lam_r)
+        self.sim.step(self.control_dt)
+        messages = self.sim.take_messages()
         if self.pipeline is not None:
-            self.pipeline.advance(self.control_dt)
-            self._est = self.pipeline.estimate()
-        else:
-            self.sim.step(self.control_dt)
+            self._est = self.pipeline.process(messages, self.sim.t)
         gt = self.sim.ground_truth()
         self._gt = gt
         self._prev_action = act
+        # on-board navigation: the tracker sees only the pose the rover believes
+        self._nav = self._nav_pose()
+        self.course.update(self._nav[:2])
+        feats = self.course.features(self._nav[:2], self._nav[2])
+        # the judge: the truth
         xy = gt.pose[:2]
-        self.course.update(xy)
-        feats = self.course.features(xy, quat_to_yaw(gt.pose[3:]))
-        success = self.course.finished
+        arrived = self.course.finished
+        goal = np.asarray(self.scenario.course.waypoints[-1], dtype=np.float64)
+        miss = float(np.hypot(*(xy - goal)))
         qx, qy = gt.pose[3], gt.pose[4]
         tipped = 1.0 - 2.0 * (qx * qx + qy * qy) < 0.5  # body z axis tilted more than 60 deg
         off = not self.sim.terrain.contains(xy[0], xy[1], margin=0.5)
-        failure = tipped or off
-        terms = self._reward_terms(gt, feats, success, failure)
-        self._progress = feats.progress
+        off_target = arrived and miss > self.scenario.course.tolerance
+        failure = tipped or off or off_target
+        success = arrived and not failure
+        judge = self._judge_features(success)
+        terms = self._reward_terms(gt, judge, success, failure)
+        self._progress = judge.progress
         terminated = success or failure
         truncated = (not terminated) and gt.t >= self.scenario.duration - 1e-9
         reason = (
-            "success"
-            if success
-            else "tipped_over"
+            "tipped_over"
             if tipped
-            else ("left_terrain" if off else "time_limit" if truncated else None)
+            else "left_terrain"
+            if off
+            else "off_target"
+            if off_target
+            else "success"
+            if success
+            else ("time_limit" if truncated else None)
         )
         obs = self._observation(feats)
-        return (
-            obs,
-            float(sum(terms.values())),
-            terminated,
-            truncated,
-            self._info(feats, terms, success, reason),
-        )
+        info = self._info(judge, terms, success, reason)
+        if arrived:
+            info["miss_distance"] = miss
+        return obs, float(sum(terms.values())), terminated, truncated, info
+
+    def _nav_pose(self) -> np.ndarray:
+        """(x, y, yaw) the on-board tracker is fed: dead-reckoned, or the truth for ground truth."""
+        if self._est is not None:
+            return np.asarray(self._est.values["odometry_pose"], dtype=np.float64).copy()
+        gt = self._gt
+        assert gt is not None
+        return np.array([gt.pose[0], gt.pose[1], quat_to_yaw(gt.pose[3:])])
+
+    def _judge_features(self, success: bool = False):
+        """Course features of the true pose on the tracker's current segment (for reward and info)."""
+        gt = self._gt
+        assert gt is not None
+        feats = self.course.features(gt.pose[:2], quat_to_yaw(gt.pose[3:]), clamp_finished=False)
+        if success:
+            feats = dataclasses.replace(feats, progress=self.course.length)
+        return feats
 
     def render(self) -> np.ndarray | None:
         """Composite frame, RGB uint8 (H, W, 3) of ``render_size``.
@@ -382,30 +404,16 @@ class RoverEnv(gym.Env):
         return np.clip(a, -1.0, 1.0).astype(np.float32)
 
     def _observation(self, feats) -> np.ndarray:
-        gt = self._gt
-        assert gt is not None
+        """The observation from the state source, the tracker's features and the previous action."""
         if self._est is None:
-            src = gt.as_dict()
-            quality = [1.0, 1.0]
+            gt = self._gt
+            assert gt is not None
+            state, quality = gt.as_dict(), (1.0, 1.0)
         else:
-            src = self._est.values
-            quality = [self._est.odometry_quality, self._est.kinematics_quality]
-            x, y, yaw = src["odometry_pose"]
-            feats = self.course.features(np.array([x, y]), yaw)  # where the rover thinks it is
-        state = np.concatenate(
-            [
-                src["twist"],
-                src["wheel_rate"],
-                src["slip_ratio"],
-                src["axle_roll"],
-                src["axle_height"],
-                src["steering"],
-                quality,
-                [feats.distance, feats.bearing, feats.cross_track, feats.heading_error],
-            ]
-        )
-        obs = np.nan_to_num(np.concatenate([state, self._prev_action]), nan=0.0).astype(np.float32)
-        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+            state = self._est.values
+            quality = (self._est.odometry_quality, self._est.kinematics_quality)
+        values = obs_table.state_values(state, quality, task_values(feats))
+        return obs_table.assemble(self.obs_fields, values, self._prev_action)
 
     def _estimate_info(self) -> dict[str, np.ndarray]:
         """The estimate under the ground truth's keys (pose dead-reckoned)."""
@@ -414,6 +422,8 @@ class RoverEnv(gym.Env):
         x, y, yaw = v["odometry_pose"]
         out = {"pose": np.array([x, y, self._z0, *yaw_to_quat(0.0, 0.0, yaw)])}
         out.update({k: np.array(v[k], dtype=np.float64) for k in GROUND_TRUTH_KEYS if k != "pose"})
+        out["odometry_pose"] = np.array(v["odometry_pose"], dtype=np.float64)
+        out["quality"] = np.array([self._est.odometry_quality, self._est.kinematics_quality], dtype=np.float64)
         return out
 
     @staticmethod
@@ -460,6 +470,7 @@ class RoverEnv(gym.Env):
             "wheel_power": wheel_power(gt),
             "t": gt.t,
             "waypoint_index": self.course.index,
+            "start_fix": self._start_fix.copy(),
             "progress": feats.progress,
             "cross_track": feats.cross_track,
             "is_success": bool(success),
