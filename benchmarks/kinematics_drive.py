@@ -30,7 +30,6 @@ import numpy as np  # noqa: E402
 from perception.fisheye_kinematics import KinematicStateEstimator  # noqa: E402
 from rover_env.cameras import FisheyeCamera  # noqa: E402
 from rover_env.fisheye import FisheyeCameraConfig  # noqa: E402
-
 from rover_env.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig  # noqa: E402
 from rover_env.sim import RoverSim  # noqa: E402
 from rover_env.task import CourseConfig  # noqa: E402

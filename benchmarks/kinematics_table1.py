@@ -33,7 +33,6 @@ import numpy as np
 from perception.fisheye_kinematics import DOF_NAMES, KinematicStateEstimator
 from rover_env.cameras import FisheyeCamera
 from rover_env.fisheye import FisheyeCameraConfig
-
 from rover_env.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.sim import RoverSim, quat_to_yaw
 from rover_env.task import CourseConfig

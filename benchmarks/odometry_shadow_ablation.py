@@ -25,7 +25,6 @@ import numpy as np
 
 from perception.odometry import FlowOdometry, FlowOdometryConfig, ground_plane_from_wheels, integrate_twist
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-
 from rover_env.scenario import ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.sim import RoverSim, quat_to_yaw
 from rover_env.task import CourseConfig

@@ -83,7 +83,9 @@ def _field_index(fields: Sequence[str], name: str) -> int:
     try:
         return field_index(fields, name)
     except KeyError as exc:
-        raise ValueError(f"{exc.args[0]}; pass the environment's field names (env.unwrapped.obs_fields)") from None
+        raise ValueError(
+            f"{exc.args[0]}; pass the environment's field names (env.unwrapped.obs_fields)"
+        ) from None
 
 
 def env_field_names(env) -> list[str]:
@@ -96,11 +98,14 @@ class PathFollower:
 
     Args:
         obs_fields: Names of the observation's entries (default
-            :data:`perception.observation.OBS_FIELDS`, the environments' layout); the follower reads ``cross_track``, ``heading_error``, ``v_x`` and the two quality fields.
+            :data:`perception.observation.OBS_FIELDS`, the environments' layout); the follower
+            reads ``cross_track``, ``heading_error``, ``v_x`` and the two quality fields.
         config: Gains and limits; :meth:`for_env` fills the rover's from an environment.
     """
 
-    def __init__(self, obs_fields: Sequence[str] | None = None, config: PathFollowerConfig | None = None) -> None:
+    def __init__(
+        self, obs_fields: Sequence[str] | None = None, config: PathFollowerConfig | None = None
+    ) -> None:
         self.cfg = config or PathFollowerConfig()
         fields = list(OBS_FIELDS if obs_fields is None else obs_fields)
         self._i = {

@@ -33,7 +33,6 @@ from perception.validation import check_range
 from perception.wheel_kinematics import wheel_ground_velocity
 
 
-
 @dataclass(frozen=True)
 class TractionConfig:
     """Parameters of :class:`SlipAwareController`.

@@ -31,7 +31,9 @@ def ackermann_arms(axle_x: float, track: float, center_x: float = 0.0) -> tuple[
     return arm, y
 
 
-def wheel_steering_angles(arms: tuple[np.ndarray, np.ndarray], steer_front: float, steer_rear: float) -> np.ndarray:
+def wheel_steering_angles(
+    arms: tuple[np.ndarray, np.ndarray], steer_front: float, steer_rear: float
+) -> np.ndarray:
     """Per-wheel steering angles for the axle commands (the tie rods' Ackermann map) [rad].
 
     The axle command lambda is the angle of a virtual wheel at the axle centre; for wheel i with

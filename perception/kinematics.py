@@ -17,8 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.drive_geometry import AXLES, WHEELS, ackermann_arms, axle_steering_angles, wheel_steering_angles
 from perception.calib_io import CalibrationError, as_array, check_rigid, read_mapping, write_mapping
+from perception.drive_geometry import (
+    AXLES,
+    WHEELS,
+    ackermann_arms,
+    axle_steering_angles,
+    wheel_steering_angles,
+)
 
 PLATE = {"F": ("A1", "A2"), "R": ("C1", "C2")}
 ROD = {"F": ("B1", "B2"), "R": ("D1", "D2")}

@@ -62,19 +62,50 @@ STATE_FIELDS: tuple[ObsField, ...] = (
         _f(f"slip_{w}", "1", -1, 1, "slip filter", f"{w} longitudinal slip ratio (+ spinning, - skidding)")
         for w in WHEELS
     ),
-    *(_f(f"axle_roll_{a}", "rad", -math.pi, math.pi, "fisheye", f"axle roll psi_{a} about body x") for a in AXLES),
     *(
-        _f(f"axle_height_{a}", "m", -1, 1, "fisheye", f"axle-body distance d_{a} (roll centre below the body origin)")
+        _f(f"axle_roll_{a}", "rad", -math.pi, math.pi, "fisheye", f"axle roll psi_{a} about body x")
+        for a in AXLES
+    ),
+    *(
+        _f(
+            f"axle_height_{a}",
+            "m",
+            -1,
+            1,
+            "fisheye",
+            f"axle-body distance d_{a} (roll centre below the body origin)",
+        )
         for a in AXLES
     ),
     *(
         _f(f"steering_{a}", "rad", -math.pi / 2, math.pi / 2, "fisheye", f"axle steering lambda_{a}, left +")
         for a in AXLES
     ),
-    _f("odometry_quality", "1", 0, 1, "odometry", "confidence of the last visual-odometry estimate (0: invalid)"),
-    _f("kinematics_quality", "1", 0, 1, "fisheye", "share of the fisheye's 10 joint states measured in its last frame"),
+    _f(
+        "odometry_quality",
+        "1",
+        0,
+        1,
+        "odometry",
+        "confidence of the last visual-odometry estimate (0: invalid)",
+    ),
+    _f(
+        "kinematics_quality",
+        "1",
+        0,
+        1,
+        "fisheye",
+        "share of the fisheye's 10 joint states measured in its last frame",
+    ),
     _f("waypoint_distance", "m", 0, 1000, "tracker", "distance to the next waypoint"),
-    _f("waypoint_bearing", "rad", -math.pi, math.pi, "tracker", "direction of the next waypoint from body x, left +"),
+    _f(
+        "waypoint_bearing",
+        "rad",
+        -math.pi,
+        math.pi,
+        "tracker",
+        "direction of the next waypoint from body x, left +",
+    ),
     _f("cross_track", "m", -1000, 1000, "tracker", "offset from the current course segment, left +"),
     _f("heading_error", "rad", -math.pi, math.pi, "tracker", "segment heading minus body heading"),
 )
@@ -93,7 +124,10 @@ def observation_fields(action_mode: str) -> tuple[ObsField, ...]:
     """Every field of the observation for ``action_mode`` (``"drive"`` or ``"wheels"``), in order."""
     if action_mode not in ACTION_FIELDS:
         raise ValueError(f"action_mode={action_mode!r}: use one of {sorted(ACTION_FIELDS)}")
-    prev = tuple(_f(n, "1", -1, 1, "action", "the previous action, clipped to [-1, 1]") for n in ACTION_FIELDS[action_mode])
+    prev = tuple(
+        _f(n, "1", -1, 1, "action", "the previous action, clipped to [-1, 1]")
+        for n in ACTION_FIELDS[action_mode]
+    )
     return STATE_FIELDS + prev
 
 
@@ -149,7 +183,9 @@ def state_values(
     return out
 
 
-def assemble(fields: Sequence[ObsField], values: Mapping[str, float], prev_action: Sequence[float]) -> np.ndarray:
+def assemble(
+    fields: Sequence[ObsField], values: Mapping[str, float], prev_action: Sequence[float]
+) -> np.ndarray:
     """The float32 observation: ``values`` by field name then ``prev_action``, NaN as 0, clipped.
 
     Args:
@@ -169,5 +205,7 @@ def markdown_table(fields: Sequence[ObsField]) -> str:
     """The observation table as Markdown (index, name, unit, bounds, source, meaning)."""
     rows = ["| index | field | unit | bounds | source (estimated) | meaning |", "|---:|---|---|---|---|---|"]
     for i, f in enumerate(fields):
-        rows.append(f"| {i} | `{f.name}` | {f.unit} | [{f.low:g}, {f.high:g}] | {f.source} | {f.description} |")
+        rows.append(
+            f"| {i} | `{f.name}` | {f.unit} | [{f.low:g}, {f.high:g}] | {f.source} | {f.description} |"
+        )
     return "\n".join(rows)

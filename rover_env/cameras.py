@@ -172,8 +172,10 @@ class _RoverCamera(ABC):
         return np.zeros((self.config.height, self.config.width, 3), dtype=np.uint8)
 
     def sample(self) -> np.ndarray:
-        """The image the camera delivers now, as a sensor attached to the simulation: a rendered
-        frame, or a black one inside a :attr:`blackout` window. (H, W, 3) uint8 RGB."""
+        """The image the camera delivers now, (H, W, 3) uint8 RGB, as a sensor of the simulation.
+
+        A rendered frame, or a black one inside a :attr:`blackout` window.
+        """
         if self._dark():
             return self._black()
         return self.capture().image

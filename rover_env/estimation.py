@@ -17,7 +17,6 @@ the timestamped images and never steps the physics.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -224,7 +223,9 @@ class PerceptionPipeline:
         roll, travel, steer = rates
         steer = max(steer, 1.25 * self._steer_max_rate)
         period = self.fisheye.period
-        return joint_window_parts(self.model, s.psi, s.depth, s.delta, (roll * period, travel * period, steer * period))
+        return joint_window_parts(
+            self.model, s.psi, s.depth, s.delta, (roll * period, travel * period, steer * period)
+        )
 
     def _on_fisheye(self, img: np.ndarray, t: float) -> None:
         state = self.kinematics.update(img, t)

@@ -309,5 +309,8 @@ def _ackermann_arms(geom: RoverGeometry) -> tuple[np.ndarray, np.ndarray]:
 def axle_steering_from_wheels(
     geom: RoverGeometry, wheel_steer: np.ndarray, arms: tuple[np.ndarray, np.ndarray] | None = None
 ) -> np.ndarray:
-    """(lambda_F, lambda_R) from 4 wheel angles [rad]: :func:`perception.drive_geometry.axle_steering_angles`."""
+    """(lambda_F, lambda_R) from 4 wheel angles [rad].
+
+    See :func:`perception.drive_geometry.axle_steering_angles`.
+    """
     return axle_steering_angles(arms if arms is not None else _ackermann_arms(geom), wheel_steer)

@@ -226,7 +226,9 @@ class StartConfig:
         check_range("jitter_position", self.jitter_position, 0.0, 5.0)
         check_range("jitter_yaw_deg", self.jitter_yaw_deg, 0.0, 180.0)
         if len(self.fix_std) != 2:
-            raise ConfigError(f"fix_std: give [position std in m, yaw std in deg], got {list(self.fix_std)!r}")
+            raise ConfigError(
+                f"fix_std: give [position std in m, yaw std in deg], got {list(self.fix_std)!r}"
+            )
         check_range("fix_std[0]", self.fix_std[0], 0.0, 10.0)
         check_range("fix_std[1]", self.fix_std[1], 0.0, 180.0)
 

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from rover_env import ConfigError, RoverGeometry, list_scenarios, load_scenario
-
 from rover_env.rover import axle_steering_from_wheels
 from rover_env.task import WaypointCourse
 

@@ -265,7 +265,9 @@ def test_estimated_observation_tracks_the_truth_and_survives_a_blackout():
         i = {name: k for k, name in enumerate(OBS_FIELDS)}
         slips = [i[f"slip_{w}"] for w in ("FL", "FR", "RL", "RR")]
         dark = [r for r in rows if 1.1 <= r[0] < 1.5]
-        assert dark and all(r[1][i["odometry_quality"]] == 0.0 and r[1][i["kinematics_quality"]] == 0.0 for r in dark)
+        assert dark and all(
+            r[1][i["odometry_quality"]] == 0.0 and r[1][i["kinematics_quality"]] == 0.0 for r in dark
+        )
         stale = [r for r in dark if r[0] >= 1.25]  # after max_age: no slip valid, none reported
         assert all(r[3]["slip"] == 0.0 and not r[4]["valid"].any() for r in stale)
         assert all(np.all(r[1][slips] == 0.0) and np.all(np.isinf(r[4]["slip_ratio_std"])) for r in stale)

@@ -89,7 +89,6 @@ def test_wheel_rates_from_rendered_treads_within_3_percent_rms_at_half_and_two_m
     from conftest import flat_scenario
 
     from perception.fisheye_kinematics import KinematicStateEstimator
-
     from rover_env.scenario import SunConfig
     from rover_env.sim import RoverSim
 

@@ -15,7 +15,6 @@ from gymnasium import spaces
 
 from perception import observation as obs_table
 from perception.cameras import PinholeCamera
-from perception.observation import OBS_FIELDS
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
 from rover_env.estimation import PERCEPTION_PRESETS, PerceptionPipeline, StepEstimate
 from rover_env.fisheye import FisheyeCameraConfig
@@ -423,7 +422,9 @@ class RoverEnv(gym.Env):
         out = {"pose": np.array([x, y, self._z0, *yaw_to_quat(0.0, 0.0, yaw)])}
         out.update({k: np.array(v[k], dtype=np.float64) for k in GROUND_TRUTH_KEYS if k != "pose"})
         out["odometry_pose"] = np.array(v["odometry_pose"], dtype=np.float64)
-        out["quality"] = np.array([self._est.odometry_quality, self._est.kinematics_quality], dtype=np.float64)
+        out["quality"] = np.array(
+            [self._est.odometry_quality, self._est.kinematics_quality], dtype=np.float64
+        )
         return out
 
     @staticmethod
