@@ -321,6 +321,7 @@ SUMMARY = (
     ("time_in_slip", "time in slip [s]", "mean"),
     ("stuck_events", "stuck events", "mean"),
     ("progress", "progress [m]", "mean"),
+    ("goal_error", "true goal error [m]", "mean"),
 )
 ESTIMATOR_SUMMARY = (
     ("est_mae_v_x", "v_x MAE [m/s]"),
@@ -352,7 +353,8 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
     for (mission, ctrl), rs in groups.items():
         s = {"mission": mission, "controller": ctrl, "runs": len(rs)}
         for key, _, how in SUMMARY:
-            vals = [float(r[key]) for r in rs if how != "success_mean" or r["success"]]
+            vals = [_num(r.get(key)) for r in rs if how != "success_mean" or r["success"]]
+            vals = [v for v in vals if math.isfinite(v)]
             s[key] = float(np.mean(vals)) if vals else math.nan
         for key, _ in ESTIMATOR_SUMMARY:
             vals = [v for v in (_num(r.get(key)) for r in rs) if math.isfinite(v)]

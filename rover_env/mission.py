@@ -22,7 +22,11 @@ SLIP_EVENT = 0.2  # |slip ratio| above which a wheel counts as slipping
 
 @dataclass(frozen=True)
 class MissionMetrics:
-    """Summary of one mission. Lengths [m], times [s], energy [J]."""
+    """Summary of one mission. Lengths [m], times [s], energy [J].
+
+    ``goal_error`` is the true distance of the body centre from the last waypoint when the
+    episode ended (the judge's measure; with ``termination="off_target"`` the miss distance).
+    """
 
     scenario: str
     seed: int
@@ -39,6 +43,7 @@ class MissionMetrics:
     time_in_slip: float
     stuck_events: int
     total_reward: float
+    goal_error: float
 
 
 @dataclass
@@ -189,6 +194,7 @@ def run_mission(
         time_in_slip=float((slip.max(axis=1) > SLIP_EVENT).sum() * env.control_dt),
         stuck_events=stuck,
         total_reward=float(total_reward),
+        goal_error=float(np.hypot(*(xy[-1] - np.asarray(env.scenario.course.waypoints[-1], dtype=float)))),
     )
     if rec.estimates is None:
         return MissionResult(metrics, rec)

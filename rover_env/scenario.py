@@ -184,7 +184,11 @@ class CourseConfig:
 
     Attributes:
         waypoints: Waypoints in the world x-y plane [m], driven in order from the start.
-        tolerance: Distance at which a waypoint counts as reached [m].
+        tolerance: Distance at which a waypoint counts as reached [m]. The last one is reached
+            when the rover is within it *and* has passed the goal (crossed the line through it
+            square to the last segment), so that it drives to the goal instead of stopping at
+            the edge of the circle; the judge counts a success when the true position is within
+            it then.
         speed: Nominal cruise speed for controllers [m/s].
     """
 

@@ -72,7 +72,8 @@ class WaypointCourse:
     """A polyline from the start position through the scenario's waypoints.
 
     The current segment ends at the next waypoint; it is reached when the body centre comes
-    within ``tolerance`` of it. Progress is the arc length of the projection onto the
+    within ``tolerance`` of it, and the last one only once the body centre has also passed it
+    (its projection on the last segment reaches the goal). Progress is the arc length of the projection onto the
     current segment (clamped to it) plus the length of the completed segments.
     """
 
@@ -118,9 +119,17 @@ class WaypointCourse:
         reached = False
         x, y = float(xy[0]), float(xy[1])
         while not self.finished and math.dist(self._pts[self.index + 1], (x, y)) <= self.cfg.tolerance:
+            if self.index + 1 == self.num_waypoints and not self._passed_goal(x, y):
+                break
             self.index += 1
             reached = True
         return reached
+
+    def _passed_goal(self, x: float, y: float) -> bool:
+        """Whether (x, y) lies on or beyond the line through the goal square to the last segment."""
+        (ax, ay), (bx, by) = self._pts[-2], self._pts[-1]
+        tx, ty = bx - ax, by - ay
+        return (x - bx) * tx + (y - by) * ty >= 0.0
 
     def features(self, xy: np.ndarray, yaw: float, clamp_finished: bool = True) -> CourseFeatures:
         """Task features of a body at ``xy`` [m] heading ``yaw`` [rad] (world frame).
