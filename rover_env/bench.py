@@ -35,21 +35,68 @@ class PhysicsBenchResult:
     physics_bound_rtf: float
 
 
+def _slalom(steps: int) -> list[np.ndarray]:
+    """Drive-mode actions of a slalom at 1 m/s: wheels, steering and suspension all work."""
+    return [np.array([0.5, 0.5 * np.sin(k / 15), -0.5 * np.sin(k / 15)], np.float32) for k in range(steps)]
+
+
+@dataclass(frozen=True)
+class EnvBenchResult:
+    """One row of the whole-environment benchmark.
+
+    Attributes:
+        scenario: Scenario name.
+        obs_source: ``ground_truth`` (physics only) or ``estimated`` (cameras and perception).
+        preset: Camera preset of the estimator (unused with ground truth).
+        steps_per_s: Environment steps per second (control steps, wall clock).
+        real_time_factor: Simulated seconds per wall-clock second.
+    """
+
+    scenario: str
+    obs_source: str
+    preset: str
+    steps_per_s: float
+    real_time_factor: float
+
+
+def bench_env(
+    scenario: str,
+    obs_source: str,
+    preset: str = "train",
+    steps: int = 90,
+    control_hz: float = 30.0,
+    seed: int = 0,
+) -> EnvBenchResult:
+    """Time ``steps`` environment steps of the slalom with ``obs_source`` on one core."""
+    env = RoverEnv(scenario=scenario, control_hz=control_hz, obs_source=obs_source, preset=preset)
+    try:
+        env.reset(seed=seed)
+        actions = _slalom(steps)
+        for a in actions[:10]:  # warm up
+            env.step(a)
+        t0 = time.perf_counter()
+        for a in actions:
+            env.step(a)
+        wall = time.perf_counter() - t0
+    finally:
+        env.close()
+    return EnvBenchResult(scenario, obs_source, preset, steps / wall, steps / control_hz / wall)
+
+
 def bench_physics(
     scenario: str, steps: int = 600, control_hz: float = 30.0, seed: int = 0
 ) -> PhysicsBenchResult:
-    """Time ``steps`` environment steps of physics only (no rendering) on one core.
+    """Time ``steps`` environment steps of physics only on one core: a ground-truth environment.
 
-    The rover drives a slalom at 1 m/s so that wheels, steering and suspension all work.
-    Time inside ``stepSimulation`` is accumulated during the same run, so the split between
-    PyBullet and the Python around it is measured, not estimated.
+    No camera is attached, so nothing renders. The rover drives a slalom at 1 m/s so that
+    wheels, steering and suspension all work. Time inside ``stepSimulation`` is accumulated
+    during the same run, so the split between PyBullet and the Python around it is measured,
+    not estimated.
     """
     env = RoverEnv(scenario=scenario, control_hz=control_hz, obs_source="ground_truth")
     try:
         env.reset(seed=seed)
-        actions = [
-            np.array([0.5, 0.5 * np.sin(k / 15), -0.5 * np.sin(k / 15)], np.float32) for k in range(steps)
-        ]
+        actions = _slalom(steps)
         for a in actions[:30]:  # warm up
             env.step(a)
         sim = env.sim
@@ -81,6 +128,20 @@ def bench_physics(
         physics_share=spent[0] / wall,
         physics_bound_rtf=sim_time / spent[0],
     )
+
+
+def format_env_table(rows: list[EnvBenchResult]) -> str:
+    """Markdown table of whole-environment rows."""
+    lines = [
+        "| scenario | observation | preset | env steps/s | real-time factor |",
+        "|---|---|---|---:|---:|",
+    ]
+    for r in rows:
+        preset = r.preset if r.obs_source == "estimated" else "-"
+        lines.append(
+            f"| {r.scenario} | {r.obs_source} | {preset} | {r.steps_per_s:.1f} | {r.real_time_factor:.2f}x |"
+        )
+    return "\n".join(lines)
 
 
 def format_table(rows: list[PhysicsBenchResult]) -> str:

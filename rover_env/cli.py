@@ -111,21 +111,36 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from rover_env.bench import bench_cameras, bench_physics, format_camera_table, format_table
+    from rover_env.bench import (
+        bench_cameras,
+        bench_env,
+        bench_physics,
+        format_camera_table,
+        format_env_table,
+        format_table,
+    )
 
-    rows = []
+    rows, env_rows = [], []
     for name in args.scenarios:
         rows.append(bench_physics(name, steps=args.steps))
+        env_rows.append(bench_env(name, "estimated", "train", steps=min(args.steps, 90)))
         sys.stderr.write(f"benchmarked {name}\n")
-    print("Physics only (no rendering), one process, control 30 Hz, physics 240 Hz:")
+    print("Physics only (a ground-truth environment: no camera, no perception), one process, ")
+    print("control 30 Hz, physics 240 Hz:")
     print(format_table(rows))
+    print("\nThe same slalom with the estimator in the loop (train preset), one process:")
+    print(format_env_table(env_rows))
     cam_rows = []
     if not args.no_cameras:
         cam_rows = bench_cameras(args.scenarios[0], frames=args.frames, egl=not args.no_egl)
         print(f"\nCameras ({args.scenarios[0]}), one process, median of {args.frames} frames:")
         print(format_camera_table(cam_rows))
     if args.json:
-        data = {"physics": [asdict(r) for r in rows], "cameras": [asdict(r) for r in cam_rows]}
+        data = {
+            "physics": [asdict(r) for r in rows],
+            "estimated": [asdict(r) for r in env_rows],
+            "cameras": [asdict(r) for r in cam_rows],
+        }
         Path(args.json).write_text(json.dumps(data, indent=2) + "\n")
     return 0
 

@@ -73,8 +73,9 @@ class WaypointCourse:
 
     The current segment ends at the next waypoint; it is reached when the body centre comes
     within ``tolerance`` of it, and the last one only once the body centre has also passed it
-    (its projection on the last segment reaches the goal). Progress is the arc length of the projection onto the
-    current segment (clamped to it) plus the length of the completed segments.
+    (its projection on the last segment reaches the goal). Progress is the arc length of the
+    projection onto the current segment (clamped to it) plus the length of the completed
+    segments.
     """
 
     def __init__(self, course: CourseConfig) -> None:

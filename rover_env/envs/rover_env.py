@@ -72,50 +72,55 @@ class RoverEnv(gym.Env):
            w_RR, lam_F, lam_R  wheel radius for the motors); lam as in drive
     =====  ==================  ===========================================================
 
-    **Observation** float32 vector in physical units (``OBS_FIELDS`` then the previous
-    action), clipped to generous finite bounds (|v| <= 20 m/s, |wheel rate| <= 100 rad/s,
-    distances <= 1000 m) that only a numerical blow-up could reach. Wheel order FL, FR, RL, RR.
+    **Observation** float32 vector in physical units, laid out by the table
+    :func:`perception.observation.observation_fields` (name, unit, bounds, source; the
+    instance's :attr:`obs_fields`): body twist, wheel rates, slip ratios, axle roll and height,
+    axle steering, odometry and kinematics quality, the on-board tracker's waypoint distance
+    and bearing, cross-track and heading error, then the previous action. Read fields by name
+    (``field_index``), never by position. Values are clipped to generous finite bounds that
+    only a numerical blow-up could reach; NaN becomes 0 (its quality field says why).
 
-    =======  =====================  ======  ==================================================
-    index    field                  unit    meaning
-    =======  =====================  ======  ==================================================
-    0-2      v_x, v_y, omega        m/s,    body twist in the body frame (x forward, y left),
-                                    rad/s   yaw rate counter-clockwise +
-    3-6      wheel_rate             rad/s   wheel spin rates
-    7-10     slip                   1       longitudinal slip ratio in [-1, 1]
-    11-12    axle_roll              rad     psi_F, psi_R about body x
-    13-14    axle_height            m       d_F, d_R, axle roll centre below the body origin
-    15-16    steering               rad     lambda_F, lambda_R
-    17-18    quality                1       odometry and kinematics estimate quality in [0, 1]
-                                            (1 with ``obs_source="ground_truth"``)
-    19       waypoint_distance      m       distance to the next waypoint
-    20       waypoint_bearing       rad     direction of the next waypoint, left +
-    21       cross_track            m       offset from the current course segment, left +
-    22       heading_error          rad     segment heading minus body heading
-    23-      previous action        1       the last clipped action (3 or 6 values)
-    =======  =====================  ======  ==================================================
+    **What the observation holds** with ``obs_source="estimated"``: only what the rover could
+    know. The state fields come from perception on the simulated camera images; the task
+    fields from the on-board course tracker, which is fed the dead-reckoned pose (starting from
+    a noisy *start fix*, scenario key ``start.fix_std``) and the course known before the
+    mission; then the previous action. Nothing comes from the simulator's state: not the pose,
+    not which waypoint is current, not a fault schedule (a camera fault reaches the estimator
+    only as the images the camera delivers). With ``"ground_truth"`` the same fields come
+    from the simulator and the tracker is fed the true pose (an ablation).
+
+    **The judge** uses the truth: the reward terms (progress and cross-track of the true pose
+    on the tracker's current segment, heading, slip, energy, time), the termination and the
+    success. The episode succeeds when the tracker reaches the last waypoint (within the
+    course tolerance and past it) and the true position is within the tolerance of it; if the
+    true position is farther it ends with ``termination="off_target"`` (a failure), and
+    ``info["miss_distance"]`` gives the true distance.
 
     **Reward**: the sum of the terms in ``info["reward_terms"]`` (see :class:`RewardConfig`):
     progress along the course, minus cross-track, heading, slip, energy and time penalties,
     plus a success bonus, minus a failure penalty.
 
-    **Episode end**: terminated on reaching the last waypoint (``info["is_success"]``), on
-    tipping over (body tilt > 60 deg) or on leaving the terrain; truncated after the
-    scenario's ``duration``.
+    **Episode end**: terminated on success, on tipping over (body tilt > 60 deg), on leaving
+    the terrain or off target; truncated after the scenario's ``duration``.
 
-    **Info**: ``ground_truth`` (exact state, keys of DESIGN.md), ``wheel_contact`` (friction,
-    normal force, contact flag and point per wheel), ``reward_terms``, ``t`` [s],
-    ``waypoint_index``, ``progress`` [m], ``cross_track`` (of the true pose, [m], left +),
-    ``is_success``, ``termination``, ``wheel_power`` (drive motors' mechanical power [W]).
+    **Info**: ``ground_truth`` (exact state), ``wheel_contact`` (friction, normal force,
+    contact flag and point per wheel), ``reward_terms``, ``t`` [s], ``waypoint_index`` (the
+    tracker's), ``start_fix`` (x, y, yaw the tracker started from), ``progress`` [m] and
+    ``cross_track`` [m, left +] (of the true pose), ``is_success``, ``termination``
+    (``success``, ``tipped_over``, ``left_terrain``, ``off_target``, ``time_limit`` or None),
+    ``miss_distance`` [m] (once the tracker has arrived), ``wheel_power`` (drive motors'
+    mechanical power [W]).
 
     Args:
         scenario: Preset name, YAML path or :class:`ScenarioConfig`.
-        obs_source: ``"estimated"`` (default): fields 0-18 come from perception on the rendered
-            camera images (:class:`~rover_env.estimation.PerceptionPipeline`: odometry twist,
-            fisheye kinematics, the slip filter) and the task features from the dead-reckoned
-            pose; ``info["estimate"]`` then holds the estimate under the keys of
-            ``info["ground_truth"]`` (its ``pose`` dead-reckoned: x, y, the start height and
-            the yaw), ``info["quality"]`` the odometry, kinematics and slip quality, and
+        obs_source: ``"estimated"`` (default): the state fields come from perception on the
+            rendered camera images (:class:`~rover_env.estimation.PerceptionPipeline`: odometry
+            twist, fisheye kinematics, the slip filter) and the task features from the on-board
+            tracker on the dead-reckoned pose; ``info["estimate"]`` then holds the estimate
+            under the keys of ``info["ground_truth"]`` (its ``pose`` dead-reckoned: x, y, the
+            start height and the yaw), plus ``odometry_pose`` (x, y, yaw) and ``quality``
+            (odometry, kinematics: the observation's quality fields), ``info["quality"]`` the
+            odometry, kinematics and slip quality, and
             ``info["slip"]`` the slip filter's per-wheel ``valid``, ``events`` (its slip-event
             detection) and ``slip_ratio_std``.
             ``"ground_truth"``: the same layout from the simulator (for ablations).
