@@ -75,6 +75,20 @@ def test_same_seed_same_rollout_fresh_and_reused():
         b.close()
 
 
+@pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
+@pytest.mark.parametrize("obs_source", ["estimated", "ground_truth"])
+def test_same_seed_same_rollout_on_every_mission(env_id, obs_source):
+    a = gym.make(env_id, obs_source=obs_source)
+    b = gym.make(env_id, obs_source=obs_source)
+    try:
+        ra = rollout(a, 11, ACTIONS[:12])
+        np.testing.assert_array_equal(rollout(b, 11, ACTIONS[:12]), ra)
+        np.testing.assert_array_equal(rollout(a, 11, ACTIONS[:12]), ra)  # reused
+    finally:
+        a.close()
+        b.close()
+
+
 def test_two_envs_in_one_process_do_not_interfere():
     ref_env = RoverEnv()
     ref = rollout(ref_env, 1, ACTIONS)
@@ -147,16 +161,15 @@ def test_bad_constructor_arguments_are_explained():
         RoverEnv(scenario="moon_base")
 
 
-def _make():
-    return gym.make("Rover-v0")
-
-
 @pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
-def test_make_vec_sync_and_async_give_the_same_rollouts(env_id):
-    """Estimator in the loop in worker processes: the same seeds give the same observations."""
+@pytest.mark.parametrize("obs_source", ["estimated", "ground_truth"])
+def test_make_vec_sync_and_async_give_the_same_rollouts(env_id, obs_source):
+    """In worker processes (the estimator in the loop or not): the same seeds give the same observations."""
     out = {}
     for mode in ("sync", "async"):
-        venv = gym.make_vec(env_id, num_envs=2, vectorization_mode=mode)
+        venv = gym.make_vec(
+            env_id, num_envs=2, vectorization_mode=mode, vector_kwargs={}, obs_source=obs_source
+        )
         try:
             obs, _ = venv.reset(seed=[3, 4])
             assert obs.shape == (2, len(OBS_FIELDS) + 3)
@@ -173,15 +186,26 @@ def test_make_vec_sync_and_async_give_the_same_rollouts(env_id):
     np.testing.assert_array_equal(out["sync"], out["async"])
 
 
-def test_subproc_vec_env():
+def _make(env_id, obs_source):
+    """A module-level factory: a worker process unpickles it by importing this module (and rover_env)."""
+    return gym.make(env_id, obs_source=obs_source)
+
+
+@pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
+@pytest.mark.parametrize("obs_source", ["estimated", "ground_truth"])
+def test_subproc_vec_env(env_id, obs_source):
+    import functools
+
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
-    sb3 = SubprocVecEnv([_make, _make])
+    make = functools.partial(_make, env_id, obs_source)
+    sb3 = SubprocVecEnv([make, make])
     try:
         obs = sb3.reset()
         for _ in range(5):
             obs, rew, done, infos = sb3.step(np.tile([0.5, 0.0, 0.0], (2, 1)))
-        assert obs.shape == (2, len(OBS_FIELDS) + 3) and obs[:, OBS_FIELDS.index("v_x")].min() > 0.1
+        rates = [OBS_FIELDS.index(f"wheel_rate_{w}") for w in ("FL", "FR", "RL", "RR")]
+        assert obs.shape == (2, len(OBS_FIELDS) + 3) and obs[:, rates].min() > 1.0  # wheels turning
         assert "ground_truth" in infos[0]
     finally:
         sb3.close()
