@@ -9,7 +9,6 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -180,35 +179,15 @@ class _RoverCamera(ABC):
             return self._black()
         return self.capture().image
 
+    @property
+    def last_frame(self) -> Frame | None:
+        """The last frame :meth:`capture` returned (None before the first)."""
+        return self._last
+
     def _keep(self, view) -> Frame:
         frame = Frame(image=view.rgb, t=self.sim.t, shadow=view.shadow)
         self._last = frame
         return frame
-
-    def capture_pair(
-        self,
-        on_prev: Callable[[Frame], None] | None = None,
-        chained: bool = False,
-    ) -> tuple[Frame, Frame]:
-        """I_prev now, then physics advances one camera period, then I_curr (odometry paper, Alg. 1).
-
-        Args:
-            on_prev: Called with I_prev before I_curr is rendered (feature selection goes here).
-            chained: Reuse the last captured frame as I_prev if it was taken now (the previous
-                pair's I_curr), which halves the rendering cost.
-
-        Returns:
-            (I_prev, I_curr), exactly one period apart in simulation time.
-        """
-        last = self._last
-        if chained and last is not None and abs(last.t - self.sim.t) < 1e-9:
-            prev = last
-        else:
-            prev = self.capture()
-        if on_prev is not None:
-            on_prev(prev)
-        self.sim.step(self.period)
-        return prev, self.capture()
 
     def _caster(self, lighting: Lighting):
         return self.sim.shadow_caster if lighting.shadows else None

@@ -246,6 +246,28 @@ class RoverSim:
             if sensors:
                 self._sample_sensors()
 
+    def capture_pair(self, camera, on_prev=None, chained: bool = False):
+        """I_prev now, then one camera period of physics, then I_curr (odometry paper, Alg. 1).
+
+        For tests and benchmarks on a bare simulation; an environment's cameras are sensors
+        (:meth:`attach_sensor`) instead.
+
+        Args:
+            camera: A camera of this simulation (``rover_env.cameras``).
+            on_prev: Called with I_prev before I_curr is rendered (feature selection goes here).
+            chained: Reuse the camera's last frame as I_prev if it was taken now (the previous
+                pair's I_curr), which halves the rendering cost.
+
+        Returns:
+            (I_prev, I_curr) frames, exactly one camera period apart in simulation time.
+        """
+        last = camera.last_frame
+        prev = last if chained and last is not None and abs(last.t - self.t) < 1e-9 else camera.capture()
+        if on_prev is not None:
+            on_prev(prev)
+        self.step(camera.period)
+        return prev, camera.capture()
+
     def prepare_render(self, ground_range: float | None = None) -> None:
         """Draw the ground around the rover; call before rendering views near it.
 

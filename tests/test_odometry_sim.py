@@ -109,7 +109,7 @@ def test_pair_mode_selects_on_the_first_frame_before_the_second_exists():
         cam = DownwardCamera(sim, DownwardCameraConfig.preset("half"))
         odo = FlowOdometry(cam.model)
         selections = []
-        prev, curr = cam.capture_pair(on_prev=lambda f: selections.append(odo.select(f.image, f.t)))
+        prev, curr = sim.capture_pair(cam, on_prev=lambda f: selections.append(odo.select(f.image, f.t)))
         est = odo.track(selections[0], curr.image, curr.t - prev.t, curr.t)
         truth = sim.ground_truth().twist
     finally:

@@ -205,11 +205,11 @@ def test_homography_turns_image_motion_of_a_known_displacement_into_metres(parke
 def test_frame_pairs_are_one_period_apart_with_the_hook_in_between(parked_sim):
     cam = DownwardCamera(parked_sim, DownwardCameraConfig.preset("train", shadows=False))
     seen = []
-    prev, curr = cam.capture_pair(on_prev=lambda f: seen.append((f.t, parked_sim.t)))
+    prev, curr = parked_sim.capture_pair(cam, on_prev=lambda f: seen.append((f.t, parked_sim.t)))
     assert curr.t - prev.t == pytest.approx(1 / 60, abs=1e-12)
     assert seen == [(prev.t, prev.t)]  # the hook ran before physics advanced to I_curr
     assert prev.image.shape == (120, 160, 3)
-    prev2, curr2 = cam.capture_pair(chained=True)
+    prev2, curr2 = parked_sim.capture_pair(cam, chained=True)
     assert prev2 is curr and curr2.t == pytest.approx(curr.t + 1 / 60, abs=1e-12)
 
 
