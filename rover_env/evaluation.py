@@ -330,7 +330,7 @@ ESTIMATOR_SUMMARY = (
     ("est_slip_mae_slipping", "slip MAE, abs(s) > 0.1"),
     ("est_slip_f1", "slip-event F1 (pooled)"),
     ("est_mae_steering", "steering MAE [rad]"),
-    ("est_position_error_final", "final position error [m]"),
+    ("est_position_error_final", "dead-reckoning error at the end [m]"),
     ("est_segment_5m_percent", "5 m segment error [%]"),
 )
 
