@@ -8,12 +8,17 @@ rate. Real-time factor = simulated seconds per wall-clock second (control at 30 
 
 Each figure is the median of ``--repeat`` runs (a shared machine's load changes between runs).
 
-Run: python benchmarks/env_speed.py [--steps 150] [--repeat 3]
+Each preset is run with each renderer (``--renderers tiny gl``) in the same process, one after
+the other, so the two are compared under the same load. Run it with ``LP_NUM_THREADS=1`` so that
+Mesa's llvmpipe rasterises on one core (one environment per core).
+
+Run: LP_NUM_THREADS=1 python benchmarks/env_speed.py [--steps 150] [--repeat 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import cv2
@@ -25,8 +30,8 @@ import rover_env
 ACTION = np.array([0.5, 0.1, -0.1], dtype=np.float32)
 
 
-def run(env_id: str, obs_source: str, preset: str, steps: int) -> dict:
-    env = gym.make(env_id, obs_source=obs_source, preset=preset)
+def run(env_id: str, obs_source: str, preset: str, steps: int, renderer: str = "gl") -> dict:
+    env = gym.make(env_id, obs_source=obs_source, preset=preset, renderer=renderer)
     try:
         env.reset(seed=0)
         for _ in range(10):  # warm-up
@@ -56,38 +61,46 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--presets", nargs="+", default=["train", "eval"])
     ap.add_argument("--envs", nargs="+", default=list(rover_env.ENV_IDS))
+    ap.add_argument("--renderers", nargs="+", default=["tiny", "gl"], choices=["tiny", "gl"])
     ap.add_argument("--repeat", type=int, default=3, help="runs per figure; the median run is shown")
     args = ap.parse_args(argv)
+    if os.environ.get("LP_NUM_THREADS") != "1":
+        print("note: run with LP_NUM_THREADS=1 for one core per environment (Mesa llvmpipe)")
 
-    def median_run(env_id, obs_source, preset, steps):
+    def median_run(env_id, obs_source, preset, steps, renderer="gl"):
         runs = sorted(
-            (run(env_id, obs_source, preset, steps) for _ in range(args.repeat)), key=lambda r: r["ms"]
+            (run(env_id, obs_source, preset, steps, renderer) for _ in range(args.repeat)),
+            key=lambda r: r["ms"],
         )
         return runs[len(runs) // 2]
 
     cv2.setNumThreads(1)
     print(
-        "| mission | preset | steps/s | real-time factor | ms/step | physics | rendering | perception "
-        "| other | perception share | fisheye frames in windows |"
+        "| mission | preset | renderer | steps/s | real-time factor | ms/step | physics | rendering "
+        "| perception | other | rendering share | fisheye frames in windows |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for env_id in args.envs:
         gt = median_run(env_id, "ground_truth", "train", args.steps * 10)
         print(
-            f"| {env_id} | physics only (ground truth) | {1e3 / gt['ms']:.0f} | {gt['rtf']:.1f}x | "
+            f"| {env_id} | physics only (ground truth) | - | {1e3 / gt['ms']:.0f} | {gt['rtf']:.1f}x | "
             f"{gt['ms']:.2f} | {gt['ms']:.2f} | - | - | - | - | - |",
             flush=True,
         )
         for preset in args.presets:
-            r = median_run(env_id, "estimated", preset, args.steps)
-            p = r["parts"]
-            other = r["ms"] - sum(p.values())
-            print(
-                f"| {env_id} | {preset} | {1e3 / r['ms']:.1f} | {r['rtf']:.2f}x | {r['ms']:.1f} | "
-                f"{p['physics']:.1f} | {p['rendering']:.1f} | {p['perception']:.1f} | {other:.1f} | "
-                f"{100 * p['perception'] / r['ms']:.0f} % | {100 * r['windowed']:.0f} % |",
-                flush=True,
-            )
+            for renderer in args.renderers:
+                # TinyRenderer at the eval preset runs at ~0.04x real time: fewer steps
+                n = args.steps if renderer == "gl" or preset == "train" else max(10, args.steps // 10)
+                r = median_run(env_id, "estimated", preset, n, renderer)
+                p = r["parts"]
+                other = r["ms"] - sum(p.values())
+                print(
+                    f"| {env_id} | {preset} | {renderer} | {1e3 / r['ms']:.1f} | {r['rtf']:.2f}x | "
+                    f"{r['ms']:.1f} | "
+                    f"{p['physics']:.1f} | {p['rendering']:.1f} | {p['perception']:.1f} | {other:.1f} | "
+                    f"{100 * p['rendering'] / r['ms']:.0f} % | {100 * r['windowed']:.0f} % |",
+                    flush=True,
+                )
     return 0
 
 

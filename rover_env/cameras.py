@@ -104,11 +104,6 @@ class _RoverCamera(ABC):
         #: (t0, t1) windows of simulation time [s] in which :meth:`sample` delivers black frames
         #: (a camera fault: the estimator sees only the images).
         self.blackout: list[tuple[float, float]] = []
-        if sim.renderer == "egl" and config.shadows:
-            raise ConfigError(
-                "shadows: the simulation renders with EGL, which ignores the sun and draws no "
-                "shadows; use shadows=False or RoverSim(renderer='tiny')"
-            )
 
     @property
     def period(self) -> float:
@@ -229,7 +224,7 @@ class DownwardCamera(_RoverCamera):
             self.T_world_cam(),
             lighting,
             caster=self._caster(lighting),
-            renderer=self.sim.renderer,
+            renderer=self.sim.backend,
             segmentation=labels,
             cull=self.sim.terrain.view_cull,
         )
@@ -340,4 +335,5 @@ class FisheyeCamera(_RoverCamera):
             labels=labels,
             cull=self.sim.terrain.view_cull,
             windows=None if parts is None else self.windows(parts),
+            renderer=self.sim.backend,
         )

@@ -132,7 +132,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     print(format_env_table(env_rows))
     cam_rows = []
     if not args.no_cameras:
-        cam_rows = bench_cameras(args.scenarios[0], frames=args.frames, egl=not args.no_egl)
+        cam_rows = bench_cameras(args.scenarios[0], frames=args.frames, renderers=tuple(args.renderers))
         print(f"\nCameras ({args.scenarios[0]}), one process, median of {args.frames} frames:")
         print(format_camera_table(cam_rows))
     if args.json:
@@ -238,7 +238,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--steps", type=int, default=600, help="environment steps per scenario")
     b.add_argument("--frames", type=int, default=8, help="frames per camera row")
     b.add_argument("--no-cameras", action="store_true", help="physics only")
-    b.add_argument("--no-egl", action="store_true", help="skip the EGL renderer rows")
+    b.add_argument(
+        "--renderers",
+        nargs="+",
+        default=["tiny", "gl"],
+        choices=["tiny", "gl"],
+        help="renderers of the camera rows",
+    )
     b.add_argument("--json", help="also write the results to this JSON file")
     b.set_defaults(func=_cmd_bench)
     o = sub.add_parser("odometry", help="optical-flow odometry on a folder of downward-camera images")

@@ -1,6 +1,6 @@
 """The fisheye under the body (kinematics paper): cubemap faces rendered as pinhole views, one remap.
 
-PyBullet renders only pinhole views, so a >180 deg fisheye is assembled from cube faces: the face
+Renderers draw pinhole views, so a >180 deg fisheye is assembled from cube faces: the face
 along the optical axis and the four side faces, each rendered only over the part of it that the
 fisheye image uses (plus a 2-pixel margin, so that bilinear sampling never reads across a face
 edge; that is what keeps the image free of seams). The faces are packed into one atlas image and
@@ -318,6 +318,9 @@ class CubemapRemap:
         self.faces: tuple[CubeFace, ...] = tuple(faces)
         self.face_index = face_of.reshape(h, w)  # index into faces of each pixel, -1 outside
         self.atlas_size = (width, row)
+        #: Float atlas coordinates [atlas px] of every fisheye pixel, (H, W) each; -10 where
+        #: nothing is rendered (outside the field of view or the region of interest).
+        self.maps = (map_x.reshape(h, w), map_y.reshape(h, w))
         self._map1, self._map2 = cv2.convertMaps(
             map_x.reshape(h, w), map_y.reshape(h, w), cv2.CV_16SC2, nninterpolation=False
         )
@@ -495,7 +498,7 @@ def render_fisheye(
     labels: bool = False,
     near: float = 0.01,
     far: float = 20.0,
-    renderer: str = "tiny",
+    renderer="tiny",
     cull=None,
     windows=None,
 ) -> FisheyeView:
@@ -510,12 +513,16 @@ def render_fisheye(
         labels: Also remap segmentation, shadow and 3-D points (for tests and evaluation).
         near: Near clipping distance [m].
         far: Far clipping distance [m].
-        renderer: ``"tiny"`` or ``"egl"`` (see :func:`rover_env.rendering.render_K`).
+        renderer: ``"tiny"`` or a :class:`rover_env.gl_render.GLRenderer` of ``client`` (which
+            renders the views into one atlas and remaps it on the GL side; ``caster`` and
+            ``cull`` are not used).
         cull: Called with each face's view planes before it is rendered (see
             :func:`rover_env.rendering.render_K`).
         windows: Render only these rectangles of the faces (:meth:`CubemapRemap.windows`); the
             rest of the image is black (no labels, no points). None: whole faces.
     """
+    if not isinstance(renderer, str):
+        return renderer.render_fisheye(remapper, T_world_cam, lighting, labels, near, far, windows)
     shadow_map = None
     if lighting.shadows:
         if caster is None:

@@ -1,4 +1,7 @@
-"""Rendering with PyBullet's TinyRenderer: exact pinhole views and sun shadows with real contrast.
+"""Pinhole rendering: exact views and sun shadows with real contrast, on TinyRenderer or OpenGL.
+
+:func:`render_K` draws with PyBullet's TinyRenderer, or hands the view to a
+:class:`rover_env.gl_render.GLRenderer` (which draws the same lighting and shadows on the GPU side).
 
 TinyRenderer's built-in shadow only scales the diffuse term by 0.8 and its shadow map is aimed at
 the world origin, so a rover 10 m away casts no shadow and a shadowed patch is at most 1.25x
@@ -64,20 +67,17 @@ def gl_view_matrix(T_world_cam: np.ndarray) -> list[float]:
     return view.T.reshape(-1).tolist()
 
 
-def gl_projection_from_K(
-    K: np.ndarray, size: tuple[int, int], near: float, far: float, renderer: str = "tiny"
-) -> list[float]:
-    """Column-major OpenGL frustum that renders exactly the pinhole ``K`` at ``size`` = (W, H).
+def gl_projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far: float) -> list[float]:
+    """Column-major frustum with which TinyRenderer renders exactly the pinhole ``K`` at ``size`` = (W, H).
 
-    Pixel centres are at integer coordinates. The two renderers sample pixels differently, which
-    was measured with boxes at known points: EGL (OpenGL) samples pixel centres, so the frustum
-    spans [-0.5, W - 0.5] x [-0.5, H - 0.5]; TinyRenderer samples pixel (i, j) at viewport point
-    (i, H - j), so the frustum spans [0, W] across and [-1, H - 1] down.
+    Pixel centres are at integer coordinates. TinyRenderer samples pixel (i, j) at viewport point
+    (i, H - j) (measured with boxes at known points), so the frustum spans [0, W] across and
+    [-1, H - 1] down. (The GL renderer's matrix is :func:`rover_env.gl_render.projection_from_K`.)
     """
     w, h = size
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     # image coordinates of the frustum's left and top edges
-    x0, y0 = (0.0, -1.0) if renderer == "tiny" else (-0.5, -0.5)
+    x0, y0 = 0.0, -1.0
     left = (x0 - cx) * near / fx
     right = (x0 + w - cx) * near / fx
     top = (cy - y0) * near / fy
@@ -116,7 +116,8 @@ class RenderedView:
 
     Attributes:
         rgb: (H, W, 3) uint8.
-        depth: (H, W) float32 distance along the optical axis [m] (far plane where nothing was hit).
+        depth: (H, W) float32 distance along the optical axis [m] (far plane where nothing was hit);
+            None from the GL renderer when no segmentation was asked for.
         segmentation: (H, W) int: PyBullet's body id + ((link + 1) << 24), -1 for background;
             None if it was not asked for (rendering is then about 15 % faster).
         shadow: (H, W) bool, True where the sun is blocked (all False without shadows).
@@ -125,7 +126,7 @@ class RenderedView:
     """
 
     rgb: np.ndarray
-    depth: np.ndarray
+    depth: np.ndarray | None
     segmentation: np.ndarray | None
     shadow: np.ndarray
     K: np.ndarray
@@ -147,32 +148,26 @@ class RenderedView:
         return self._points
 
 
-RENDERERS: dict[str, int] = {"tiny": pb.ER_TINY_RENDERER, "egl": pb.ER_BULLET_HARDWARE_OPENGL}
+#: Renderer names: ``"gl"`` (OpenGL on headless EGL, :mod:`rover_env.gl_render`) and ``"tiny"``
+#: (PyBullet's TinyRenderer, on the CPU).
+RENDERERS: tuple[str, ...] = ("gl", "tiny")
 
 
-def load_egl(client) -> int:
-    """Load PyBullet's EGL renderer plugin into ``client``; returns the plugin id.
-
-    Once loaded, the plugin renders every ``getCameraImage`` of that client (TinyRenderer is
-    no longer used, even after unloading), it ignores the light direction and coefficients, and
-    it draws no shadows. Use it only for simulations whose views need neither sun nor shadows.
+def check_renderer(name) -> str:
+    """``name`` if it is a renderer choice (``"auto"`` included).
 
     Raises:
-        RuntimeError: The plugin does not load on this machine.
+        ValueError: Unknown name; the message lists the choices.
     """
-    import pkgutil
-
-    loader = pkgutil.get_loader("eglRenderer")
-    plugin = client.loadPlugin(loader.get_filename(), "_eglRendererPlugin") if loader else -1
-    if plugin < 0:
-        raise RuntimeError(
-            "PyBullet's EGL renderer plugin did not load (it needs libEGL, e.g. Debian's libegl1 with "
-            "Mesa); use renderer='tiny'"
+    if name not in ("auto",) + RENDERERS:
+        raise ValueError(
+            f"renderer={name!r}: use 'gl' (OpenGL on headless EGL), 'tiny' (PyBullet's TinyRenderer) "
+            "or 'auto' (gl where an EGL context can be created, else tiny)"
         )
-    return plugin
+    return name
 
 
-def _camera_image(client, size, view, proj, lighting: Lighting, renderer: str = "tiny", segmentation=True):
+def _camera_image(client, size, view, proj, lighting: Lighting, segmentation=True):
     w, h = size
     img = client.getCameraImage(
         w,
@@ -184,7 +179,7 @@ def _camera_image(client, size, view, proj, lighting: Lighting, renderer: str = 
         lightAmbientCoeff=lighting.ambient,
         lightDiffuseCoeff=lighting.diffuse,
         lightSpecularCoeff=0.0,
-        renderer=RENDERERS[renderer],
+        renderer=pb.ER_TINY_RENDERER,
         flags=pb.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX if segmentation else pb.ER_NO_SEGMENTATION_MASK,
     )
     rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (h, w, 4))
@@ -217,7 +212,7 @@ def render_K(
     far: float = 20.0,
     caster: ShadowCaster | None = None,
     shadow_map: ShadowMap | None = None,
-    renderer: str = "tiny",
+    renderer="tiny",
     segmentation: bool = True,
     cull=None,
 ) -> RenderedView:
@@ -235,22 +230,21 @@ def render_K(
         far: Far clipping distance [m].
         caster: The shadow-casting body; with ``lighting.shadows`` on, this or ``shadow_map``.
         shadow_map: A shadow map already built for this instant (several views of one frame).
-        renderer: ``"tiny"`` (TinyRenderer, sun lighting) or ``"egl"`` (the EGL plugin must be
-            loaded into ``client``; no sun direction, so no shadows: ``lighting.shadows`` must be off).
-        segmentation: Also return the segmentation labels.
+        renderer: ``"tiny"`` (TinyRenderer) or a :class:`rover_env.gl_render.GLRenderer` of
+            ``client`` (which draws its own shadow map: ``caster``, ``shadow_map`` and ``cull``
+            are not used, and ``depth`` is None without ``segmentation``).
+        segmentation: Also return the segmentation labels (and, with GL, the depth).
         cull: Called with the view's :func:`view_planes` before it is rendered (for example
             :meth:`rover_env.terrain.Terrain.cull`, which leaves out ground the view cannot see).
     """
-    if renderer not in RENDERERS:
-        raise ValueError(f"renderer={renderer!r}: use 'tiny' or 'egl'")
-    if renderer == "egl" and lighting.shadows:
-        raise ValueError(
-            "the EGL renderer ignores the sun direction, so it cannot draw shadows; turn shadows off"
-        )
+    if not isinstance(renderer, str):
+        return renderer.render_K(K, size, T_world_cam, lighting, near, far, segmentation)
+    if renderer != "tiny":
+        raise ValueError(f"renderer={renderer!r}: pass 'tiny' or a GLRenderer (RoverSim.backend gives it)")
     if cull is not None:
         cull(view_planes(K, size, T_world_cam, near))
-    view, proj = gl_view_matrix(T_world_cam), gl_projection_from_K(K, size, near, far, renderer)
-    rgb, zbuf, seg = _camera_image(client, size, view, proj, lighting, renderer, segmentation)
+    view, proj = gl_view_matrix(T_world_cam), gl_projection_from_K(K, size, near, far)
+    rgb, zbuf, seg = _camera_image(client, size, view, proj, lighting, segmentation)
     depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
     w, h = size
     view = RenderedView(rgb, depth, seg, np.zeros((h, w), dtype=bool), K, np.asarray(T_world_cam))

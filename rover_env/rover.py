@@ -138,6 +138,8 @@ class Rover:
             lambda: tread_texture(marker_arc=g.correction_marker_arc),
         )
         self._tread_tex = client.loadTexture(str(tex))
+        #: PyBullet texture id -> image file of the textures on the rover.
+        self.textures = {self._tread_tex: tex}
         for link in self.wheel_links:
             client.changeVisualShape(
                 self.body_id, link, textureUniqueId=self._tread_tex, rgbaColor=[1, 1, 1, 1]

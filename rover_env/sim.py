@@ -11,6 +11,7 @@ sample, and hand out timestamped :class:`SensorMessage` objects (no simulator st
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -23,11 +24,13 @@ from pybullet_utils.bullet_client import BulletClient
 
 from rover_env.geometry import RoverGeometry
 from rover_env.ground_truth import GroundTruth
-from rover_env.rendering import RENDERERS, load_egl
+from rover_env.rendering import check_renderer
 from rover_env.rover import Rover
 from rover_env.scenario import ScenarioConfig
 from rover_env.shadows import ShadowCaster
 from rover_env.terrain import Terrain
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,35 @@ class Sensor(Protocol):
     def sample(self) -> np.ndarray:
         """The sensor's output now (at the simulation's current time)."""
         ...
+
+
+def resolve_renderer(name: str) -> str:
+    """The renderer that ``name`` (``"auto"``, ``"gl"`` or ``"tiny"``) selects on this machine.
+
+    ``"auto"`` is ``"gl"`` where a headless EGL OpenGL context can be created, else ``"tiny"``
+    (with one warning per process naming what is missing).
+
+    Raises:
+        ValueError: Unknown name.
+        rover_env.gl_render.GLUnavailableError: ``"gl"`` where it cannot start.
+    """
+    check_renderer(name)
+    if name == "tiny":
+        return name
+    from rover_env.gl_render import GLUnavailableError, gl_status
+
+    ok, why = gl_status()
+    if ok:
+        return "gl"
+    if name == "gl":
+        raise GLUnavailableError(f"renderer='gl': {why}; or use renderer='tiny'")
+    _warn_fallback(why)
+    return "tiny"
+
+
+@functools.lru_cache(maxsize=1)
+def _warn_fallback(why: str) -> None:
+    log.warning("OpenGL rendering is not available, so TinyRenderer draws the cameras (slower): %s", why)
 
 
 def yaw_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -90,9 +122,16 @@ class RoverSim:
         solver_iterations: Constraint-solver iterations per physics step. Cost grows with it
             (contacts dominate a step); motor accuracy under load improves as its square: a
             braked rover on an 8 deg slope creeps 19 mm in 5 s at 10, 4 mm at 20 (see the tests).
-        renderer: ``"tiny"`` (TinyRenderer: sun direction, shadows; the default) or ``"egl"``
-            (PyBullet's EGL plugin: faster where a GPU or Mesa is present, but it ignores the sun
-            and draws no shadows, so every camera of this simulation must have shadows off).
+        renderer: ``"auto"`` (the default: ``"gl"`` where a headless EGL OpenGL 3.3 context can
+            be created, else ``"tiny"`` with one warning saying what is missing), ``"gl"``
+            (:class:`rover_env.gl_render.GLRenderer`: 10-20x faster on a CPU, and runs on a GPU)
+            or ``"tiny"`` (PyBullet's TinyRenderer). Both draw the same sun, sky light and shadows.
+            The GL context is created at the first render (so a simulation made before a
+            fork renders in the child) and released by :meth:`close`.
+
+    Raises:
+        ValueError: Unknown renderer name.
+        rover_env.gl_render.GLUnavailableError: ``renderer="gl"`` where no context can be created.
     """
 
     def __init__(
@@ -102,7 +141,7 @@ class RoverSim:
         physics_hz: float = 240.0,
         settle_time: float = 0.5,
         solver_iterations: int = 10,
-        renderer: str = "tiny",
+        renderer: str = "auto",
     ) -> None:
         if not (60.0 <= physics_hz <= 2000.0):
             raise ValueError(f"physics_hz={physics_hz}: use 60 to 2000 Hz (240 recommended)")
@@ -110,13 +149,11 @@ class RoverSim:
         self.geometry = geometry or RoverGeometry()
         self.dt = 1.0 / physics_hz
         self.settle_time = settle_time
-        if renderer not in RENDERERS:
-            raise ValueError(f"renderer={renderer!r}: use 'tiny' (sun and shadows) or 'egl' (neither)")
+        #: The renderer in use: ``"gl"`` or ``"tiny"``.
+        self.renderer = resolve_renderer(renderer)
+        self._gl = None
         self.client = BulletClient(connection_mode=pb.DIRECT)
         self._closed = False
-        self.renderer = renderer
-        if renderer == "egl":
-            load_egl(self.client)
         c = self.client
         c.setPhysicsEngineParameter(
             fixedTimeStep=self.dt,
@@ -276,7 +313,10 @@ class RoverSim:
                 rendered see no ground (only the ground within it is drawn); None: all of it.
         """
         x, y, _ = self.client.getBasePositionAndOrientation(self.rover.body_id)[0]
-        self.terrain.focus(x, y, ground_range)
+        if self.renderer == "gl":
+            self.backend.focus(x, y, ground_range)
+        else:
+            self.terrain.focus(x, y, ground_range)
 
     @functools.cached_property
     def shadow_caster(self) -> ShadowCaster:
@@ -287,8 +327,25 @@ class RoverSim:
         """Exact state of the rover now."""
         return self.rover.ground_truth(self.t, self.terrain.body_id)
 
+    @property
+    def backend(self):
+        """What the cameras render with: ``"tiny"`` or this simulation's GLRenderer (created on first use)."""
+        if self.renderer == "tiny":
+            return "tiny"
+        if self._gl is None:
+            if self._closed:
+                raise RuntimeError("this RoverSim is closed; create a new one")
+            from rover_env.gl_render import GLRenderer
+
+            textures = {self.terrain.texture_id: self.terrain.texture_path, **self.rover.textures}
+            self._gl = GLRenderer(self.client, self.terrain, textures)
+        return self._gl
+
     def close(self) -> None:
-        """Disconnect this simulation's client; safe to call more than once."""
+        """Disconnect this simulation's client and release its GL context; safe to call more than once."""
+        if self._gl is not None:
+            self._gl.release()
+            self._gl = None
         if not self._closed:
             self._closed = True
             try:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from rover_env.scenario import TEXTURE_PRESETS, FrictionMapConfig, TerrainConfig
-from rover_env.textures import cache_dir, periodic_noise, texture_file
+from rover_env.textures import cache_dir, periodic_noise, read_texture, texture_file
 
 if TYPE_CHECKING:
     from pybullet_utils.bullet_client import BulletClient
@@ -192,6 +192,9 @@ class Terrain:
             if cfg.texture in TEXTURE_PRESETS
             else Path(cfg.texture)
         )
+        read_texture(tex_path)  # a clear error for a file that is not an image
+        #: The ground texture's image file.
+        self.texture_path = Path(tex_path)
         self.texture_id = client.loadTexture(str(tex_path))
         if self.texture_id < 0:
             raise ValueError(f"terrain.texture: PyBullet could not load image {tex_path}")
@@ -409,6 +412,23 @@ class Terrain:
             uvs=uvs.tolist(),
             normals=normals.reshape(-1, 3).tolist(),
         )
+
+    def render_grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The ground's exact visual surface as a height grid: (xs, ys, heights, normals).
+
+        xs (nx,) and ys (ny,) [m], heights (ny, nx) [m] world z, normals (ny, nx, 3) unit; split
+        into triangles as Bullet splits its heightfield. Rough ground: the collision grid itself;
+        planar ground: a 1 m grid over the terrain (exact, since the plane is flat).
+        """
+        if self.heights is not None:
+            return self.xs, self.ys, self.heights, self._normals
+        nx = max(1, int(math.ceil(self.cfg.size[0] / FINE_CHUNK))) + 1
+        ny = max(1, int(math.ceil(self.cfg.size[1] / FINE_CHUNK))) + 1
+        xs = np.linspace(-self.cfg.size[0] / 2, self.cfg.size[0] / 2, nx)
+        ys = np.linspace(-self.cfg.size[1] / 2, self.cfg.size[1] / 2, ny)
+        gx, gy = np.meshgrid(xs, ys)
+        h = _slope_height(self.cfg, gx, gy)
+        return xs, ys, h, np.broadcast_to(self._plane_normal, h.shape + (3,)).copy()
 
     # ------------------------------------------------------------------ geometry queries
     def height_at(self, x: float | np.ndarray, y: float | np.ndarray) -> np.ndarray:

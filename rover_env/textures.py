@@ -210,6 +210,9 @@ def write_cached(key: str, make: callable, suffix: str = ".png") -> Path:  # typ
     """
     digest = hashlib.sha1(key.encode()).hexdigest()[:16]
     path = cache_dir() / f"{digest}{suffix}"
+    if path.is_file() and cv2.imread(str(path), cv2.IMREAD_COLOR) is None:
+        log.warning("cached texture %s does not decode (truncated or corrupt); rebuilding it", path)
+        path.unlink(missing_ok=True)
     if not path.is_file():
         img = make()
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=suffix)
@@ -220,6 +223,26 @@ def write_cached(key: str, make: callable, suffix: str = ".png") -> Path:  # typ
         os.replace(tmp, path)
         log.debug("generated %s -> %s", key, path)
     return path
+
+
+def read_texture(path) -> np.ndarray:
+    """The RGB uint8 image (H, W, 3) of a texture file (8-bit; grey and alpha are dropped to RGB).
+
+    Raises:
+        ConfigError: The file does not exist or is not a readable image; the message names it.
+    """
+    from perception.validation import ConfigError
+
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"terrain.texture: {p} does not exist; give an image file or a preset name")
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if img is None or img.size == 0:
+        raise ConfigError(
+            f"terrain.texture: {p} is not a readable image (PNG, JPEG, ...); "
+            "give an image file or a preset name"
+        )
+    return np.ascontiguousarray(img[..., ::-1])
 
 
 def texture_file(name: str, px: int = 1024, seed: int = 0) -> Path:

@@ -65,7 +65,7 @@ def test_cli_reports_bad_scenario(capsys):
 def test_camera_bench_rows_and_table():
     from rover_env.bench import bench_cameras, format_camera_table
 
-    rows = bench_cameras("flat_patches", presets=("train",), frames=1, egl=False)
+    rows = bench_cameras("flat_patches", presets=("train",), frames=1, renderers=("tiny",))
     assert [(r.camera, r.shadows) for r in rows] == [
         ("downward", True),
         ("fisheye", True),

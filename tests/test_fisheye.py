@@ -20,11 +20,13 @@ from rover_env.fisheye import (
 from rover_env.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.sim import RoverSim
 
+RENDERERS = ["gl", pytest.param("tiny", marks=pytest.mark.slow)]
 
-@pytest.fixture(scope="module")
-def lifted_sim():
+
+@pytest.fixture(scope="module", params=RENDERERS)
+def lifted_sim(request):
     """A parked rover lifted 8 cm so that any joint state can be set without touching the ground."""
-    sim = RoverSim(flat_scenario(mu=1.0))
+    sim = RoverSim(flat_scenario(mu=1.0), renderer=request.param)
     sim.reset(7.3, -4.1, math.radians(35.0))
     c, body = sim.client, sim.rover.body_id
     pos, quat = c.getBasePositionAndOrientation(body)
@@ -99,7 +101,9 @@ def test_fisheye_has_no_seams(lifted_sim):
     cam = FisheyeCamera(sim)
     other = CubemapRemap(cam.model, cube_roll=math.pi / 4)
     a = cam.capture().image.astype(np.float32)
-    b = render_fisheye(sim.client, other, cam.T_world_cam(), cam.lighting, sim.shadow_caster).rgb
+    b = render_fisheye(
+        sim.client, other, cam.T_world_cam(), cam.lighting, sim.shadow_caster, renderer=sim.backend
+    ).rgb
     diff = np.abs(a - b.astype(np.float32)).mean(axis=2)
 
     def seam_band(face_index, r=2):
@@ -116,7 +120,8 @@ def test_fisheye_has_no_seams(lifted_sim):
     assert elsewhere < 4.0  # the two cubes resample the same scene
 
 
-def test_no_step_across_cube_face_borders_on_a_smooth_texture(tmp_path):
+@pytest.mark.parametrize("renderer", RENDERERS)
+def test_no_step_across_cube_face_borders_on_a_smooth_texture(tmp_path, renderer):
     """Along every face border, the step between the two sides is no larger than the image's
     own gradient next to it (a seam would show as a step where the texture has none)."""
     from rover_env.scenario import ScenarioConfig, TerrainConfig
@@ -130,7 +135,7 @@ def test_no_step_across_cube_face_borders_on_a_smooth_texture(tmp_path):
         course=CourseConfig(waypoints=((3.0, 0.0),)),
         terrain=TerrainConfig(size=(20.0, 20.0), texture=str(tmp_path / "smooth.png"), texture_tile=1.5),
     )
-    sim = RoverSim(scenario)
+    sim = RoverSim(scenario, renderer=renderer)
     try:
         sim.reset(0.3, -0.2, 0.4)
         cam = FisheyeCamera(sim, FisheyeCameraConfig(shadows=False))
@@ -364,14 +369,15 @@ def checkerboard_corners(cam, view, square, reach=1.5, min_square_px=16.0):
     return found, pc[idx], px[idx]
 
 
-def test_omni_model_refits_from_rendered_checkerboard_corners():
+@pytest.mark.parametrize("renderer", RENDERERS)
+def test_omni_model_refits_from_rendered_checkerboard_corners(renderer):
     from perception.calibration import fit_omni_camera
     from rover_env.scenario import load_scenario
 
     scenario = load_scenario("calibration")
     square = scenario.terrain.checker_square
     assert square == pytest.approx(0.05)
-    sim = RoverSim(scenario)
+    sim = RoverSim(scenario, renderer=renderer)
     try:
         # 2x supersampled faces: the remap then averages the rasteriser's aliased edges
         cam = FisheyeCamera(sim, FisheyeCameraConfig(shadows=False, oversample=2.0))
@@ -393,8 +399,10 @@ def test_omni_model_refits_from_rendered_checkerboard_corners():
     rays = np.stack([np.sin(grid_a) * np.cos(grid_p), np.sin(grid_a) * np.sin(grid_p), np.cos(grid_a)], -1)
     model_gap = np.hypot(*(fit.camera.world2cam(rays) - cam.model.world2cam(rays)).reshape(-1, 2).T)
     print(
-        f"checkerboard: {fit.inliers.sum()} of {len(found)} corners up to {np.degrees(alpha.max()):.0f} deg, "
-        f"detected {np.median(moved):.2f} px (median) from the rendering model; fit RMS {fit.rms_px:.3f} px, "
+        f"{renderer} checkerboard: {fit.inliers.sum()} of {len(found)} corners "
+        f"up to {np.degrees(alpha.max()):.0f} deg, "
+        f"detected {np.median(moved):.2f} px (median) from the rendering model; "
+        f"fit RMS {fit.rms_px:.3f} px, "
         f"max {fit.max_px:.2f} px; fitted vs rendering model: max {np.nanmax(model_gap):.2f} px"
     )
     assert fit.inliers.sum() >= 200 and fit.inliers.mean() > 0.9
@@ -402,21 +410,27 @@ def test_omni_model_refits_from_rendered_checkerboard_corners():
     assert np.nanmax(model_gap) < 0.5
 
 
-def test_egl_simulations_refuse_shadowed_cameras():
-    from rover_env.cameras import DownwardCamera
+def test_renderer_choice_errors_and_fallback(monkeypatch, caplog):
+    """Unknown names list the choices; an explicit 'gl' that cannot start names what is missing;
+    'auto' falls back to TinyRenderer with one warning."""
+    import logging
 
-    try:
-        sim = RoverSim(flat_scenario(mu=1.0), renderer="egl")
-    except RuntimeError as exc:
-        pytest.skip(str(exc))
-    try:
-        with pytest.raises(ConfigError, match="shadows"):
-            FisheyeCamera(sim)
-        with pytest.raises(ConfigError, match="shadows"):
-            DownwardCamera(sim)
-        image = FisheyeCamera(sim, FisheyeCameraConfig(shadows=False)).capture().image
-        assert image.shape == (480, 640, 3) and image[240, 320].any()
-    finally:
-        sim.close()
-    with pytest.raises(ValueError, match="renderer"):
+    import rover_env.gl_render as gl_render
+    import rover_env.sim as sim_module
+
+    with pytest.raises(ValueError, match="'gl'.*'tiny'.*'auto'"):
         RoverSim(flat_scenario(mu=1.0), renderer="vulkan")
+    monkeypatch.setattr(gl_render, "gl_status", lambda: (False, "libEGL.so is not installed"))
+    sim_module._warn_fallback.cache_clear()
+    with pytest.raises(gl_render.GLUnavailableError, match="libEGL.so is not installed"):
+        RoverSim(flat_scenario(mu=1.0), renderer="gl")
+    with caplog.at_level(logging.WARNING, logger="rover_env.sim"):
+        sims = [RoverSim(flat_scenario(mu=1.0)) for _ in range(2)]
+    try:
+        assert [s.renderer for s in sims] == ["tiny", "tiny"]
+        warned = [r for r in caplog.records if "TinyRenderer" in r.getMessage()]
+        assert len(warned) == 1 and "libEGL.so" in warned[0].getMessage()
+    finally:
+        for s in sims:
+            s.close()
+        sim_module._warn_fallback.cache_clear()

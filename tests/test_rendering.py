@@ -64,9 +64,9 @@ def caster_world(sim: RoverSim) -> BulletClient:
     return oc
 
 
-@pytest.fixture(scope="module")
-def parked_sim():
-    sim = RoverSim(flat_scenario(mu=1.0))
+@pytest.fixture(scope="module", params=["gl", "tiny"])
+def parked_sim(request):
+    sim = RoverSim(flat_scenario(mu=1.0), renderer=request.param)
     sim.reset(7.3, -4.1, math.radians(35.0))  # far from the world origin, at an angle
     yield sim
     sim.close()
@@ -76,7 +76,9 @@ def test_downward_camera_sees_known_ground_points_where_the_model_says(parked_si
     sim = parked_sim
     cam = mast_camera(sim)
     T_wc = body_pose(sim) @ cam.T_body_cam
-    view = render_pinhole(sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False))
+    view = render_pinhole(
+        sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False), renderer=sim.backend
+    )
     ground = view.segmentation == sim.terrain.body_id
     # depth buffer points lie on the ground plane z = 0 ...
     assert np.abs(view.points_world[ground][:, 2]).max() < 2e-3
@@ -106,7 +108,9 @@ def test_small_squares_on_the_ground_appear_where_the_model_projects_them(parked
         centres.append(p + [0.0, 0.0, 0.001])  # top face of the 1 mm plate
     ids = [c.createMultiBody(0, -1, shape, p.tolist()) for p in centres]
     try:
-        view = render_pinhole(sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False))
+        view = render_pinhole(
+            sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False), renderer=sim.backend
+        )
     finally:
         for b in ids:
             c.removeBody(b)
@@ -117,7 +121,9 @@ def test_small_squares_on_the_ground_appear_where_the_model_projects_them(parked
         assert len(rows) > 150
         err.append([cols.mean(), rows.mean()] - cam.project(T_cw[:3, :3] @ p + T_cw[:3, 3]))
     err = np.asarray(err)
-    print(f"ground squares: bias {err.mean(axis=0).round(3)} px, max {np.abs(err).max():.2f} px")
+    print(
+        f"{sim.renderer} ground squares: bias {err.mean(axis=0).round(3)} px, max {np.abs(err).max():.2f} px"
+    )
     assert np.abs(err).max() < 0.25
     assert np.abs(err.mean(axis=0)).max() < 0.05  # no half-pixel convention error
 
@@ -127,8 +133,10 @@ def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
     cam = mast_camera(sim)
     T_wc = body_pose(sim) @ cam.T_body_cam
     sun = sun_behind(sim, 30.0)
-    on = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=True), caster=sim.shadow_caster)
-    off = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False))
+    on = render_pinhole(
+        sim.client, cam, T_wc, Lighting(sun, shadows=True), caster=sim.shadow_caster, renderer=sim.backend
+    )
+    off = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False), renderer=sim.backend)
     ground = on.segmentation == sim.terrain.body_id
     # geometric prediction: ray from each ground point toward the sun hits the rover
     oc = caster_world(sim)
@@ -151,7 +159,10 @@ def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
     rendered = g_on < 0.7 * g_off
     iou = (rendered & pred).sum() / (rendered | pred).sum()
     acne = np.abs(g_on[~pred] - g_off[~pred]).mean()
-    print(f"shadow: lit/shadow ratio {ratio:.2f}, IoU {iou:.3f}, lit-ground change {acne:.3f} grey levels")
+    print(
+        f"{sim.renderer} shadow: lit/shadow ratio {ratio:.2f}, IoU {iou:.3f}, "
+        f"lit-ground change {acne:.3f} grey levels"
+    )
     assert ratio >= 2.5
     assert iou >= 0.9
     assert acne < 2.0  # no acne on lit ground
@@ -162,7 +173,7 @@ def test_shadow_lookup_from_depth_matches_the_lookup_of_3d_points(parked_sim):
     cam = mast_camera(sim)
     T_wc = body_pose(sim) @ cam.T_body_cam
     sun = sun_behind(sim, 30.0)
-    view = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False))
+    view = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False), renderer=sim.backend)
     smap = sim.shadow_caster.shadow_map(sun, 0.005)
     from_points = smap.lookup(view.points_world)
     from_depth = smap.lookup_view(view.depth, cam.K, T_wc)
@@ -226,17 +237,13 @@ def test_impossible_camera_configurations_fail_clearly(parked_sim):
         DownwardCamera(parked_sim, DownwardCameraConfig(rate_hz=50.0))
 
 
-@pytest.mark.parametrize("renderer", ["tiny", "egl"])
+@pytest.mark.parametrize("renderer", ["tiny", "gl"])
 def test_both_renderers_put_boxes_where_the_pinhole_model_projects_them(renderer):
-    from rover_env.rendering import load_egl
+    from rover_env.gl_render import GLRenderer
 
     c = BulletClient(connection_mode=pb.DIRECT)
+    gl = GLRenderer(c) if renderer == "gl" else None
     try:
-        if renderer == "egl":
-            try:
-                load_egl(c)
-            except RuntimeError as exc:
-                pytest.skip(str(exc))
         cam = PinholeCamera(
             K=np.array([[300.0, 0, 160.3], [0, 300.0, 118.8], [0, 0, 1]]),
             distortion=np.zeros(5),
@@ -248,11 +255,15 @@ def test_both_renderers_put_boxes_where_the_pinhole_model_projects_them(renderer
         for _ in range(60):
             p = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3), 1.0])
             body = c.createMultiBody(0, -1, shape, p.tolist())
-            view = render_pinhole(c, cam, np.eye(4), Lighting((0, 0, -1.0), shadows=False), renderer=renderer)
+            view = render_pinhole(
+                c, cam, np.eye(4), Lighting((0, 0, -1.0), shadows=False), renderer=gl or renderer
+            )
             rows, cols = np.nonzero(view.segmentation == body)
             err.append([cols.mean(), rows.mean()] - cam.project(p))
             c.removeBody(body)
     finally:
+        if gl is not None:
+            gl.release()
         c.disconnect()
     bias = np.mean(err, axis=0)
     print(f"{renderer}: box centroid bias {bias.round(3)} px")

@@ -137,6 +137,9 @@ class RoverEnv(gym.Env):
         reward: Reward weights (defaults to :class:`RewardConfig`).
         render_size: (width, height) of the rendered frame [px].
         solver_iterations: Physics constraint-solver iterations per step.
+        renderer: ``"auto"`` (OpenGL where a headless EGL context can be created, else
+            TinyRenderer with a warning), ``"gl"`` or ``"tiny"``; see :class:`rover_env.sim.RoverSim`.
+            The physics is the same whatever renders.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -155,6 +158,7 @@ class RoverEnv(gym.Env):
         reward: RewardConfig | None = None,
         render_size: tuple[int, int] = (960, 480),
         solver_iterations: int = 10,
+        renderer: str = "auto",
     ) -> None:
         super().__init__()
         try:
@@ -187,7 +191,11 @@ class RoverEnv(gym.Env):
         self.v_max = float(v_max)
         self.metadata = {**self.metadata, "render_fps": self.control_hz}
         self.sim = RoverSim(
-            self.scenario, self.geometry, physics_hz=physics_hz, solver_iterations=solver_iterations
+            self.scenario,
+            self.geometry,
+            physics_hz=physics_hz,
+            solver_iterations=solver_iterations,
+            renderer=renderer,
         )
         self.course = WaypointCourse(self.scenario.course)
         self.pipeline: PerceptionPipeline | None = None
@@ -359,7 +367,7 @@ class RoverEnv(gym.Env):
             views["lighting"],
             far=60.0,
             caster=self.sim.shadow_caster if views["lighting"].shadows else None,
-            renderer=self.sim.renderer,
+            renderer=self.sim.backend,
         ).rgb
         frame = np.zeros((h, w, 3), dtype=np.uint8)
         frame[:, :left] = chase
@@ -372,7 +380,7 @@ class RoverEnv(gym.Env):
     def _render_views(self, left: int, h: int, inset_w: int, inset_h: int) -> dict:
         """Cameras of the composite frame, built on first use (the fisheye precomputes its remap)."""
         if self._views is None:
-            shadows = self.sim.renderer == "tiny"
+            shadows = True
             sun = tuple(float(v) for v in self.scenario.sun.direction())
             # insets at about their display size (even sizes, the camera's 4:3 aspect)
             iw = max(16, 2 * (inset_w // 2))

@@ -1,0 +1,1063 @@
+"""OpenGL rendering of a PyBullet scene (moderngl, OpenGL 3.3 core, headless EGL).
+
+:class:`GLRenderer` mirrors the visual shapes of every body in one ``BulletClient`` (boxes,
+spheres, cylinders and OBJ meshes with their colours and textures) and the terrain's exact height
+grid, reads the link poses from PyBullet at each render, and draws:
+
+* pinhole views with exactly the intrinsics K of :class:`perception.PinholeCamera` (pixel
+  centres at integer coordinates, row 0 at the top), diffuse sun and ambient sky light, and the
+  shadow of every body but the ground, from a shadow map rendered from the sun (orthographic,
+  fitted to the casters' bounding sphere, normal-offset and 2x2 filtered);
+* fisheye images: the :class:`rover_env.fisheye.CubemapRemap` views rendered into one atlas
+  texture and remapped on the GL side through the exact :class:`perception.OmniCamera` map;
+* per-pixel labels for tests and evaluation: segmentation (body + ((link + 1) << 24)), depth
+  along the optical axis and world points.
+
+Textures are mipmapped and sampled trilinearly with anisotropic filtering. One GL context per
+renderer (one per simulation); :meth:`GLRenderer.release` frees it. On Mesa's llvmpipe set
+``LP_NUM_THREADS`` to choose how many cores it rasterises on. The same code runs on a GPU.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from rover_env.fisheye import CubemapRemap
+    from rover_env.rendering import Lighting, RenderedView
+    from rover_env.terrain import Terrain
+
+log = logging.getLogger(__name__)
+
+MAX_LINKS = 64  # links per body the vertex shader can pose
+SHADOW_MAP_PX = 2048  # shadow map edge [texels]
+_CHUNK = 1.0  # [m] least edge of a terrain chunk (the unit of view culling)
+_CHUNK_CELLS = 16  # least grid cells along a chunk's edge
+
+# One source, four programs: GROUND (untinted texture) or bodies (colours, optional texture), each
+# with or without
+# LABELS (segmentation, depth and world point outputs: for tests and evaluation only, since every
+# varying costs time per pixel on a CPU rasteriser). Vertices are in the world frame: bodies are
+# posed on the CPU (indexing link matrices per vertex in a shader is slow on llvmpipe).
+_SCENE_VS = """
+uniform mat4 u_proj;
+uniform mat4 u_view;
+uniform mat4 u_light;
+uniform float u_normal_offset;
+in vec3 in_pos;
+in vec3 in_normal;
+in vec2 in_uv;
+out vec3 v_normal;
+out vec2 v_uv;
+out vec3 v_light;
+#ifndef GROUND
+in vec4 in_color;
+in float in_link;
+out vec4 v_color;
+#endif
+#ifdef LABELS
+out vec3 v_world;
+out float v_depth;
+flat out int v_link;
+#endif
+void main() {
+    vec4 w = vec4(in_pos, 1.0);
+    vec3 n = in_normal;
+#ifndef GROUND
+    v_color = in_color;
+#endif
+    vec4 cam = u_view * w;
+    gl_Position = u_proj * cam;
+    v_normal = n;
+    v_uv = in_uv;
+    v_light = (u_light * vec4(w.xyz + u_normal_offset * n, 1.0)).xyz * 0.5 + 0.5;
+#ifdef LABELS
+    v_world = w.xyz;
+    v_depth = cam.z;
+#ifdef GROUND
+    v_link = 0;
+#else
+    v_link = int(in_link + 0.5);
+#endif
+#endif
+}
+"""
+
+_SCENE_FS = """
+uniform sampler2D u_tex;
+uniform bool u_textured;
+uniform sampler2DShadow u_shadow;
+uniform bool u_shadows;
+uniform vec3 u_sun;
+uniform float u_ambient;
+uniform float u_diffuse;
+in vec3 v_normal;
+in vec2 v_uv;
+in vec3 v_light;
+layout(location = 0) out vec4 f_color;
+#ifndef GROUND
+in vec4 v_color;
+#endif
+#ifdef LABELS
+uniform int u_body;
+in vec3 v_world;
+in float v_depth;
+flat in int v_link;
+layout(location = 1) out int f_id;
+layout(location = 2) out float f_depth;
+layout(location = 3) out vec4 f_world;
+#endif
+void main() {
+#ifdef GROUND
+    vec4 albedo = texture(u_tex, v_uv);
+#else
+    vec4 albedo = v_color;
+    if (u_textured) albedo *= texture(u_tex, v_uv);
+#endif
+    float cos_i = max(dot(normalize(v_normal), u_sun), 0.0);
+    float lit = u_shadows ? texture(u_shadow, v_light) : 1.0;
+    float shade = u_ambient + u_diffuse * cos_i * lit;
+    f_color = vec4(min(albedo.rgb * shade, vec3(1.0)), lit < 0.5 ? 1.0 : 0.0);
+#ifdef LABELS
+    f_id = u_body + (v_link << 24);
+    f_depth = v_depth;
+    f_world = vec4(v_world, 1.0);
+#endif
+}
+"""
+
+
+def _variant(source: str, *defines: str) -> str:
+    return "#version 330\n" + "".join(f"#define {d}\n" for d in defines) + source
+
+
+_DEPTH_VS = """
+#version 330
+uniform mat4 u_light;
+in vec3 in_pos;
+void main() {
+    gl_Position = u_light * vec4(in_pos, 1.0);
+}
+"""
+
+_DEPTH_FS = """
+#version 330
+void main() {}
+"""
+
+_REMAP_VS = """
+#version 330
+in vec2 in_xy;
+void main() { gl_Position = vec4(in_xy, 0.0, 1.0); }
+"""
+
+_REMAP_FS = """
+#version 330
+uniform sampler2D u_atlas;
+uniform sampler2D u_map;
+uniform vec2 u_atlas_size;
+out vec4 f_color;
+void main() {
+    vec2 m = texelFetch(u_map, ivec2(gl_FragCoord.xy), 0).xy;
+    f_color = m.x < -1.0 ? vec4(0.0) : texture(u_atlas, (m + 0.5) / u_atlas_size);
+}
+"""
+
+
+class GLUnavailableError(RuntimeError):
+    """An OpenGL 3.3 context cannot be created on this machine (the message says why)."""
+
+
+@functools.lru_cache(maxsize=1)
+def gl_status() -> tuple[bool, str]:
+    """Whether a headless EGL OpenGL 3.3 context can be created here, and why not.
+
+    Probed once per process in a child process, so that a failing or crashing driver cannot take
+    this process down and no EGL state exists in this process before it forks (vector
+    environments fork their workers).
+
+    Returns:
+        (available, reason): reason is "" when available, else what is missing.
+    """
+    try:
+        import moderngl  # noqa: F401
+    except ImportError as exc:
+        return False, f"the Python package moderngl is not installed ({exc}); pip install moderngl"
+    import ctypes.util
+
+    if ctypes.util.find_library("EGL") is None:
+        return False, "libEGL.so is not installed (Debian: apt-get install libegl1 libgl1-mesa-dri)"
+    probe = (
+        "import moderngl\n"
+        "ctx = moderngl.create_context(standalone=True, backend='egl')\n"
+        "assert ctx.version_code >= 330, ctx.version_code\n"
+        "print(ctx.info['GL_RENDERER'])\n"
+        "ctx.release()\n"
+    )
+    try:
+        out = subprocess.run(
+            [sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, env=dict(os.environ)
+        )
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return False, f"the EGL probe did not run ({exc})"
+    if out.returncode != 0:
+        last = (out.stderr.strip().splitlines() or ["no message"])[-1]
+        return False, (
+            f"no EGL OpenGL 3.3 context could be created ({last}); a headless machine needs Mesa's "
+            "EGL and llvmpipe (Debian: apt-get install libegl1 libgl1-mesa-dri)"
+        )
+    log.debug("OpenGL renderer: %s", out.stdout.strip())
+    return True, ""
+
+
+def _create_context():
+    import moderngl
+
+    try:
+        ctx = moderngl.create_context(standalone=True, backend="egl")
+    except Exception as exc:  # moderngl raises plain Exception subclasses
+        raise GLUnavailableError(f"no EGL OpenGL context could be created: {exc}") from exc
+    if ctx.version_code < 330:
+        ctx.release()
+        raise GLUnavailableError(f"OpenGL {ctx.version_code} < 3.3 on {ctx.info['GL_RENDERER']}")
+    return ctx
+
+
+@functools.lru_cache(maxsize=32)
+def load_obj(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Triangles of an OBJ mesh: (N, 3) positions, (N, 3) normals, (N, 2) uvs per corner (N = 3 x faces).
+
+    Polygons are split into fans; missing normals are the faces' own, missing uvs are 0.
+
+    Raises:
+        ValueError: The file has no faces or an index out of range.
+    """
+    v, vt, vn, corners = [], [], [], []
+    with open(path) as fh:
+        for line in fh:
+            tok = line.split()
+            if not tok:
+                continue
+            if tok[0] == "v":
+                v.append([float(x) for x in tok[1:4]])
+            elif tok[0] == "vt":
+                vt.append([float(x) for x in tok[1:3]])
+            elif tok[0] == "vn":
+                vn.append([float(x) for x in tok[1:4]])
+            elif tok[0] == "f":
+                idx = []
+                for c in tok[1:]:
+                    parts = (c.split("/") + ["", ""])[:3]
+                    idx.append([int(p) if p else 0 for p in parts])
+                for k in range(1, len(idx) - 1):
+                    corners += [idx[0], idx[k], idx[k + 1]]
+    if not corners:
+        raise ValueError(f"{path}: no faces in this OBJ mesh")
+    c = np.asarray(corners)
+    pos_all, uv_all, n_all = (
+        np.asarray(v, float),
+        np.asarray(vt or [[0, 0]], float),
+        np.asarray(vn or [[0, 0, 1]], float),
+    )
+
+    def pick(arr, col):
+        i = c[:, col]
+        i = np.where(i < 0, len(arr) + i, i - 1)
+        if np.any(i >= len(arr)):
+            raise ValueError(f"{path}: a face refers to a missing vertex, uv or normal")
+        return arr[np.maximum(i, 0)]
+
+    pos = pick(pos_all, 0)
+    uv = pick(uv_all, 1) if vt else np.zeros((len(c), 2))
+    if vn:
+        nrm = pick(n_all, 2)
+    else:
+        tri = pos.reshape(-1, 3, 3)
+        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-12)
+        nrm = np.repeat(fn, 3, axis=0)
+    return pos, nrm, uv
+
+
+def _box(half):
+    """Triangles of a box with half extents ``half`` [m]: positions, normals, uvs."""
+    pos, nrm, uv = [], [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            n = np.zeros(3)
+            n[axis] = sign
+            a, b = [(axis + 1) % 3, (axis + 2) % 3]
+            quad = []
+            for s, t in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                p = np.zeros(3)
+                p[axis] = sign * half[axis]
+                p[a], p[b] = s * half[a], t * half[b]
+                quad.append(p)
+            for i in (0, 1, 2, 0, 2, 3):
+                pos.append(quad[i])
+                nrm.append(n)
+                uv.append([0.5 + 0.5 * np.sign(quad[i][a]), 0.5 + 0.5 * np.sign(quad[i][b])])
+    return np.array(pos), np.array(nrm), np.array(uv)
+
+
+def _cylinder(radius, length, segments=48):
+    phi = np.linspace(0, 2 * math.pi, segments + 1)
+    pos, nrm, uv = [], [], []
+    for k in range(segments):
+        p0, p1 = phi[k], phi[k + 1]
+        c0, s0, c1, s1 = math.cos(p0), math.sin(p0), math.cos(p1), math.sin(p1)
+        z0, z1 = -length / 2, length / 2
+        quad = [(c0, s0, z0), (c1, s1, z0), (c1, s1, z1), (c0, s0, z1)]
+        for i in (0, 1, 2, 0, 2, 3):
+            cx, sx, z = quad[i]
+            pos.append([radius * cx, radius * sx, z])
+            nrm.append([cx, sx, 0.0])
+            uv.append([k / segments, 0.5 + z / length])
+        for z, sgn in ((z1, 1.0), (z0, -1.0)):
+            tri = [(0.0, 0.0), (c0, s0), (c1, s1)] if sgn > 0 else [(0.0, 0.0), (c1, s1), (c0, s0)]
+            for cx, sx in tri:
+                pos.append([radius * cx, radius * sx, z])
+                nrm.append([0.0, 0.0, sgn])
+                uv.append([0.5, 0.5])
+    return np.array(pos), np.array(nrm), np.array(uv)
+
+
+def _sphere(radius, rings=16, segments=32):
+    th = np.linspace(0, math.pi, rings + 1)
+    ph = np.linspace(0, 2 * math.pi, segments + 1)
+    pos, uv = [], []
+    for i in range(rings):
+        for j in range(segments):
+            q = [(th[i], ph[j]), (th[i + 1], ph[j]), (th[i + 1], ph[j + 1]), (th[i], ph[j + 1])]
+            for k in (0, 1, 2, 0, 2, 3):
+                t, p = q[k]
+                pos.append([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+                uv.append([p / (2 * math.pi), t / math.pi])
+    n = np.array(pos)
+    return radius * n, n, np.array(uv)
+
+
+def _quat_to_matrix(q) -> np.ndarray:
+    x, y, z, w = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far: float) -> np.ndarray:
+    """4x4 matrix from the camera optical frame (x right, y down, z forward) [m] to GL clip space.
+
+    Window pixel (i, j) (centre at i + 0.5, j + 0.5) sees image point (i, j) of the pinhole ``K``:
+    pixel centres at integer coordinates, and window row j is image row j (row 0 is read back
+    first, so images need no flip). ``size`` = (W, H) [px]; ``near``/``far`` clip distances [m].
+    """
+    w, h = size
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    P = np.zeros((4, 4))
+    P[0, 0] = 2 * fx / w
+    P[0, 2] = 2 * (cx + 0.5) / w - 1
+    P[1, 1] = 2 * fy / h
+    P[1, 2] = 2 * (cy + 0.5) / h - 1
+    P[2, 2] = (far + near) / (far - near)
+    P[2, 3] = -2 * far * near / (far - near)
+    P[3, 2] = 1.0
+    return P
+
+
+def _set(prog, name: str, value) -> None:
+    """Set uniform ``name`` of ``prog`` (bytes are written raw); a uniform the compiler removed is skipped."""
+    try:
+        u = prog[name]
+    except KeyError:
+        return
+    if isinstance(value, bytes):
+        u.write(value)
+    else:
+        u.value = value
+
+
+_VERTEX = (
+    ("3f", "in_pos", 12),
+    ("3f", "in_normal", 12),
+    ("2f", "in_uv", 8),
+    ("4f", "in_color", 16),
+    ("1f", "in_link", 4),
+)
+
+
+def _layout(prog, vbo, skip=()) -> tuple:
+    """A vertex-array binding of the 13-float vertex layout for ``prog``, skipping what it does not read."""
+    fmt, names = [], []
+    for f, name, nbytes in _VERTEX:
+        try:
+            prog[name]
+            present = name not in skip
+        except KeyError:
+            present = False
+        if present:
+            fmt.append(f)
+            names.append(name)
+        else:
+            fmt.append(f"{nbytes}x")
+    return (vbo, " ".join(fmt), *names)
+
+
+def _gl(m: np.ndarray) -> bytes:
+    """A float32 column-major copy of matrix ``m`` for a uniform."""
+    return np.asarray(m, dtype=np.float32).T.tobytes()
+
+
+class _Group:
+    """Triangles of one body sharing a texture, posed into the world on the CPU.
+
+    13-float vertices in link frames (the last float is link + 1), uploaded when the body moves.
+    """
+
+    def __init__(self, local: np.ndarray, vbo, vaos: dict, texture) -> None:
+        order = np.argsort(local[:, 12], kind="stable")
+        self.local = local[order]
+        self.links = self.local[:, 12].astype(np.int64)
+        self.bounds = np.searchsorted(self.links, np.arange(self.links.max() + 2))
+        self.world = self.local.copy()
+        self.vbo, self.vaos, self.count, self.texture = vbo, vaos, len(local), texture
+
+    def pose(self, M: np.ndarray) -> None:
+        """Move the vertices to link poses ``M`` ((links + 1, 4, 4), link -> world) and upload them."""
+        L, W = self.local, self.world
+        for k in range(len(self.bounds) - 1):
+            a, b = self.bounds[k], self.bounds[k + 1]
+            if a == b:
+                continue
+            R, t = M[k, :3, :3], M[k, :3, 3]
+            W[a:b, 0:3] = L[a:b, 0:3] @ R.T + t
+            W[a:b, 3:6] = L[a:b, 3:6] @ R.T
+        self.vbo.write(W.tobytes())
+
+
+class GLRenderer:
+    """Draws one PyBullet client's scene with OpenGL; see the module docstring.
+
+    Args:
+        client: The BulletClient whose bodies are drawn (a body created later is picked up at
+            the next render; its visual shapes must not change after its first render).
+        terrain: The ground; drawn from its exact height grid (its PyBullet body is not mirrored).
+        textures: PyBullet texture id -> image file, for the textures assigned to bodies.
+        shadow_px: Shadow-map edge [texels].
+
+    Raises:
+        GLUnavailableError: No OpenGL 3.3 context can be created.
+    """
+
+    def __init__(
+        self,
+        client,
+        terrain: Terrain | None = None,
+        textures: dict[int, str | Path] | None = None,
+        shadow_px: int = SHADOW_MAP_PX,
+    ) -> None:
+        import moderngl
+
+        self._mgl = moderngl
+        self.client = client
+        self.terrain = terrain
+        self._texture_files = {int(k): str(v) for k, v in (textures or {}).items()}
+        self.ctx = _create_context()
+        self._objects: list = []
+        ctx = self.ctx
+        #: (ground, labels) -> program
+        self._progs = {
+            (ground, labels): self._own(
+                ctx.program(
+                    vertex_shader=_variant(_SCENE_VS, *defs),
+                    fragment_shader=_variant(_SCENE_FS, *defs),
+                )
+            )
+            for ground in (False, True)
+            for labels in (False, True)
+            for defs in [(("GROUND",) if ground else ()) + (("LABELS",) if labels else ())]
+        }
+        self._prog_depth = self._own(ctx.program(vertex_shader=_DEPTH_VS, fragment_shader=_DEPTH_FS))
+        self._prog_remap = self._own(ctx.program(vertex_shader=_REMAP_VS, fragment_shader=_REMAP_FS))
+        tri = np.array([-1.0, -1.0, 3.0, -1.0, -1.0, 3.0], dtype=np.float32)
+        self._tri_vbo = self._own(ctx.buffer(tri.tobytes()))
+        self._remap_vao = self._own(ctx.vertex_array(self._prog_remap, [(self._tri_vbo, "2f", "in_xy")]))
+        for prog in self._progs.values():
+            _set(prog, "u_tex", 0)
+            _set(prog, "u_shadow", 1)
+        _set(self._prog_remap, "u_atlas", 0)
+        _set(self._prog_remap, "u_map", 1)
+        self._textures: dict[str, object] = {}
+        self._bodies: dict[int, list[_Group]] = {}
+        self._body_links: dict[int, int] = {}
+        self._posed: dict[int, bytes] = {}  # body -> the link poses its vertices are at
+        self._body_radius: dict[int, np.ndarray] = {}  # body -> (links + 1,) bounding radius [m]
+        self._fbos: dict[tuple, tuple] = {}
+        self._fisheye: dict[int, tuple] = {}
+        #: Largest shadow-map edge [texels].
+        self.shadow_px = int(shadow_px)
+        self._shadow_maps: dict[int, dict] = {}
+        self._shadow_key: tuple | None = None
+        self._light = np.eye(4)
+        self._light_R = 1.0
+        self._focus: tuple | None = None
+        self._terrain = self._build_terrain(terrain) if terrain is not None else None
+        #: Objects created so far and still alive (for leak checks).
+        self.released = False
+
+    # ------------------------------------------------------------------ resources
+    def _own(self, obj):
+        self._objects.append(obj)
+        return obj
+
+    @property
+    def object_count(self) -> int:
+        """GL objects (buffers, textures, framebuffers, programs, vertex arrays) alive now."""
+        return len(self._objects)
+
+    def release(self) -> None:
+        """Free every GL object and the context; safe to call more than once."""
+        if self.released:
+            return
+        self.released = True
+        for obj in reversed(self._objects):
+            try:
+                obj.release()
+            except Exception:  # noqa: BLE001 - the context may already be gone
+                pass
+        self._objects.clear()
+        self.ctx.release()
+
+    def _texture(self, path: str):
+        """The mipmapped, repeating texture of an image file (loaded once)."""
+        tex = self._textures.get(path)
+        if tex is None:
+            from rover_env.textures import read_texture
+
+            img = np.ascontiguousarray(read_texture(path)[::-1])  # v = 0 at the image's bottom row
+            h, w = img.shape[:2]
+            tex = self._own(self.ctx.texture((w, h), 3, img.tobytes()))
+            tex.build_mipmaps()
+            tex.filter = (self._mgl.LINEAR_MIPMAP_LINEAR, self._mgl.LINEAR)
+            self._textures[path] = tex
+        return tex
+
+    # ------------------------------------------------------------------ scene
+    def _vaos(self, data: np.ndarray, ground: bool, ibo=None, dynamic: bool = False) -> tuple:
+        """A buffer of ``data`` (13-float vertices) and its vertex arrays.
+
+        For the image and label programs (and the shadow pass for bodies): keys False, True, "depth".
+        """
+        vbo = self._own(
+            self.ctx.buffer(np.ascontiguousarray(data, dtype=np.float32).tobytes(), dynamic=dynamic)
+        )
+        out = {}
+        for labels in (False, True):
+            prog = self._progs[(ground, labels)]
+            out[labels] = self._own(self.ctx.vertex_array(prog, [_layout(prog, vbo)], ibo))
+        if not ground:
+            out["depth"] = self._own(
+                self.ctx.vertex_array(self._prog_depth, [_layout(self._prog_depth, vbo)])
+            )
+        return vbo, out
+
+    def _build_body(self, body: int) -> None:
+        import pybullet as pb
+
+        c = self.client
+        groups: dict[str | None, list[np.ndarray]] = {}
+        n_links = c.getNumJoints(body)
+        if n_links + 1 > MAX_LINKS:
+            raise ValueError(
+                f"body {body} has {n_links} links; the GL renderer poses at most {MAX_LINKS - 1}"
+            )
+        radius = np.zeros(n_links + 1)
+        for vs in c.getVisualShapeData(body, flags=pb.VISUAL_SHAPE_DATA_TEXTURE_UNIQUE_IDS):
+            link, gtype, dims, fname, lpos, lorn, rgba = vs[1], vs[2], vs[3], vs[4], vs[5], vs[6], vs[7]
+            tex_id = vs[8] if len(vs) > 8 else -1
+            if rgba[3] <= 0.0:
+                continue
+            if gtype == pb.GEOM_BOX:
+                pos, nrm, uv = _box(np.asarray(dims) / 2)
+            elif gtype == pb.GEOM_SPHERE:
+                pos, nrm, uv = _sphere(dims[0])
+            elif gtype in (pb.GEOM_CYLINDER, pb.GEOM_CAPSULE):
+                pos, nrm, uv = _cylinder(dims[1], dims[0])
+            elif gtype == pb.GEOM_MESH:
+                name = fname.decode() if isinstance(fname, bytes) else fname
+                if not name or not Path(name).is_file():
+                    log.warning(
+                        "GL renderer: body %d link %d: mesh %r has no file; not drawn", body, link, name
+                    )
+                    continue
+                pos, nrm, uv = load_obj(name)
+                pos = pos * np.asarray(dims)
+                nrm = nrm / np.asarray(dims)
+                nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            else:
+                log.warning("GL renderer: body %d link %d: geometry type %d is not drawn", body, link, gtype)
+                continue
+            R = _quat_to_matrix(lorn)
+            pos = pos @ R.T + np.asarray(lpos)
+            nrm = nrm @ R.T
+            radius[link + 1] = max(radius[link + 1], float(np.linalg.norm(pos, axis=1).max()))
+            texture = None
+            if tex_id is not None and tex_id >= 0:
+                texture = self._texture_files.get(int(tex_id))
+                if texture is None:
+                    log.warning(
+                        "GL renderer: body %d: texture id %d has no known file; drawn untextured",
+                        body,
+                        tex_id,
+                    )
+            data = np.empty((len(pos), 13), np.float32)
+            data[:, 0:3], data[:, 3:6], data[:, 6:8] = pos, nrm, uv
+            data[:, 8:12] = rgba
+            data[:, 12] = link + 1
+            groups.setdefault(texture, []).append(data)
+        out = []
+        for texture, parts in groups.items():
+            data = np.vstack(parts)
+            data = data.astype(np.float32)
+            vbo, vaos = self._vaos(data, False, dynamic=True)
+            out.append(_Group(data, vbo, vaos, self._texture(texture) if texture else None))
+        self._bodies[body] = out
+        self._body_links[body] = n_links
+        self._body_radius[body] = radius
+
+    def _build_terrain(self, terrain: Terrain):
+        """The ground as chunks in one vertex array.
+
+        The exact grid, and on rough ground the coarse far-ground grid (``Terrain._coarse_grid``,
+        which lies just below the exact one).
+        """
+        from rover_env.terrain import FINE_RADIUS
+
+        levels = [terrain.render_grid()]
+        if terrain.heights is not None:
+            levels.append(terrain._coarse_grid())
+        tile = terrain.cfg.texture_tile
+        verts, tris, starts, boxes, rects, level_of = [], [], [], [], [], []
+        count = nverts = 0
+        for level, (xs, ys, h, normals) in enumerate(levels):
+            gx, gy = np.meshgrid(xs, ys)
+            ny, nx = h.shape
+            data = np.zeros((ny, nx, 13), np.float32)
+            data[..., 0], data[..., 1], data[..., 2] = gx, gy, h
+            data[..., 3:6] = normals
+            data[..., 6], data[..., 7] = gx / tile, gy / tile
+            data[..., 8:12] = 1.0
+            # chunks of at least _CHUNK metres and _CHUNK_CELLS cells a side (a flat grid's 1 m
+            # cells make large chunks: culling them finely would cost more than drawing them);
+            # each owns a contiguous block of vertices (edges duplicated), so a draw of a chunk
+            # shades only its own vertices
+            nxc = max(_CHUNK_CELLS, int(round(_CHUNK / float(xs[1] - xs[0]))))
+            nyc = max(_CHUNK_CELLS, int(round(_CHUNK / float(ys[1] - ys[0]))))
+            for j0 in range(0, ny - 1, nyc):
+                for i0 in range(0, nx - 1, nxc):
+                    j1, i1 = min(j0 + nyc, ny - 1), min(i0 + nxc, nx - 1)
+                    blk = data[j0 : j1 + 1, i0 : i1 + 1].reshape(-1, 13)
+                    bj, bi = j1 - j0 + 1, i1 - i0 + 1
+                    idx = nverts + np.arange(bj * bi, dtype=np.int64).reshape(bj, bi)
+                    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+                    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+                    t = np.concatenate(
+                        [np.stack([a, b, c], 1), np.stack([b, d, c], 1)]
+                    ).ravel()  # Bullet's split
+                    verts.append(blk)
+                    tris.append(t)
+                    starts.append(count)
+                    count += len(t)
+                    nverts += len(blk)
+                    hb = h[j0 : j1 + 1, i0 : i1 + 1]
+                    x0, x1, y0, y1 = xs[i0], xs[i1], ys[j0], ys[j1]
+                    boxes.append(
+                        [[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (hb.min(), hb.max())]
+                    )
+                    rects.append([x0, x1, y0, y1])
+                    level_of.append(level)
+        ibo = self._own(self.ctx.buffer(np.concatenate(tris).astype(np.int32).tobytes()))
+        starts.append(count)
+        return {
+            "vaos": self._vaos(np.vstack(verts), True, ibo)[1],
+            "starts": np.asarray(starts),
+            "boxes": np.asarray(boxes, dtype=np.float64),
+            "rects": np.asarray(rects, dtype=np.float64),
+            "level": np.asarray(level_of),
+            "levels": len(levels),
+            "fine_radius": FINE_RADIUS,
+            "texture": self._texture(str(terrain.texture_path)),
+            "body": terrain.body_id,
+        }
+
+    def focus(self, x: float, y: float, near: float | None = None) -> None:
+        """Draw the ground for views taken from near world (x, y) [m] (as :meth:`Terrain.focus`).
+
+        On rough ground the exact grid is drawn within the terrain's ``FINE_RADIUS`` of (x, y)
+        and the coarse far-ground mesh beyond; with ``near`` [m] only the exact ground within
+        ``near`` (views that see no farther). Until the first call all ground is drawn exactly.
+        """
+        self._focus = (float(x), float(y), None if near is None else float(near))
+
+    def _ground_chunks(self, planes: np.ndarray) -> np.ndarray:
+        """Indices of the ground chunks to draw in the view bounded by ``planes`` (world frame)."""
+        t = self._terrain
+        inside = (t["boxes"] @ planes[:, :3].T + planes[:, 3] >= 0.0).any(axis=1).all(axis=1)
+        if self._focus is None:
+            return np.flatnonzero(inside & (t["level"] == 0))
+        x, y, near = self._focus
+        r = t["rects"]
+        dist = np.hypot(np.maximum.reduce([r[:, 0] - x, x - r[:, 1], np.zeros(len(r))]),
+                        np.maximum.reduce([r[:, 2] - y, y - r[:, 3], np.zeros(len(r))]))  # fmt: skip
+        if near is not None:
+            keep = (t["level"] == 0) & (dist <= near)
+        elif t["levels"] == 1:
+            keep = t["level"] == 0
+        else:
+            keep = ((t["level"] == 0) & (dist <= t["fine_radius"])) | (t["level"] == 1)
+        return np.flatnonzero(inside & keep)
+
+    def _sync_bodies(self) -> dict[int, np.ndarray]:
+        """Mirror new bodies, drop removed ones; the link -> world matrices of each body now."""
+        c = self.client
+        skip = set(self.terrain.ground_ids) if self.terrain is not None else set()
+        alive = [c.getBodyUniqueId(i) for i in range(c.getNumBodies())]
+        for body in list(self._bodies):
+            if body not in alive:
+                self._drop_body(body)
+        poses = {}
+        for body in alive:
+            if body in skip:
+                continue
+            if body not in self._bodies:
+                self._build_body(body)
+            if not self._bodies[body]:
+                continue
+            n = self._body_links[body]
+            M = np.zeros((n + 1, 4, 4))
+            M[:, 3, 3] = 1.0
+            pos, orn = c.getBasePositionAndOrientation(body)
+            M[0, :3, :3], M[0, :3, 3] = _quat_to_matrix(orn), pos
+            if n:
+                for k, st in enumerate(c.getLinkStates(body, list(range(n)), computeForwardKinematics=1)):
+                    M[k + 1, :3, :3], M[k + 1, :3, 3] = _quat_to_matrix(st[5]), st[4]
+            poses[body] = M
+            key = M.tobytes()
+            if self._posed.get(body) != key:
+                self._posed[body] = key
+                for g in self._bodies[body]:
+                    g.pose(M)
+        return poses
+
+    def _drop_body(self, body: int) -> None:
+        self._posed.pop(body, None)
+        for g in self._bodies.pop(body, []):
+            for obj in (*g.vaos.values(), g.vbo):
+                obj.release()
+                self._objects.remove(obj)
+        self._body_links.pop(body, None)
+        self._body_radius.pop(body, None)
+
+    # ------------------------------------------------------------------ shadow map
+    def _update_shadow(self, poses: dict[int, np.ndarray], sun: np.ndarray, texel: float) -> dict:
+        """The shadow map for a view of pixel footprint ``texel`` [m]: the casters' depth seen from the sun.
+
+        Maps come in power-of-two sizes from 256 to :attr:`shadow_px` texels, the smallest whose
+        texels are at most ``texel``; each is rendered once per pose and sun.
+        """
+        from rover_env.shadows import sun_frame
+
+        key = (sun.tobytes(), tuple((b, m.tobytes()) for b, m in poses.items()))
+        if key != self._shadow_key:
+            self._shadow_key = key
+            for smap in self._shadow_maps.values():
+                smap["fresh"] = False
+            xs, ys, s = sun_frame(sun)
+            if poses:
+                cen = np.vstack([m[:, :3, 3] for m in poses.values()])
+                rad = np.concatenate([self._body_radius[b] for b in poses])
+                mid = 0.5 * (cen.min(axis=0) + cen.max(axis=0))
+                R = float(np.max(np.linalg.norm(cen - mid, axis=1) + rad)) * 1.02 + 1e-3
+            else:
+                mid, R = np.zeros(3), 1.0
+            L = np.eye(4)
+            L[0, :3], L[1, :3], L[2, :3] = xs / R, ys / R, -s / R
+            L[:3, 3] = -L[:3, :3] @ mid
+            self._light, self._light_R = L, R
+        px = 256
+        while px < self.shadow_px and 2 * self._light_R / px > texel:
+            px *= 2
+        smap = self._shadow_maps.get(px)
+        if smap is None:
+            tex = self._own(self.ctx.depth_texture((px, px)))
+            tex.compare_func = "<="
+            tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+            tex.repeat_x = tex.repeat_y = False
+            fbo = self._own(self.ctx.framebuffer(depth_attachment=tex))
+            smap = self._shadow_maps[px] = {"texture": tex, "fbo": fbo, "fresh": False}
+        if not smap["fresh"]:
+            smap["fresh"] = True
+            smap["light"] = self._light
+            smap["texel"] = 2 * self._light_R / px
+            fbo = smap["fbo"]
+            fbo.use()
+            fbo.clear(depth=1.0)
+            self.ctx.enable(self._mgl.DEPTH_TEST)
+            _set(self._prog_depth, "u_light", _gl(self._light))
+            for body in poses:
+                for g in self._bodies[body]:
+                    g.vaos["depth"].render(self._mgl.TRIANGLES, vertices=g.count)
+        return smap
+
+    # ------------------------------------------------------------------ drawing
+    def _fbo(self, size: tuple[int, int], labels: bool):
+        key = (size, labels)
+        fb = self._fbos.get(key)
+        if fb is None:
+            ctx = self.ctx
+            color = [self._own(ctx.texture(size, 4))]
+            if labels:
+                color += [
+                    self._own(ctx.texture(size, 1, dtype="i4")),
+                    self._own(ctx.texture(size, 1, dtype="f4")),
+                    self._own(ctx.texture(size, 4, dtype="f4")),
+                ]
+            depth = self._own(ctx.depth_renderbuffer(size))
+            fb = (self._own(ctx.framebuffer(color_attachments=color, depth_attachment=depth)), color)
+            self._fbos[key] = fb
+        return fb
+
+    def _shadow_for(self, lighting: Lighting, poses, T_world_cam: np.ndarray, focal: float):
+        """The shadow map for a view from ``T_world_cam``, focal length ``focal`` [px]; None if unlit."""
+        if not lighting.shadows:
+            return None
+        sun = np.asarray(lighting.sun_direction, dtype=np.float64)
+        centre = np.mean([m[0, :3, 3] for m in poses.values()], axis=0) if poses else T_world_cam[:3, 3]
+        # the shadow falls on ground at least ~0.5 m from a camera on the rover
+        dist = max(float(np.linalg.norm(centre - T_world_cam[:3, 3])), 0.5)
+        return self._update_shadow(poses, sun / np.linalg.norm(sun), dist / focal)
+
+    def _draw(self, view_planes_world, T_world_cam, P, lighting: Lighting, poses, labels: bool, smap) -> None:
+        """Draw the scene into the bound framebuffer's viewport, with shadow map ``smap`` (or None)."""
+        mgl = self._mgl
+        ctx = self.ctx
+        sun = np.asarray(lighting.sun_direction, dtype=np.float64)
+        sun = sun / np.linalg.norm(sun)
+        shadows = smap is not None
+        progs = (self._progs[(True, labels)], self._progs[(False, labels)])
+        if shadows:
+            smap["texture"].use(1)
+        view = _gl(np.linalg.inv(T_world_cam))
+        for p in progs:
+            if shadows:
+                _set(p, "u_light", _gl(smap["light"]))
+            _set(p, "u_shadows", shadows)
+            _set(p, "u_sun", tuple(sun))
+            _set(p, "u_ambient", float(lighting.ambient))
+            _set(p, "u_diffuse", float(lighting.diffuse))
+            _set(p, "u_proj", _gl(P))
+            _set(p, "u_view", view)
+        ctx.enable(mgl.DEPTH_TEST)
+        if self._terrain is not None:
+            t = self._terrain
+            g = progs[0]
+            _set(g, "u_body", int(t["body"]))
+            t["texture"].use(0)
+            visible = self._ground_chunks(view_planes_world)
+            if len(visible):
+                # runs of consecutive chunks, one draw each (an indirect multi-draw would make
+                # llvmpipe wait for the rasteriser to read its buffer)
+                starts = t["starts"]
+                brk = np.flatnonzero(np.diff(visible) != 1)
+                first = np.r_[visible[0], visible[brk + 1]]
+                last = np.r_[visible[brk], visible[-1]] + 1
+                vao = t["vaos"][labels]
+                for a, b in zip(starts[first].tolist(), starts[last].tolist(), strict=True):
+                    vao.render(mgl.TRIANGLES, vertices=b - a, first=a)
+        prog = progs[1]
+        _set(prog, "u_normal_offset", 1.5 * smap["texel"] if shadows else 0.0)
+        for body in poses:
+            _set(prog, "u_body", int(body))
+            for g in self._bodies[body]:
+                _set(prog, "u_textured", g.texture is not None)
+                if g.texture is not None:
+                    g.texture.use(0)
+                g.vaos[labels].render(mgl.TRIANGLES, vertices=g.count)
+
+    def render_K(
+        self,
+        K: np.ndarray,
+        size: tuple[int, int],
+        T_world_cam: np.ndarray,
+        lighting: Lighting,
+        near: float = 0.05,
+        far: float = 20.0,
+        segmentation: bool = True,
+    ) -> RenderedView:
+        """Render the pinhole view ``K`` [px], ``size`` = (W, H) [px] from ``T_world_cam`` (optical frame).
+
+        Returns a :class:`rover_env.rendering.RenderedView` with ``shadow`` always, and ``depth`` and
+        ``segmentation`` only with ``segmentation`` (None without: they cost read-back time).
+        ``near``, ``far``: clip distances [m].
+        """
+        from rover_env.rendering import RenderedView, view_planes
+
+        if self.released:
+            raise RuntimeError("this GLRenderer is released; create a new one")
+        w, h = int(size[0]), int(size[1])
+        poses = self._sync_bodies()
+        fbo, color = self._fbo((w, h), segmentation)
+        planes = view_planes(K, (w, h), T_world_cam, near)
+        P = projection_from_K(K, (w, h), near, far)
+        smap = self._shadow_for(lighting, poses, T_world_cam, float(K[0, 0]))
+        fbo.use()
+        fbo.viewport = (0, 0, w, h)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        self._draw(planes, T_world_cam, P, lighting, poses, segmentation, smap)
+        rgba = np.frombuffer(fbo.read(components=4, attachment=0), np.uint8).reshape(h, w, 4)
+        rgb = np.ascontiguousarray(rgba[..., :3])
+        shadow = rgba[..., 3] > 127
+        if not segmentation:
+            depth = None
+            seg = None
+        else:
+            seg = (
+                np.frombuffer(fbo.read(components=1, attachment=1, dtype="i4"), np.int32).reshape(h, w).copy()
+            )
+            depth = (
+                np.frombuffer(fbo.read(components=1, attachment=2, dtype="f4"), np.float32)
+                .reshape(h, w)
+                .copy()
+            )
+            zbuf = np.frombuffer(fbo.read(components=1, attachment=-1, dtype="f4"), np.float32).reshape(h, w)
+            empty = zbuf >= 1.0
+            seg[empty] = -1
+            depth[empty] = far
+        view = RenderedView(rgb, depth, seg, shadow, np.asarray(K, float), np.asarray(T_world_cam, float))
+        return view
+
+    # ------------------------------------------------------------------ fisheye
+    def _fisheye_targets(self, remapper: CubemapRemap):
+        key = id(remapper)
+        entry = self._fisheye.get(key)
+        if entry is not None and entry[0] is remapper:
+            return entry
+        ctx = self.ctx
+        aw = max(fc.size[0] for fc in remapper.faces)
+        ah = max(fc.atlas_row + fc.size[1] for fc in remapper.faces)
+        atlas = [
+            self._own(ctx.texture((aw, ah), 4)),
+            self._own(ctx.texture((aw, ah), 1, dtype="i4")),
+            self._own(ctx.texture((aw, ah), 1, dtype="f4")),
+            self._own(ctx.texture((aw, ah), 4, dtype="f4")),
+        ]
+        atlas[0].filter = (self._mgl.LINEAR, self._mgl.LINEAR)
+        atlas[0].repeat_x = atlas[0].repeat_y = False
+        depth = self._own(ctx.depth_renderbuffer((aw, ah)))
+        fbo_color = self._own(ctx.framebuffer(color_attachments=atlas[:1], depth_attachment=depth))
+        fbo_labels = self._own(ctx.framebuffer(color_attachments=atlas, depth_attachment=depth))
+        w, h = remapper.model.image_size
+        mx, my = remapper.maps
+        m = np.stack([mx, my], -1).astype(np.float32)
+        m[~remapper.rendered] = -10.0
+        map_tex = self._own(ctx.texture((w, h), 2, np.ascontiguousarray(m).tobytes(), dtype="f4"))
+        map_tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+        out_tex = self._own(ctx.texture((w, h), 4))
+        out_fbo = self._own(ctx.framebuffer(color_attachments=[out_tex]))
+        entry = (remapper, (aw, ah), fbo_color, fbo_labels, atlas, map_tex, out_fbo)
+        self._fisheye[key] = entry
+        return entry
+
+    def render_fisheye(
+        self,
+        remapper: CubemapRemap,
+        T_world_cam: np.ndarray,
+        lighting: Lighting,
+        labels: bool = False,
+        near: float = 0.01,
+        far: float = 20.0,
+        windows=None,
+    ):
+        """Render the fisheye of ``remapper``'s model at ``T_world_cam`` (see ``fisheye.render_fisheye``)."""
+        from rover_env.fisheye import FisheyeView
+        from rover_env.rendering import view_planes
+
+        if self.released:
+            raise RuntimeError("this GLRenderer is released; create a new one")
+        _, (aw, ah), fbo_color, fbo_labels, atlas, map_tex, out_fbo = self._fisheye_targets(remapper)
+        poses = self._sync_bodies()
+        smap = self._shadow_for(lighting, poses, T_world_cam, float(remapper.focal))
+        fbo = fbo_labels if labels else fbo_color
+        fbo.use()
+        fbo.viewport = (0, 0, aw, ah)
+        fbo.scissor = None
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        drawn = False
+        for k, fc in enumerate(remapper.faces):
+            u0, v0, u1, v1 = (0, 0) + tuple(fc.size) if windows is None else windows[k]
+            if u1 <= u0 or v1 <= v0:
+                continue
+            drawn = True
+            fw, fh = fc.size
+            T_face = T_world_cam.copy()
+            T_face[:3, :3] = T_world_cam[:3, :3] @ fc.R_cam_face
+            K = fc.K.copy()
+            K[0, 2] -= u0
+            K[1, 2] -= v0
+            planes = view_planes(K, (u1 - u0, v1 - v0), T_face, near)
+            fbo.viewport = (0, fc.atlas_row, fw, fh)
+            fbo.scissor = (u0, fc.atlas_row + v0, u1 - u0, v1 - v0)
+            self._draw(
+                planes, T_face, projection_from_K(fc.K, (fw, fh), near, far), lighting, poses, labels, smap
+            )
+        fbo.scissor = None
+        w, h = remapper.model.image_size
+        if not drawn:
+            rgb = np.zeros((h, w, 3), np.uint8)
+        else:
+            out_fbo.use()
+            out_fbo.viewport = (0, 0, w, h)
+            self.ctx.disable(self._mgl.DEPTH_TEST)
+            atlas[0].use(0)
+            map_tex.use(1)
+            _set(self._prog_remap, "u_atlas_size", (float(aw), float(ah)))
+            self._remap_vao.render(self._mgl.TRIANGLES, vertices=3)
+            rgba = np.frombuffer(out_fbo.read(components=4), np.uint8).reshape(h, w, 4)
+            rgb = np.ascontiguousarray(rgba[..., :3])
+        if not labels:
+            return FisheyeView(rgb=rgb)
+        seg = (
+            np.frombuffer(fbo_labels.read(components=1, attachment=1, dtype="i4"), np.int32)
+            .reshape(ah, aw)
+            .copy()
+        )
+        world = np.frombuffer(fbo_labels.read(components=4, attachment=3, dtype="f4"), np.float32).reshape(
+            ah, aw, 4
+        )
+        col = np.frombuffer(fbo_labels.read(components=4, attachment=0), np.uint8).reshape(ah, aw, 4)
+        zbuf = np.frombuffer(fbo_labels.read(components=1, attachment=-1, dtype="f4"), np.float32).reshape(
+            ah, aw
+        )
+        empty = zbuf >= 1.0
+        seg[empty] = -1
+        pts = np.ascontiguousarray(world[..., :3])
+        pts[empty] = np.nan
+        shadow = (col[..., 3] > 127) & ~empty
+        return FisheyeView(
+            rgb=rgb,
+            segmentation=remapper.lookup(seg, outside=-1),
+            shadow=remapper.lookup(shadow, outside=False),
+            points_world=remapper.lookup(pts, outside=np.nan),
+        )
