@@ -40,8 +40,8 @@ log = logging.getLogger(__name__)
 
 MAX_LINKS = 64  # links per body the vertex shader can pose
 SHADOW_MAP_PX = 2048  # shadow map edge [texels]
-_CHUNK = 1.0  # [m] least edge of a terrain chunk (the unit of view culling)
-_CHUNK_CELLS = 16  # least grid cells along a chunk's edge
+_CHUNK = 0.8  # [m] least edge of a terrain chunk (the unit of view culling)
+_CHUNK_CELLS = 8  # least grid cells along a chunk's edge
 
 # One source, four programs: GROUND (untinted texture) or bodies (colours, optional texture), each
 # with or without
@@ -152,24 +152,6 @@ void main() {
 _DEPTH_FS = """
 #version 330
 void main() {}
-"""
-
-_REMAP_VS = """
-#version 330
-in vec2 in_xy;
-void main() { gl_Position = vec4(in_xy, 0.0, 1.0); }
-"""
-
-_REMAP_FS = """
-#version 330
-uniform sampler2D u_atlas;
-uniform sampler2D u_map;
-uniform vec2 u_atlas_size;
-out vec4 f_color;
-void main() {
-    vec2 m = texelFetch(u_map, ivec2(gl_FragCoord.xy), 0).xy;
-    f_color = m.x < -1.0 ? vec4(0.0) : texture(u_atlas, (m + 0.5) / u_atlas_size);
-}
 """
 
 
@@ -377,12 +359,26 @@ def projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far: fl
     return P
 
 
+_UNIFORMS: dict[int, dict] = {}  # id(program) -> {name: (uniform or None, last value)}
+
+
 def _set(prog, name: str, value) -> None:
-    """Set uniform ``name`` of ``prog`` (bytes are written raw); a uniform the compiler removed is skipped."""
-    try:
-        u = prog[name]
-    except KeyError:
+    """Set uniform ``name`` of ``prog`` (bytes are written raw) if it changed.
+
+    A uniform that the compiler removed is skipped.
+    """
+    cache = _UNIFORMS.setdefault(id(prog), {})
+    entry = cache.get(name)
+    if entry is None:
+        try:
+            entry = [prog[name], None]
+        except KeyError:
+            entry = [None, None]
+        cache[name] = entry
+    u = entry[0]
+    if u is None or entry[1] == value:
         return
+    entry[1] = value
     if isinstance(value, bytes):
         u.write(value)
     else:
@@ -426,13 +422,40 @@ class _Group:
     13-float vertices in link frames (the last float is link + 1), uploaded when the body moves.
     """
 
-    def __init__(self, local: np.ndarray, vbo, vaos: dict, texture) -> None:
-        order = np.argsort(local[:, 12], kind="stable")
-        self.local = local[order]
-        self.links = self.local[:, 12].astype(np.int64)
-        self.bounds = np.searchsorted(self.links, np.arange(self.links.max() + 2))
+    def __init__(self, local: np.ndarray, tris: np.ndarray, vbo, vaos: dict, texture) -> None:
+        self.local = local
+        links = self.local[:, 12].astype(np.int64)
+        n = int(links.max()) + 2
+        self.bounds = np.searchsorted(links, np.arange(n))  # vertex range of each link
+        tri_links = links[tris[:, 0]]
+        #: Index-buffer range [first, last) of each link's triangles (3 indices each).
+        self.tri_bounds = 3 * np.searchsorted(tri_links, np.arange(n))
+        #: (links + 1,) link-frame centre and radius of each link's vertices [m].
+        self.centre = np.zeros((n - 1, 3))
+        self.radius = np.full(n - 1, -1.0)  # -1: no vertices
+        for k in range(n - 1):
+            p = local[self.bounds[k] : self.bounds[k + 1], :3]
+            if len(p):
+                self.centre[k] = 0.5 * (p.min(axis=0) + p.max(axis=0))
+                self.radius[k] = float(np.linalg.norm(p - self.centre[k], axis=1).max())
         self.world = self.local.copy()
-        self.vbo, self.vaos, self.count, self.texture = vbo, vaos, len(local), texture
+        self.vbo, self.vaos, self.count, self.texture = vbo, vaos, 3 * len(tris), texture
+
+    def visible_runs(self, M: np.ndarray, planes: np.ndarray) -> list[tuple[int, int]]:
+        """(first index, index count) of the runs of links whose bounding sphere may be in view."""
+        c = np.einsum("kij,kj->ki", M[: len(self.centre), :3, :3], self.centre) + M[: len(self.centre), :3, 3]
+        dist = c @ planes[:, :3].T + planes[:, 3]  # (links, planes)
+        seen = (self.radius >= 0) & np.all(dist >= -self.radius[:, None], axis=1)
+        idx = np.flatnonzero(seen)
+        if not len(idx):
+            return []
+        brk = np.flatnonzero(np.diff(idx) != 1)
+        first = np.r_[idx[0], idx[brk + 1]]
+        last = np.r_[idx[brk], idx[-1]] + 1
+        return [
+            (int(self.tri_bounds[a]), int(self.tri_bounds[b] - self.tri_bounds[a]))
+            for a, b in zip(first, last)
+        ]
 
     def pose(self, M: np.ndarray) -> None:
         """Move the vertices to link poses ``M`` ((links + 1, 4, 4), link -> world) and upload them."""
@@ -455,6 +478,8 @@ class GLRenderer:
             the next render; its visual shapes must not change after its first render).
         terrain: The ground; drawn from its exact height grid (its PyBullet body is not mirrored).
         textures: PyBullet texture id -> image file, for the textures assigned to bodies.
+        link_textures: (body, link) -> image file: the texture of that link's visual shapes
+            (PyBullet does not report textures set by ``changeVisualShape`` on mesh shapes).
         shadow_px: Shadow-map edge [texels].
 
     Raises:
@@ -466,6 +491,7 @@ class GLRenderer:
         client,
         terrain: Terrain | None = None,
         textures: dict[int, str | Path] | None = None,
+        link_textures: dict[tuple[int, int], str | Path] | None = None,
         shadow_px: int = SHADOW_MAP_PX,
     ) -> None:
         import moderngl
@@ -474,6 +500,7 @@ class GLRenderer:
         self.client = client
         self.terrain = terrain
         self._texture_files = {int(k): str(v) for k, v in (textures or {}).items()}
+        self._link_textures = {(int(b), int(k)): str(v) for (b, k), v in (link_textures or {}).items()}
         self.ctx = _create_context()
         self._objects: list = []
         ctx = self.ctx
@@ -490,15 +517,9 @@ class GLRenderer:
             for defs in [(("GROUND",) if ground else ()) + (("LABELS",) if labels else ())]
         }
         self._prog_depth = self._own(ctx.program(vertex_shader=_DEPTH_VS, fragment_shader=_DEPTH_FS))
-        self._prog_remap = self._own(ctx.program(vertex_shader=_REMAP_VS, fragment_shader=_REMAP_FS))
-        tri = np.array([-1.0, -1.0, 3.0, -1.0, -1.0, 3.0], dtype=np.float32)
-        self._tri_vbo = self._own(ctx.buffer(tri.tobytes()))
-        self._remap_vao = self._own(ctx.vertex_array(self._prog_remap, [(self._tri_vbo, "2f", "in_xy")]))
         for prog in self._progs.values():
             _set(prog, "u_tex", 0)
             _set(prog, "u_shadow", 1)
-        _set(self._prog_remap, "u_atlas", 0)
-        _set(self._prog_remap, "u_map", 1)
         self._textures: dict[str, object] = {}
         self._bodies: dict[int, list[_Group]] = {}
         self._body_links: dict[int, int] = {}
@@ -513,6 +534,8 @@ class GLRenderer:
         self._light = np.eye(4)
         self._light_R = 1.0
         self._focus: tuple | None = None
+        self._focus_key: tuple | None = ("unset",)
+        self._focused = np.zeros(0, np.int64)
         self._terrain = self._build_terrain(terrain) if terrain is not None else None
         #: Objects created so far and still alive (for leak checks).
         self.released = False
@@ -532,6 +555,9 @@ class GLRenderer:
         if self.released:
             return
         self.released = True
+        for prog in self._progs.values():
+            _UNIFORMS.pop(id(prog), None)
+        _UNIFORMS.pop(id(self._prog_depth), None)
         for obj in reversed(self._objects):
             try:
                 obj.release()
@@ -569,7 +595,7 @@ class GLRenderer:
             out[labels] = self._own(self.ctx.vertex_array(prog, [_layout(prog, vbo)], ibo))
         if not ground:
             out["depth"] = self._own(
-                self.ctx.vertex_array(self._prog_depth, [_layout(self._prog_depth, vbo)])
+                self.ctx.vertex_array(self._prog_depth, [_layout(self._prog_depth, vbo)], ibo)
             )
         return vbo, out
 
@@ -613,8 +639,8 @@ class GLRenderer:
             pos = pos @ R.T + np.asarray(lpos)
             nrm = nrm @ R.T
             radius[link + 1] = max(radius[link + 1], float(np.linalg.norm(pos, axis=1).max()))
-            texture = None
-            if tex_id is not None and tex_id >= 0:
+            texture = self._link_textures.get((body, link))
+            if texture is None and tex_id is not None and tex_id >= 0:
                 texture = self._texture_files.get(int(tex_id))
                 if texture is None:
                     log.warning(
@@ -630,9 +656,19 @@ class GLRenderer:
         out = []
         for texture, parts in groups.items():
             data = np.vstack(parts)
-            data = data.astype(np.float32)
-            vbo, vaos = self._vaos(data, False, dynamic=True)
-            out.append(_Group(data, vbo, vaos, self._texture(texture) if texture else None))
+            # shared corners once (indexed: each vertex is shaded once), sorted by link for posing
+            data, index = np.unique(data.astype(np.float32), axis=0, return_inverse=True)
+            order = np.argsort(data[:, 12], kind="stable")
+            rank = np.empty_like(order)
+            rank[order] = np.arange(len(order))
+            data = data[order]
+            # triangles sorted by link too: a view draws only the links it can see
+            tris = rank[index.ravel()].reshape(-1, 3)
+            tris = tris[np.argsort(data[tris[:, 0], 12], kind="stable")]
+            ibo = self._own(self.ctx.buffer(tris.astype(np.int32).tobytes()))
+            vbo, vaos = self._vaos(data, False, ibo=ibo, dynamic=True)
+            vaos["ibo"] = ibo
+            out.append(_Group(data, tris, vbo, vaos, self._texture(texture) if texture else None))
         self._bodies[body] = out
         self._body_links[body] = n_links
         self._body_radius[body] = radius
@@ -714,20 +750,25 @@ class GLRenderer:
     def _ground_chunks(self, planes: np.ndarray) -> np.ndarray:
         """Indices of the ground chunks to draw in the view bounded by ``planes`` (world frame)."""
         t = self._terrain
-        inside = (t["boxes"] @ planes[:, :3].T + planes[:, 3] >= 0.0).any(axis=1).all(axis=1)
-        if self._focus is None:
-            return np.flatnonzero(inside & (t["level"] == 0))
-        x, y, near = self._focus
-        r = t["rects"]
-        dist = np.hypot(np.maximum.reduce([r[:, 0] - x, x - r[:, 1], np.zeros(len(r))]),
-                        np.maximum.reduce([r[:, 2] - y, y - r[:, 3], np.zeros(len(r))]))  # fmt: skip
-        if near is not None:
-            keep = (t["level"] == 0) & (dist <= near)
-        elif t["levels"] == 1:
-            keep = t["level"] == 0
-        else:
-            keep = ((t["level"] == 0) & (dist <= t["fine_radius"])) | (t["level"] == 1)
-        return np.flatnonzero(inside & keep)
+        if self._focus != self._focus_key:  # the chunks the focus draws, then each view culls them
+            self._focus_key = self._focus
+            if self._focus is None:
+                keep = t["level"] == 0
+            else:
+                x, y, near = self._focus
+                r = t["rects"]
+                dist = np.hypot(np.maximum.reduce([r[:, 0] - x, x - r[:, 1], np.zeros(len(r))]),
+                                np.maximum.reduce([r[:, 2] - y, y - r[:, 3], np.zeros(len(r))]))  # fmt: skip
+                if near is not None:
+                    keep = (t["level"] == 0) & (dist <= near)
+                elif t["levels"] == 1:
+                    keep = t["level"] == 0
+                else:
+                    keep = ((t["level"] == 0) & (dist <= t["fine_radius"])) | (t["level"] == 1)
+            self._focused = np.flatnonzero(keep)
+        idx = self._focused
+        inside = (t["boxes"][idx] @ planes[:, :3].T + planes[:, 3] >= 0.0).any(axis=1).all(axis=1)
+        return idx[inside]
 
     def _sync_bodies(self) -> dict[int, np.ndarray]:
         """Mirror new bodies, drop removed ones; the link -> world matrices of each body now."""
@@ -799,6 +840,8 @@ class GLRenderer:
         px = 256
         while px < self.shadow_px and 2 * self._light_R / px > texel:
             px *= 2
+        # a finer map already drawn for this instant serves too (one shadow pass per instant)
+        px = max([px] + [k for k, m in self._shadow_maps.items() if m["fresh"]])
         smap = self._shadow_maps.get(px)
         if smap is None:
             tex = self._own(self.ctx.depth_texture((px, px)))
@@ -888,13 +931,18 @@ class GLRenderer:
                     vao.render(mgl.TRIANGLES, vertices=b - a, first=a)
         prog = progs[1]
         _set(prog, "u_normal_offset", 1.5 * smap["texel"] if shadows else 0.0)
-        for body in poses:
+        for body, M in poses.items():
             _set(prog, "u_body", int(body))
             for g in self._bodies[body]:
+                runs = g.visible_runs(M, view_planes_world)
+                if not runs:
+                    continue
                 _set(prog, "u_textured", g.texture is not None)
                 if g.texture is not None:
                     g.texture.use(0)
-                g.vaos[labels].render(mgl.TRIANGLES, vertices=g.count)
+                for first, count in runs:
+                    if count:
+                        g.vaos[labels].render(mgl.TRIANGLES, vertices=count, first=first)
 
     def render_K(
         self,
@@ -963,20 +1011,10 @@ class GLRenderer:
             self._own(ctx.texture((aw, ah), 1, dtype="f4")),
             self._own(ctx.texture((aw, ah), 4, dtype="f4")),
         ]
-        atlas[0].filter = (self._mgl.LINEAR, self._mgl.LINEAR)
-        atlas[0].repeat_x = atlas[0].repeat_y = False
         depth = self._own(ctx.depth_renderbuffer((aw, ah)))
         fbo_color = self._own(ctx.framebuffer(color_attachments=atlas[:1], depth_attachment=depth))
         fbo_labels = self._own(ctx.framebuffer(color_attachments=atlas, depth_attachment=depth))
-        w, h = remapper.model.image_size
-        mx, my = remapper.maps
-        m = np.stack([mx, my], -1).astype(np.float32)
-        m[~remapper.rendered] = -10.0
-        map_tex = self._own(ctx.texture((w, h), 2, np.ascontiguousarray(m).tobytes(), dtype="f4"))
-        map_tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
-        out_tex = self._own(ctx.texture((w, h), 4))
-        out_fbo = self._own(ctx.framebuffer(color_attachments=[out_tex]))
-        entry = (remapper, (aw, ah), fbo_color, fbo_labels, atlas, map_tex, out_fbo)
+        entry = (remapper, (aw, ah), fbo_color, fbo_labels)
         self._fisheye[key] = entry
         return entry
 
@@ -996,7 +1034,7 @@ class GLRenderer:
 
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
-        _, (aw, ah), fbo_color, fbo_labels, atlas, map_tex, out_fbo = self._fisheye_targets(remapper)
+        _, (aw, ah), fbo_color, fbo_labels = self._fisheye_targets(remapper)
         poses = self._sync_bodies()
         smap = self._shadow_for(lighting, poses, T_world_cam, float(remapper.focal))
         fbo = fbo_labels if labels else fbo_color
@@ -1027,15 +1065,10 @@ class GLRenderer:
         if not drawn:
             rgb = np.zeros((h, w, 3), np.uint8)
         else:
-            out_fbo.use()
-            out_fbo.viewport = (0, 0, w, h)
-            self.ctx.disable(self._mgl.DEPTH_TEST)
-            atlas[0].use(0)
-            map_tex.use(1)
-            _set(self._prog_remap, "u_atlas_size", (float(aw), float(ah)))
-            self._remap_vao.render(self._mgl.TRIANGLES, vertices=3)
-            rgba = np.frombuffer(out_fbo.read(components=4), np.uint8).reshape(h, w, 4)
-            rgb = np.ascontiguousarray(rgba[..., :3])
+            # the remap on the CPU: reading back the small atlas and one fixed-point cv2.remap
+            # cost less than a remap pass on llvmpipe
+            atlas_rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(ah, aw, 3)
+            rgb = remapper.remap(atlas_rgb)
         if not labels:
             return FisheyeView(rgb=rgb)
         seg = (

@@ -138,8 +138,8 @@ class Rover:
             lambda: tread_texture(marker_arc=g.correction_marker_arc),
         )
         self._tread_tex = client.loadTexture(str(tex))
-        #: PyBullet texture id -> image file of the textures on the rover.
-        self.textures = {self._tread_tex: tex}
+        #: Link index -> image file of the texture on that link's visual shapes.
+        self.link_textures = {link: tex for link in self.wheel_links}
         for link in self.wheel_links:
             client.changeVisualShape(
                 self.body_id, link, textureUniqueId=self._tread_tex, rgbaColor=[1, 1, 1, 1]

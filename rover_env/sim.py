@@ -337,8 +337,12 @@ class RoverSim:
                 raise RuntimeError("this RoverSim is closed; create a new one")
             from rover_env.gl_render import GLRenderer
 
-            textures = {self.terrain.texture_id: self.terrain.texture_path, **self.rover.textures}
-            self._gl = GLRenderer(self.client, self.terrain, textures)
+            rv = self.rover
+            self._gl = GLRenderer(
+                self.client,
+                self.terrain,
+                link_textures={(rv.body_id, link): path for link, path in rv.link_textures.items()},
+            )
         return self._gl
 
     def close(self) -> None:
