@@ -544,6 +544,8 @@ class FlowOdometry:
         mx, my = int(cfg.roi_margin * w), int(cfg.roi_margin * h)
         self._roi = np.zeros((h, w), dtype=bool)
         self._roi[my : h - my, mx : w - mx] = True
+        b = 4  # Harris block radius (7 // 2) + 1: the crop's edge responses equal the image's
+        self._roi_box = (max(0, my - b), min(h, h - my + b), max(0, mx - b), min(w, w - mx + b))
         self._last: Selection | None = None
         self._rng = np.random.default_rng(0)
 
@@ -597,27 +599,32 @@ class FlowOdometry:
             ground_plane: The ground z = a x + b y + c in the body frame when ``I_prev`` was
                 taken, if known (see :meth:`track`).
         """
-        cfg = self.config
         gray = to_gray(image, self.camera.image_size)
+        return self._select(gray, t, ground_plane)
+
+    def _select(self, gray: np.ndarray, t, ground_plane) -> Selection:
+        cfg = self.config
         mask, diag = self.feature_mask(gray)
+        # Harris only inside the region of interest (the rest is masked anyway): a crop with the
+        # detector's 3-px block radius around it, so responses at its edge are those of the image
+        y0, y1, x0, x1 = self._roi_box
         pts = cv2.goodFeaturesToTrack(
-            gray,
+            gray[y0:y1, x0:x1],
             maxCorners=cfg.max_features,
             qualityLevel=cfg.quality_level,
             minDistance=cfg.min_distance,
-            mask=mask.astype(np.uint8),
+            mask=mask[y0:y1, x0:x1].astype(np.uint8),
             blockSize=7,
             useHarrisDetector=True,
             k=0.04,
         )
         feats = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
+        feats += np.array([x0, y0], np.float32)
         # Harris on a textureless or saturated image returns corners of noise-free flat areas: drop
-        # features whose neighbourhood has no contrast
+        # features whose 7 x 7 neighbourhood has no contrast (grey-level variance about its local
+        # 7 x 7 means, averaged over the neighbourhood, <= 1)
         if len(feats):
-            std = cv2.blur((gray.astype(np.float32) - cv2.blur(gray.astype(np.float32), (7, 7))) ** 2, (7, 7))
-            xi = np.clip(np.rint(feats[:, 0]).astype(int), 0, gray.shape[1] - 1)
-            yi = np.clip(np.rint(feats[:, 1]).astype(int), 0, gray.shape[0] - 1)
-            feats = feats[std[yi, xi] > 1.0]
+            feats = feats[_local_contrast(gray, feats) > 1.0]
         plane = None if ground_plane is None else _plane(ground_plane)
         return Selection(gray=gray, features=feats, mask=mask, t=t, diagnostics=diag, ground_plane=plane)
 
@@ -645,10 +652,13 @@ class FlowOdometry:
                 (:func:`velocity_from_points`), so the body's roll and pitch between the frames
                 are not mistaken for a translation.
         """
-        cfg = self.config
         if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt: {dt!r} s; frames must be a positive, finite time apart")
         gray = to_gray(image, self.camera.image_size)
+        return self._track(selection, gray, dt, t, ground_plane)
+
+    def _track(self, selection: Selection, gray, dt, t, ground_plane) -> OdometryEstimate:
+        cfg = self.config
         n_feat = len(selection.features)
 
         def invalid(reason: str, **kw) -> OdometryEstimate:
@@ -756,16 +766,45 @@ class FlowOdometry:
         Returns:
             The estimate from the previous frame to this one (None for the first frame).
         """
+        gray = to_gray(image, self.camera.image_size)  # converted once for both uses
         out = None
         if self._last is not None:
-            out = self.track(self._last, image, t - self._last.t, t, ground_plane)
-        self._last = self.select(image, t, ground_plane)
+            dt = t - self._last.t
+            if not (dt > 0 and math.isfinite(dt)):
+                raise ValueError(f"t: {t!r} s is not after the last frame's {self._last.t!r} s")
+            out = self._track(self._last, gray, dt, t, ground_plane)
+        self._last = self._select(gray, t, ground_plane)
         return out
 
     def reset(self) -> None:
         """Forget the chained stream's last frame and restart RANSAC's random stream."""
         self._last = None
         self._rng = np.random.default_rng(0)
+
+
+def _local_contrast(gray: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """The local grey-level variance at each (x, y) of ``pts`` [px] [grey levels^2].
+
+    The mean over the 7 x 7 neighbourhood of the squared difference between each pixel and its
+    own 7 x 7 mean: the same value as blurring the whole image's (I - blur(I))^2, computed on
+    13 x 13 patches only.
+    """
+    h, w = gray.shape
+    xy = np.clip(np.rint(pts).astype(np.int64), 0, [w - 1, h - 1])
+    off = np.arange(-6, 7)
+
+    def reflect(i, n):  # cv2.BORDER_REFLECT_101, the default border of cv2.blur
+        i = np.abs(i)
+        return np.where(i >= n, 2 * (n - 1) - i, i)
+
+    rows = reflect(xy[:, 1, None] + off, h)
+    cols = reflect(xy[:, 0, None] + off, w)
+    patch = gray[rows[:, :, None], cols[:, None, :]].astype(np.float64)  # (n, 13, 13)
+    # 7 x 7 box means at the central 7 x 7 pixels from a summed-area table
+    sat = np.zeros((len(pts), 14, 14))
+    sat[:, 1:, 1:] = patch.cumsum(axis=1).cumsum(axis=2)
+    box = (sat[:, 7:, 7:] - sat[:, :-7, 7:] - sat[:, 7:, :-7] + sat[:, :-7, :-7]) / 49.0
+    return ((patch[:, 3:10, 3:10] - box) ** 2).mean(axis=(1, 2)).astype(np.float32)
 
 
 def _plane(ground_plane) -> tuple[float, float, float]:

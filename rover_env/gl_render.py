@@ -503,42 +503,42 @@ class GLRenderer:
         self._link_textures = {(int(b), int(k)): str(v) for (b, k), v in (link_textures or {}).items()}
         self.ctx = _create_context()
         self._objects: list = []
-        ctx = self.ctx
-        #: (ground, labels) -> program
-        self._progs = {
-            (ground, labels): self._own(
-                ctx.program(
-                    vertex_shader=_variant(_SCENE_VS, *defs),
-                    fragment_shader=_variant(_SCENE_FS, *defs),
-                )
-            )
-            for ground in (False, True)
-            for labels in (False, True)
-            for defs in [(("GROUND",) if ground else ()) + (("LABELS",) if labels else ())]
-        }
-        self._prog_depth = self._own(ctx.program(vertex_shader=_DEPTH_VS, fragment_shader=_DEPTH_FS))
-        for prog in self._progs.values():
-            _set(prog, "u_tex", 0)
-            _set(prog, "u_shadow", 1)
-        self._textures: dict[str, object] = {}
-        self._bodies: dict[int, list[_Group]] = {}
-        self._body_links: dict[int, int] = {}
-        self._posed: dict[int, bytes] = {}  # body -> the link poses its vertices are at
-        self._body_radius: dict[int, np.ndarray] = {}  # body -> (links + 1,) bounding radius [m]
-        self._fbos: dict[tuple, tuple] = {}
-        self._fisheye: dict[int, tuple] = {}
-        #: Largest shadow-map edge [texels].
-        self.shadow_px = int(shadow_px)
-        self._shadow_maps: dict[int, dict] = {}
-        self._shadow_key: tuple | None = None
-        self._light = np.eye(4)
-        self._light_R = 1.0
-        self._focus: tuple | None = None
-        self._focus_key: tuple | None = ("unset",)
-        self._focused = np.zeros(0, np.int64)
-        self._terrain = self._build_terrain(terrain) if terrain is not None else None
-        #: Objects created so far and still alive (for leak checks).
         self.released = False
+        with self.ctx:  # current for the objects below (other contexts may exist in this process)
+            ctx = self.ctx
+            #: (ground, labels) -> program
+            self._progs = {
+                (ground, labels): self._own(
+                    ctx.program(
+                        vertex_shader=_variant(_SCENE_VS, *defs),
+                        fragment_shader=_variant(_SCENE_FS, *defs),
+                    )
+                )
+                for ground in (False, True)
+                for labels in (False, True)
+                for defs in [(("GROUND",) if ground else ()) + (("LABELS",) if labels else ())]
+            }
+            self._prog_depth = self._own(ctx.program(vertex_shader=_DEPTH_VS, fragment_shader=_DEPTH_FS))
+            for prog in self._progs.values():
+                _set(prog, "u_tex", 0)
+                _set(prog, "u_shadow", 1)
+            self._textures: dict[str, object] = {}
+            self._bodies: dict[int, list[_Group]] = {}
+            self._body_links: dict[int, int] = {}
+            self._posed: dict[int, bytes] = {}  # body -> the link poses its vertices are at
+            self._body_radius: dict[int, np.ndarray] = {}  # body -> (links + 1,) bounding radius [m]
+            self._fbos: dict[tuple, tuple] = {}
+            self._fisheye: dict[int, tuple] = {}
+            #: Largest shadow-map edge [texels].
+            self.shadow_px = int(shadow_px)
+            self._shadow_maps: dict[int, dict] = {}
+            self._shadow_key: tuple | None = None
+            self._light = np.eye(4)
+            self._light_R = 1.0
+            self._focus: tuple | None = None
+            self._focus_key: tuple | None = ("unset",)
+            self._focused = np.zeros(0, np.int64)
+            self._terrain = self._build_terrain(terrain) if terrain is not None else None
 
     # ------------------------------------------------------------------ resources
     def _own(self, obj):
@@ -558,11 +558,12 @@ class GLRenderer:
         for prog in self._progs.values():
             _UNIFORMS.pop(id(prog), None)
         _UNIFORMS.pop(id(self._prog_depth), None)
-        for obj in reversed(self._objects):
-            try:
-                obj.release()
-            except Exception:  # noqa: BLE001 - the context may already be gone
-                pass
+        with self.ctx:
+            for obj in reversed(self._objects):
+                try:
+                    obj.release()
+                except Exception:  # noqa: BLE001 - the context may already be gone
+                    pass
         self._objects.clear()
         self.ctx.release()
 
@@ -944,7 +945,21 @@ class GLRenderer:
                     if count:
                         g.vaos[labels].render(mgl.TRIANGLES, vertices=count, first=first)
 
-    def render_K(
+    def render_K(self, *args, **kwargs) -> RenderedView:
+        """Render a pinhole view; see :meth:`_render_K` (this context is made current for it)."""
+        if self.released:
+            raise RuntimeError("this GLRenderer is released; create a new one")
+        with self.ctx:
+            return self._render_K(*args, **kwargs)
+
+    def render_fisheye(self, *args, **kwargs):
+        """Render a fisheye image; see :meth:`_render_fisheye` (this context is made current for it)."""
+        if self.released:
+            raise RuntimeError("this GLRenderer is released; create a new one")
+        with self.ctx:
+            return self._render_fisheye(*args, **kwargs)
+
+    def _render_K(
         self,
         K: np.ndarray,
         size: tuple[int, int],
@@ -1018,7 +1033,7 @@ class GLRenderer:
         self._fisheye[key] = entry
         return entry
 
-    def render_fisheye(
+    def _render_fisheye(
         self,
         remapper: CubemapRemap,
         T_world_cam: np.ndarray,
