@@ -29,8 +29,8 @@ from rover_env.envs import OBS_FIELDS
 from rover_env.estimator_metrics import EstimateLog, field_errors, slip_metrics
 
 
-def run(env_id: str, seed: int, preset: str, seconds: float) -> dict:
-    env = gym.make(env_id, obs_source="estimated", preset=preset)
+def run(env_id: str, seed: int, preset: str, seconds: float, renderer: str = "gl") -> dict:
+    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer)
     try:
         ctrl = PurePursuit(OBS_FIELDS)
         obs, info = env.reset(seed=seed)
@@ -55,14 +55,16 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="eval", choices=("train", "eval"))
     ap.add_argument("--missions", nargs="+", default=list(rover_env.ENV_IDS))
     ap.add_argument("--seeds", type=int, nargs="+", default=[101, 102])
+    ap.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
     ap.add_argument("--seconds", type=float, default=40.0, help="longest drive per episode [s]")
     args = ap.parse_args(argv)
     for env_id in args.missions:
-        runs = [run(env_id, s, args.preset, args.seconds) for s in args.seeds]
+        runs = [run(env_id, s, args.preset, args.seconds, args.renderer) for s in args.seeds]
         steps = sum(len(r["t"]) for r in runs)
         wall = sum(r["wall"] for r in runs)
         print(
-            f"\n### {env_id} ({rover_env.MISSIONS[env_id]}), preset {args.preset}, seeds {args.seeds}: "
+            f"\n### {env_id} ({rover_env.MISSIONS[env_id]}), preset {args.preset}, renderer {args.renderer}, "
+            f"seeds {args.seeds}: "
             f"{steps} steps, {steps / wall:.1f} steps/s, reached the goal {sum(r['success'] for r in runs)}"
             f" of {len(runs)}\n"
         )

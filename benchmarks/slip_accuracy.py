@@ -44,9 +44,15 @@ def patch_span(env_id: str, margin: float = 0.05) -> tuple[float, float]:
 
 
 def drive(
-    seed: int, preset: str, env_id: str, patch_x: tuple[float, float], seconds: float, ramp: float = 0.0
+    seed: int,
+    preset: str,
+    env_id: str,
+    patch_x: tuple[float, float],
+    seconds: float,
+    ramp: float = 0.0,
+    renderer: str = "gl",
 ) -> dict:
-    env = gym.make(env_id, obs_source="estimated", preset=preset)
+    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer)
     try:
         obs, info = env.reset(seed=seed)
         log = EstimateLog(env.unwrapped.geometry.wheel_radius)
@@ -83,8 +89,9 @@ def main(argv=None) -> int:
         "a motor controller's acceleration limit; 0: steps, a stress case)",
     )
     ap.add_argument("--envs", nargs="+", default=list(rover_env.ENV_IDS), choices=rover_env.ENV_IDS)
+    ap.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
     args = ap.parse_args(argv)
-    print(f"preset {args.preset}, seeds {args.seeds}, ramp {args.ramp}", flush=True)
+    print(f"preset {args.preset}, renderer {args.renderer}, seeds {args.seeds}, ramp {args.ramp}", flush=True)
     print(
         "| mission | steps | slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events | precision | recall | F1 "
         "| latency median / max [frames] | within 2 frames |"
@@ -96,7 +103,10 @@ def main(argv=None) -> int:
             runs = every
         else:
             span = patch_span(env_id)
-            runs = [drive(s, args.preset, env_id, span, args.seconds, args.ramp) for s in args.seeds]
+            runs = [
+                drive(s, args.preset, env_id, span, args.seconds, args.ramp, args.renderer)
+                for s in args.seeds
+            ]
             every += runs
         m = slip_metrics(runs)
         steps = sum(len(r["t"]) for r in runs)

@@ -159,6 +159,28 @@ class GLUnavailableError(RuntimeError):
     """An OpenGL 3.3 context cannot be created on this machine (the message says why)."""
 
 
+_EGL_PID: int | None = None  # the process that created an EGL context in this address space
+
+
+def usable_here() -> tuple[bool, str]:
+    """Whether this process may create GL contexts.
+
+    :func:`gl_status`, and not a fork of a process that had already used EGL (Mesa's state does
+    not survive a fork: the child would hang).
+
+    Returns:
+        (usable, reason): reason is "" when usable.
+    """
+    if _EGL_PID is not None and _EGL_PID != os.getpid():
+        return False, (
+            "this process was forked from one that had already rendered with OpenGL, and Mesa's EGL "
+            "state does not survive a fork; start workers with 'spawn' or 'forkserver' (for example "
+            "gymnasium.make_vec(..., vector_kwargs={'context': 'forkserver'}); stable-baselines3's "
+            "SubprocVecEnv uses forkserver), or create the environments before rendering in the parent"
+        )
+    return gl_status()
+
+
 @functools.lru_cache(maxsize=1)
 def gl_status() -> tuple[bool, str]:
     """Whether a headless EGL OpenGL 3.3 context can be created here, and why not.
@@ -202,8 +224,13 @@ def gl_status() -> tuple[bool, str]:
 
 
 def _create_context():
+    global _EGL_PID
     import moderngl
 
+    ok, why = usable_here()
+    if not ok:
+        raise GLUnavailableError(why)
+    _EGL_PID = os.getpid()
     try:
         ctx = moderngl.create_context(standalone=True, backend="egl")
     except Exception as exc:  # moderngl raises plain Exception subclasses
@@ -696,12 +723,13 @@ class GLRenderer:
             data[..., 3:6] = normals
             data[..., 6], data[..., 7] = gx / tile, gy / tile
             data[..., 8:12] = 1.0
-            # chunks of at least _CHUNK metres and _CHUNK_CELLS cells a side (a flat grid's 1 m
-            # cells make large chunks: culling them finely would cost more than drawing them);
-            # each owns a contiguous block of vertices (edges duplicated), so a draw of a chunk
-            # shades only its own vertices
+            # chunks of at least _CHUNK metres and _CHUNK_CELLS cells a side, or one quad of a
+            # plane; each owns a contiguous block of vertices (edges duplicated), so a draw of a
+            # chunk shades only its own vertices
             nxc = max(_CHUNK_CELLS, int(round(_CHUNK / float(xs[1] - xs[0]))))
             nyc = max(_CHUNK_CELLS, int(round(_CHUNK / float(ys[1] - ys[0]))))
+            if terrain.heights is None:  # a plane: one quad per chunk
+                nxc = nyc = 1
             for j0 in range(0, ny - 1, nyc):
                 for i0 in range(0, nx - 1, nxc):
                     j1, i1 = min(j0 + nyc, ny - 1), min(i0 + nxc, nx - 1)

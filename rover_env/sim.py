@@ -74,9 +74,9 @@ def resolve_renderer(name: str) -> str:
     check_renderer(name)
     if name == "tiny":
         return name
-    from rover_env.gl_render import GLUnavailableError, gl_status
+    from rover_env.gl_render import GLUnavailableError, usable_here
 
-    ok, why = gl_status()
+    ok, why = usable_here()
     if ok:
         return "gl"
     if name == "gl":

@@ -418,12 +418,12 @@ class Terrain:
 
         xs (nx,) and ys (ny,) [m], heights (ny, nx) [m] world z, normals (ny, nx, 3) unit; split
         into triangles as Bullet splits its heightfield. Rough ground: the collision grid itself;
-        planar ground: a 1 m grid over the terrain (exact, since the plane is flat).
+        planar ground: a 2 m grid over the terrain (exact, since the plane is flat).
         """
         if self.heights is not None:
             return self.xs, self.ys, self.heights, self._normals
-        nx = max(1, int(math.ceil(self.cfg.size[0] / FINE_CHUNK))) + 1
-        ny = max(1, int(math.ceil(self.cfg.size[1] / FINE_CHUNK))) + 1
+        nx = max(1, int(math.ceil(self.cfg.size[0] / (2 * FINE_CHUNK)))) + 1
+        ny = max(1, int(math.ceil(self.cfg.size[1] / (2 * FINE_CHUNK)))) + 1
         xs = np.linspace(-self.cfg.size[0] / 2, self.cfg.size[0] / 2, nx)
         ys = np.linspace(-self.cfg.size[1] / 2, self.cfg.size[1] / 2, ny)
         gx, gy = np.meshgrid(xs, ys)

@@ -165,12 +165,20 @@ def test_bad_constructor_arguments_are_explained():
 @pytest.mark.parametrize("obs_source", ["estimated", "ground_truth"])
 def test_make_vec_sync_and_async_give_the_same_rollouts(env_id, obs_source):
     """In worker processes (the estimator in the loop or not): the same seeds give the same observations."""
+    from rover_env.gl_render import gl_status
+
     out = {}
     for mode in ("sync", "async"):
+        # this test process has rendered with OpenGL already, and Mesa's EGL does not survive a
+        # fork: async workers start from a fork server (the default fork would fall back to
+        # TinyRenderer, with a warning)
+        kwargs = {"context": "forkserver"} if mode == "async" else {}
         venv = gym.make_vec(
-            env_id, num_envs=2, vectorization_mode=mode, vector_kwargs={}, obs_source=obs_source
+            env_id, num_envs=2, vectorization_mode=mode, vector_kwargs=kwargs, obs_source=obs_source
         )
         try:
+            if obs_source == "estimated" and gl_status()[0]:
+                assert list(venv.get_attr("renderer")) == ["gl", "gl"]
             obs, _ = venv.reset(seed=[3, 4])
             assert obs.shape == (2, len(OBS_FIELDS) + 3)
             rows = [obs]

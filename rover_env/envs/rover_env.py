@@ -337,6 +337,11 @@ class RoverEnv(gym.Env):
             feats = dataclasses.replace(feats, progress=self.course.length)
         return feats
 
+    @property
+    def renderer(self) -> str:
+        """What draws the cameras: ``"gl"`` or ``"tiny"`` (see the ``renderer`` argument)."""
+        return self.sim.renderer
+
     def render(self) -> np.ndarray | None:
         """Composite frame, RGB uint8 (H, W, 3) of ``render_size``.
 

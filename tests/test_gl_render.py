@@ -1,0 +1,120 @@
+"""The OpenGL renderer: its resources, its inputs, and its images against TinyRenderer's."""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import flat_scenario, rough_scenario
+
+from rover_env.config_io import ConfigError
+from rover_env.gl_render import GLRenderer, gl_status, load_obj, projection_from_K
+from rover_env.sim import RoverSim
+
+pytestmark = pytest.mark.skipif(not gl_status()[0], reason=f"no OpenGL context here: {gl_status()[1]}")
+
+
+def test_projection_maps_pixel_centres_to_the_model_pixels():
+    """A point on pixel (u, v)'s ray lands at the centre of window pixel (u, v), row 0 first."""
+    K = np.array([[210.0, 0.0, 81.3], [0.0, 190.0, 58.9], [0.0, 0.0, 1.0]])
+    w, h, near, far = 160, 120, 0.05, 20.0
+    P = projection_from_K(K, (w, h), near, far)
+    rng = np.random.default_rng(0)
+    u, v, z = rng.uniform(0, w - 1, 50), rng.uniform(0, h - 1, 50), rng.uniform(0.1, 10.0, 50)
+    pts = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z, np.ones(50)], 1)
+    clip = pts @ P.T
+    ndc = clip[:, :3] / clip[:, 3:]
+    win_x = (ndc[:, 0] + 1) / 2 * w  # window coordinates: pixel i spans [i, i + 1)
+    win_y = (ndc[:, 1] + 1) / 2 * h
+    np.testing.assert_allclose(win_x - 0.5, u, atol=1e-9)
+    np.testing.assert_allclose(win_y - 0.5, v, atol=1e-9)
+    z_ndc = ndc[:, 2]
+    assert np.all((z_ndc > -1) & (z_ndc < 1))
+    near_pt = np.array([0.0, 0.0, near, 1.0]) @ P.T
+    assert near_pt[2] / near_pt[3] == pytest.approx(-1.0)
+
+
+def test_obj_loader_triangulates_and_checks_indices(tmp_path):
+    path = tmp_path / "quad.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n")
+    pos, nrm, uv = load_obj(str(path))
+    assert pos.shape == (6, 3) and uv.shape == (6, 2)
+    np.testing.assert_allclose(nrm, np.tile([0.0, 0.0, 1.0], (6, 1)))  # face normals when none given
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nf 1 2 3\n")
+    with pytest.raises(ValueError, match="missing vertex"):
+        load_obj(str(bad))
+
+
+def test_no_gl_objects_leak_across_resets_and_close_releases_the_context():
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401
+
+    env = gym.make("Rover-v0", renderer="gl")
+    try:
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(np.array([0.5, 0.1, 0.0], dtype=np.float32))
+        gl = env.unwrapped.sim.backend
+        assert isinstance(gl, GLRenderer)
+        count = gl.object_count
+        for seed in range(1, 6):
+            env.reset(seed=seed)
+            for _ in range(3):
+                env.step(np.array([0.5, -0.1, 0.0], dtype=np.float32))
+        assert gl.object_count == count
+    finally:
+        env.close()
+    assert gl.released and env.unwrapped.sim._gl is None
+
+
+def test_a_texture_file_that_is_not_an_image_is_a_config_error(tmp_path):
+    import dataclasses
+
+    bad = tmp_path / "ground.png"
+    bad.write_text("not an image")
+    scenario = flat_scenario()
+    scenario = dataclasses.replace(scenario, terrain=dataclasses.replace(scenario.terrain, texture=str(bad)))
+    with pytest.raises(ConfigError, match="ground.png.*not a readable image"):
+        RoverSim(scenario, renderer="gl")
+
+
+def test_a_corrupt_cached_texture_is_rebuilt(tmp_path, monkeypatch, caplog):
+    import logging
+
+    from rover_env.textures import read_texture, texture_file
+
+    monkeypatch.setenv("ROVER_CACHE_DIR", str(tmp_path))
+    path = texture_file("regolith", 64, 5)
+    good = read_texture(path)
+    path.write_bytes(path.read_bytes()[:40])  # truncated
+    with caplog.at_level(logging.WARNING):
+        again = texture_file("regolith", 64, 5)
+    assert again == path and "rebuilding" in caplog.text
+    np.testing.assert_array_equal(read_texture(again), good)
+
+
+@pytest.mark.parametrize("scenario", [flat_scenario, rough_scenario])
+def test_gl_and_tiny_see_the_same_ground_and_rover(scenario):
+    """Same segmentation almost everywhere and the same mean brightness of ground and rover
+    (TinyRenderer samples textures by nearest neighbour, GL filters them: pixels differ, the
+    scene does not)."""
+    from rover_env.cameras import DownwardCamera, DownwardCameraConfig
+
+    views = {}
+    for renderer in ("tiny", "gl"):
+        sim = RoverSim(scenario(), renderer=renderer)
+        try:
+            sim.reset(1.0, -0.5, math.radians(20.0))
+            views[renderer] = DownwardCamera(sim, DownwardCameraConfig(width=320, height=240)).render_view()
+        finally:
+            sim.close()
+    a, b = views["tiny"], views["gl"]
+    same = a.segmentation == b.segmentation
+    assert same.mean() > 0.995
+    ground = same & (a.segmentation == 0)
+    rover = same & (a.segmentation > 0)
+    for sel in (ground, rover):
+        ma, mb = a.rgb[sel].mean(), b.rgb[sel].mean()
+        assert abs(ma - mb) < 0.05 * ma, (ma, mb)
+    assert np.mean(a.shadow[ground] == b.shadow[ground]) > 0.99
