@@ -366,6 +366,36 @@ def _quat_to_matrix(q) -> np.ndarray:
     )
 
 
+def _pose_matrix(pos, orn) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = _quat_to_matrix(orn), pos
+    return T
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation matrix of ``angle`` [rad] about the unit ``axis`` (Rodrigues)."""
+    x, y, z = axis
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def _joint_table(client, body: int) -> list:
+    """Per joint (= link): parent link, parent inertial -> joint frame (4x4), unit axis, kind
+    ("revolute", "prismatic" or "fixed") and joint -> own inertial frame (4x4)."""
+    import pybullet as pb
+
+    out = []
+    for k in range(client.getNumJoints(body)):
+        info = client.getJointInfo(body, k)
+        kind = {pb.JOINT_REVOLUTE: "revolute", pb.JOINT_PRISMATIC: "prismatic"}.get(info[2], "fixed")
+        axis = np.asarray(info[13], dtype=np.float64)
+        if np.linalg.norm(axis) > 0:
+            axis = axis / np.linalg.norm(axis)
+        dyn = client.getDynamicsInfo(body, k)
+        out.append((info[16], _pose_matrix(info[14], info[15]), axis, kind, _pose_matrix(dyn[3], dyn[4])))
+    return out
+
+
 def projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far: float) -> np.ndarray:
     """4x4 matrix from the camera optical frame (x right, y down, z forward) [m] to GL clip space.
 
@@ -553,6 +583,7 @@ class GLRenderer:
             self._bodies: dict[int, list[_Group]] = {}
             self._body_links: dict[int, int] = {}
             self._posed: dict[int, bytes] = {}  # body -> the link poses its vertices are at
+            self._joints: dict[int, list] = {}  # body -> _joint_table
             self._body_radius: dict[int, np.ndarray] = {}  # body -> (links + 1,) bounding radius [m]
             self._fbos: dict[tuple, tuple] = {}
             self._fisheye: dict[int, tuple] = {}
@@ -815,14 +846,7 @@ class GLRenderer:
                 self._build_body(body)
             if not self._bodies[body]:
                 continue
-            n = self._body_links[body]
-            M = np.zeros((n + 1, 4, 4))
-            M[:, 3, 3] = 1.0
-            pos, orn = c.getBasePositionAndOrientation(body)
-            M[0, :3, :3], M[0, :3, 3] = _quat_to_matrix(orn), pos
-            if n:
-                for k, st in enumerate(c.getLinkStates(body, list(range(n)), computeForwardKinematics=1)):
-                    M[k + 1, :3, :3], M[k + 1, :3, 3] = _quat_to_matrix(st[5]), st[4]
+            M = self._link_poses(body)
             poses[body] = M
             key = M.tobytes()
             if self._posed.get(body) != key:
@@ -831,8 +855,36 @@ class GLRenderer:
                     g.pose(M)
         return poses
 
+    def _link_poses(self, body: int) -> np.ndarray:
+        """(links + 1, 4, 4) world poses of the base's and each link's inertial frame, now.
+
+        Forward kinematics from the base pose and the joint positions, computed here: PyBullet's
+        stored link frames lag a physics step behind the base, and asking PyBullet to recompute
+        them (``computeForwardKinematics``) changes the next step's numbers, so the physics would
+        depend on what is rendered.
+        """
+        c = self.client
+        joints = self._joints.get(body)
+        if joints is None:
+            joints = self._joints[body] = _joint_table(c, body)
+        n = len(joints)
+        M = np.zeros((n + 1, 4, 4))
+        pos, orn = c.getBasePositionAndOrientation(body)
+        M[0, :3, :3], M[0, :3, 3], M[0, 3, 3] = _quat_to_matrix(orn), pos, 1.0
+        if n:
+            q = [s[0] for s in c.getJointStates(body, list(range(n)))]
+            for k, (parent, T_parent_joint, axis, kind, T_joint_inertial) in enumerate(joints):
+                motion = np.eye(4)
+                if kind == "revolute":
+                    motion[:3, :3] = _axis_angle(axis, q[k])
+                elif kind == "prismatic":
+                    motion[:3, 3] = axis * q[k]
+                M[k + 1] = M[parent + 1] @ T_parent_joint @ motion @ T_joint_inertial
+        return M
+
     def _drop_body(self, body: int) -> None:
         self._posed.pop(body, None)
+        self._joints.pop(body, None)
         for g in self._bodies.pop(body, []):
             for obj in (*g.vaos.values(), g.vbo):
                 obj.release()
