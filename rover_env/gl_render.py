@@ -380,8 +380,11 @@ def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
 
 
 def _joint_table(client, body: int) -> list:
-    """Per joint (= link): parent link, parent inertial -> joint frame (4x4), unit axis, kind
-    ("revolute", "prismatic" or "fixed") and joint -> own inertial frame (4x4)."""
+    """The kinematic chain of ``body``, one entry per joint (= link).
+
+    Each: parent link, parent inertial -> joint frame (4x4), unit axis, kind ("revolute",
+    "prismatic" or "fixed") and joint -> own inertial frame (4x4).
+    """
     import pybullet as pb
 
     out = []
