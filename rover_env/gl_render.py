@@ -506,12 +506,12 @@ class _Group:
                 self.centre[k] = 0.5 * (p.min(axis=0) + p.max(axis=0))
                 self.radius[k] = float(np.linalg.norm(p - self.centre[k], axis=1).max())
         self.world = self.local.copy()
+        self.world_centre = self.centre.copy()
         self.vbo, self.vaos, self.count, self.texture = vbo, vaos, 3 * len(tris), texture
 
-    def visible_runs(self, M: np.ndarray, planes: np.ndarray) -> list[tuple[int, int]]:
+    def visible_runs(self, planes: np.ndarray) -> list[tuple[int, int]]:
         """(first index, index count) of the runs of links whose bounding sphere may be in view."""
-        c = np.einsum("kij,kj->ki", M[: len(self.centre), :3, :3], self.centre) + M[: len(self.centre), :3, 3]
-        dist = c @ planes[:, :3].T + planes[:, 3]  # (links, planes)
+        dist = self.world_centre @ planes[:, :3].T + planes[:, 3]  # (links, planes)
         seen = (self.radius >= 0) & np.all(dist >= -self.radius[:, None], axis=1)
         idx = np.flatnonzero(seen)
         if not len(idx):
@@ -534,6 +534,8 @@ class _Group:
             R, t = M[k, :3, :3], M[k, :3, 3]
             W[a:b, 0:3] = L[a:b, 0:3] @ R.T + t
             W[a:b, 3:6] = L[a:b, 3:6] @ R.T
+        m = len(self.centre)
+        self.world_centre = np.einsum("kij,kj->ki", M[:m, :3, :3], self.centre) + M[:m, :3, 3]
         self.vbo.write(W.tobytes())
 
 
@@ -597,6 +599,7 @@ class GLRenderer:
             self._body_links: dict[int, int] = {}
             self._posed: dict[int, bytes] = {}  # body -> the link poses its vertices are at
             self._joints: dict[int, list] = {}  # body -> _joint_table
+            self._fk_cache: dict[int, tuple] = {}  # body -> (base pose and joints read, link poses)
             self._body_radius: dict[int, np.ndarray] = {}  # body -> (links + 1,) bounding radius [m]
             self._fbos: dict[tuple, tuple] = {}
             self._fisheye: dict[int, tuple] = {}
@@ -881,11 +884,15 @@ class GLRenderer:
         if joints is None:
             joints = self._joints[body] = _joint_table(c, body)
         n = len(joints)
-        M = np.zeros((n + 1, 4, 4))
         pos, orn = c.getBasePositionAndOrientation(body)
+        q = [s[0] for s in c.getJointStates(body, list(range(n)))] if n else []
+        key = (pos, orn, tuple(q))
+        cached = self._fk_cache.get(body)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        M = np.zeros((n + 1, 4, 4))
         M[0, :3, :3], M[0, :3, 3], M[0, 3, 3] = _quat_to_matrix(orn), pos, 1.0
         if n:
-            q = [s[0] for s in c.getJointStates(body, list(range(n)))]
             for k, (parent, T_parent_joint, axis, kind, T_joint_inertial) in enumerate(joints):
                 motion = np.eye(4)
                 if kind == "revolute":
@@ -893,11 +900,13 @@ class GLRenderer:
                 elif kind == "prismatic":
                     motion[:3, 3] = axis * q[k]
                 M[k + 1] = M[parent + 1] @ T_parent_joint @ motion @ T_joint_inertial
+        self._fk_cache[body] = (key, M)
         return M
 
     def _drop_body(self, body: int) -> None:
         self._posed.pop(body, None)
         self._joints.pop(body, None)
+        self._fk_cache.pop(body, None)
         for g in self._bodies.pop(body, []):
             for obj in (*g.vaos.values(), g.vbo):
                 obj.release()
@@ -1025,10 +1034,10 @@ class GLRenderer:
                     vao.render(mgl.TRIANGLES, vertices=b - a, first=a)
         prog = progs[1]
         _set(prog, "u_normal_offset", 1.5 * smap["texel"] if shadows else 0.0)
-        for body, M in poses.items():
+        for body in poses:
             _set(prog, "u_body", int(body))
             for g in self._bodies[body]:
-                runs = g.visible_runs(M, view_planes_world)
+                runs = g.visible_runs(view_planes_world)
                 if not runs:
                     continue
                 _set(prog, "u_textured", g.texture is not None)
