@@ -949,7 +949,7 @@ class GLRenderer:
         if smap is None:
             tex = self._own(self.ctx.depth_texture((px, px)))
             tex.compare_func = "<="
-            tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+            tex.filter = (self._mgl.LINEAR, self._mgl.LINEAR)  # 2 x 2 percentage-closer filtering
             tex.repeat_x = tex.repeat_y = False
             fbo = self._own(self.ctx.framebuffer(depth_attachment=tex))
             smap = self._shadow_maps[px] = {"texture": tex, "fbo": fbo, "fresh": False}
@@ -993,6 +993,8 @@ class GLRenderer:
         centre = np.mean([m[0, :3, 3] for m in poses.values()], axis=0) if poses else T_world_cam[:3, 3]
         # the shadow falls on ground at least ~0.5 m from a camera on the rover
         dist = max(float(np.linalg.norm(centre - T_world_cam[:3, 3])), 0.5)
+        # (a texel falls on level ground stretched by 1 / sin(sun elevation); the 2 x 2 filtered
+        # lookup smooths the steps that leaves under a low sun, at a fraction of a finer map's cost)
         return self._update_shadow(poses, sun / np.linalg.norm(sun), dist / focal)
 
     def _draw(self, view_planes_world, T_world_cam, P, lighting: Lighting, poses, labels: bool, smap) -> None:
