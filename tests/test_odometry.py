@@ -503,3 +503,20 @@ def test_kmeans_of_8_bit_images_equals_the_general_one():
         assert np.array_equal(a[0], b[0])
         np.testing.assert_allclose(a[1], b[1], atol=1e-3)
         np.testing.assert_allclose(a[2], b[2], atol=1e-3)
+
+
+@pytest.mark.parametrize("size", [(160, 120), (640, 480)])
+def test_local_contrast_equals_the_whole_image_variance_filter(size):
+    """Both ways of computing the features' contrast (whole image, or patches for large images)
+    give the blur-of-squared-deviation filter's values, at the border too."""
+
+    from perception.odometry import _local_contrast
+
+    rng = np.random.default_rng(3)
+    w, h = size
+    g = cv2.GaussianBlur(rng.uniform(0, 255, (h, w)).astype(np.uint8), (5, 5), 1.5)
+    f = g.astype(np.float32)
+    ref = cv2.blur((f - cv2.blur(f, (7, 7))) ** 2, (7, 7))
+    pts = np.vstack([rng.uniform(0, [w - 1, h - 1], (40, 2)), [[0, 0], [w - 1, h - 1], [2.4, h - 2.6]]])
+    xy = np.rint(pts).astype(int)
+    np.testing.assert_allclose(_local_contrast(g, pts.astype(np.float32)), ref[xy[:, 1], xy[:, 0]], rtol=1e-4)
