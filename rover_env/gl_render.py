@@ -2,18 +2,21 @@
 
 :class:`GLRenderer` mirrors the visual shapes of every body in one ``BulletClient`` (boxes,
 spheres, cylinders and OBJ meshes with their colours and textures) and the terrain's exact height
-grid, reads the link poses from PyBullet at each render, and draws:
+grid, poses the links at each render by forward kinematics from the base pose and joint
+positions that PyBullet reports (reading only: the physics does not depend on what is rendered),
+and draws:
 
 * pinhole views with exactly the intrinsics K of :class:`perception.PinholeCamera` (pixel
   centres at integer coordinates, row 0 at the top), diffuse sun and ambient sky light, and the
   shadow of every body but the ground, from a shadow map rendered from the sun (orthographic,
   fitted to the casters' bounding sphere, normal-offset);
-* fisheye images: the :class:`rover_env.fisheye.CubemapRemap` views rendered into one atlas
-  texture and remapped on the GL side through the exact :class:`perception.OmniCamera` map;
+* fisheye images: the :class:`rover_env.fisheye.CubemapRemap` views rendered into one atlas,
+  read back and remapped on the CPU through the exact :class:`perception.OmniCamera` map (one
+  fixed-point ``cv2.remap``: cheaper than a remap pass on llvmpipe);
 * per-pixel labels for tests and evaluation: segmentation (body + ((link + 1) << 24)), depth
   along the optical axis and world points.
 
-Textures are mipmapped and sampled trilinearly with anisotropic filtering. One GL context per
+Textures are mipmapped and sampled trilinearly (see :data:`LOD_BIAS`). One GL context per
 renderer (one per simulation); :meth:`GLRenderer.release` frees it. On Mesa's llvmpipe set
 ``LP_NUM_THREADS`` to choose how many cores it rasterises on. The same code runs on a GPU.
 """
@@ -38,7 +41,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-MAX_LINKS = 64  # links per body the vertex shader can pose
 SHADOW_MAP_PX = 2048  # largest shadow map edge [texels]
 #: Textures are sampled one mipmap level sharper than a pixel's footprint asks for. Trilinear
 #: mipmapping picks its level from the footprint's longest side, which blurs ground seen at a
@@ -596,7 +598,6 @@ class GLRenderer:
                 _set(prog, "u_shadow", 1)
             self._textures: dict[str, object] = {}
             self._bodies: dict[int, list[_Group]] = {}
-            self._body_links: dict[int, int] = {}
             self._posed: dict[int, bytes] = {}  # body -> the link poses its vertices are at
             self._joints: dict[int, list] = {}  # body -> _joint_table
             self._fk_cache: dict[int, tuple] = {}  # body -> (base pose and joints read, link poses)
@@ -680,10 +681,6 @@ class GLRenderer:
         c = self.client
         groups: dict[str | None, list[np.ndarray]] = {}
         n_links = c.getNumJoints(body)
-        if n_links + 1 > MAX_LINKS:
-            raise ValueError(
-                f"body {body} has {n_links} links; the GL renderer poses at most {MAX_LINKS - 1}"
-            )
         radius = np.zeros(n_links + 1)
         for vs in c.getVisualShapeData(body, flags=pb.VISUAL_SHAPE_DATA_TEXTURE_UNIQUE_IDS):
             link, gtype, dims, fname, lpos, lorn, rgba = vs[1], vs[2], vs[3], vs[4], vs[5], vs[6], vs[7]
@@ -745,7 +742,6 @@ class GLRenderer:
             vaos["ibo"] = ibo
             out.append(_Group(data, tris, vbo, vaos, self._texture(texture) if texture else None))
         self._bodies[body] = out
-        self._body_links[body] = n_links
         self._body_radius[body] = radius
 
     def _build_terrain(self, terrain: Terrain):
@@ -911,7 +907,6 @@ class GLRenderer:
             for obj in (*g.vaos.values(), g.vbo):
                 obj.release()
                 self._objects.remove(obj)
-        self._body_links.pop(body, None)
         self._body_radius.pop(body, None)
 
     # ------------------------------------------------------------------ shadow map
