@@ -375,6 +375,31 @@ def _quat_to_matrix(q) -> np.ndarray:
     )
 
 
+#: Index-buffer gaps shorter than this are drawn rather than skipped: a draw call costs more on
+#: llvmpipe (~60 us) than some hundred off-screen triangles.
+_MERGE_GAP = 600
+
+
+def _index_runs(bounds: np.ndarray, items: np.ndarray) -> list[tuple[int, int]]:
+    """Draws (first index, count) of ``items`` (sorted), item i spanning ``bounds[i:i + 2]``.
+
+    Consecutive items share a draw, and runs less than ``_MERGE_GAP`` indices apart are merged.
+    """
+    if not len(items):
+        return []
+    runs = []
+    a, b = int(bounds[items[0]]), int(bounds[items[0] + 1])
+    for i in items[1:].tolist():
+        lo, hi = int(bounds[i]), int(bounds[i + 1])
+        if lo - b < _MERGE_GAP:
+            b = hi
+        else:
+            runs.append((a, b - a))
+            a, b = lo, hi
+    runs.append((a, b - a))
+    return [r for r in runs if r[1] > 0]
+
+
 def _pose_matrix(pos, orn) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = _quat_to_matrix(orn), pos
@@ -515,16 +540,7 @@ class _Group:
         """(first index, index count) of the runs of links whose bounding sphere may be in view."""
         dist = self.world_centre @ planes[:, :3].T + planes[:, 3]  # (links, planes)
         seen = (self.radius >= 0) & np.all(dist >= -self.radius[:, None], axis=1)
-        idx = np.flatnonzero(seen)
-        if not len(idx):
-            return []
-        brk = np.flatnonzero(np.diff(idx) != 1)
-        first = np.r_[idx[0], idx[brk + 1]]
-        last = np.r_[idx[brk], idx[-1]] + 1
-        return [
-            (int(self.tri_bounds[a]), int(self.tri_bounds[b] - self.tri_bounds[a]))
-            for a, b in zip(first, last)
-        ]
+        return _index_runs(self.tri_bounds, np.flatnonzero(seen))
 
     def pose(self, M: np.ndarray) -> None:
         """Move the vertices to link poses ``M`` ((links + 1, 4, 4), link -> world) and upload them."""
@@ -1025,13 +1041,9 @@ class GLRenderer:
             if len(visible):
                 # runs of consecutive chunks, one draw each (an indirect multi-draw would make
                 # llvmpipe wait for the rasteriser to read its buffer)
-                starts = t["starts"]
-                brk = np.flatnonzero(np.diff(visible) != 1)
-                first = np.r_[visible[0], visible[brk + 1]]
-                last = np.r_[visible[brk], visible[-1]] + 1
                 vao = t["vaos"][labels]
-                for a, b in zip(starts[first].tolist(), starts[last].tolist(), strict=True):
-                    vao.render(mgl.TRIANGLES, vertices=b - a, first=a)
+                for first, count in _index_runs(t["starts"], visible):
+                    vao.render(mgl.TRIANGLES, vertices=count, first=first)
         prog = progs[1]
         _set(prog, "u_normal_offset", 1.5 * smap["texel"] if shadows else 0.0)
         for body in poses:
