@@ -791,7 +791,7 @@ def _local_contrast(gray: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """
     h, w = gray.shape
     xy = np.clip(np.rint(pts).astype(np.int64), 0, [w - 1, h - 1])
-    if h * w <= 40 * 169 * len(pts):  # a small image: blurring all of it costs less
+    if h * w <= 8 * 169 * len(pts):  # a small image: blurring all of it costs less
         g = gray.astype(np.float32)
         var = cv2.blur((g - cv2.blur(g, (7, 7))) ** 2, (7, 7))
         return var[xy[:, 1], xy[:, 0]]
