@@ -369,7 +369,7 @@ class CubemapRemap:
         """
         pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
         R, K, size = self._face_arrays
-        p = np.einsum("nj,fjk->fnk", pts, R)  # every face's optical frame, (faces, N, 3)
+        p = np.matmul(pts[None], R)  # every face's optical frame, (faces, N, 3)
         z = p[..., 2]
         front = z > 1e-6
         z = np.where(front, z, 1.0)
