@@ -190,12 +190,13 @@ def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, flo
     """
     wheel, ball = _part_shapes(model.wheel_radius, model.wheel_width, model.marker_size, True)
     sr, st, ss = (float(v) for v in spread)
+    knuckles, plate_sets = _window_shapes(model, wheel)
     out = []
     for i, axle in enumerate(AXLES):
         # axle-frame points at the two steering corners: (2, n, 3) with the marker centres last
         local, centres = [], []
         for w in (axle + "L", axle + "R"):
-            knuckle = np.vstack([wheel, model.occluders(w, np.eye(3), np.zeros(3))[0], model.tip_knuckle(w)])
+            knuckle = knuckles[w]
             d = float(delta[WHEELS.index(w)]) + np.array([-ss, ss])
             c, s_ = np.cos(d)[:, None], np.sin(d)[:, None]
             x, y, z = knuckle[:, 0], knuckle[:, 1], knuckle[:, 2]
@@ -203,7 +204,7 @@ def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, flo
             rot += model.kingpin_local(w)
             local.append(rot[:, :-1])
             centres.append(rot[:, -1:])  # the tie-rod marker
-        plates = np.array([model.plate_marker_local(m) for m in PLATE[axle]])
+        plates = plate_sets[axle]
         local = np.concatenate([*local, *centres, np.broadcast_to(plates, (2,) + plates.shape)], axis=1)
         n_markers = 2 + len(plates)
         for roll in (psi[i] - sr, psi[i] + sr):
@@ -215,6 +216,28 @@ def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, flo
                 # each marker's ball, axis-aligned in the body frame as in kinematic_parts
                 out.append((body[:, -n_markers:, None, :] + ball).reshape(-1, 3))
     return np.vstack(out)
+
+
+_WINDOW_SHAPES: dict[int, tuple] = {}  # id(model) -> (model, knuckle points, plate markers)
+
+
+def _window_shapes(model, wheel: np.ndarray) -> tuple[dict, dict]:
+    """The fixed point sets of :func:`joint_window_parts`, built once per model.
+
+    Per wheel its knuckle-frame outline (tread rims, arm and marker, the tie-rod marker's centre
+    last) and per axle its plate markers' centres.
+    """
+    entry = _WINDOW_SHAPES.get(id(model))
+    if entry is None or entry[0] is not model:
+        knuckles = {
+            w: np.vstack([wheel, model.occluders(w, np.eye(3), np.zeros(3))[0], model.tip_knuckle(w)])
+            for w in WHEELS
+        }
+        plates = {a: np.array([model.plate_marker_local(m) for m in PLATE[a]]) for a in AXLES}
+        if len(_WINDOW_SHAPES) > 16:
+            _WINDOW_SHAPES.clear()
+        entry = _WINDOW_SHAPES[id(model)] = (model, knuckles, plates)
+    return entry[1], entry[2]
 
 
 class CubemapRemap:
