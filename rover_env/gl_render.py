@@ -1091,8 +1091,6 @@ class GLRenderer:
         """
         from rover_env.rendering import RenderedView, view_planes
 
-        if self.released:
-            raise RuntimeError("this GLRenderer is released; create a new one")
         w, h = int(size[0]), int(size[1])
         poses = self._sync_bodies()
         fbo, color = self._fbo((w, h), segmentation)
