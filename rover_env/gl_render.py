@@ -1159,8 +1159,6 @@ class GLRenderer:
         from rover_env.fisheye import FisheyeView
         from rover_env.rendering import view_planes
 
-        if self.released:
-            raise RuntimeError("this GLRenderer is released; create a new one")
         _, (aw, ah), fbo_color, fbo_labels = self._fisheye_targets(remapper)
         poses = self._sync_bodies()
         smap = self._shadow_for(lighting, poses, T_world_cam, float(remapper.focal))
