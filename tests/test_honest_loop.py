@@ -256,7 +256,8 @@ def test_layering_controllers_and_perception_import_no_simulator():
         "bad = [m for m in sys.modules if m.split('.')[0] in ('pybullet', 'rover_env')]\n"
         "assert not bad, ('controllers.rl', bad)\n"
     )
-    subprocess.run([sys.executable, "-c", code], check=True)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
 
 
 def test_bench_physics_row_is_a_ground_truth_environment_ten_times_faster_than_the_estimated_one():
