@@ -355,6 +355,10 @@ def test_bad_inputs_raise_clear_errors(ground):
         FlowOdometry(no_plane)
     with pytest.raises(ValueError, match="80 x 60"):
         FlowOdometryConfig(min_level_size=(40, 30))
+    with pytest.raises(ValueError, match="harris_width"):
+        FlowOdometryConfig(harris_width=40)
+    with pytest.raises(ValueError, match="fb_levels"):
+        FlowOdometryConfig(fb_levels=4)
 
 
 def test_chained_mode_matches_pairs_and_integrates_an_arc(ground):
