@@ -42,6 +42,8 @@ from perception.wheel_kinematics import slip_angle, slip_ratio, wheel_ground_vel
 log = logging.getLogger(__name__)
 
 N_WHEELS = 4
+_BIAS = 3 + N_WHEELS  # index of the gyro's yaw-rate bias in the state
+_ODOM_BIAS = _BIAS + 1  # index of the odometry's yaw-rate bias (estimated only with a gyro)
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,14 @@ class SlipConfig:
         grip_gate: The pseudo-measurement is left out for a wheel whose innovation exceeds
             this many standard deviations (that wheel slips). It is also left out where the
             measurements alone do not resolve the wheel's slip to ``max_slip_std``.
+        gyro_bias_std: Prior standard deviation of a gyro's yaw-rate bias [rad/s] (its turn-on
+            bias); the bias is estimated only when :meth:`SlipEstimator.add_gyro` is used.
+        gyro_bias_rw: Random walk of that bias [rad/s per sqrt(s)] (its drift).
+        odom_yaw_bias_std: With a gyro, the odometry's yaw rate is given a slowly varying bias
+            of this prior standard deviation [rad/s]: on rough ground its planar model turns
+            the relief under the camera into a yaw rate of the order of 0.01 rad/s, which would
+            otherwise pass into the gyro's bias.
+        odom_yaw_bias_rw: Random walk of that bias [rad/s per sqrt(s)].
     """
 
     velocity_rw: float = 0.15
@@ -101,6 +111,10 @@ class SlipConfig:
     eps: float = 0.01
     grip_std: float = 0.03
     grip_gate: float = 2.5
+    gyro_bias_std: float = 0.02
+    gyro_bias_rw: float = 1e-4
+    odom_yaw_bias_std: float = 0.01
+    odom_yaw_bias_rw: float = 1e-3
 
     def __post_init__(self) -> None:
         for name in ("velocity_rw", "yaw_rate_rw", "wheel_rate_rw", "min_quality", "min_speed", "max_age"):
@@ -113,6 +127,16 @@ class SlipConfig:
         if not (self.grip_std >= 0 and self.grip_gate > 0):
             raise ValueError(
                 f"SlipConfig: grip_std={self.grip_std!r} must be >= 0 and grip_gate={self.grip_gate!r} > 0"
+            )
+        if not (self.odom_yaw_bias_std > 0 and self.odom_yaw_bias_rw >= 0):
+            raise ValueError(
+                f"SlipConfig: odom_yaw_bias_std={self.odom_yaw_bias_std!r} must be > 0 and "
+                f"odom_yaw_bias_rw={self.odom_yaw_bias_rw!r} >= 0"
+            )
+        if not (self.gyro_bias_std > 0 and self.gyro_bias_rw >= 0):
+            raise ValueError(
+                f"SlipConfig: gyro_bias_std={self.gyro_bias_std!r} must be > 0 and "
+                f"gyro_bias_rw={self.gyro_bias_rw!r} >= 0"
             )
         if not self.event_hold >= 0:
             raise ValueError(f"SlipConfig.event_hold: {self.event_hold!r} s must be >= 0")
@@ -235,9 +259,11 @@ class SlipEstimator:
     def reset(self) -> None:
         """Forget every measurement (a new episode or log)."""
         c = self.config
-        self._x = np.zeros(3 + N_WHEELS)
+        self._x = np.zeros(3 + N_WHEELS + 2)  # twist, wheel rates, gyro and odometry yaw-rate biases
         v0, w0, r0 = c.init_std
-        self._P = np.diag([v0**2, v0**2, w0**2] + [r0**2] * N_WHEELS)
+        biases = [c.gyro_bias_std**2, c.odom_yaw_bias_std**2]
+        self._P = np.diag([v0**2, v0**2, w0**2] + [r0**2] * N_WHEELS + biases)
+        self._gyro_used = False
         self._t: float | None = None
         self._pending: list[tuple[float, int, np.ndarray, np.ndarray, np.ndarray]] = []
         self._steer = np.zeros(N_WHEELS)
@@ -274,7 +300,12 @@ class SlipEstimator:
         else:
             q = max(float(quality), self.config.min_quality)
             R = np.diag((floor / q) ** 2)
-        self._queue(t - 0.5 * max(dt, 0.0), np.arange(3), z, R)
+        H = None
+        if self._gyro_used:  # its yaw rate then carries a bias of its own
+            H = np.zeros((3, len(self._x)))
+            H[[0, 1, 2], [0, 1, 2]] = 1.0
+            H[2, _ODOM_BIAS] = 1.0
+        self._queue(t - 0.5 * max(dt, 0.0), np.arange(3), z, R, H)
         self._t_odom = max(self._t_odom, t)
 
     def add_wheels(self, t: float, wheel_rate, dt: float, valid=None, steering=None) -> None:
@@ -303,6 +334,45 @@ class SlipEstimator:
         self._queue(t - 0.5 * max(dt, 0.0), 3 + np.flatnonzero(ok), z[ok], R)
         self._t_rate[ok] = np.maximum(self._t_rate[ok], t)
 
+    def add_gyro(self, t: float, rate: float, dt: float, std: float) -> None:
+        """A gyro's body-z rate, the mean over ``dt`` seconds up to ``t``, which carries a bias.
+
+        The filter estimates the bias with the twist. From the first gyro measurement on, the
+        odometry's yaw rate is given a slowly varying bias too (``odom_yaw_bias_std``): the two
+        biases are told apart by their priors (the gyro's from its data sheet), so a gyro with a
+        small turn-on bias carries the heading, and the odometry's rough-ground yaw error does
+        not pass into it.
+
+        Args:
+            t: End of the averaging window [s]; the measurement applies at t - dt/2.
+            rate: Mean angular rate about body z [rad/s].
+            dt: Averaging window [s].
+            std: Standard deviation of that mean [rad/s] (noise density / sqrt(dt)).
+        """
+        if not (math.isfinite(rate) and std > 0 and math.isfinite(std)):
+            return
+        self._gyro_used = True
+        H = np.zeros((1, len(self._x)))
+        H[0, 2] = H[0, _BIAS] = 1.0
+        self._queue(t - 0.5 * max(dt, 0.0), None, np.array([rate]), np.array([[std * std]]), H)
+
+    def calibrate_gyro(self, rate: float, std: float) -> None:
+        """A gyro's mean body-z rate [rad/s] while the body stood still: a direct bias measurement.
+
+        ``std``: standard deviation of that mean [rad/s]. Applied at once (call it before the
+        first measurements of an episode).
+        """
+        if not (math.isfinite(rate) and std > 0 and math.isfinite(std)):
+            return
+        H = np.zeros((1, len(self._x)))
+        H[0, _BIAS] = 1.0
+        self._update(H, np.array([rate]), np.array([[std * std]]))
+
+    @property
+    def gyro_bias(self) -> tuple[float, float]:
+        """The gyro's estimated yaw-rate bias and its standard deviation [rad/s]."""
+        return float(self._x[_BIAS]), float(math.sqrt(self._P[_BIAS, _BIAS]))
+
     def update(
         self, t: float, odometry=None, kinematics=None, fisheye_dt: float | None = None
     ) -> SlipEstimate:
@@ -323,30 +393,33 @@ class SlipEstimator:
         return self.estimate(t)
 
     # ------------------------------------------------------------------ filter
-    def _queue(self, t: float, idx: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
+    def _queue(self, t: float, idx, z: np.ndarray, R: np.ndarray, H: np.ndarray | None = None) -> None:
+        """Queue z = x[idx] + noise (or z = H x + noise when ``H`` is given) at time ``t``."""
         if not math.isfinite(t):
             raise ValueError(f"measurement time {t!r} is not finite")
         self._seq += 1
-        self._pending.append((float(t), self._seq, idx, z, R))
+        self._pending.append((float(t), self._seq, idx, z, R, H))
 
     def _predict(self, x: np.ndarray, P: np.ndarray, dt: float) -> np.ndarray:
         c = self.config
-        q = np.array([c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS)
+        q = [c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS
+        q = np.array(q + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2])
         return P + np.diag(q * dt)
 
     def _apply(self, upto: float) -> None:
         """Apply the pending measurements up to time ``upto`` in time order."""
         due = sorted((m for m in self._pending if m[0] <= upto), key=lambda m: (m[0], m[1]))
         self._pending = [m for m in self._pending if m[0] > upto]
-        for t, _, idx, z, R in due:
+        for t, _, idx, z, R, H in due:
             if self._t is not None and t > self._t:
                 self._P = self._predict(self._x, self._P, t - self._t)
             if self._t is None or t > self._t:
                 self._t = t
-            H = np.zeros((len(idx), len(self._x)))
-            H[np.arange(len(idx)), idx] = 1.0
+            if H is None:  # rows that pick state entries
+                H = np.zeros((len(idx), len(self._x)))
+                H[np.arange(len(idx)), idx] = 1.0
             self._update(H, z, R)
-            if idx[0] >= 3 and self.config.grip_std > 0:
+            if idx is not None and idx[0] >= 3 and self.config.grip_std > 0:
                 self._grip(idx - 3)
 
     def _update(self, H: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
@@ -362,7 +435,7 @@ class SlipEstimator:
         c = self.config
         x, P = self._x, self._P
         J = _long_jacobian(self.wheel_xy, self._steer)  # v_long = J @ twist
-        speed = np.maximum(np.abs(x[3:] * self.wheel_radius), np.abs(J @ x[:3]))
+        speed = np.maximum(np.abs(x[3:_BIAS] * self.wheel_radius), np.abs(J @ x[:3]))
         w = wheels[speed[wheels] >= c.event_min_speed]
         if not len(w):
             return
@@ -396,7 +469,7 @@ class SlipEstimator:
         c = self.config
         x = self._x.copy()
         P = self._P if self._t is None or t <= self._t else self._predict(x, self._P, t - self._t)
-        twist, rates = x[:3], x[3:]
+        twist, rates = x[:3], x[3:_BIAS]
         v_long, v_lat = wheel_ground_velocity(twist, self.wheel_xy, self._steer)
         a = rates * self.wheel_radius
         raw = slip_ratio(a, v_long, c.eps, clip=False)
@@ -436,7 +509,7 @@ class SlipEstimator:
             twist=twist,
             twist_std=np.sqrt(np.diag(P)[:3]),
             wheel_rate=rates,
-            wheel_rate_std=np.sqrt(np.diag(P)[3:]),
+            wheel_rate_std=np.sqrt(np.diag(P)[3:_BIAS]),
             v_long=v_long,
             v_lat=v_lat,
             slip_ratio=s,

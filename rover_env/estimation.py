@@ -16,6 +16,7 @@ the timestamped images and never steps the physics.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -36,6 +37,7 @@ from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamer
 from rover_env.config_io import ConfigError
 from rover_env.fisheye import FisheyeCameraConfig, joint_window_parts
 from rover_env.ground_truth import GROUND_TRUTH_KEYS
+from rover_env.imu import Imu, ImuConfig
 from rover_env.sim import RoverSim, SensorMessage
 
 log = logging.getLogger(__name__)
@@ -110,6 +112,10 @@ def _presets() -> dict[str, PerceptionPreset]:
 
 PERCEPTION_PRESETS: dict[str, PerceptionPreset] = _presets()
 
+#: The gyro's bias is calibrated on its samples over this long before t = 0 [s], the second half
+#: of the simulation's settling: the rover is then at rest on its wheels.
+IMU_CALIBRATION_S = 0.25
+
 
 @dataclass
 class StepEstimate:
@@ -122,6 +128,9 @@ class StepEstimate:
         slip: The slip filter's full output.
         odometry: The last odometry estimate (None before the first pair).
         kinematics: The last kinematic state.
+        imu_saturated: IMU samples since the last estimate that hit a range and were left out.
+        gyro_bias: The gyro's estimated yaw-rate bias and its standard deviation [rad/s]
+            (None without an IMU).
     """
 
     values: dict[str, np.ndarray]
@@ -130,6 +139,8 @@ class StepEstimate:
     slip: SlipEstimate
     odometry: OdometryEstimate | None = field(default=None, repr=False)
     kinematics: KinematicState | None = field(default=None, repr=False)
+    imu_saturated: int = 0
+    gyro_bias: tuple[float, float] | None = None
 
 
 class PerceptionPipeline:
@@ -147,6 +158,9 @@ class PerceptionPipeline:
         odometry: Odometry parameters.
         kinematics: Fisheye-kinematics parameters.
         slip: Slip-filter parameters.
+        imu: An IMU on the body (attached as the sensor ``"imu"``, after the cameras): its gyro's
+            body-z rate, averaged between camera frames, goes into the slip filter with a bias
+            that the filter learns from the odometry. None (default): no IMU, as before.
     """
 
     def __init__(
@@ -156,6 +170,7 @@ class PerceptionPipeline:
         odometry: FlowOdometryConfig | None = None,
         kinematics: KinematicsConfig | None = None,
         slip: SlipConfig | None = None,
+        imu: ImuConfig | None = None,
     ) -> None:
         if isinstance(preset, str):
             if preset not in PERCEPTION_PRESETS:
@@ -166,6 +181,15 @@ class PerceptionPipeline:
         self.fisheye = FisheyeCamera(sim, preset.fisheye)
         sim.attach_sensor("fisheye", self.fisheye)
         sim.attach_sensor("downward", self.downward)
+        self.imu: Imu | None = None
+        if imu is not None:
+            self.imu = Imu(sim, imu)
+            sim.attach_sensor("imu", self.imu)
+            # the calibration the estimator is given: the mount and the data sheet's noise
+            self._imu_z = self.imu.R_body_imu[2]  # body-z component of a mount-frame rate
+            self._gyro_density = imu.gyro.noise_density
+        self._gyro = [0.0, 0, 0.0]  # sum of body-z rates, samples, time of the last
+        self._imu_saturated = 0
         self._sim_timing = sim.timing
         g = sim.geometry
         self._steer_max_rate = g.steer_max_rate
@@ -177,6 +201,15 @@ class PerceptionPipeline:
         )
         self.kinematics = KinematicStateEstimator(self.fisheye.model, self.model, kinematics)
         nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
+        slip = slip or SlipConfig()
+        if imu is not None:
+            # the gyro's bias prior from its data sheet: the turn-on spread, and a drift of the
+            # bias instability over about 100 s on top of the random walk
+            slip = dataclasses.replace(
+                slip,
+                gyro_bias_std=max(imu.gyro.turn_on_bias, 1e-6),
+                gyro_bias_rw=imu.gyro.bias_random_walk + imu.gyro.bias_instability / 10.0,
+            )
         self.slip = SlipEstimator(np.array([c[:2] for _, c in nominal]), g.wheel_radius, slip)
         self._pose = np.zeros(3)
         self._t_pose = 0.0
@@ -217,8 +250,24 @@ class PerceptionPipeline:
         self._t_pose = float(t)
         self._t = float(t)
         self._last_odom = None
+        self._gyro = [0.0, 0, 0.0]
+        self._imu_saturated = 0
         self.fisheye.request_window(0.0, None)
-        return self.process(messages, t)
+        standstill = [m for m in messages if m.t < t - 1e-9]
+        if standstill and self.imu is not None:
+            self._calibrate_gyro(standstill, t)
+        return self.process([m for m in messages if m.t >= t - 1e-9], t)
+
+    def _calibrate_gyro(self, messages: list[SensorMessage], t: float) -> None:
+        """The gyro's bias from its samples while the rover stood settled, the last ``IMU_CALIBRATION_S``."""
+        rates = [
+            float(self._imu_z @ m.data[:3])
+            for m in messages
+            if m.sensor == "imu" and m.t >= t - IMU_CALIBRATION_S - 1e-9 and m.data[6] == 0
+        ]
+        if rates:
+            window = len(rates) * self.imu.period
+            self.slip.calibrate_gyro(float(np.mean(rates)), self._gyro_density / np.sqrt(window))
 
     def _window_parts(self) -> np.ndarray | None:
         """What the fisheye's next frame must show (see ``PerceptionPreset.fisheye_window``)."""
@@ -261,6 +310,24 @@ class PerceptionPipeline:
             if est.valid:
                 self.slip.add_odometry(t, est.twist, est.dt, est.quality, cov=est.twist_cov)
 
+    def _on_imu(self, data: np.ndarray, t: float) -> None:
+        if data[6] > 0 or not np.all(np.isfinite(data[:6])):
+            self._imu_saturated += 1  # a clipped rate is not a rate: left out, and counted
+            return
+        g = self._gyro
+        g[0] += float(self._imu_z @ data[:3])
+        g[1] += 1
+        g[2] = t
+
+    def _flush_gyro(self) -> None:
+        """The gyro's mean body-z rate since the last flush into the slip filter."""
+        total, n, t_last = self._gyro
+        if n:
+            window = n * self.imu.period  # each sample integrates the period before it
+            std = self._gyro_density / np.sqrt(window)
+            self.slip.add_gyro(t_last, total / n, window, std)
+        self._gyro = [0.0, 0, 0.0]
+
     def process(self, messages: list[SensorMessage], t: float) -> StepEstimate:
         """Consume the sensor messages of one step, in time order, and estimate the state at ``t``.
 
@@ -271,10 +338,14 @@ class PerceptionPipeline:
         """
         t0 = time.perf_counter()
         handlers = {"fisheye": self._on_fisheye, "downward": self._on_downward}
+        if self.imu is not None:
+            handlers["imu"] = self._on_imu
         for msg in messages:
             handler = handlers.get(msg.sensor)
             if handler is None:
                 continue
+            if msg.sensor != "imu" and self.imu is not None:
+                self._flush_gyro()
             if msg.t < self._t_pose - 1e-9 or msg.t > t + 1e-9:
                 raise ValueError(
                     f"{msg.sensor} message at t={msg.t} s is outside this step ({self._t_pose} to {t} s); "
@@ -282,9 +353,12 @@ class PerceptionPipeline:
                 )
             self._integrate(msg.t)
             handler(msg.data, msg.t)
+        if self.imu is not None:
+            self._flush_gyro()
         self._integrate(t)
         self._t = float(t)
         out = self.estimate()
+        self._imu_saturated = 0
         self._perception_s += time.perf_counter() - t0
         return out
 
@@ -319,4 +393,5 @@ class PerceptionPipeline:
             "steering": ks.lam.copy(),
             "quality": np.array([q_odo, q_kin, sl.quality]),
         }
-        return StepEstimate(values, q_odo, q_kin, sl, odo, ks)
+        bias = self.slip.gyro_bias if self.imu is not None else None
+        return StepEstimate(values, q_odo, q_kin, sl, odo, ks, self._imu_saturated, bias)

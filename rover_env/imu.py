@@ -320,13 +320,16 @@ class Imu:
 
     :meth:`sample` returns (7,) float64: gyro xyz [rad/s], accel xyz [m/s^2] in the mount frame,
     then a saturation flag (1.0 when any axis hit its range). :meth:`reset` draws a new episode's
-    errors; the simulation's own reset restarts the sample chain.
+    errors. The simulation samples it also while the rover settles before t = 0 (``preroll``).
 
     Args:
         sim: The simulation.
         config: The IMU (default: the BMI088 preset).
         seed: Seed of the first episode's errors.
     """
+
+    #: Sampled while the rover settles at rest before t = 0 (see ``RoverSim.attach_sensor``).
+    preroll = True
 
     def __init__(self, sim, config: ImuConfig | None = None, seed: int | None = None) -> None:
         self.sim = sim

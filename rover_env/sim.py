@@ -183,7 +183,9 @@ class RoverSim:
 
         Samples are taken at t = 0 after each :meth:`reset` and then at every whole multiple of
         the period, at the exact physics substep; sensors attached earlier are sampled first at
-        equal times. Collect them with :meth:`take_messages`.
+        equal times. Collect them with :meth:`take_messages`. A sensor with a true ``preroll``
+        attribute (an IMU) is also sampled while the rover settles at rest before t = 0, at
+        negative times: the standstill a rover uses to calibrate its gyro.
 
         Raises:
             ValueError: ``name`` is taken, or the period is not a whole number of physics steps.
@@ -203,12 +205,12 @@ class RoverSim:
         out, self._inbox = self._inbox, []
         return out
 
-    def _sample_sensors(self, first: bool = False) -> None:
+    def _sample_sensors(self, first: bool = False, only=None) -> None:
         if not self._sensors:
             return
         t0 = time.perf_counter()
         t = self.t
-        for name, sensor, every in self._sensors:
+        for name, sensor, every in self._sensors if only is None else only:
             if first or self._steps % every == 0:
                 self._inbox.append(SensorMessage(name, t, sensor.sample()))
         self.timing["sensors"] += time.perf_counter() - t0
@@ -244,10 +246,15 @@ class RoverSim:
         clearance = g.wheel_radius - g.axle_z + 0.005
         pos = np.array([x, y, a0]) + rot[:, 2] * clearance
         self.rover.reset_pose(pos, quat)
-        for _ in range(int(round(self.settle_time / self.dt))):
-            self._substep()
-        self._steps = 0
+        settle = int(round(self.settle_time / self.dt))
+        self._steps = -settle  # the clock reads 0 when the rover has settled
         self._inbox = []
+        preroll = [(n, s, e) for n, s, e in self._sensors if getattr(s, "preroll", False)]
+        for _ in range(settle):
+            self._substep()
+            if preroll and self._steps < 0:
+                self._sample_sensors(only=preroll)
+        self._steps = 0
         self._sample_sensors(first=True)
         return self.ground_truth()
 

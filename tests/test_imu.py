@@ -95,16 +95,20 @@ def settled_sim(cfg: ImuConfig, seed: int):
 
 
 def imu_samples(sim: RoverSim) -> np.ndarray:
-    return np.array([m.data for m in sim.take_messages() if m.sensor == "imu"])
+    """The IMU's samples since the last call, from t = 0 on (the settling's come before)."""
+    return np.array([m.data for m in sim.take_messages() if m.sensor == "imu" and m.t >= 0])
 
 
 def test_ideal_imu_at_rest_reads_gravity_and_the_mems_unit_its_bias():
     sim, imu = settled_sim(ImuConfig.preset("ideal"), 0)
     try:
+        pre = [m.t for m in sim.take_messages() if m.sensor == "imu"]
+        # sampled while settling (0.5 s before t = 0), then at t = 0
+        assert len(pre) == 120 and pre[0] == pytest.approx(-119 / 240) and pre[-1] == 0.0
         sim.rover.command(np.zeros(4), 0.0, 0.0)
         sim.step(2.0)
         s = imu_samples(sim)
-        assert len(s) == 481  # 240 Hz, both ends
+        assert len(s) == 480  # 240 Hz, after t = 0
         R_wb = quat_to_matrix(sim.ground_truth().pose[3:])
         up = R_wb.T @ np.array([0.0, 0.0, G])  # the mount frame is the body frame here
         assert np.allclose(s[-240:, 3:6].mean(axis=0), up, atol=2e-3)
@@ -189,3 +193,55 @@ def test_config_from_a_mapping_and_bad_mappings():
             Imu(sim, ImuConfig(rate_hz=200.0))
     finally:
         sim.close()
+
+
+def drive_circle(imu, seconds: float, env_id: str = "RoverRoughSlippery-v0", seed: int = 3):
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401
+    from rover_env.sim import quat_to_yaw
+
+    env = gym.make(env_id, obs_source="estimated", preset="train", imu=imu)
+    try:
+        obs, info = env.reset(seed=seed)
+        first = env.unwrapped.pipeline.estimate()
+        yaw0 = info["estimate"]["odometry_pose"][2] - quat_to_yaw(info["ground_truth"]["pose"][3:])
+        for _ in range(int(seconds * 30)):
+            obs, _, term, trunc, info = env.step(np.array([0.25, 0.5, -0.5], np.float32))
+            assert not (term or trunc)
+        est = info["estimate"]["odometry_pose"]
+        yaw_err = math.remainder(est[2] - quat_to_yaw(info["ground_truth"]["pose"][3:]) - yaw0, 2 * math.pi)
+        return env.unwrapped.pipeline, first, math.degrees(yaw_err), obs
+    finally:
+        env.close()
+
+
+def test_gyro_calibrated_at_standstill_and_heading_held_on_rough_ground():
+    base, _, err_none, obs_none = drive_circle(None, 15.0)
+    pipe, first, err_imu, obs_imu = drive_circle("bmi088", 15.0)
+    cfg = pipe.imu.config
+    bias, std = first.gyro_bias
+    # the standstill before t = 0 gives the episode's turn-on bias to a few hundredths of a degree/s
+    assert abs(bias - pipe.imu.noise.turn_on[2]) <= 3 * std + 3e-4
+    print(f"gyro bias {bias:.5f} +- {std:.5f} rad/s, turn-on {pipe.imu.noise.turn_on[2]:.5f}")
+    assert std < 0.1 * cfg.gyro.turn_on_bias
+    assert first.imu_saturated == 0
+    print(
+        f"15 s circle on rough ground: heading error {err_none:+.2f} deg without IMU, {err_imu:+.2f} deg with"
+    )
+    assert abs(err_imu) < 0.5 * abs(err_none)
+    assert abs(err_imu) < 2.0
+    assert obs_none.shape == obs_imu.shape
+
+
+def test_imu_option_errors():
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401
+
+    with pytest.raises(ValueError, match="obs_source='estimated'"):
+        gym.make("Rover-v0", obs_source="ground_truth", imu="bmi088")
+    with pytest.raises(ValueError, match="imu="):
+        gym.make("Rover-v0", imu=3)
+    with pytest.raises(ConfigError, match="imu preset"):
+        gym.make("Rover-v0", imu="mpu6050")

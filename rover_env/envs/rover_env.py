@@ -20,6 +20,7 @@ from rover_env.estimation import PERCEPTION_PRESETS, PerceptionPipeline, StepEst
 from rover_env.fisheye import FisheyeCameraConfig
 from rover_env.geometry import RoverGeometry
 from rover_env.ground_truth import GROUND_TRUTH_KEYS, GroundTruth
+from rover_env.imu import ImuConfig
 from rover_env.rendering import Lighting, look_at, render_pinhole
 from rover_env.scenario import ScenarioConfig, load_scenario
 from rover_env.sim import RoverSim, quat_to_yaw, yaw_to_quat
@@ -140,6 +141,10 @@ class RoverEnv(gym.Env):
         renderer: ``"auto"`` (OpenGL where a headless EGL context can be created, else
             TinyRenderer with a warning), ``"gl"`` or ``"tiny"``; see :class:`rover_env.sim.RoverSim`.
             The physics is the same whatever renders.
+        imu: An IMU for the estimator (with ``obs_source="estimated"``): a preset name
+            (``"bmi088"``, ``"tactical"``, ``"ideal"``), a mapping (``preset`` and overrides, as
+            in a scenario) or an :class:`~rover_env.imu.ImuConfig`; its errors are drawn per
+            episode from the reset's seed. None (default): no IMU.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -159,6 +164,7 @@ class RoverEnv(gym.Env):
         render_size: tuple[int, int] = (960, 480),
         solver_iterations: int = 10,
         renderer: str = "auto",
+        imu: str | dict | ImuConfig | None = None,
     ) -> None:
         super().__init__()
         try:
@@ -199,8 +205,16 @@ class RoverEnv(gym.Env):
         )
         self.course = WaypointCourse(self.scenario.course)
         self.pipeline: PerceptionPipeline | None = None
+        if isinstance(imu, str):
+            imu = ImuConfig.preset(imu)
+        elif isinstance(imu, dict):
+            imu = ImuConfig.from_dict(imu)
+        elif imu is not None and not isinstance(imu, ImuConfig):
+            raise ValueError(f"imu={imu!r}: give a preset name, a mapping, an ImuConfig or None")
+        if imu is not None and self.obs_source is not ObsSource.ESTIMATED:
+            raise ValueError("imu: the IMU feeds the estimator; use it with obs_source='estimated'")
         if self.obs_source is ObsSource.ESTIMATED:
-            self.pipeline = PerceptionPipeline(self.sim, preset)
+            self.pipeline = PerceptionPipeline(self.sim, preset, imu=imu)
         self._est: StepEstimate | None = None
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
@@ -243,6 +257,8 @@ class RoverEnv(gym.Env):
         if self.pipeline is not None:
             for cam in (self.pipeline.downward, self.pipeline.fisheye):
                 cam.set_blackout(options.get("blackout", ()))
+            if self.pipeline.imu is not None:  # this episode's turn-on bias, scale factors, noise
+                self.pipeline.imu.reset(int(rng.integers(2**63 - 1)))
         elif options.get("blackout"):
             raise ValueError("reset option 'blackout' needs obs_source='estimated' (there are no cameras)")
         self._gt = self.sim.reset(x, y, yaw)
