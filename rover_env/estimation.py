@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perception.fisheye_kinematics import KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.inertial import AttitudeFilter, tilted_step
 from perception.kinematics import AXLES, MARKERS
 from perception.odometry import (
     FlowOdometry,
@@ -131,6 +132,8 @@ class StepEstimate:
         imu_saturated: IMU samples since the last estimate that hit a range and were left out.
         gyro_bias: The gyro's estimated yaw-rate bias and its standard deviation [rad/s]
             (None without an IMU).
+        tilt: (roll, pitch) of the body from the IMU [rad] (None without one).
+        height: Dead-reckoned height change since the start [m] (0 without an IMU).
     """
 
     values: dict[str, np.ndarray]
@@ -141,6 +144,8 @@ class StepEstimate:
     kinematics: KinematicState | None = field(default=None, repr=False)
     imu_saturated: int = 0
     gyro_bias: tuple[float, float] | None = None
+    tilt: tuple[float, float] | None = None
+    height: float = 0.0
 
 
 class PerceptionPipeline:
@@ -188,6 +193,9 @@ class PerceptionPipeline:
             # the calibration the estimator is given: the mount and the data sheet's noise
             self._imu_z = self.imu.R_body_imu[2]  # body-z component of a mount-frame rate
             self._gyro_density = imu.gyro.noise_density
+            self.attitude = AttitudeFilter(self.imu.R_body_imu)
+        self._z = 0.0  # dead-reckoned height change [m] (with an IMU)
+        self._twist = np.zeros(3)  # the twist of the last dead-reckoning step
         self._gyro = [0.0, 0, 0.0]  # sum of body-z rates, samples, time of the last
         self._imu_saturated = 0
         self._sim_timing = sim.timing
@@ -252,6 +260,10 @@ class PerceptionPipeline:
         self._last_odom = None
         self._gyro = [0.0, 0, 0.0]
         self._imu_saturated = 0
+        self._z = 0.0
+        self._twist = np.zeros(3)
+        if self.imu is not None:
+            self.attitude.reset()
         self.fisheye.request_window(0.0, None)
         standstill = [m for m in messages if m.t < t - 1e-9]
         if standstill and self.imu is not None:
@@ -260,14 +272,18 @@ class PerceptionPipeline:
 
     def _calibrate_gyro(self, messages: list[SensorMessage], t: float) -> None:
         """The gyro's bias from its samples while the rover stood settled, the last ``IMU_CALIBRATION_S``."""
-        rates = [
-            float(self._imu_z @ m.data[:3])
-            for m in messages
-            if m.sensor == "imu" and m.t >= t - IMU_CALIBRATION_S - 1e-9 and m.data[6] == 0
-        ]
-        if rates:
-            window = len(rates) * self.imu.period
-            self.slip.calibrate_gyro(float(np.mean(rates)), self._gyro_density / np.sqrt(window))
+        still = np.array(
+            [
+                m.data[:6]
+                for m in messages
+                if m.sensor == "imu" and m.t >= t - IMU_CALIBRATION_S - 1e-9 and m.data[6] == 0
+            ]
+        ).reshape(-1, 6)
+        if len(still):
+            mean = still.mean(axis=0)
+            window = len(still) * self.imu.period
+            self.slip.calibrate_gyro(float(self._imu_z @ mean[:3]), self._gyro_density / np.sqrt(window))
+            self.attitude.calibrate(mean[:3], mean[3:])
 
     def _window_parts(self) -> np.ndarray | None:
         """What the fisheye's next frame must show (see ``PerceptionPreset.fisheye_window``)."""
@@ -314,6 +330,9 @@ class PerceptionPipeline:
         if data[6] > 0 or not np.all(np.isfinite(data[:6])):
             self._imu_saturated += 1  # a clipped rate is not a rate: left out, and counted
             return
+        vx, vy, w = self._twist
+        # the centripetal acceleration omega x v of a turn is not gravity
+        self.attitude.update(data[:3], data[3:6], self.imu.period, (-w * vy, w * vx, 0.0))
         g = self._gyro
         g[0] += float(self._imu_z @ data[:3])
         g[1] += 1
@@ -370,7 +389,15 @@ class PerceptionPipeline:
         blackout) it is the last one.
         """
         if t1 > self._t_pose:
-            self._pose = arc_step(self._pose, self.slip.twist_at(self._t_pose), t1 - self._t_pose)
+            twist = self.slip.twist_at(self._t_pose)
+            self._twist = twist
+            dt = t1 - self._t_pose
+            if self.imu is None:
+                self._pose = arc_step(self._pose, twist, dt)
+            else:  # on the tilted ground plane, turning at the world heading's rate
+                a = self.attitude
+                rate = a.heading_rate(float(twist[2]))
+                self._pose, self._z = tilted_step(self._pose, self._z, twist, a.roll, a.pitch, rate, dt)
             self._t_pose = t1
 
     def estimate(self) -> StepEstimate:
@@ -393,5 +420,8 @@ class PerceptionPipeline:
             "steering": ks.lam.copy(),
             "quality": np.array([q_odo, q_kin, sl.quality]),
         }
-        bias = self.slip.gyro_bias if self.imu is not None else None
-        return StepEstimate(values, q_odo, q_kin, sl, odo, ks, self._imu_saturated, bias)
+        if self.imu is None:
+            return StepEstimate(values, q_odo, q_kin, sl, odo, ks)
+        tilt = (self.attitude.roll, self.attitude.pitch)
+        bias = self.slip.gyro_bias
+        return StepEstimate(values, q_odo, q_kin, sl, odo, ks, self._imu_saturated, bias, tilt, self._z)

@@ -195,6 +195,11 @@ def test_config_from_a_mapping_and_bad_mappings():
         sim.close()
 
 
+def quat_to_roll_pitch(q) -> tuple[float, float]:
+    R = quat_to_matrix(q)
+    return math.atan2(R[2, 1], R[2, 2]), -math.asin(R[2, 0])
+
+
 def drive_circle(imu, seconds: float, env_id: str = "RoverRoughSlippery-v0", seed: int = 3):
     import gymnasium as gym
 
@@ -211,14 +216,15 @@ def drive_circle(imu, seconds: float, env_id: str = "RoverRoughSlippery-v0", see
             assert not (term or trunc)
         est = info["estimate"]["odometry_pose"]
         yaw_err = math.remainder(est[2] - quat_to_yaw(info["ground_truth"]["pose"][3:]) - yaw0, 2 * math.pi)
-        return env.unwrapped.pipeline, first, math.degrees(yaw_err), obs
+        tilt = [quat_to_roll_pitch(info[k]["pose"][3:]) for k in ("estimate", "ground_truth")]
+        return env.unwrapped.pipeline, first, math.degrees(yaw_err), obs, np.degrees(tilt)
     finally:
         env.close()
 
 
 def test_gyro_calibrated_at_standstill_and_heading_held_on_rough_ground():
-    base, _, err_none, obs_none = drive_circle(None, 15.0)
-    pipe, first, err_imu, obs_imu = drive_circle("bmi088", 15.0)
+    base, _, err_none, obs_none, _ = drive_circle(None, 15.0)
+    pipe, first, err_imu, obs_imu, tilt = drive_circle("bmi088", 15.0)
     cfg = pipe.imu.config
     bias, std = first.gyro_bias
     # the standstill before t = 0 gives the episode's turn-on bias to a few hundredths of a degree/s
@@ -231,6 +237,8 @@ def test_gyro_calibrated_at_standstill_and_heading_held_on_rough_ground():
     )
     assert abs(err_imu) < 0.5 * abs(err_none)
     assert abs(err_imu) < 2.0
+    print(f"roll, pitch: estimated {np.round(tilt[0], 2)} deg, true {np.round(tilt[1], 2)} deg")
+    assert np.all(np.abs(tilt[0] - tilt[1]) < 1.0)
     assert obs_none.shape == obs_imu.shape
 
 

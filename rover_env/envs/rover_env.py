@@ -453,7 +453,9 @@ class RoverEnv(gym.Env):
         assert self._est is not None
         v = self._est.values
         x, y, yaw = v["odometry_pose"]
-        out = {"pose": np.array([x, y, self._z0, *yaw_to_quat(0.0, 0.0, yaw)])}
+        est = self._est
+        roll, pitch = est.tilt if est.tilt is not None else (0.0, 0.0)  # from the IMU, if any
+        out = {"pose": np.array([x, y, self._z0 + est.height, *yaw_to_quat(roll, pitch, yaw)])}
         out.update({k: np.array(v[k], dtype=np.float64) for k in GROUND_TRUTH_KEYS if k != "pose"})
         out["odometry_pose"] = np.array(v["odometry_pose"], dtype=np.float64)
         out["quality"] = np.array(

@@ -1,0 +1,150 @@
+"""Roll and pitch from an IMU, and dead reckoning that uses them.
+
+:class:`AttitudeFilter` is a complementary filter with an integral term (Mahony's): the attitude
+is propagated with the gyro's rates less their bias and pulled toward the accelerometer's
+gravity direction with a time constant, while the specific force is close to 1 g; the same
+pull, integrated, learns the gyro's x and y biases. The z bias is not seen by gravity: it comes
+from a standstill (:meth:`AttitudeFilter.calibrate`) and is refined by the slip filter.
+Frames: body x forward, y left, z up; the world z up; roll, pitch and yaw are the Z-Y-X Euler
+angles of the body in the world (pitch positive nose down).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Gravity [m/s^2].
+G = 9.81
+
+
+def _exp_so3(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the rotation vector ``w`` [rad] (Rodrigues)."""
+    a = float(np.linalg.norm(w))
+    if a < 1e-12:
+        return np.eye(3)
+    k = w / a
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
+
+
+def tilt_from_gravity(f_body: np.ndarray) -> tuple[float, float]:
+    """(roll, pitch) [rad] of a body at rest whose accelerometer reads ``f_body`` [m/s^2]."""
+    fx, fy, fz = (float(v) for v in f_body)
+    return math.atan2(fy, fz), math.atan2(-fx, math.hypot(fy, fz))
+
+
+class AttitudeFilter:
+    """Roll and pitch of the body from gyro and accelerometer samples.
+
+    Args:
+        R_body_imu: (3, 3) rotation of the IMU's mount frame in the body frame (its calibration).
+        time_constant: How fast the attitude follows the accelerometer's gravity [s].
+        accel_gate: The accelerometer corrects only while | |f| - g | is below this [m/s^2].
+        bias_time: How fast the gyro's x and y biases are learnt from that pull [s].
+    """
+
+    def __init__(
+        self, R_body_imu=None, time_constant: float = 2.0, accel_gate: float = 0.5, bias_time: float = 10.0
+    ) -> None:
+        R = np.eye(3) if R_body_imu is None else np.asarray(R_body_imu, dtype=np.float64)
+        if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
+            raise ValueError("R_body_imu: give a (3, 3) rotation matrix")
+        if not (time_constant > 0 and accel_gate > 0 and bias_time > 0):
+            raise ValueError(
+                f"time_constant={time_constant!r}, accel_gate={accel_gate!r}, bias_time={bias_time!r}: "
+                "all must be > 0"
+            )
+        self.bias_time = float(bias_time)
+        self.R_body_imu = R
+        self.time_constant = float(time_constant)
+        self.accel_gate = float(accel_gate)
+        self.reset()
+
+    def reset(self) -> None:
+        """Level, no bias, no rate."""
+        self.R = np.eye(3)  # body -> world (its yaw is arbitrary; only the tilt is used)
+        self.bias = np.zeros(3)  # gyro bias, body frame [rad/s]
+        self.rate = np.zeros(3)  # the last bias-corrected body rate [rad/s]
+
+    def calibrate(self, gyro_mean, accel_mean) -> None:
+        """At a standstill: the mean gyro z reading is its z bias, the mean specific force the tilt.
+
+        The x and y means are not taken as biases: a body that has just come to rest on its
+        suspension still rolls and pitches by more than a MEMS gyro's bias; the filter learns
+        those two from gravity instead.
+
+        Args:
+            gyro_mean: (3,) mean rate, IMU frame [rad/s].
+            accel_mean: (3,) mean specific force, IMU frame [m/s^2].
+        """
+        g = self.R_body_imu @ np.asarray(gyro_mean, dtype=np.float64)
+        f = self.R_body_imu @ np.asarray(accel_mean, dtype=np.float64)
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(f)) and np.linalg.norm(f) > 0.5 * G):
+            raise ValueError("calibrate: give finite means taken at rest (|f| near 9.81 m/s^2)")
+        self.bias = np.array([0.0, 0.0, g[2]])
+        roll, pitch = tilt_from_gravity(f)
+        cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+        self.R = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
+
+    def update(self, gyro, accel, dt: float, accel_body=None) -> None:
+        """One sample: ``gyro`` [rad/s] and ``accel`` [m/s^2] in the IMU frame, over ``dt`` [s].
+
+        ``accel_body``: the body's own acceleration [m/s^2, body frame] if known (for example
+        omega x v in a steady turn, from the odometry), taken out of the specific force before
+        it is read as gravity.
+        """
+        w = self.R_body_imu @ np.asarray(gyro, dtype=np.float64) - self.bias
+        f = self.R_body_imu @ np.asarray(accel, dtype=np.float64)
+        if accel_body is not None:
+            f = f - np.asarray(accel_body, dtype=np.float64)
+        self.rate = w
+        self.R = self.R @ _exp_so3(w * dt)
+        n = float(np.linalg.norm(f))
+        if abs(n - G) < self.accel_gate:
+            up_pred = self.R[2]  # the world's up in the body frame
+            err = np.cross(up_pred, f / n)  # small rotation (body frame) taking predicted to measured
+            self.R = self.R @ _exp_so3(-err * min(1.0, dt / self.time_constant))
+            # the integral term: a lasting pull is a gyro bias (x and y; err has no part along up)
+            step = err * dt / (self.time_constant * self.bias_time)
+            self.bias[:2] += step[:2]
+        # keep it a rotation
+        u, _, vt = np.linalg.svd(self.R)
+        self.R = u @ vt
+
+    @property
+    def roll(self) -> float:
+        """Roll [rad]."""
+        return math.atan2(self.R[2, 1], self.R[2, 2])
+
+    @property
+    def pitch(self) -> float:
+        """Pitch [rad] (positive nose down)."""
+        return -math.asin(max(-1.0, min(1.0, self.R[2, 0])))
+
+    def heading_rate(self, yaw_rate_body: float) -> float:
+        """The world heading's rate [rad/s] for a body-z rate ``yaw_rate_body`` (and the last x-y rates).
+
+        Z-Y-X kinematics: psi_dot = (sin(roll) w_y + cos(roll) w_z) / cos(pitch).
+        """
+        r, p = self.roll, self.pitch
+        return (math.sin(r) * self.rate[1] + math.cos(r) * yaw_rate_body) / max(math.cos(p), 1e-3)
+
+
+def tilted_step(pose, z: float, twist, roll: float, pitch: float, heading_rate: float, dt: float):
+    """Dead-reckoning step on tilted ground: (x, y, yaw) and height after ``dt`` [s].
+
+    The body velocity (v_x, v_y) of ``twist`` lies in its own x-y plane; it is turned into the
+    world by yaw (at the interval's middle), pitch and roll. Returns ((x, y, yaw), z) [m, rad].
+    """
+    x, y, yaw = (float(v) for v in pose)
+    vx, vy = float(twist[0]), float(twist[1])
+    psi = yaw + 0.5 * heading_rate * dt
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(psi), math.sin(psi)
+    # the first two columns of Rz(psi) Ry(pitch) Rx(roll)
+    dx = cy * cp * vx + (cy * sp * sr - sy * cr) * vy
+    dy = sy * cp * vx + (sy * sp * sr + cy * cr) * vy
+    dz = -sp * vx + cp * sr * vy
+    return np.array([x + dx * dt, y + dy * dt, yaw + heading_rate * dt]), z + dz * dt
