@@ -196,7 +196,8 @@ class PerceptionPipeline:
             self.attitude = AttitudeFilter(self.imu.R_body_imu)
         self._z = 0.0  # dead-reckoned height change [m] (with an IMU)
         self._twist = np.zeros(3)  # the twist of the last dead-reckoning step
-        self._gyro = [0.0, 0, 0.0]  # sum of body-z rates, samples, time of the last
+        self._imu_batch: list[np.ndarray] = []  # samples since the last flush, and the last one's time
+        self._imu_t = 0.0
         self._imu_saturated = 0
         self._sim_timing = sim.timing
         g = sim.geometry
@@ -258,7 +259,7 @@ class PerceptionPipeline:
         self._t_pose = float(t)
         self._t = float(t)
         self._last_odom = None
-        self._gyro = [0.0, 0, 0.0]
+        self._imu_batch = []
         self._imu_saturated = 0
         self._z = 0.0
         self._twist = np.zeros(3)
@@ -330,22 +331,23 @@ class PerceptionPipeline:
         if data[6] > 0 or not np.all(np.isfinite(data[:6])):
             self._imu_saturated += 1  # a clipped rate is not a rate: left out, and counted
             return
+        self._imu_batch.append(data[:6])
+        self._imu_t = t
+
+    def _flush_imu(self) -> None:
+        """The IMU samples since the last flush: the attitude; the mean body-z rate to the slip filter."""
+        batch = self._imu_batch
+        if not batch:
+            return
+        n = len(batch)
+        mean = np.mean(batch, axis=0) if n > 1 else batch[0]
+        window = n * self.imu.period  # each sample integrates the period before it
         vx, vy, w = self._twist
         # the centripetal acceleration omega x v of a turn is not gravity
-        self.attitude.update(data[:3], data[3:6], self.imu.period, (-w * vy, w * vx, 0.0))
-        g = self._gyro
-        g[0] += float(self._imu_z @ data[:3])
-        g[1] += 1
-        g[2] = t
-
-    def _flush_gyro(self) -> None:
-        """The gyro's mean body-z rate since the last flush into the slip filter."""
-        total, n, t_last = self._gyro
-        if n:
-            window = n * self.imu.period  # each sample integrates the period before it
-            std = self._gyro_density / np.sqrt(window)
-            self.slip.add_gyro(t_last, total / n, window, std)
-        self._gyro = [0.0, 0, 0.0]
+        self.attitude.update(mean[:3], mean[3:], window, (-w * vy, w * vx, 0.0))
+        std = self._gyro_density / np.sqrt(window)
+        self.slip.add_gyro(self._imu_t, float(self._imu_z @ mean[:3]), window, std)
+        self._imu_batch = []
 
     def process(self, messages: list[SensorMessage], t: float) -> StepEstimate:
         """Consume the sensor messages of one step, in time order, and estimate the state at ``t``.
@@ -363,17 +365,20 @@ class PerceptionPipeline:
             handler = handlers.get(msg.sensor)
             if handler is None:
                 continue
-            if msg.sensor != "imu" and self.imu is not None:
-                self._flush_gyro()
             if msg.t < self._t_pose - 1e-9 or msg.t > t + 1e-9:
                 raise ValueError(
                     f"{msg.sensor} message at t={msg.t} s is outside this step ({self._t_pose} to {t} s); "
                     "pass each step's messages once, in time order"
                 )
+            if msg.sensor == "imu":  # buffered; used at the next frame or the step's end
+                handler(msg.data, msg.t)
+                continue
+            if self.imu is not None:
+                self._flush_imu()
             self._integrate(msg.t)
             handler(msg.data, msg.t)
         if self.imu is not None:
-            self._flush_gyro()
+            self._flush_imu()
         self._integrate(t)
         self._t = float(t)
         out = self.estimate()

@@ -60,6 +60,15 @@ def _flicker_variance() -> float:
 _FLICKER_VAR = _flicker_variance()
 
 
+def _log_so3(R: np.ndarray) -> np.ndarray:
+    """Rotation vector [rad] of a rotation matrix whose angle is below pi (a sample's increment)."""
+    vee = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = float(np.linalg.norm(vee))  # sin(angle)
+    c = 0.5 * (float(np.trace(R)) - 1.0)  # cos(angle)
+    angle = math.atan2(s, c)
+    return vee * (angle / s) if s > 1e-12 else vee
+
+
 @dataclass(frozen=True)
 class TriadNoise:
     """Error model of three like axes (a gyro or an accelerometer), the same for each axis.
@@ -270,6 +279,9 @@ class ImuNoise:
         self._range = np.array([triads[c].range for c in col])
         self._res = np.array([triads[c].resolution for c in col])
         self._buffer = np.zeros((0, 6))
+        self._next = 0
+        self._rows: list | None = None  # measure_one's errors, as lists
+        self._row = 0
 
     def errors(self, n: int) -> np.ndarray:
         """The next ``n`` samples of additive error (bias + noise), (n, 6): gyro xyz, accel xyz."""
@@ -290,6 +302,30 @@ class ImuNoise:
                 out += y
         return out
 
+    def measure_one(self, gyro, accel) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`measure` of one sample, in plain floats (a sensor samples one at a time)."""
+        if self._rows is None or self._row >= len(self._rows):
+            self._rows = self.errors(int(round(1.0 / self.dt))).tolist()  # a second at a time
+            self._row = 0
+            E0, E1 = (m.tolist() for m in self.matrices)
+            self._lists = (E0, E1, self._range.tolist(), self._res.tolist())
+        err = self._rows[self._row]
+        self._row += 1
+        E0, E1, rng, res = self._lists
+        g = [float(v) for v in gyro]
+        a = [float(v) for v in accel]
+        true = [sum(E0[i][j] * g[j] for j in range(3)) for i in range(3)]
+        true += [sum(E1[i][j] * a[j] for j in range(3)) for i in range(3)]
+        y, sat = [], []
+        for k in range(6):
+            v = true[k] + err[k]
+            sat.append(abs(v) >= rng[k])
+            v = min(max(v, -rng[k]), rng[k])
+            if res[k] > 0:
+                v = min(max(round(v / res[k]) * res[k], -rng[k]), rng[k])
+            y.append(v)
+        return np.array(y), np.array(sat)
+
     def measure(self, gyro: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measured samples of true rates and specific forces, each (n, 3) or (3,).
 
@@ -301,9 +337,12 @@ class ImuNoise:
         single = g.ndim == 1
         g, a = g.reshape(-1, 3), a.reshape(-1, 3)
         n = len(g)
-        if len(self._buffer) < n:
-            self._buffer = np.vstack([self._buffer, self.errors(max(n, 256))])
-        err, self._buffer = self._buffer[:n], self._buffer[n:]
+        if len(self._buffer) - self._next < n:  # errors are drawn a second's worth at a time
+            rest = self._buffer[self._next :]
+            self._buffer = np.vstack([rest, self.errors(max(n, int(round(1.0 / self.dt))))])
+            self._next = 0
+        err = self._buffer[self._next : self._next + n]
+        self._next += n
         true = np.hstack([g @ self.matrices[0].T, a @ self.matrices[1].T])
         y = true + err
         sat = np.abs(y) >= self._range
@@ -365,7 +404,9 @@ class Imu:
         R_wb = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
         R_wi = R_wb @ self.R_body_imu
         w = np.asarray(ang, dtype=np.float64)
-        v = np.asarray(lin, dtype=np.float64) + np.cross(w, R_wb @ self.r_body)
+        r = R_wb @ self.r_body
+        wx, wy, wz = ang
+        v = np.array(lin) + (wy * r[2] - wz * r[1], wz * r[0] - wx * r[2], wx * r[1] - wy * r[0])
         step = sim._steps
         last = self._last
         gravity = np.array([0.0, 0.0, -G])
@@ -374,7 +415,7 @@ class Imu:
             force = R_wi.T @ (-gravity)
         else:
             dt = (step - last[0]) * sim.dt
-            rate = Rotation.from_matrix(last[1].T @ R_wi).as_rotvec() / dt
+            rate = _log_so3(last[1].T @ R_wi) / dt
             force = R_wi.T @ ((v - last[2]) / dt - gravity)
         self._last = (step, R_wi, v)
         return rate, force
@@ -382,5 +423,5 @@ class Imu:
     def sample(self) -> np.ndarray:
         """The IMU's output now: (7,) gyro [rad/s], accel [m/s^2], saturated flag."""
         rate, force = self.truth()
-        y, sat = self.noise.measure(rate, force)
+        y, sat = self.noise.measure_one(rate, force)
         return np.concatenate([y, [1.0 if sat.any() else 0.0]])
