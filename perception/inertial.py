@@ -11,9 +11,14 @@ angles of the body in the world (pitch positive nose down).
 
 from __future__ import annotations
 
+import csv
+import logging
 import math
+from pathlib import Path
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 #: Gravity [m/s^2].
 G = 9.81
@@ -147,3 +152,85 @@ def tilted_step(pose, z: float, twist, roll: float, pitch: float, heading_rate: 
     dy = sy * cp * vx + (sy * sp * sr + cy * cr) * vy
     dz = -sp * vx + cp * sr * vy
     return np.array([x + dx * dt, y + dy * dt, yaw + heading_rate * dt]), z + dz * dt
+
+
+# ---------------------------------------------------------------------------------------- logs
+IMU_CSV_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+
+
+class ImuLog:
+    """IMU samples of a log: times [s], gyro [rad/s] and accelerometer [m/s^2] (IMU frame).
+
+    Attributes:
+        t: (n,) sample times [s], strictly increasing.
+        gyro: (n, 3) angular rates [rad/s].
+        accel: (n, 3) specific forces [m/s^2].
+        dropped: Rows left out for non-finite readings (their count).
+    """
+
+    def __init__(self, t, gyro, accel, dropped: int = 0) -> None:
+        self.t = np.asarray(t, dtype=np.float64)
+        self.gyro = np.asarray(gyro, dtype=np.float64).reshape(-1, 3)
+        self.accel = np.asarray(accel, dtype=np.float64).reshape(-1, 3)
+        self.dropped = int(dropped)
+
+    def mean_rate(self, t0: float, t1: float) -> tuple[np.ndarray, int]:
+        """Mean gyro rate [rad/s] of the samples in (t0, t1] and their count (NaN, 0 if none)."""
+        i0, i1 = np.searchsorted(self.t, [t0, t1], side="right")
+        if i1 <= i0:
+            return np.full(3, math.nan), 0
+        return self.gyro[i0:i1].mean(axis=0), int(i1 - i0)
+
+
+def read_imu_csv(path) -> ImuLog:
+    """Read an IMU CSV with the header ``t, gyro_x, gyro_y, gyro_z, accel_x, accel_y, accel_z``.
+
+    Units: s, rad/s, m/s^2; the times on the images' clock (t = 0 at the first image). Other
+    columns are ignored. Rows with a non-finite reading are left out and counted (a warning).
+
+    Raises:
+        FileNotFoundError: No such file.
+        ValueError: Missing columns (named), a non-number, a non-finite or non-increasing time
+            (the row is named), or no rows.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: no such IMU CSV")
+    with open(p, newline="", encoding="utf-8", errors="replace") as fh:
+        reader = csv.reader(fh)
+        header = [h.strip() for h in next(reader, [])]
+        missing = [c for c in IMU_CSV_COLUMNS if c not in header]
+        if missing:
+            raise ValueError(
+                f"{p}: missing columns {missing}; the header must hold {', '.join(IMU_CSV_COLUMNS)} "
+                "(s, rad/s, m/s^2)"
+            )
+        idx = [header.index(c) for c in IMU_CSV_COLUMNS]
+        rows = []
+        for line_no, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            try:
+                rows.append([float(row[i]) for i in idx])
+            except (ValueError, IndexError):
+                raise ValueError(
+                    f"{p}, line {line_no}: {row!r} is not {len(IMU_CSV_COLUMNS)} numbers"
+                ) from None
+    if not rows:
+        raise ValueError(f"{p}: no samples")
+    a = np.array(rows)
+    t = a[:, 0]
+    bad_t = np.flatnonzero(~np.isfinite(t))
+    if len(bad_t):
+        raise ValueError(f"{p}, line {bad_t[0] + 2}: time {float(t[bad_t[0]])!r} is not a finite number")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        k = back[0] + 1
+        raise ValueError(
+            f"{p}, line {k + 2}: t = {float(t[k])!r} s does not increase after {float(t[k - 1])!r} s; "
+            "give the samples in time order, each once"
+        )
+    ok = np.all(np.isfinite(a[:, 1:]), axis=1)
+    if not ok.all():
+        log.warning("%s: %d rows with non-finite readings left out", p, int((~ok).sum()))
+    return ImuLog(t[ok], a[ok, 1:4], a[ok, 4:7], dropped=int((~ok).sum()))

@@ -2,12 +2,15 @@
 
 ``run_folder_odometry`` reads the images in name order, runs :class:`FlowOdometry` in chained mode
 at a fixed frame rate, and writes ``odometry.csv`` (one row per frame pair: t, v_x, v_y, omega,
-quality, valid, inliers, reason) and ``trajectory.tum`` (the integrated planar pose).
+quality, valid, inliers, reason) and ``trajectory.tum`` (the integrated planar pose). With an
+IMU CSV beside the images it also reports the gyro's yaw rate per pair (``omega_imu``) and the
+path with that yaw (``trajectory_imu.tum``): both yaw sources of the odometry paper's Table I.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import logging
 import math
 from collections.abc import Callable
@@ -16,9 +19,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from perception.cameras import OmniCamera, PinholeCamera
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
+from perception.inertial import read_imu_csv
 from perception.kinematics import RoverKinematicModel
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
@@ -40,6 +45,8 @@ class FolderOdometryResult:
         distance: Length of the integrated path [m].
         csv_path: The per-pair CSV.
         tum_path: The integrated trajectory.
+        tum_imu_path: The trajectory with the gyro's yaw (None without an IMU log).
+        imu_bias: The gyro's body-z bias taken out [rad/s] (None without an IMU log).
     """
 
     frames: int
@@ -48,6 +55,8 @@ class FolderOdometryResult:
     distance: float
     csv_path: Path
     tum_path: Path
+    tum_imu_path: Path | None = None
+    imu_bias: float | None = None
 
 
 def list_images(folder: str | Path) -> list[Path]:
@@ -91,6 +100,9 @@ def run_folder_odometry(
     out: str | Path,
     config: FlowOdometryConfig | None = None,
     progress: Callable[[float], None] | None = None,
+    imu: str | Path | None = None,
+    imu_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    imu_still: float = 0.0,
 ) -> FolderOdometryResult:
     """Chained optical-flow odometry over a folder of downward-camera images.
 
@@ -101,6 +113,12 @@ def run_folder_odometry(
         out: Output folder (created).
         config: Estimator parameters.
         progress: Called with the finished share (0..1).
+        imu: An IMU CSV (:func:`perception.inertial.read_imu_csv`; times on the images' clock,
+            t = 0 at the first image).
+        imu_rpy: The IMU's mount in the body frame, roll-pitch-yaw [rad].
+        imu_still: Seconds of standstill at the start of the IMU log: the gyro's bias is their
+            mean. With 0 (default) it is the median difference between the gyro's and the
+            odometry's yaw rates over the valid pairs.
 
     Raises:
         FileNotFoundError: Missing folder or no images.
@@ -157,7 +175,55 @@ def run_folder_odometry(
     distance = float(np.sum(np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))))
     n_valid = sum(r[5] for r in rows)
     log.info("odometry: %d frames, %d of %d pairs valid, %.2f m", len(files), n_valid, len(rows), distance)
-    return FolderOdometryResult(len(files), len(rows), n_valid, distance, csv_path, tum_path)
+    result = FolderOdometryResult(len(files), len(rows), n_valid, distance, csv_path, tum_path)
+    if imu is None:
+        return result
+    return _add_imu_yaw(result, rows, times, twists, imu, imu_rpy, imu_still, fps, out)
+
+
+def _add_imu_yaw(result, rows, times, twists, imu, imu_rpy, imu_still, fps, out) -> FolderOdometryResult:
+    """The gyro's yaw rate per pair in the CSV, and the path with it (``trajectory_imu.tum``)."""
+    rpy = np.asarray(imu_rpy, dtype=np.float64)
+    if rpy.shape != (3,) or not np.all(np.isfinite(rpy)):
+        raise ValueError(f"imu_rpy: {imu_rpy!r}; give the mount's roll, pitch, yaw [rad]")
+    if not (math.isfinite(imu_still) and imu_still >= 0):
+        raise ValueError(f"imu_still: {imu_still!r} s; give the standstill's length (>= 0)")
+    imu_log = read_imu_csv(imu)
+    z_row = Rotation.from_euler("xyz", rpy).as_matrix()[2]  # body z of a mount-frame rate
+    gyro_z = imu_log.gyro @ z_row
+    raw = np.full(len(rows), math.nan)
+    counts = np.zeros(len(rows), int)
+    for k, r in enumerate(rows):
+        # the samples of (t - 1/fps, t]; a microsecond's slack for times written to 6 decimals
+        i0, i1 = np.searchsorted(imu_log.t, [r[0] - 1.0 / fps + 1e-6, r[0] + 1e-6], side="right")
+        if i1 > i0:
+            raw[k], counts[k] = gyro_z[i0:i1].mean(), i1 - i0
+    if not np.isfinite(raw).any():
+        raise ValueError(f"{imu}: no IMU samples between the images' times; check the IMU's clock")
+    if imu_still > 0:
+        bias = float(gyro_z[imu_log.t <= imu_log.t[0] + imu_still].mean())
+    else:
+        diff = raw - np.array([r[3] if r[5] else math.nan for r in rows])
+        diff = diff[np.isfinite(diff)]
+        if not len(diff):
+            raise ValueError(f"{imu}: no IMU samples during a valid frame pair; give imu_still for the bias")
+        bias = float(np.median(diff))
+    w_imu = raw - bias
+    log.info("imu: %d samples (%d left out), body-z bias %.5f rad/s", len(imu_log.t), imu_log.dropped, bias)
+    # the CSV again, with the gyro's yaw rate and its sample count
+    with open(result.csv_path, newline="") as fh:
+        table = list(csv.reader(fh))
+    with open(result.csv_path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow([*table[0], "omega_imu", "imu_samples"])
+        for row, wi, n in zip(table[1:], w_imu, counts, strict=True):
+            w.writerow([*row, f"{wi:.6f}", n])
+    tw = np.array(twists, dtype=np.float64)
+    gyro_w = np.concatenate([[math.nan], w_imu])  # times[0] is the first frame (no pair)
+    tw[:, 2] = np.where(np.isfinite(gyro_w), gyro_w, tw[:, 2])
+    poses = integrate_twist(np.array(times), tw)
+    tum_imu = write_planar_tum(out / "trajectory_imu.tum", times, poses)
+    return dataclasses.replace(result, tum_imu_path=tum_imu, imu_bias=bias)
 
 
 @dataclass(frozen=True)

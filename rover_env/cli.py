@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import time
 from dataclasses import asdict
@@ -161,12 +162,24 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     from perception.offline import run_folder_odometry
 
     bar = _progress_bar("odometry")
-    res = run_folder_odometry(args.images, args.calib, args.fps, args.out, progress=bar)
+    rpy = tuple(math.radians(v) for v in args.imu_rpy)
+    res = run_folder_odometry(
+        args.images,
+        args.calib,
+        args.fps,
+        args.out,
+        progress=bar,
+        imu=args.imu,
+        imu_rpy=rpy,
+        imu_still=args.imu_still,
+    )
     sys.stderr.write("\n")
     print(
         f"{res.frames} images, {res.valid} of {res.pairs} pairs valid, path {res.distance:.2f} m; "
         f"wrote {res.csv_path} and {res.tum_path}"
     )
+    if res.tum_imu_path is not None:
+        print(f"gyro yaw (bias {res.imu_bias:.5f} rad/s taken out): wrote {res.tum_imu_path}")
     return 0
 
 
@@ -254,6 +267,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     o.add_argument("--fps", type=float, required=True, help="frame rate of the images [Hz]")
     o.add_argument("--out", required=True, help="output folder (odometry.csv, trajectory.tum)")
+    o.add_argument(
+        "--imu",
+        help="IMU CSV beside the images (t, gyro_x, gyro_y, gyro_z, accel_x, accel_y, accel_z; s, rad/s, "
+        "m/s^2; t = 0 at the first image): adds the gyro's yaw rate and trajectory_imu.tum",
+    )
+    o.add_argument(
+        "--imu-rpy", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("ROLL", "PITCH", "YAW"),
+        help="the IMU's mount in the body frame [deg]",
+    )  # fmt: skip
+    o.add_argument(
+        "--imu-still", type=float, default=0.0,
+        help="seconds of standstill at the IMU log's start, for the gyro's bias "
+        "(default: fitted to the odometry's yaw rate)",
+    )  # fmt: skip
     o.set_defaults(func=_cmd_odometry)
     k = sub.add_parser("kinematics", help="fisheye kinematic state estimation on a folder of fisheye images")
     k.add_argument("images", help="folder of colour images, in name order")

@@ -91,6 +91,32 @@ def test_rover_odometry_cli_on_a_folder_of_images(tmp_path):
     assert len(rows) == 7 and rows["valid"].all()
     np.testing.assert_allclose(rows["v_x"], 0.8, rtol=0.01)
     assert np.loadtxt(out / "trajectory.tum").shape == (8, 8)
+    # with an IMU mounted turned 90 deg about z (its z still the body's): the gyro's yaw too
+    t = np.arange(-1.0, 7 / 30 + 1e-9, 1 / 240)
+    lines = ["t,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z"]
+    lines += [f"{ti:.6f},0,0,{0.2 * (ti > 0) + 0.01:.6f},0,0,9.81" for ti in t]
+    (tmp_path / "imu.csv").write_text("\n".join(lines) + "\n")
+    args = ["--imu", str(tmp_path / "imu.csv"), "--imu-rpy", "0", "0", "90", "--imu-still", "1"]
+    out2 = tmp_path / "out2"
+    assert (
+        main(
+            [
+                "odometry",
+                str(tmp_path / "imgs"),
+                "--calib",
+                str(calib),
+                "--fps",
+                "30",
+                "--out",
+                str(out2),
+                *args,
+            ]
+        )
+        == 0
+    )
+    rows = np.genfromtxt(out2 / "odometry.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    np.testing.assert_allclose(rows["omega_imu"], 0.2, atol=1e-5)
+    assert np.loadtxt(out2 / "trajectory_imu.tum").shape == (8, 8)
     # errors are reported, not raised
     assert (
         main(["odometry", str(tmp_path / "nowhere"), "--calib", str(calib), "--fps", "30", "--out", str(out)])

@@ -524,3 +524,63 @@ def test_local_contrast_equals_the_whole_image_variance_filter(size):
     pts = np.vstack([rng.uniform(0, [w - 1, h - 1], (40, 2)), [[0, 0], [w - 1, h - 1], [2.4, h - 2.6]]])
     xy = np.rint(pts).astype(int)
     np.testing.assert_allclose(_local_contrast(g, pts.astype(np.float32)), ref[xy[:, 1], xy[:, 0]], rtol=1e-4)
+
+
+def write_imu_csv(path, t, gyro_z, bias, rng, header="t,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z"):
+    rows = [header]
+    for ti, wz in zip(t, gyro_z, strict=True):
+        g = rng.normal(0, 0.002, 3) + [0.004, -0.003, wz + bias]
+        rows.append(f"{ti:.6f},{g[0]:.6f},{g[1]:.6f},{g[2]:.6f},0.0,0.0,9.81")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_folder_odometry_with_an_imu_reports_both_yaw_sources(ground, tmp_path):
+    from perception.offline import run_folder_odometry
+
+    twist, fps, n = (1.2, 0.1, 0.3), 60.0, 31
+    write_arc_images(tmp_path / "imgs", ground, twist, n, 1 / fps)
+    calib = mast_camera().save(tmp_path / "calib.yaml")
+    rng = np.random.default_rng(5)
+    bias = 0.02  # rad/s
+    # 2 s of standstill before the first image, then the arc's yaw rate, at 240 Hz
+    t = np.arange(-2.0, (n - 1) / fps + 1e-9, 1 / 240)
+    imu = write_imu_csv(tmp_path / "imu.csv", t, np.where(t > 0, twist[2], 0.0), bias, rng)
+    res = run_folder_odometry(tmp_path / "imgs", calib, fps, tmp_path / "out", imu=imu, imu_still=2.0)
+    assert res.imu_bias == pytest.approx(bias, abs=5e-4)
+    rows = np.genfromtxt(res.csv_path, delimiter=",", names=True, dtype=None, encoding=None)
+    np.testing.assert_allclose(rows["omega_imu"], twist[2], atol=4e-3)  # 4 sigma of a 4-sample mean
+    assert np.all(rows["imu_samples"] == 4)  # 240 Hz over 60 Hz pairs
+    tum = np.loadtxt(res.tum_imu_path)
+    assert tum.shape == (n, 8)  # the first frame, then one pose per pair
+    yaw = 2 * np.arctan2(tum[-1, 6], tum[-1, 7])
+    assert yaw == pytest.approx(twist[2] * (n - 1) / fps, abs=1e-3)
+    # without a standstill the bias is fitted to the odometry's yaw rate
+    res2 = run_folder_odometry(tmp_path / "imgs", calib, fps, tmp_path / "out2", imu=imu)
+    assert res2.imu_bias == pytest.approx(bias, abs=math.radians(0.5))
+
+
+def test_imu_csv_bad_inputs(tmp_path):
+    from perception.inertial import read_imu_csv
+
+    rng = np.random.default_rng(0)
+    with pytest.raises(FileNotFoundError, match="no such IMU CSV"):
+        read_imu_csv(tmp_path / "none.csv")
+    bad = write_imu_csv(tmp_path / "cols.csv", [0.0, 0.1], [0, 0], 0, rng, header="t,gx,gy,gz,ax,ay,az")
+    with pytest.raises(ValueError, match=r"missing columns \['gyro_x'"):
+        read_imu_csv(bad)
+    back = write_imu_csv(tmp_path / "back.csv", [0.0, 0.2, 0.1], [0, 0, 0], 0, rng)
+    with pytest.raises(ValueError, match="line 4: t = 0.1 s does not increase"):
+        read_imu_csv(back)
+    nan_t = write_imu_csv(tmp_path / "nan.csv", [0.0, float("nan")], [0, 0], 0, rng)
+    with pytest.raises(ValueError, match="line 3: time nan"):
+        read_imu_csv(nan_t)
+    text = (tmp_path / "nan.csv").read_text().splitlines()
+    (tmp_path / "gap.csv").write_text(
+        "\n".join([text[0], "0.0,nan,0,0,0,0,9.81", "0.1,0,0,0,0,0,9.81"]) + "\n"
+    )
+    log = read_imu_csv(tmp_path / "gap.csv")
+    assert len(log.t) == 1 and log.dropped == 1  # the row with a NaN reading is left out, counted
+    (tmp_path / "words.csv").write_text(text[0] + "\n0.0,a,b,c,d,e,f\n")
+    with pytest.raises(ValueError, match="line 2"):
+        read_imu_csv(tmp_path / "words.csv")
