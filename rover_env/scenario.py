@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -255,6 +255,9 @@ class ScenarioConfig:
         sun: Sun direction.
         start: Start pose.
         duration: Episode time limit [s].
+        imu: The rover's IMU for estimated observations: a preset name or a mapping (``preset``
+            and overrides; see :meth:`rover_env.imu.ImuConfig.from_dict`), or None (no IMU). The environment's
+            ``imu`` keyword, when given, takes its place.
     """
 
     name: str
@@ -265,9 +268,15 @@ class ScenarioConfig:
     sun: SunConfig = field(default_factory=SunConfig)
     start: StartConfig = field(default_factory=StartConfig)
     duration: float = 60.0
+    imu: Any = None
 
     def __post_init__(self) -> None:
         check_range("duration", self.duration, 0.1, 36000.0)
+        if self.imu is not None:
+            from rover_env.imu import ImuConfig
+
+            # validated here (ConfigError naming the key): a preset name or a mapping
+            ImuConfig.from_dict({"preset": self.imu} if isinstance(self.imu, str) else self.imu)
         hx, hy = self.terrain.size[0] / 2 - 1.0, self.terrain.size[1] / 2 - 1.0
         points = [("start.position", self.start.position)] + [
             (f"course.waypoints[{i}]", w) for i, w in enumerate(self.course.waypoints)

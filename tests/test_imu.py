@@ -2,6 +2,7 @@
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -253,3 +254,29 @@ def test_imu_option_errors():
         gym.make("Rover-v0", imu=3)
     with pytest.raises(ConfigError, match="imu preset"):
         gym.make("Rover-v0", imu="mpu6050")
+
+
+def test_an_imu_in_the_scenario_file(tmp_path):
+    import gymnasium as gym
+    import yaml
+
+    import rover_env  # noqa: F401
+    from rover_env.scenario import load_scenario
+
+    base = yaml.safe_load((Path(rover_env.__file__).parent / "scenarios" / "flat_patches.yaml").read_text())
+    base["imu"] = {"preset": "tactical", "rate_hz": 120}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(base))
+    env = gym.make("Rover-v0", scenario=str(tmp_path / "s.yaml"))
+    try:
+        imu = env.unwrapped.pipeline.imu
+        assert imu.config.rate_hz == 120 and imu.config.gyro == ImuConfig.preset("tactical").gyro
+    finally:
+        env.close()
+    base["imu"] = {"preset": "bmi088", "gyro": {"noise_density": -1.0}}
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(base))
+    with pytest.raises(ConfigError, match=r"imu\.gyro\.noise_density"):
+        load_scenario(tmp_path / "bad.yaml")
+    base["imu"] = "mpu6050"
+    (tmp_path / "bad2.yaml").write_text(yaml.safe_dump(base))
+    with pytest.raises(ConfigError, match="imu preset 'mpu6050'"):
+        load_scenario(tmp_path / "bad2.yaml")

@@ -144,7 +144,7 @@ class RoverEnv(gym.Env):
         imu: An IMU for the estimator (with ``obs_source="estimated"``): a preset name
             (``"bmi088"``, ``"tactical"``, ``"ideal"``), a mapping (``preset`` and overrides, as
             in a scenario) or an :class:`~rover_env.imu.ImuConfig`; its errors are drawn per
-            episode from the reset's seed. None (default): no IMU.
+            episode from the reset's seed. None (default): the scenario's ``imu``, if any.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -205,6 +205,8 @@ class RoverEnv(gym.Env):
         )
         self.course = WaypointCourse(self.scenario.course)
         self.pipeline: PerceptionPipeline | None = None
+        if imu is None and self.scenario.imu is not None and obs_source == "estimated":
+            imu = self.scenario.imu  # the scenario's IMU, unless the keyword gives one
         if isinstance(imu, str):
             imu = ImuConfig.preset(imu)
         elif isinstance(imu, dict):
