@@ -559,9 +559,12 @@ class FlowOdometry:
         self._roi = np.zeros((h, w), dtype=bool)
         self._roi[my : h - my, mx : w - mx] = True
         # Harris on pyramid level L (the mask's level is the coarsest one built)
-        n_levels = len(build_pyramid(np.zeros((h, w), np.uint8), cfg.min_level_size))
+        # the pyramid's levels (build_pyramid's rule) bound L
+        top, lw, lh = 0, w, h
+        while lw // 2 >= cfg.min_level_size[0] and lh // 2 >= cfg.min_level_size[1]:
+            top, lw, lh = top + 1, (lw + 1) // 2, (lh + 1) // 2
         L = 0
-        while w >> L > cfg.harris_width and L + 1 < n_levels:
+        while w >> L > cfg.harris_width and L < top:
             L += 1
         self._harris_level, self._harris_block = L, 7 if L == 0 else 3
         # its crop: the region of interest at level L and the detector's block radius + 1 about

@@ -130,6 +130,7 @@ def run_folder_odometry(
     """
     camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
     odo = FlowOdometry(camera, config)
+    imu_in = None if imu is None else _open_imu(imu, imu_rpy, imu_still)  # (log, mount z row)
     files, out = _open_run(images, out, fps, camera.image_size)
     rows = []
     times, twists = [0.0], [np.zeros(3)]
@@ -164,32 +165,46 @@ def run_folder_odometry(
             twists.append(est.twist)
         if progress is not None:
             progress((k + 1) / len(files))
+    header = ["t", "v_x", "v_y", "omega", "quality", "valid", "inliers", "reason"]
+    extra = [[] for _ in rows]
+    if imu_in is not None:  # the gyro's yaw rate per pair and its sample count
+        w_imu, counts, bias = _imu_yaw_rates(*imu_in, rows, fps, imu_still, imu)
+        header += ["omega_imu", "imu_samples"]
+        extra = [[f"{wi:.6f}", n] for wi, n in zip(w_imu, counts, strict=True)]
     csv_path = out / "odometry.csv"
     with open(csv_path, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["t", "v_x", "v_y", "omega", "quality", "valid", "inliers", "reason"])
-        for r in rows:
-            w.writerow([f"{r[0]:.6f}", *(f"{v:.6f}" for v in r[1:5]), r[5], r[6], r[7]])
+        w.writerow(header)
+        for r, x in zip(rows, extra, strict=True):
+            w.writerow([f"{r[0]:.6f}", *(f"{v:.6f}" for v in r[1:5]), r[5], r[6], r[7], *x])
     poses = integrate_twist(np.array(times), np.array(twists))
     tum_path = write_planar_tum(out / "trajectory.tum", times, poses)
     distance = float(np.sum(np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))))
     n_valid = sum(r[5] for r in rows)
     log.info("odometry: %d frames, %d of %d pairs valid, %.2f m", len(files), n_valid, len(rows), distance)
     result = FolderOdometryResult(len(files), len(rows), n_valid, distance, csv_path, tum_path)
-    if imu is None:
+    if imu_in is None:
         return result
-    return _add_imu_yaw(result, rows, times, twists, imu, imu_rpy, imu_still, fps, out)
+    # the same path with the gyro's yaw rate where it has samples (times[0] is the first frame)
+    tw = np.array(twists, dtype=np.float64)
+    gyro_w = np.concatenate([[math.nan], w_imu])
+    tw[:, 2] = np.where(np.isfinite(gyro_w), gyro_w, tw[:, 2])
+    tum_imu = write_planar_tum(out / "trajectory_imu.tum", times, integrate_twist(np.array(times), tw))
+    return dataclasses.replace(result, tum_imu_path=tum_imu, imu_bias=bias)
 
 
-def _add_imu_yaw(result, rows, times, twists, imu, imu_rpy, imu_still, fps, out) -> FolderOdometryResult:
-    """The gyro's yaw rate per pair in the CSV, and the path with it (``trajectory_imu.tum``)."""
+def _open_imu(imu, imu_rpy, imu_still: float) -> tuple:
+    """The IMU log and the body-z row of its mount, checked before the images are processed."""
     rpy = np.asarray(imu_rpy, dtype=np.float64)
     if rpy.shape != (3,) or not np.all(np.isfinite(rpy)):
         raise ValueError(f"imu_rpy: {imu_rpy!r}; give the mount's roll, pitch, yaw [rad]")
     if not (math.isfinite(imu_still) and imu_still >= 0):
         raise ValueError(f"imu_still: {imu_still!r} s; give the standstill's length (>= 0)")
-    imu_log = read_imu_csv(imu)
-    z_row = Rotation.from_euler("xyz", rpy).as_matrix()[2]  # body z of a mount-frame rate
+    return read_imu_csv(imu), Rotation.from_euler("xyz", rpy).as_matrix()[2]
+
+
+def _imu_yaw_rates(imu_log, z_row, rows, fps: float, imu_still: float, name) -> tuple:
+    """The gyro's body-z rate over each pair, less its bias: (rates, sample counts, bias) [rad/s]."""
     gyro_z = imu_log.gyro @ z_row
     raw = np.full(len(rows), math.nan)
     counts = np.zeros(len(rows), int)
@@ -199,31 +214,17 @@ def _add_imu_yaw(result, rows, times, twists, imu, imu_rpy, imu_still, fps, out)
         if i1 > i0:
             raw[k], counts[k] = gyro_z[i0:i1].mean(), i1 - i0
     if not np.isfinite(raw).any():
-        raise ValueError(f"{imu}: no IMU samples between the images' times; check the IMU's clock")
+        raise ValueError(f"{name}: no IMU samples between the images' times; check the IMU's clock")
     if imu_still > 0:
         bias = float(gyro_z[imu_log.t <= imu_log.t[0] + imu_still].mean())
     else:
         diff = raw - np.array([r[3] if r[5] else math.nan for r in rows])
         diff = diff[np.isfinite(diff)]
         if not len(diff):
-            raise ValueError(f"{imu}: no IMU samples during a valid frame pair; give imu_still for the bias")
+            raise ValueError(f"{name}: no IMU samples during a valid frame pair; give imu_still for the bias")
         bias = float(np.median(diff))
-    w_imu = raw - bias
     log.info("imu: %d samples (%d left out), body-z bias %.5f rad/s", len(imu_log.t), imu_log.dropped, bias)
-    # the CSV again, with the gyro's yaw rate and its sample count
-    with open(result.csv_path, newline="") as fh:
-        table = list(csv.reader(fh))
-    with open(result.csv_path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow([*table[0], "omega_imu", "imu_samples"])
-        for row, wi, n in zip(table[1:], w_imu, counts, strict=True):
-            w.writerow([*row, f"{wi:.6f}", n])
-    tw = np.array(twists, dtype=np.float64)
-    gyro_w = np.concatenate([[math.nan], w_imu])  # times[0] is the first frame (no pair)
-    tw[:, 2] = np.where(np.isfinite(gyro_w), gyro_w, tw[:, 2])
-    poses = integrate_twist(np.array(times), tw)
-    tum_imu = write_planar_tum(out / "trajectory_imu.tum", times, poses)
-    return dataclasses.replace(result, tum_imu_path=tum_imu, imu_bias=bias)
+    return raw - bias, counts, bias
 
 
 @dataclass(frozen=True)

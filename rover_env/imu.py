@@ -280,8 +280,6 @@ class ImuNoise:
         self._res = np.array([triads[c].resolution for c in col])
         self._buffer = np.zeros((0, 6))
         self._next = 0
-        self._rows: list | None = None  # measure_one's errors, as lists
-        self._row = 0
 
     def errors(self, n: int) -> np.ndarray:
         """The next ``n`` samples of additive error (bias + noise), (n, 6): gyro xyz, accel xyz."""
@@ -301,30 +299,6 @@ class ImuNoise:
                 self._gm[i] = y[-1]
                 out += y
         return out
-
-    def measure_one(self, gyro, accel) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`measure` of one sample, in plain floats (a sensor samples one at a time)."""
-        if self._rows is None or self._row >= len(self._rows):
-            self._rows = self.errors(int(round(1.0 / self.dt))).tolist()  # a second at a time
-            self._row = 0
-            E0, E1 = (m.tolist() for m in self.matrices)
-            self._lists = (E0, E1, self._range.tolist(), self._res.tolist())
-        err = self._rows[self._row]
-        self._row += 1
-        E0, E1, rng, res = self._lists
-        g = [float(v) for v in gyro]
-        a = [float(v) for v in accel]
-        true = [sum(E0[i][j] * g[j] for j in range(3)) for i in range(3)]
-        true += [sum(E1[i][j] * a[j] for j in range(3)) for i in range(3)]
-        y, sat = [], []
-        for k in range(6):
-            v = true[k] + err[k]
-            sat.append(abs(v) >= rng[k])
-            v = min(max(v, -rng[k]), rng[k])
-            if res[k] > 0:
-                v = min(max(round(v / res[k]) * res[k], -rng[k]), rng[k])
-            y.append(v)
-        return np.array(y), np.array(sat)
 
     def measure(self, gyro: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measured samples of true rates and specific forces, each (n, 3) or (3,).
@@ -423,5 +397,5 @@ class Imu:
     def sample(self) -> np.ndarray:
         """The IMU's output now: (7,) gyro [rad/s], accel [m/s^2], saturated flag."""
         rate, force = self.truth()
-        y, sat = self.noise.measure_one(rate, force)
+        y, sat = self.noise.measure(rate, force)
         return np.concatenate([y, [1.0 if sat.any() else 0.0]])

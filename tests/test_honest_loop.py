@@ -113,9 +113,10 @@ def _short_course(tmp_path, fix_std=(0.05, 1.0), name="short") -> str:
     return str(path)
 
 
-def _check_no_truth(env, controller, seed: int, steps: int) -> int:
+def _check_no_truth(env, controller, seed: int, steps: int) -> tuple[int, int]:
     """Drive ``steps`` and rebuild every observation from info["estimate"], an own tracker fed
-    with the estimated pose, and the previous action; returns the waypoints the tracker passed."""
+    with the estimated pose, and the previous action; returns the observations rebuilt and the
+    waypoints the tracker passed."""
     obs, info = env.reset(seed=seed)
     controller.reset()
     tracker = WaypointCourse(env.scenario.course)
@@ -134,14 +135,16 @@ def _check_no_truth(env, controller, seed: int, steps: int) -> int:
         return obs_table.assemble(fields, values, prev)
 
     np.testing.assert_array_equal(obs, rebuild(info))
+    rebuilt = 1
     for _ in range(steps):
         action = np.clip(np.asarray(controller.act(obs), dtype=np.float32), -1, 1)
         obs, _, term, trunc, info = env.step(action)
         prev = action
         np.testing.assert_array_equal(obs, rebuild(info))
+        rebuilt += 1
         if term or trunc:
             break
-    return tracker.index
+    return rebuilt, tracker.index
 
 
 @pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
@@ -153,7 +156,8 @@ def test_the_estimated_observation_holds_no_truth(env_id):
 
     env = gym.make(env_id).unwrapped
     try:
-        _check_no_truth(env, PathFollower.for_env(env), seed=1, steps=60)
+        rebuilt, _ = _check_no_truth(env, PathFollower.for_env(env), seed=1, steps=60)
+        assert rebuilt == 61  # the reset's observation and 60 steps' (no mission ends within 2 s)
     finally:
         env.close()
 
@@ -164,7 +168,7 @@ def test_the_tracker_passes_waypoints_on_the_estimate_alone(tmp_path):
 
     env = RoverEnv(scenario=_short_course(tmp_path), action_mode="wheels")
     try:
-        assert _check_no_truth(env, SlipAwareController.for_env(env), seed=2, steps=400) == 3
+        assert _check_no_truth(env, SlipAwareController.for_env(env), seed=2, steps=400)[1] == 3
     finally:
         env.close()
 
