@@ -26,6 +26,7 @@ import numpy as np
 
 import rover_env
 from rover_env.estimator_metrics import EstimateLog, slip_metrics
+from rover_env.imu import IMU_PRESETS
 
 
 def patch_span(env_id: str, margin: float = 0.05) -> tuple[float, float]:
@@ -51,8 +52,9 @@ def drive(
     seconds: float,
     ramp: float = 0.0,
     renderer: str = "gl",
+    imu: str | None = None,
 ) -> dict:
-    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer)
+    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer, imu=imu)
     try:
         obs, info = env.reset(seed=seed)
         log = EstimateLog(env.unwrapped.geometry.wheel_radius)
@@ -90,8 +92,15 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--envs", nargs="+", default=list(rover_env.ENV_IDS), choices=rover_env.ENV_IDS)
     ap.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
+    ap.add_argument(
+        "--imu",
+        default=None,
+        choices=sorted(IMU_PRESETS),
+        help="an IMU on the rover (a preset name; default: none)",
+    )
     args = ap.parse_args(argv)
-    print(f"preset {args.preset}, renderer {args.renderer}, seeds {args.seeds}, ramp {args.ramp}", flush=True)
+    head = f"preset {args.preset}, renderer {args.renderer}, imu {args.imu}"
+    print(f"{head}, seeds {args.seeds}, ramp {args.ramp}", flush=True)
     print(
         "| mission | steps | slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events | precision | recall | F1 "
         "| latency median / max [frames] | within 2 frames |"
@@ -104,7 +113,7 @@ def main(argv=None) -> int:
         else:
             span = patch_span(env_id)
             runs = [
-                drive(s, args.preset, env_id, span, args.seconds, args.ramp, args.renderer)
+                drive(s, args.preset, env_id, span, args.seconds, args.ramp, args.renderer, args.imu)
                 for s in args.seeds
             ]
             every += runs

@@ -73,6 +73,14 @@ class KinematicsConfig:
         shadow_robust: Align band-passed treads with shadow edges left out.
         max_wheel_accel: Largest wheel acceleration the rotation's prediction assumes
             [rad/s^2] (the last change of rotation per frame is clipped to it).
+        peer_tolerance: A wheel's rotation is not taken when it lies farther than this [rad per
+            frame] from the rotation the other wheels predict for it and is near zero (within
+            ``tread.static_band``) or has changed from the wheel's own prediction by more than
+            ``max_wheel_accel`` allows: the rover's shadow on a tread does not turn, and both the
+            alignment and the features can settle on it (GL shadows, shadow mission: a fifth of
+            one wheel's frames, 0.2-0.3 rad per frame off). The wheel is then searched for within
+            this of its peers' rotation, where its features must confirm the alignment; a wheel
+            that is really stuck while the others turn is reported unmeasured, not stuck.
         roi_margin_frac: While every marker is found, each is looked for only within a quarter
             of the gate plus this share of the image width around its predicted pixel (a marker moves
             less than 5 px between frames in 99 % of the frames of a rough drive, and the
@@ -103,6 +111,7 @@ class KinematicsConfig:
     track_span: float = 0.25
     track_hold: int = 5
     max_wheel_accel: float = 100.0
+    peer_tolerance: float = 0.05
     roi_margin_frac: float = 0.03
     geometry_refresh: tuple[float, float] = (math.radians(2.0), 0.004)
 
@@ -308,6 +317,7 @@ class KinematicStateEstimator:
                 )  # fmt: skip
                 for k, m in zip(again, more, strict=True):
                     rots[k] = m
+            rots = self._check_against_peers(pairs, rots, prior, curr_frames, delta, dt)
             good = [r.alpha for r in rots if r.valid]
             for k, wheel in enumerate(WHEELS):
                 rot = rots[k]
@@ -359,6 +369,33 @@ class KinematicStateEstimator:
             t, psi, depth, lam, delta, theta, theta_dot, valid, len(found), tuple(corrected)
         )
         return self._state
+
+    def _check_against_peers(self, pairs, rots, prior, frames, delta, dt: float):
+        """Rotations that the other wheels contradict, searched for again near theirs (``peer_tolerance``)."""
+        cfg = self.config
+        bound = cfg.max_wheel_accel * dt * dt
+        suspect, near = [], []
+        for k, rot in enumerate(rots):
+            others = {j: rots[j].alpha for j in range(len(rots)) if j != k and rots[j].valid}
+            if not (rot.valid and others):
+                continue
+            peer = self._peer_rotations(frames, delta, others)[k]
+            static = abs(rot.alpha) < cfg.tread.static_band
+            jump = abs(rot.alpha - prior[k]) > bound
+            weak = rot.ncc < cfg.tread.strong_ncc
+            if abs(rot.alpha - peer) > cfg.peer_tolerance and (static or jump or weak):
+                suspect.append(k)
+                near.append(peer)
+        if not suspect:
+            return rots
+        again = measure_pairs(
+            [pairs[k] for k in suspect], self.model.wheel_radius, cfg.tread, near,
+            [cfg.peer_tolerance] * len(suspect), [2] * len(suspect),
+        )  # fmt: skip
+        rots = list(rots)
+        for k, m in zip(suspect, again, strict=True):
+            rots[k] = m
+        return rots
 
     @staticmethod
     def _peer_rotations(frames, delta: np.ndarray, measured: dict[int, float]) -> list[float]:

@@ -44,6 +44,8 @@ log = logging.getLogger(__name__)
 N_WHEELS = 4
 _BIAS = 3 + N_WHEELS  # index of the gyro's yaw-rate bias in the state
 _ODOM_BIAS = _BIAS + 1  # index of the odometry's yaw-rate bias (estimated only with a gyro)
+_ACC_BIAS = _ODOM_BIAS + 1  # the accelerometer's x and y bias (estimated only with one)
+_N_STATE = _ACC_BIAS + 2
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,18 @@ class SlipConfig:
             the relief under the camera into a yaw rate of the order of 0.01 rad/s, which would
             otherwise pass into the gyro's bias.
         odom_yaw_bias_rw: Random walk of that bias [rad/s per sqrt(s)].
+        accel_velocity_rw: With an accelerometer (:meth:`SlipEstimator.add_accel`), the body's
+            velocity is predicted with its measured acceleration up to the query time, and only
+            this is left of the velocity's random walk [m/s per sqrt(s)] (vibration, the lever
+            arm, the planar model).
+        accel_bias_std: Prior deviation of the accelerometer's horizontal bias [m/s^2]: its
+            own, and gravity leaking through the attitude's error.
+        accel_bias_rw: Random walk of that bias [m/s^2 per sqrt(s)] (the attitude filter takes
+            a lasting acceleration partly for tilt, so the leak changes within seconds).
+        accel_wheel_rate_rw: With an accelerometer, the wheel rates' random walk [rad/s per
+            sqrt(s)] in place of ``wheel_rate_rw``: the body's velocity no longer lags the
+            odometry's frames, so the wheels' rates must follow their frames as closely, or a
+            wheel spinning up reads as slip late and one braking as slip early.
     """
 
     velocity_rw: float = 0.15
@@ -115,6 +129,10 @@ class SlipConfig:
     gyro_bias_rw: float = 1e-4
     odom_yaw_bias_std: float = 0.01
     odom_yaw_bias_rw: float = 1e-3
+    accel_velocity_rw: float = 0.05
+    accel_bias_std: float = 0.2
+    accel_bias_rw: float = 0.1
+    accel_wheel_rate_rw: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("velocity_rw", "yaw_rate_rw", "wheel_rate_rw", "min_quality", "min_speed", "max_age"):
@@ -138,6 +156,10 @@ class SlipConfig:
                 f"SlipConfig: gyro_bias_std={self.gyro_bias_std!r} must be > 0 and "
                 f"gyro_bias_rw={self.gyro_bias_rw!r} >= 0"
             )
+        for name in ("accel_velocity_rw", "accel_bias_std", "accel_bias_rw", "accel_wheel_rate_rw"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"SlipConfig.{name}: {v!r} must be finite and >= 0")
         if not self.event_hold >= 0:
             raise ValueError(f"SlipConfig.event_hold: {self.event_hold!r} s must be >= 0")
         if not 0 < self.event_off < self.event_on <= 1:
@@ -259,11 +281,14 @@ class SlipEstimator:
     def reset(self) -> None:
         """Forget every measurement (a new episode or log)."""
         c = self.config
-        self._x = np.zeros(3 + N_WHEELS + 2)  # twist, wheel rates, gyro and odometry yaw-rate biases
+        # twist, wheel rates, gyro and odometry yaw-rate biases, accelerometer bias
+        self._x = np.zeros(_N_STATE)
         v0, w0, r0 = c.init_std
-        biases = [c.gyro_bias_std**2, c.odom_yaw_bias_std**2]
+        biases = [c.gyro_bias_std**2, c.odom_yaw_bias_std**2] + [c.accel_bias_std**2] * 2
         self._P = np.diag([v0**2, v0**2, w0**2] + [r0**2] * N_WHEELS + biases)
         self._gyro_used = False
+        self._accel_used = False
+        self._inputs: list[tuple[float, float, float, float]] = []  # (t0, t1, a_x, a_y) [s, m/s^2]
         self._t: float | None = None
         self._pending: list[tuple[float, int, np.ndarray, np.ndarray, np.ndarray]] = []
         self._steer = np.zeros(N_WHEELS)
@@ -356,6 +381,32 @@ class SlipEstimator:
         H[0, 2] = H[0, _BIAS] = 1.0
         self._queue(t - 0.5 * max(dt, 0.0), None, np.array([rate]), np.array([[std * std]]), H)
 
+    def add_accel(self, t: float, accel_xy, dt: float) -> None:
+        """The body's horizontal acceleration, the mean over ``dt`` seconds up to ``t``.
+
+        ``accel_xy``: (a_x, a_y) [m/s^2] in the body frame: the specific force less gravity
+        (through the attitude), plus the transport terms (omega v_y, -omega v_x), so that it is
+        the rate of the body-frame velocity (v_x, v_y). From the first call on, the velocity is
+        predicted with it, its bias estimated (``accel_velocity_rw`` and the parameters after
+        it). Non-finite values are left out.
+        """
+        a = np.asarray(accel_xy, dtype=np.float64).reshape(-1)
+        if a.shape != (2,):
+            raise ValueError(f"accel_xy: shape {a.shape}; expected (a_x, a_y) [m/s^2]")
+        if not (np.all(np.isfinite(a)) and math.isfinite(t) and dt > 0 and math.isfinite(dt)):
+            return
+        self._accel_used = True
+        self._inputs.append((float(t) - float(dt), float(t), float(a[0]), float(a[1])))
+
+    def _velocity_change(self, t0: float, t1: float) -> np.ndarray:
+        """The integral of the measured acceleration from ``t0`` to ``t1`` [m/s] (none where no input)."""
+        dv = np.zeros(2)
+        for a0, a1, ax, ay in self._inputs:
+            overlap = min(a1, t1) - max(a0, t0)
+            if overlap > 0:
+                dv += overlap * np.array([ax, ay])
+        return dv
+
     def calibrate_gyro(self, rate: float, std: float) -> None:
         """A gyro's mean body-z rate [rad/s] while the body stood still: a direct bias measurement.
 
@@ -400,11 +451,22 @@ class SlipEstimator:
         self._seq += 1
         self._pending.append((float(t), self._seq, idx, z, R, H))
 
-    def _predict(self, x: np.ndarray, P: np.ndarray, dt: float) -> np.ndarray:
+    def _predict(self, x: np.ndarray, P: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """The state and covariance at ``t1`` from those at ``t0`` [s]."""
         c = self.config
-        q = [c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS
-        q = np.array(q + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2])
-        return P + np.diag(q * dt)
+        dt = t1 - t0
+        if not self._accel_used:  # random walk: the state is held, its variance grows
+            q = [c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS
+            q = np.array(q + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2, 0.0, 0.0])
+            return x, P + np.diag(q * dt)
+        # the velocity integrates the measured acceleration less its bias
+        x = x.copy()
+        x[:2] += self._velocity_change(t0, t1) - dt * x[_ACC_BIAS:]
+        F = np.eye(_N_STATE)
+        F[[0, 1], [_ACC_BIAS, _ACC_BIAS + 1]] = -dt
+        q = [c.accel_velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.accel_wheel_rate_rw**2] * N_WHEELS
+        q += [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [c.accel_bias_rw**2] * 2
+        return x, F @ P @ F.T + np.diag(np.array(q) * dt)
 
     def _apply(self, upto: float) -> None:
         """Apply the pending measurements up to time ``upto`` in time order."""
@@ -412,7 +474,7 @@ class SlipEstimator:
         self._pending = [m for m in self._pending if m[0] > upto]
         for t, _, idx, z, R, H in due:
             if self._t is not None and t > self._t:
-                self._P = self._predict(self._x, self._P, t - self._t)
+                self._x, self._P = self._predict(self._x, self._P, self._t, t)
             if self._t is None or t > self._t:
                 self._t = t
             if H is None:  # rows that pick state entries
@@ -421,6 +483,8 @@ class SlipEstimator:
             self._update(H, z, R)
             if idx is not None and idx[0] >= 3 and self.config.grip_std > 0:
                 self._grip(idx - 3)
+        if self._inputs and self._t is not None:  # inputs a second older than the filter are done
+            self._inputs = [u for u in self._inputs if u[1] > self._t - 1.0]
 
     def _update(self, H: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         """Kalman update with measurements z = H x + noise of covariance R."""
@@ -459,7 +523,13 @@ class SlipEstimator:
         if not math.isfinite(t):
             raise ValueError(f"t={t!r}: the query time must be finite")
         self._apply(t)
-        return self._x[:3].copy()
+        return self._state_at(t)[0][:3].copy()
+
+    def _state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The state and covariance predicted from the last measurement to ``t`` [s] (not kept)."""
+        if self._t is None or t <= self._t:
+            return self._x, self._P
+        return self._predict(self._x, self._P, self._t, t)
 
     def estimate(self, t: float) -> SlipEstimate:
         """The filtered state and slip at time ``t`` [s] (measurements up to ``t`` applied)."""
@@ -467,8 +537,8 @@ class SlipEstimator:
             raise ValueError(f"t={t!r}: the query time must be finite")
         self._apply(t)
         c = self.config
-        x = self._x.copy()
-        P = self._P if self._t is None or t <= self._t else self._predict(x, self._P, t - self._t)
+        x, P = self._state_at(t)
+        x = x.copy()
         twist, rates = x[:3], x[3:_BIAS]
         v_long, v_lat = wheel_ground_velocity(twist, self.wheel_xy, self._steer)
         a = rates * self.wheel_radius

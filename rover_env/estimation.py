@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perception.fisheye_kinematics import KinematicsConfig, KinematicState, KinematicStateEstimator
-from perception.inertial import AttitudeFilter, tilted_step
+from perception.inertial import AttitudeFilter, G, tilted_step
 from perception.kinematics import AXLES, MARKERS
 from perception.odometry import (
     FlowOdometry,
@@ -346,7 +346,13 @@ class PerceptionPipeline:
         # the centripetal acceleration omega x v of a turn is not gravity
         self.attitude.update(mean[:3], mean[3:], window, (-w * vy, w * vx, 0.0))
         std = self._gyro_density / np.sqrt(window)
-        self.slip.add_gyro(self._imu_t, float(self._imu_z @ mean[:3]), window, std)
+        rate = float(self._imu_z @ mean[:3])
+        self.slip.add_gyro(self._imu_t, rate, window, std)
+        # the body's acceleration: the specific force less gravity through the attitude, plus the
+        # transport terms of a turning frame, is the rate of the body-frame velocity (v_x, v_y)
+        a = self.imu.R_body_imu @ mean[3:] - G * self.attitude.R[2]
+        wz = rate - self.slip.gyro_bias[0]
+        self.slip.add_accel(self._imu_t, (a[0] + wz * vy, a[1] - wz * vx), window)
         self._imu_batch = []
 
     def process(self, messages: list[SensorMessage], t: float) -> StepEstimate:

@@ -279,3 +279,38 @@ def test_strips_of_all_wheels_together_equal_each_wheel_alone():
     np.testing.assert_allclose(
         _masked_blur(img, mask, (6.9, 3.7)), ref[0] / np.maximum(ref[1], 1e-3), rtol=1e-6
     )
+
+
+def test_a_rotation_the_other_wheels_contradict_is_searched_for_near_theirs():
+    """The rover's shadow on a tread does not turn: a wheel read near zero (or jumping from its own
+    prediction with a weak correlation) while the others turn is measured again within
+    ``peer_tolerance`` of their rotation, where its features must confirm it."""
+    from perception.fisheye_kinematics import KinematicStateEstimator
+    from perception.wheel_rotation import RotationMeasurement
+
+    cfg = TreadConfig()
+    tex = tread_texture(np.random.default_rng(4))
+    model, still, _, frame, cam = noisy_tread_pair(tex, 40, cfg, (0.2, 0.2))
+    _, turning, _, _, _ = noisy_tread_pair(tex, 5, cfg, (0.2, 0.43))
+    est = KinematicStateEstimator(cam, model)
+    frames = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))  # straight: equal rolling speeds
+    peers = [RotationMeasurement(0.23, 0, 0, 0, True, 0.9)] * 4
+    prior = np.full(4, 0.23)
+
+    def check(pair, first):
+        rots = list(peers)
+        rots[1] = first
+        pairs = [None, tuple(pair), None, None]
+        return est._check_against_peers(pairs, rots, prior, frames, np.zeros(4), 1 / 30)
+
+    # a still tread (or a shadow) read as a standing wheel: not confirmed near 0.23, not measured
+    standing = measure_pairs([tuple(still)], model.wheel_radius, cfg, [0.0], [0.25], [0])[0]
+    assert standing.valid and abs(standing.alpha) <= 0.005
+    out = check(still, standing)
+    assert not out[1].valid and all(out[k] is peers[k] for k in (0, 2, 3))
+    # a weak alignment 0.18 rad off: the tread's features find the rotation near the others'
+    out = check(turning, RotationMeasurement(0.05, 0, 0, 0, True, 0.5))
+    assert out[1].valid and abs(out[1].alpha - 0.23) <= 0.01, out[1]
+    # a strong reading that differs from the others and from nothing else (a wheel that slips) stands
+    slipping = RotationMeasurement(0.3, 0, 0, 0, True, 0.9)
+    assert check(turning, slipping)[1] is slipping
