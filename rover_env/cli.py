@@ -209,7 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="sweep controllers x missions x seeds; one merged report",
         description="Controllers: "
         + "; ".join(f"{k} ({v.description})" for k, v in CONTROLLERS.items())
-        + ". Append @ground_truth to drive on the simulator's state instead of the estimates.",
+        + ". Append @ground_truth to drive on the simulator's state instead of the estimates, "
+        "@imu (or @imu:tactical) to drive on estimates fused with an IMU (BMI088 by default).",
     )
     e.add_argument(
         "--controllers", nargs="+", default=["slip_unaware", "slip_aware", "slip_aware@ground_truth"]

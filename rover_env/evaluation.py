@@ -105,13 +105,27 @@ CONTROLLERS: dict[str, ControllerSpec] = {
 OBS_SOURCES = ("estimated", "ground_truth")
 
 
+def controller_imu(name: str) -> str | None:
+    """The IMU preset of ``name`` (``<controller>@imu`` or ``@imu:<preset>``, default ``bmi088``), else None."""
+    source = name.rpartition("@")[2] if "@" in name else ""
+    if source != "imu" and not source.startswith("imu:"):
+        return None
+    from rover_env.imu import IMU_PRESETS
+
+    preset = source.partition(":")[2] or "bmi088"
+    if preset not in IMU_PRESETS:
+        raise ValueError(f"controller {name!r}: IMU preset {preset!r} is not one of {sorted(IMU_PRESETS)}")
+    return preset
+
+
 def parse_controller(name: str) -> tuple[ControllerSpec, str]:
     """(spec, observation source) of ``name``: ``<controller>`` or ``<controller>@<obs_source>``.
 
-    ``policy:<folder>`` is a policy that ``rover train`` wrote to ``<folder>``.
+    ``policy:<folder>`` is a policy that ``rover train`` wrote to ``<folder>``. ``@imu`` (or
+    ``@imu:<preset>``) drives on the estimates with an IMU on the rover (:func:`controller_imu`).
     """
     base, _, source = name.rpartition("@") if "@" in name else (name, "", "")
-    source = source or "estimated"
+    source = "estimated" if controller_imu(name) else (source or "estimated")
     if base.startswith("policy:"):
         folder = base[len("policy:") :]
         if not Path(folder).is_dir():
@@ -141,7 +155,8 @@ class EvalJob:
     """One run of a sweep.
 
     Attributes:
-        controller: :data:`CONTROLLERS` name, optionally ``@ground_truth`` or ``@estimated``.
+        controller: :data:`CONTROLLERS` name, optionally ``@ground_truth``, ``@estimated`` or
+            ``@imu[:<preset>]`` (estimates with an IMU).
         mission: A registered environment id (``rover_env.ENV_IDS``), or a scenario preset name
             or YAML path (run in ``Rover-v0``).
         seed: Episode seed.
@@ -165,7 +180,7 @@ class EvalJob:
         )
         if base.startswith("policy:"):
             base = "policy-" + _path_label(base[len("policy:") :])
-        ctrl = f"{base}-{source}" if at else base
+        ctrl = f"{base}-{source.replace(':', '-')}" if at else base
         mission = _path_label(self.mission) if self.mission.endswith((".yaml", ".yml")) else self.mission
         return f"{ctrl}_{mission}_{self.seed}"
 
@@ -193,8 +208,14 @@ def run_job(job: EvalJob) -> dict:
 
     spec, source = parse_controller(job.controller)
     render = "rgb_array" if (job.video and job.out) else None
+    imu = controller_imu(job.controller)
     env = make_mission_env(
-        job.mission, obs_source=source, action_mode=spec.action_mode, preset=job.preset, render_mode=render
+        job.mission,
+        obs_source=source,
+        action_mode=spec.action_mode,
+        preset=job.preset,
+        render_mode=render,
+        **({"imu": imu} if imu else {}),
     )
     start = time.perf_counter()
     try:
@@ -431,6 +452,7 @@ __all__ = [
     "ControllerSpec",
     "EvalJob",
     "jobs_for",
+    "controller_imu",
     "parse_controller",
     "run_job",
     "run_sweep",

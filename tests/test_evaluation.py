@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 
 from rover_env.cli import main
-from rover_env.evaluation import EvalJob, jobs_for, parse_controller, run_sweep, summarize, write_report
+from rover_env.evaluation import (
+    EvalJob,
+    controller_imu,
+    jobs_for,
+    parse_controller,
+    run_sweep,
+    summarize,
+    write_report,
+)
 
 
 def test_controller_names_and_bad_input():
@@ -28,6 +36,16 @@ def test_controller_names_and_bad_input():
              ("/y/run", "/a/s.yaml"), ("/x/run", "/b/s.yaml"), ("/x/run", "/a/s.yaml")]]  # fmt: skip
     assert len(set(names)) == 3 and names[0] == names[3] and names[0].startswith("policy-run-")
     assert jobs[2].out == "/o/runs/b-ground_truth_m_1"
+
+
+def test_an_imu_suffix_drives_on_estimates_with_that_imu():
+    assert parse_controller("slip_aware@imu")[1] == "estimated"
+    assert controller_imu("slip_aware@imu") == "bmi088"
+    assert controller_imu("slip_aware@imu:tactical") == "tactical"
+    assert controller_imu("slip_aware") is None and controller_imu("slip_aware@ground_truth") is None
+    assert EvalJob("slip_aware@imu:tactical", "Rover-v0", 3).name == "slip_aware-imu-tactical_Rover-v0_3"
+    with pytest.raises(ValueError, match="IMU preset 'mems'"):
+        parse_controller("slip_aware@imu:mems")
 
 
 def test_summary_and_report_from_known_rows(tmp_path):
