@@ -106,7 +106,7 @@ OBS_SOURCES = ("estimated", "ground_truth")
 
 
 def controller_imu(name: str) -> str | None:
-    """The IMU preset of ``name`` (``<controller>@imu`` or ``@imu:<preset>``, default ``bmi088``), else None."""
+    """The IMU preset of ``name``: ``<controller>@imu`` (``bmi088``) or ``@imu:<preset>``; else None."""
     source = name.rpartition("@")[2] if "@" in name else ""
     if source != "imu" and not source.startswith("imu:"):
         return None
