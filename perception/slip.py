@@ -45,7 +45,8 @@ N_WHEELS = 4
 _BIAS = 3 + N_WHEELS  # index of the gyro's yaw-rate bias in the state
 _ODOM_BIAS = _BIAS + 1  # index of the odometry's yaw-rate bias (estimated only with a gyro)
 _ACC_BIAS = _ODOM_BIAS + 1  # the accelerometer's x and y bias (estimated only with one)
-_N_STATE = _ACC_BIAS + 2
+_WHEEL_ACC = _ACC_BIAS + 2  # the wheels' angular accelerations (estimated only with an accelerometer)
+_N_STATE = _WHEEL_ACC + N_WHEELS
 
 
 @dataclass(frozen=True)
@@ -103,9 +104,14 @@ class SlipConfig:
         accel_bias_rw: Random walk of that bias [m/s^2 per sqrt(s)] (the attitude filter takes
             a lasting acceleration partly for tilt, so the leak changes within seconds).
         accel_wheel_rate_rw: With an accelerometer, the wheel rates' random walk [rad/s per
-            sqrt(s)] in place of ``wheel_rate_rw``: the body's velocity no longer lags the
-            odometry's frames, so the wheels' rates must follow their frames as closely, or a
-            wheel spinning up reads as slip late and one braking as slip early.
+            sqrt(s)] in place of ``wheel_rate_rw``, and each wheel's rate also integrates an
+            angular acceleration (a random walk itself): the body's velocity no longer lags the
+            odometry's frames, so the wheels' rates must not either, or a wheel spinning up reads
+            as slip late and one braking as slip early.
+        wheel_accel_std: With an accelerometer, prior deviation of each wheel's angular
+            acceleration [rad/s^2] ...
+        wheel_accel_rw: ... and its random walk [rad/s^2 per sqrt(s)]. Faster catches a change
+            of the motors' command sooner but overshoots it (more false events).
     """
 
     velocity_rw: float = 0.15
@@ -133,6 +139,8 @@ class SlipConfig:
     accel_bias_std: float = 0.2
     accel_bias_rw: float = 0.1
     accel_wheel_rate_rw: float = 2.0
+    wheel_accel_std: float = 10.0
+    wheel_accel_rw: float = 10.0
 
     def __post_init__(self) -> None:
         for name in ("velocity_rw", "yaw_rate_rw", "wheel_rate_rw", "min_quality", "min_speed", "max_age"):
@@ -156,7 +164,10 @@ class SlipConfig:
                 f"SlipConfig: gyro_bias_std={self.gyro_bias_std!r} must be > 0 and "
                 f"gyro_bias_rw={self.gyro_bias_rw!r} >= 0"
             )
-        for name in ("accel_velocity_rw", "accel_bias_std", "accel_bias_rw", "accel_wheel_rate_rw"):
+        for name in (
+            "accel_velocity_rw", "accel_bias_std", "accel_bias_rw", "accel_wheel_rate_rw", "wheel_accel_std",
+            "wheel_accel_rw",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"SlipConfig.{name}: {v!r} must be finite and >= 0")
@@ -281,10 +292,11 @@ class SlipEstimator:
     def reset(self) -> None:
         """Forget every measurement (a new episode or log)."""
         c = self.config
-        # twist, wheel rates, gyro and odometry yaw-rate biases, accelerometer bias
+        # twist, wheel rates, gyro and odometry yaw-rate biases, accelerometer bias, wheel accelerations
         self._x = np.zeros(_N_STATE)
         v0, w0, r0 = c.init_std
         biases = [c.gyro_bias_std**2, c.odom_yaw_bias_std**2] + [c.accel_bias_std**2] * 2
+        biases += [c.wheel_accel_std**2] * N_WHEELS
         self._P = np.diag([v0**2, v0**2, w0**2] + [r0**2] * N_WHEELS + biases)
         self._gyro_used = False
         self._accel_used = False
@@ -387,8 +399,8 @@ class SlipEstimator:
         ``accel_xy``: (a_x, a_y) [m/s^2] in the body frame: the specific force less gravity
         (through the attitude), plus the transport terms (omega v_y, -omega v_x), so that it is
         the rate of the body-frame velocity (v_x, v_y). From the first call on, the velocity is
-        predicted with it, its bias estimated (``accel_velocity_rw`` and the parameters after
-        it). Non-finite values are left out.
+        predicted with it, its bias estimated, and the wheels with their angular accelerations
+        (``accel_velocity_rw`` and the parameters after it). Non-finite values are left out.
         """
         a = np.asarray(accel_xy, dtype=np.float64).reshape(-1)
         if a.shape != (2,):
@@ -457,16 +469,24 @@ class SlipEstimator:
         dt = t1 - t0
         if not self._accel_used:  # random walk: the state is held, its variance grows
             q = [c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS
-            q = np.array(q + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2, 0.0, 0.0])
+            q = np.array(q + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [0.0] * (2 + N_WHEELS))
             return x, P + np.diag(q * dt)
-        # the velocity integrates the measured acceleration less its bias
-        x = x.copy()
-        x[:2] += self._velocity_change(t0, t1) - dt * x[_ACC_BIAS:]
+        # the velocity integrates the measured acceleration less its bias; each wheel rate its
+        # angular acceleration, an integrated random walk
         F = np.eye(_N_STATE)
         F[[0, 1], [_ACC_BIAS, _ACC_BIAS + 1]] = -dt
+        rates, accs = np.arange(3, _BIAS), np.arange(_WHEEL_ACC, _N_STATE)
+        F[rates, accs] = dt
+        x = F @ x
+        x[:2] += self._velocity_change(t0, t1)
         q = [c.accel_velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.accel_wheel_rate_rw**2] * N_WHEELS
-        q += [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [c.accel_bias_rw**2] * 2
-        return x, F @ P @ F.T + np.diag(np.array(q) * dt)
+        q += [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [c.accel_bias_rw**2] * 2 + [0.0] * N_WHEELS
+        Q = np.diag(np.array(q) * dt)
+        j = c.wheel_accel_rw**2
+        Q[rates, rates] += j * dt**3 / 3.0
+        Q[rates, accs] = Q[accs, rates] = j * dt**2 / 2.0
+        Q[accs, accs] = j * dt
+        return x, F @ P @ F.T + Q
 
     def _apply(self, upto: float) -> None:
         """Apply the pending measurements up to time ``upto`` in time order."""
