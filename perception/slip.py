@@ -4,8 +4,12 @@ The odometry gives the body twist (v_x, v_y, omega) over each downward-camera fr
 fisheye gives each wheel's spin rate theta_dot over each fisheye frame interval and the wheels'
 steering angles. A Kalman filter over x = (v_x, v_y, omega, theta_dot_FL, ..., theta_dot_RR)
 with a random-walk (constant-velocity) model fuses both streams in time order; each measurement
-is an average over its frame interval, so it is applied at the interval's middle. Slip follows
-from the filtered state (DESIGN.md):
+is an average over its frame interval, so it is applied at the interval's middle. With an IMU,
+a gyro's yaw rate (:meth:`SlipEstimator.add_gyro`) comes in with its bias, and an accelerometer's
+horizontal acceleration (:meth:`SlipEstimator.add_accel`) drives the velocity's prediction, its
+bias estimated, while the wheel rates then integrate angular accelerations: both sides of the
+slip ratio are carried from the middle of the last frame to the query time, so a wheel that
+spins up while the body does not reads as slip at once. Slip follows from the filtered state:
 
     v_i = R(-delta_i) (v_body + omega x p_i)                   ground velocity of wheel centre i
     s_i = (theta_dot_i r - v_i,long) / max(|theta_dot_i r|, |v_i,long|, eps)
