@@ -374,12 +374,13 @@ class KinematicStateEstimator:
         """Rotations that the other wheels contradict, searched for again near theirs (``peer_tolerance``)."""
         cfg = self.config
         bound = cfg.max_wheel_accel * dt * dt
+        speeds = rolling_speeds(np.array([c[:2] for _, c in frames]), delta)
         suspect, near = [], []
         for k, rot in enumerate(rots):
             others = {j: rots[j].alpha for j in range(len(rots)) if j != k and rots[j].valid}
             if not (rot.valid and others):
                 continue
-            peer = self._peer_rotations(frames, delta, others)[k]
+            peer = self._peer_rotations(frames, delta, others, speeds)[k]
             static = abs(rot.alpha) < cfg.tread.static_band
             jump = abs(rot.alpha - prior[k]) > bound
             weak = rot.ncc < cfg.tread.strong_ncc
@@ -398,14 +399,16 @@ class KinematicStateEstimator:
         return rots
 
     @staticmethod
-    def _peer_rotations(frames, delta: np.ndarray, measured: dict[int, float]) -> list[float]:
+    def _peer_rotations(frames, delta: np.ndarray, measured: dict[int, float], speeds=None) -> list[float]:
         """Each wheel's rotation [rad] as the measured wheels (at least one) predict it.
 
-        Theirs scaled by the ratio of the wheels' rolling speeds (:func:`rolling_speeds`),
-        median over them; a wheel near the centre of rotation (under a fifth of the fastest
-        speed) would scale its noise without bound and predicts nothing.
+        Theirs scaled by the ratio of the wheels' rolling speeds (:func:`rolling_speeds`, or
+        ``speeds`` when already known), median over them; a wheel near the centre of rotation
+        (under a fifth of the fastest speed) would scale its noise without bound and predicts
+        nothing.
         """
-        speeds = rolling_speeds(np.array([c[:2] for _, c in frames]), delta)
+        if speeds is None:
+            speeds = rolling_speeds(np.array([c[:2] for _, c in frames]), delta)
         usable = [j for j in measured if abs(speeds[j]) >= 0.2]
         if not usable:
             return [float(np.median(list(measured.values())))] * len(frames)

@@ -39,13 +39,21 @@ log = logging.getLogger(__name__)
 
 
 # ---------------------------------------------------------------------------------------- steps
+def pyramid_levels(width: int, height: int, min_size: tuple[int, int] = (80, 60)) -> int:
+    """How many levels :func:`build_pyramid` builds for a ``width`` x ``height`` image [px]."""
+    n = 1
+    while width // 2 >= min_size[0] and height // 2 >= min_size[1]:
+        n, width, height = n + 1, (width + 1) // 2, (height + 1) // 2  # cv2.pyrDown's size
+    return n
+
+
 def build_pyramid(gray: np.ndarray, min_size: tuple[int, int] = (80, 60)) -> list[np.ndarray]:
     """Gaussian pyramid of ``gray``: level 0 is the image, each level half the last.
 
     Levels are added while the next one would still be at least ``min_size`` (W, H).
     """
     levels = [gray]
-    while levels[-1].shape[1] // 2 >= min_size[0] and levels[-1].shape[0] // 2 >= min_size[1]:
+    for _ in range(pyramid_levels(gray.shape[1], gray.shape[0], min_size) - 1):
         levels.append(cv2.pyrDown(levels[-1]))
     return levels
 
@@ -559,10 +567,7 @@ class FlowOdometry:
         self._roi = np.zeros((h, w), dtype=bool)
         self._roi[my : h - my, mx : w - mx] = True
         # Harris on pyramid level L (the mask's level is the coarsest one built)
-        # the pyramid's levels (build_pyramid's rule) bound L
-        top, lw, lh = 0, w, h
-        while lw // 2 >= cfg.min_level_size[0] and lh // 2 >= cfg.min_level_size[1]:
-            top, lw, lh = top + 1, (lw + 1) // 2, (lh + 1) // 2
+        top = pyramid_levels(w, h, cfg.min_level_size) - 1
         L = 0
         while w >> L > cfg.harris_width and L < top:
             L += 1

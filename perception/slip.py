@@ -416,12 +416,13 @@ class SlipEstimator:
 
     def _velocity_change(self, t0: float, t1: float) -> np.ndarray:
         """The integral of the measured acceleration from ``t0`` to ``t1`` [m/s] (none where no input)."""
-        dv = np.zeros(2)
+        dvx = dvy = 0.0
         for a0, a1, ax, ay in self._inputs:
             overlap = min(a1, t1) - max(a0, t0)
             if overlap > 0:
-                dv += overlap * np.array([ax, ay])
-        return dv
+                dvx += overlap * ax
+                dvy += overlap * ay
+        return np.array([dvx, dvy])
 
     def calibrate_gyro(self, rate: float, std: float) -> None:
         """A gyro's mean body-z rate [rad/s] while the body stood still: a direct bias measurement.
