@@ -522,6 +522,10 @@ class PolicyController:
             ``wheels`` for a traction base, ``drive`` for a follower base); the residual's base
             controller is built for it.
         deterministic: Act on the policy's mean (default) or sample.
+
+    The policy reads the observation fields it was trained on (``policy.json``) by name, so a
+    policy trained before fields were added to the observation drives unchanged; one trained on
+    a field the environment lacks is refused.
     """
 
     def __init__(self, path: str | Path, env: gym.Env, deterministic: bool = True) -> None:
@@ -534,10 +538,19 @@ class PolicyController:
             if not (path / name).is_file():
                 raise FileNotFoundError(f"{path / name} is missing; point to the folder `rover train` wrote")
         self.meta = json.loads((path / META_FILE).read_text())
-        if self.meta["obs_fields"] != _obs_fields():
-            raise ValueError(f"{path}: the policy was trained on other observation fields")
         if env.unwrapped.action_mode.value != self.meta["action_mode"]:
             raise ValueError(f"the policy acts in action_mode={self.meta['action_mode']!r}; make the env so")
+        # the policy's inputs by name: a policy trained before fields were added still reads its own
+        names = [f.name for f in env.unwrapped.obs_fields]
+        trained = list(self.meta["obs_fields"])
+        missing = [n for n in trained if n not in names]
+        if missing:
+            raise ValueError(
+                f"{path}: the policy was trained on observation fields {missing} that this "
+                "environment does not have; retrain it (rover train)"
+            )
+        n_state = len(_obs_fields())  # the previous action follows the state fields
+        self._inputs = np.array([names.index(n) for n in trained] + list(range(n_state, len(names))))
         cls = {"ppo": PPO, "sac": SAC}[self.meta["algo"]]
         self.model = cls.load(path / POLICY_FILE, device="cpu")
         with open(path / NORMALIZE_FILE, "rb") as fh:
@@ -549,6 +562,11 @@ class PolicyController:
         # is only what the running statistics' prior (variance 1, weight 1e-4) left, and any change
         # there normalises to far outside what the policy saw
         rms = self._normalize.obs_rms
+        if rms.mean.shape != self._inputs.shape:
+            raise ValueError(
+                f"{path}: {NORMALIZE_FILE} has statistics of {rms.mean.size} inputs, {POLICY_FILE} "
+                f"expects {self._inputs.size}; the folder mixes two runs, retrain or restore it"
+            )
         prior = 2e-4 * (1.0 + rms.mean**2) / max(float(rms.count), 1e-4)
         self._constant = np.flatnonzero(rms.var <= prior)
         self._constant_mean = rms.mean[self._constant]
@@ -561,7 +579,8 @@ class PolicyController:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The action for ``obs`` (raw, as the environment returns it), in the policy's action mode."""
-        if not self._warned and np.any(np.abs(np.asarray(obs)[self._constant] - self._constant_mean) > 1e-3):
+        seen = np.asarray(obs)[self._inputs]
+        if not self._warned and np.any(np.abs(seen[self._constant] - self._constant_mean) > 1e-3):
             fields = self.meta["obs_fields"]
             names = [
                 fields[i] if i < len(fields) else f"previous action {i - len(fields)}" for i in self._constant
@@ -572,7 +591,7 @@ class PolicyController:
                 names, self.meta.get("obs_source"),
             )  # fmt: skip
             self._warned = True
-        x = self._normalize.normalize_obs(np.asarray(obs)).astype(np.float32)
+        x = self._normalize.normalize_obs(seen).astype(np.float32)
         a, _ = self.model.predict(x, deterministic=self.deterministic)
         if self.residual is not None:
             return self.residual.compose(obs, a)

@@ -9,6 +9,8 @@ Sources (with ``obs_source="estimated"``):
 - ``slip filter``: the fusion of the downward camera's visual odometry and the fisheye's wheel
   rates (:class:`perception.SlipEstimator`);
 - ``fisheye``: the fisheye kinematics (:class:`perception.KinematicStateEstimator`);
+- ``IMU``: the attitude filter on the IMU's gyro and accelerometer (:class:`perception.AttitudeFilter`);
+  0 with quality 0 on a rover without one;
 - ``odometry`` / ``fisheye`` quality: the estimators' own confidence;
 - ``tracker``: the on-board course tracker fed with the dead-reckoned pose and the course known
   before the mission;
@@ -56,7 +58,14 @@ def _f(name, unit, low, high, source, description) -> ObsField:
 STATE_FIELDS: tuple[ObsField, ...] = (
     _f("v_x", "m/s", -20, 20, "slip filter", "body forward velocity (body frame, x forward)"),
     _f("v_y", "m/s", -20, 20, "slip filter", "body lateral velocity (body frame, y left)"),
-    _f("omega", "rad/s", -20, 20, "slip filter", "yaw rate, counter-clockwise +"),
+    _f(
+        "omega",
+        "rad/s",
+        -20,
+        20,
+        "slip filter",
+        "yaw rate about body z, counter-clockwise + (fused with the gyro's where there is an IMU)",
+    ),
     *(_f(f"wheel_rate_{w}", "rad/s", -100, 100, "slip filter", f"{w} wheel spin rate") for w in WHEELS),
     *(
         _f(f"slip_{w}", "1", -1, 1, "slip filter", f"{w} longitudinal slip ratio (+ spinning, - skidding)")
@@ -81,6 +90,8 @@ STATE_FIELDS: tuple[ObsField, ...] = (
         _f(f"steering_{a}", "rad", -math.pi / 2, math.pi / 2, "fisheye", f"axle steering lambda_{a}, left +")
         for a in AXLES
     ),
+    _f("roll", "rad", -math.pi, math.pi, "IMU", "body roll against gravity, left side up +"),
+    _f("pitch", "rad", -math.pi / 2, math.pi / 2, "IMU", "body pitch against gravity, nose down +"),
     _f(
         "odometry_quality",
         "1",
@@ -96,6 +107,14 @@ STATE_FIELDS: tuple[ObsField, ...] = (
         1,
         "fisheye",
         "share of the fisheye's 10 joint states measured in its last frame",
+    ),
+    _f(
+        "attitude_quality",
+        "1",
+        0,
+        1,
+        "IMU",
+        "share of the last period's IMU samples in range (0: no IMU, roll and pitch unknown)",
     ),
     _f("waypoint_distance", "m", 0, 1000, "tracker", "distance to the next waypoint"),
     _f(
@@ -161,8 +180,9 @@ def state_values(
 
     Args:
         state: Arrays under the ground-truth keys ``twist`` (v_x, v_y, omega), ``wheel_rate``
-            (4), ``slip_ratio`` (4), ``axle_roll`` (2), ``axle_height`` (2), ``steering`` (2).
-        quality: (odometry, kinematics) quality in [0, 1].
+            (4), ``slip_ratio`` (4), ``axle_roll`` (2), ``axle_height`` (2), ``steering`` (2),
+            ``tilt`` (roll, pitch).
+        quality: (odometry, kinematics, attitude) quality in [0, 1].
         task: ``waypoint_distance``, ``waypoint_bearing``, ``cross_track``, ``heading_error``.
     """
     out: dict[str, float] = {}
@@ -177,7 +197,8 @@ def state_values(
     ):
         for label, v in zip(labels, state[key], strict=True):
             out[prefix + label] = float(v)
-    out["odometry_quality"], out["kinematics_quality"] = (float(q) for q in quality)
+    out["roll"], out["pitch"] = (float(v) for v in state["tilt"])
+    out["odometry_quality"], out["kinematics_quality"], out["attitude_quality"] = (float(q) for q in quality)
     for name in ("waypoint_distance", "waypoint_bearing", "cross_track", "heading_error"):
         out[name] = float(task[name])
     return out

@@ -221,7 +221,7 @@ def rigid_ransac(
 
 
 def velocity_from_points(
-    P: np.ndarray, C: np.ndarray, dt: float, return_cov: bool = False
+    P: np.ndarray, C: np.ndarray, dt: float, return_cov: bool = False, rate_xy=None
 ) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray]:
     """(v_x, v_y, omega) of the body from ground points seen at P then C (body frame, m), eqs. 18-19.
 
@@ -233,6 +233,13 @@ def velocity_from_points(
     full rigid motion, v + omega x r with omega = (omega_x, omega_y, omega_z): the body's roll and
     pitch between the frames (which move the ground under a mast camera like a translation)
     are then told apart from its planar motion; (v_x, v_y, omega_z) is returned.
+
+    ``rate_xy``: the body's roll and pitch rates (omega_x, omega_y) over the interval if measured
+    (a gyro) [rad/s], for 3-D points. The fit's omega_x and omega_y are otherwise told only by
+    how the two ground planes differ, and a ground nearly level under a camera at height h
+    leaves v_x - h omega_y (and v_y + h omega_x) far better known than either: an error of the
+    planes' tilt rate goes into the velocity times h. With them given, the fit is of
+    (v_x, v_y, v_z, omega_z).
 
     Returns:
         (3,) velocity [m/s, m/s, rad/s] and the RMS residual of the fit (per horizontal
@@ -259,7 +266,12 @@ def velocity_from_points(
     A[1::3] = np.column_stack([zero, one, zero, -z, zero, x])
     A[2::3] = np.column_stack([zero, zero, one, y, -x, zero])
     b = v.reshape(-1)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    if rate_xy is None:
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    else:  # the known roll and pitch rates moved to the right-hand side
+        w = np.asarray(rate_xy, dtype=np.float64)
+        part, *_ = np.linalg.lstsq(A[:, [0, 1, 2, 5]], b - A[:, 3:5] @ w, rcond=None)
+        sol = np.array([part[0], part[1], part[2], w[0], w[1], part[3]])
     res = (A @ sol - b).reshape(n, 3)[:, :2].reshape(-1)
     rms = float(np.sqrt(np.mean(res**2)))
     if not return_cov:
@@ -674,6 +686,7 @@ class FlowOdometry:
         dt: float,
         t: float | None = None,
         ground_plane: tuple[float, float, float] | None = None,
+        rate_xy=None,
     ) -> OdometryEstimate:
         """Track the selected features into ``I_curr`` and estimate the body velocity.
 
@@ -689,13 +702,16 @@ class FlowOdometry:
                 the ground on their own frame's plane and the fit is of the 3-D rigid motion
                 (:func:`velocity_from_points`), so the body's roll and pitch between the frames
                 are not mistaken for a translation.
+            rate_xy: The body's mean roll and pitch rates (omega_x, omega_y) from ``I_prev`` to
+                ``I_curr`` if measured, by a gyro [rad/s, body frame]; used in the 3-D fit
+                (:func:`velocity_from_points`). None: estimated from the two planes.
         """
         if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt: {dt!r} s; frames must be a positive, finite time apart")
         gray = to_gray(image, self.camera.image_size)
-        return self._track(selection, gray, dt, t, ground_plane)
+        return self._track(selection, gray, dt, t, ground_plane, _rates(rate_xy))
 
-    def _track(self, selection: Selection, gray, dt, t, ground_plane) -> OdometryEstimate:
+    def _track(self, selection: Selection, gray, dt, t, ground_plane, rate_xy=None) -> OdometryEstimate:
         cfg = self.config
         n_feat = len(selection.features)
 
@@ -751,7 +767,8 @@ class FlowOdometry:
         common = dict(n_tracked=n_tr, n_inliers=n_in, inlier_ratio=ratio)
         if n_in < cfg.min_inliers:
             return invalid(f"too few inliers ({n_in} of {n_tr})", **common)
-        vel, residual, cov = velocity_from_points(P[inl], C[inl], dt, return_cov=True)
+        rates = rate_xy if P.shape[1] == 3 else None
+        vel, residual, cov = velocity_from_points(P[inl], C[inl], dt, return_cov=True, rate_xy=rates)
         cov = cov * cfg.noise_scale**2
         reason = ""
         if ratio < cfg.min_inlier_ratio:
@@ -797,24 +814,26 @@ class FlowOdometry:
         """Velocity from one frame pair (``I_prev``, ``I_curr``) ``dt`` seconds apart."""
         return self.track(self.select(prev), curr, dt, ground_plane=ground_plane)
 
-    def update(self, image: np.ndarray, t: float, ground_plane=None) -> OdometryEstimate | None:
+    def update(self, image: np.ndarray, t: float, ground_plane=None, rate_xy=None) -> OdometryEstimate | None:
         """Chained mode: ``image`` is ``I_curr`` of the last pair and ``I_prev`` of the next.
 
         Args:
             image: The new frame.
             t: Its time [s].
             ground_plane: See :meth:`track`.
+            rate_xy: See :meth:`track` (over the interval since the last frame).
 
         Returns:
             The estimate from the previous frame to this one (None for the first frame).
         """
         gray = to_gray(image, self.camera.image_size)  # converted once for both uses
+        rates = _rates(rate_xy)
         out = None
         if self._last is not None:
             dt = t - self._last.t
             if not (dt > 0 and math.isfinite(dt)):
                 raise ValueError(f"t: {t!r} s is not after the last frame's {self._last.t!r} s")
-            out = self._track(self._last, gray, dt, t, ground_plane)
+            out = self._track(self._last, gray, dt, t, ground_plane, rates)
         self._last = self._select(gray, t, ground_plane)
         return out
 
@@ -851,6 +870,16 @@ def _local_contrast(gray: np.ndarray, pts: np.ndarray) -> np.ndarray:
     sat[:, 1:, 1:] = patch.cumsum(axis=1).cumsum(axis=2)
     box = (sat[:, 7:, 7:] - sat[:, :-7, 7:] - sat[:, 7:, :-7] + sat[:, :-7, :-7]) / 49.0
     return ((patch[:, 3:10, 3:10] - box) ** 2).mean(axis=(1, 2)).astype(np.float32)
+
+
+def _rates(rate_xy) -> np.ndarray | None:
+    """``rate_xy`` checked: None, or finite (omega_x, omega_y) [rad/s]."""
+    if rate_xy is None:
+        return None
+    w = np.asarray(rate_xy, dtype=np.float64).reshape(-1)
+    if w.shape != (2,) or not np.all(np.isfinite(w)):
+        raise ValueError(f"rate_xy={rate_xy!r}: give the finite (omega_x, omega_y) [rad/s], or None")
+    return w
 
 
 def _plane(ground_plane) -> tuple[float, float, float]:

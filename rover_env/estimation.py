@@ -126,6 +126,10 @@ class StepEstimate:
         values: ``ESTIMATE_KEYS`` -> float arrays (wheel order FL, FR, RL, RR; axles F, R).
         odometry_quality: Quality of the last odometry estimate (0 when it was invalid).
         kinematics_quality: Share of the fisheye's 10 degrees of freedom measured in its last frame.
+        attitude_quality: Share of the control period's IMU samples that were in range, once the
+            attitude was initialised at a standstill or has settled on gravity (three of its time
+            constants); 0 before that, and without an IMU (``values["tilt"]`` then reads 0: unknown,
+            not level).
         slip: The slip filter's full output.
         odometry: The last odometry estimate (None before the first pair).
         kinematics: The last kinematic state.
@@ -139,6 +143,7 @@ class StepEstimate:
     values: dict[str, np.ndarray]
     odometry_quality: float
     kinematics_quality: float
+    attitude_quality: float
     slip: SlipEstimate
     odometry: OdometryEstimate | None = field(default=None, repr=False)
     kinematics: KinematicState | None = field(default=None, repr=False)
@@ -166,6 +171,9 @@ class PerceptionPipeline:
         imu: An IMU on the body (attached as the sensor ``"imu"``, after the cameras): its gyro's
             body-z rate, averaged between camera frames, goes into the slip filter with a bias
             that the filter learns from the odometry. None (default): no IMU, as before.
+        odometry_gyro: With an IMU, give the odometry's 3-D fit the gyro's mean roll and pitch
+            rates over each frame pair (``FlowOdometry.update(rate_xy=...)``; default). False:
+            the odometry's velocities are vision only (the odometry paper's method).
     """
 
     def __init__(
@@ -176,6 +184,7 @@ class PerceptionPipeline:
         kinematics: KinematicsConfig | None = None,
         slip: SlipConfig | None = None,
         imu: ImuConfig | None = None,
+        odometry_gyro: bool = True,
     ) -> None:
         if isinstance(preset, str):
             if preset not in PERCEPTION_PRESETS:
@@ -187,6 +196,7 @@ class PerceptionPipeline:
         sim.attach_sensor("fisheye", self.fisheye)
         sim.attach_sensor("downward", self.downward)
         self.imu: Imu | None = None
+        self.odometry_gyro = bool(odometry_gyro)
         if imu is not None:
             self.imu = Imu(sim, imu)
             sim.attach_sensor("imu", self.imu)
@@ -198,7 +208,11 @@ class PerceptionPipeline:
         self._twist = np.zeros(3)  # the twist of the last dead-reckoning step
         self._imu_batch: list[np.ndarray] = []  # samples since the last flush, and the last one's time
         self._imu_t = 0.0
+        self._gyro_xy: list[np.ndarray] = []  # body roll and pitch rates since the last downward frame
         self._imu_saturated = 0
+        self._imu_used = 0  # in-range samples this control period
+        self._attitude_s = 0.0  # IMU time the attitude has run on since the reset [s]
+        self._attitude_ready = False  # initialised from a standstill, or settled on gravity
         self._sim_timing = sim.timing
         g = sim.geometry
         self._steer_max_rate = g.steer_max_rate
@@ -260,7 +274,11 @@ class PerceptionPipeline:
         self._t = float(t)
         self._last_odom = None
         self._imu_batch = []
+        self._gyro_xy = []
         self._imu_saturated = 0
+        self._imu_used = 0
+        self._attitude_s = 0.0
+        self._attitude_ready = False
         self._z = 0.0
         self._twist = np.zeros(3)
         if self.imu is not None:
@@ -285,6 +303,7 @@ class PerceptionPipeline:
             window = len(still) * self.imu.period
             self.slip.calibrate_gyro(float(self._imu_z @ mean[:3]), self._gyro_density / np.sqrt(window))
             self.attitude.calibrate(mean[:3], mean[3:])
+            self._attitude_ready = True
 
     def _window_parts(self) -> np.ndarray | None:
         """What the fisheye's next frame must show (see ``PerceptionPreset.fisheye_window``)."""
@@ -321,17 +340,28 @@ class PerceptionPipeline:
         s = self.kinematics.state
         centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
         plane = ground_plane_from_wheels(centres, self.model.wheel_radius)
-        est = self.odometry.update(img, t, ground_plane=plane)
+        est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
         if est is not None:
             self._last_odom = est
             if est.valid:
                 self.slip.add_odometry(t, est.twist, est.dt, est.quality, cov=est.twist_cov)
 
+    def _frame_rate_xy(self) -> np.ndarray | None:
+        """The gyro's mean body roll and pitch rates since the last downward frame (None: no gyro)."""
+        if self.imu is None or not self.odometry_gyro or not self._gyro_xy:
+            self._gyro_xy = []
+            return None
+        w = np.mean(self._gyro_xy, axis=0) - self.attitude.bias[:2]
+        self._gyro_xy = []
+        return w
+
     def _on_imu(self, data: np.ndarray, t: float) -> None:
         if data[6] > 0 or not np.all(np.isfinite(data[:6])):
             self._imu_saturated += 1  # a clipped rate is not a rate: left out, and counted
             return
+        self._gyro_xy.append(self.imu.R_body_imu[:2] @ data[:3])
         self._imu_batch.append(data[:6])
+        self._imu_used += 1
         self._imu_t = t
 
     def _flush_imu(self) -> None:
@@ -345,6 +375,9 @@ class PerceptionPipeline:
         vx, vy, w = self._twist
         # the centripetal acceleration omega x v of a turn is not gravity
         self.attitude.update(mean[:3], mean[3:], window, (-w * vy, w * vx, 0.0))
+        self._attitude_s += window
+        # without a standstill to start from, three time constants of gravity settle the tilt
+        self._attitude_ready |= self._attitude_s >= 3.0 * self.attitude.time_constant
         std = self._gyro_density / np.sqrt(window)
         rate = float(self._imu_z @ mean[:3])
         self.slip.add_gyro(self._imu_t, rate, window, std)
@@ -389,6 +422,7 @@ class PerceptionPipeline:
         self._t = float(t)
         out = self.estimate()
         self._imu_saturated = 0
+        self._imu_used = 0
         self._perception_s += time.perf_counter() - t0
         return out
 
@@ -429,10 +463,17 @@ class PerceptionPipeline:
             "axle_roll": ks.psi.copy(),
             "axle_height": ks.depth.copy(),
             "steering": ks.lam.copy(),
-            "quality": np.array([q_odo, q_kin, sl.quality]),
+            "tilt": np.zeros(2),  # unknown without an IMU: attitude quality 0 says so
+            "quality": np.array([q_odo, q_kin, 0.0]),
         }
         if self.imu is None:
-            return StepEstimate(values, q_odo, q_kin, sl, odo, ks)
+            return StepEstimate(values, q_odo, q_kin, 0.0, sl, odo, ks)
         tilt = (self.attitude.roll, self.attitude.pitch)
+        n = self._imu_used + self._imu_saturated
+        q_att = self._imu_used / n if self._attitude_ready and n else 0.0
+        values["tilt"] = np.array(tilt)
+        values["quality"][2] = q_att
         bias = self.slip.gyro_bias
-        return StepEstimate(values, q_odo, q_kin, sl, odo, ks, self._imu_saturated, bias, tilt, self._z)
+        return StepEstimate(
+            values, q_odo, q_kin, q_att, sl, odo, ks, self._imu_saturated, bias, tilt, self._z
+        )

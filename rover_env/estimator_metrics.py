@@ -33,8 +33,11 @@ _TRUTH_OF: dict[str, tuple[str, int]] = {
     **{f"axle_roll_{a}": ("axle_roll", i) for i, a in enumerate(AXLES)},
     **{f"axle_height_{a}": ("axle_height", i) for i, a in enumerate(AXLES)},
     **{f"steering_{a}": ("steering", i) for i, a in enumerate(AXLES)},
+    "roll": ("tilt", 0),
+    "pitch": ("tilt", 1),
 }
-#: Observation fields with a ground truth: twist, wheel rates, slip, axle roll and height, steering.
+#: Observation fields with a ground truth: twist, wheel rates, slip, axle roll and height, steering,
+#: body roll and pitch (read as 0 without an IMU, so their error is then the true tilt).
 FIELDS: tuple[str, ...] = tuple(n for n in OBS_FIELDS if n in _TRUTH_OF)
 #: (ground-truth key, index) of each of :data:`FIELDS`.
 TRUTH: tuple[tuple[str, int], ...] = tuple(_TRUTH_OF[n] for n in FIELDS)

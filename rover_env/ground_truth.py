@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +17,7 @@ GROUND_TRUTH_KEYS: tuple[str, ...] = (
     "axle_roll",
     "axle_height",
     "steering",
+    "tilt",
 )
 
 
@@ -36,6 +38,8 @@ class GroundTruth:
             origin along body -z [m].
         steering: Axle steering lambda_F, lambda_R [rad] (the virtual centre-wheel angle that
             the two measured wheel angles of the axle imply, averaged).
+        tilt: (roll, pitch) of the body against gravity [rad], Z-Y-X Euler angles of ``pose``
+            (roll about body x, left side up +; pitch about body y, nose down +). A property.
         wheel_steer: Measured steering angle of each wheel [rad].
         wheel_v_long: Ground velocity of each wheel centre along its heading [m/s].
         wheel_v_lat: Ground velocity of each wheel centre across its heading, left + [m/s].
@@ -62,6 +66,14 @@ class GroundTruth:
     friction: np.ndarray
     normal_force: np.ndarray
     contact_point: np.ndarray
+
+    @property
+    def tilt(self) -> np.ndarray:
+        """(roll, pitch) of the body against gravity [rad] (Z-Y-X Euler angles of ``pose``)."""
+        qx, qy, qz, qw = (float(v) for v in self.pose[3:7])
+        roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+        pitch = math.asin(max(-1.0, min(1.0, 2.0 * (qw * qy - qz * qx))))
+        return np.array([roll, pitch])
 
     @property
     def in_contact(self) -> np.ndarray:

@@ -310,3 +310,20 @@ def test_estimated_observation_tracks_the_truth_and_survives_a_blackout():
         assert all(r[1][i["kinematics_quality"]] > 0.5 for r in rows if r[0] >= 2.0)  # the fisheye is back
     finally:
         env.close()
+
+
+def test_ground_truth_tilt_is_the_z_y_x_roll_and_pitch_of_the_pose():
+    import dataclasses
+
+    from scipy.spatial.transform import Rotation
+
+    from rover_env.ground_truth import GroundTruth
+
+    fields = {f.name: np.zeros(4) for f in dataclasses.fields(GroundTruth)}
+    for roll, pitch, yaw in ((0.2, -0.3, 1.0), (-0.05, 0.4, -2.5), (0.0, 0.0, 3.0)):
+        q = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_quat()  # x, y, z, w
+        gt = GroundTruth(**(fields | {"t": 0.0, "pose": np.array([0.0, 0.0, 0.3, *q])}))
+        np.testing.assert_allclose(gt.tilt, [roll, pitch], atol=1e-12)
+    # pitch + is nose down: the body x axis then points below the horizon
+    q = Rotation.from_euler("ZYX", [0.0, 0.1, 0.0])
+    assert q.apply([1.0, 0.0, 0.0])[2] < 0

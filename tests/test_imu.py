@@ -212,20 +212,24 @@ def drive_circle(imu, seconds: float, env_id: str = "RoverRoughSlippery-v0", see
         obs, info = env.reset(seed=seed)
         first = env.unwrapped.pipeline.estimate()
         yaw0 = info["estimate"]["odometry_pose"][2] - quat_to_yaw(info["ground_truth"]["pose"][3:])
+        fields = [f.name for f in env.unwrapped.obs_fields]
+        att = [fields.index(n) for n in ("roll", "pitch", "attitude_quality")]
+        rows = []  # the observation's roll, pitch and attitude quality, and the true tilt
         for _ in range(int(seconds * 30)):
             obs, _, term, trunc, info = env.step(np.array([0.25, 0.5, -0.5], np.float32))
             assert not (term or trunc)
+            rows.append([*obs[att], *info["ground_truth"]["tilt"]])
         est = info["estimate"]["odometry_pose"]
         yaw_err = math.remainder(est[2] - quat_to_yaw(info["ground_truth"]["pose"][3:]) - yaw0, 2 * math.pi)
         tilt = [quat_to_roll_pitch(info[k]["pose"][3:]) for k in ("estimate", "ground_truth")]
-        return env.unwrapped.pipeline, first, math.degrees(yaw_err), obs, np.degrees(tilt)
+        return env.unwrapped.pipeline, first, math.degrees(yaw_err), np.array(rows), np.degrees(tilt)
     finally:
         env.close()
 
 
 def test_gyro_calibrated_at_standstill_and_heading_held_on_rough_ground():
-    base, _, err_none, obs_none, _ = drive_circle(None, 15.0)
-    pipe, first, err_imu, obs_imu, tilt = drive_circle("bmi088", 15.0)
+    base, _, err_none, att_none, _ = drive_circle(None, 15.0)
+    pipe, first, err_imu, att_imu, tilt = drive_circle("bmi088", 15.0)
     cfg = pipe.imu.config
     bias, std = first.gyro_bias
     # the standstill before t = 0 gives the episode's turn-on bias to a few hundredths of a degree/s
@@ -240,7 +244,14 @@ def test_gyro_calibrated_at_standstill_and_heading_held_on_rough_ground():
     assert abs(err_imu) < 2.0
     print(f"roll, pitch: estimated {np.round(tilt[0], 2)} deg, true {np.round(tilt[1], 2)} deg")
     assert np.all(np.abs(tilt[0] - tilt[1]) < 1.0)
-    assert obs_none.shape == obs_imu.shape
+    # the observation's roll and pitch follow the truth over the drive (it rolls by up to ~4 deg);
+    # without an IMU they read 0 with attitude quality 0: unknown, not level
+    err = np.degrees(np.abs(att_imu[:, :2] - att_imu[:, 3:]))
+    print(f"observed roll, pitch: error max {err.max(axis=0)} deg, true |tilt| max "
+          f"{np.degrees(np.abs(att_imu[:, 3:]).max(axis=0))} deg")  # fmt: skip
+    assert np.degrees(np.abs(att_imu[:, 3:]).max()) > 2.0
+    assert err.max() < 1.0 and np.all(att_imu[:, 2] == 1.0)
+    assert np.all(att_none[:, :3] == 0.0)
 
 
 def test_imu_option_errors():

@@ -6,6 +6,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from perception.cameras import PinholeCamera
 from perception.odometry import (
@@ -278,6 +279,35 @@ def test_3d_fit_recovers_the_planar_twist_of_a_body_that_rolls_and_pitches():
     # a planar fit of the same points reads the roll as a sideways speed of ~0.16 m/s
     flat, _ = velocity_from_points(P[:, :2], C[:, :2], dt)
     assert abs(flat[1] - v_true[1]) > 0.1
+
+
+def test_gyro_roll_and_pitch_rates_keep_a_plane_tilt_error_out_of_the_velocity():
+    """The second frame's plane pitched 0.2 deg off (the wheels' plane on rough ground): the 3-D fit
+    alone reads it as a pitch rate and moves v_x by about h times that rate; with the gyro's rates
+    given, v_x holds to 1 mm/s."""
+    rng = np.random.default_rng(7)
+    dt, h = 1 / 30, 0.265
+    R0, R1 = _rot(0.02, -0.01, 0.0), _rot(0.025, -0.02, 0.01)
+    t1 = np.array([0.05, -0.002, h + 0.001])
+    world = np.column_stack([rng.uniform(0.6, 1.3, 60), rng.uniform(-0.5, 0.5, 60), np.zeros(60)])
+    P = (world - (0, 0, h)) @ R0
+    v_true = R0.T @ (t1 - (0, 0, h)) / dt
+    R_rel = R0.T @ R1  # the body's rotation over the step, first frame's axes
+    rates = Rotation.from_matrix(R_rel).as_rotvec()[:2] / dt  # (omega_x, omega_y) [rad/s]
+    # the current frame's points put on a plane pitched 0.2 deg off the true one (about body y)
+    err = math.radians(0.2)
+    C_true = (world - t1) @ R1
+    C = C_true.copy()
+    C[:, 2] += err * (C[:, 0] - C[:, 0].mean())
+    ref, _ = velocity_from_points(P, C_true, dt)  # both planes right: the fit alone is exact
+    np.testing.assert_allclose(ref[0], v_true[0], atol=1e-3)
+    free, _ = velocity_from_points(P, C, dt)
+    given, _ = velocity_from_points(P, C, dt, rate_xy=rates)
+    print(f"v_x error: free {free[0] - ref[0]:+.4f}, gyro {given[0] - ref[0]:+.4f} m/s")
+    assert abs(free[0] - ref[0]) > 0.02  # ~ h * err / dt = 0.03 m/s
+    np.testing.assert_allclose(given, ref, atol=1e-3)
+    with pytest.raises(ValueError, match="rate_xy"):
+        FlowOdometry(mast_camera()).update(np.zeros((480, 640), np.uint8), 0.0, rate_xy=(math.nan, 0.0))
 
 
 def test_each_frame_on_its_own_ground_plane_removes_the_roll_of_a_suspended_body(ground):

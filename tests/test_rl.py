@@ -122,7 +122,8 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
         assert a.shape == (6,) and a.dtype == np.float32 and np.all(np.abs(a) <= 1)
         assert not caplog.records
         # trained on ground truth, the quality fields were always 1: an estimator's 0.5 gets a warning
-        ctrl.act(np.where(np.arange(obs.size) == 17, 0.5, obs).astype(np.float32))
+        q = [f.name for f in env.unwrapped.obs_fields].index("odometry_quality")
+        ctrl.act(np.where(np.arange(obs.size) == q, 0.5, obs).astype(np.float32))
         assert "odometry_quality" in caplog.text and "never saw" in caplog.text
     finally:
         env.close()
@@ -146,10 +147,35 @@ def test_the_shipped_policy_loads_and_drives():
         assert ctrl.meta["reward"] == {"slip_speed": 5.0} and ctrl.residual is not None
         assert ctrl.meta["obs_source"] == "estimated" and ctrl.meta["base"] == "traction"
         obs, _ = env.reset(seed=0)
+        # trained before roll, pitch and attitude quality were observed: it reads its fields by name
+        names = [f.name for f in env.unwrapped.obs_fields]
+        assert set(ctrl.meta["obs_fields"]) < set(names)
+        ctrl.reset()
+        a0 = ctrl.act(obs)
+        ctrl.reset()
+        tilted = np.where(np.arange(obs.size) == names.index("roll"), 0.3, obs).astype(np.float32)
+        np.testing.assert_array_equal(ctrl.act(tilted), a0)
         ctrl.reset()
         for _ in range(60):  # two seconds: it drives off along the course
             obs, _, _, _, info = env.step(ctrl.act(obs))
         assert info["progress"] > 1.0
+    finally:
+        env.close()
+
+
+def test_a_policy_trained_on_a_field_the_environment_lacks_is_refused(tmp_path):
+    import shutil
+
+    from controllers.rl import shipped_policy
+
+    folder = shutil.copytree(shipped_policy(), tmp_path / "policy")
+    meta = json.loads((folder / "policy.json").read_text())
+    meta["obs_fields"].append("soil_moisture")
+    (folder / "policy.json").write_text(json.dumps(meta))
+    env = gym.make("Rover-v0", obs_source="ground_truth", action_mode="wheels")
+    try:
+        with pytest.raises(ValueError, match="soil_moisture.*retrain"):
+            PolicyController(folder, env)
     finally:
         env.close()
 

@@ -76,7 +76,8 @@ class RoverEnv(gym.Env):
     **Observation** float32 vector in physical units, laid out by the table
     :func:`perception.observation.observation_fields` (name, unit, bounds, source; the
     instance's :attr:`obs_fields`): body twist, wheel rates, slip ratios, axle roll and height,
-    axle steering, odometry and kinematics quality, the on-board tracker's waypoint distance
+    axle steering, body roll and pitch (from the IMU, if fitted), odometry, kinematics and
+    attitude quality, the on-board tracker's waypoint distance
     and bearing, cross-track and heading error, then the previous action. Read fields by name
     (``field_index``), never by position. Values are clipped to generous finite bounds that
     only a numerical blow-up could reach; NaN becomes 0 (its quality field says why).
@@ -119,9 +120,10 @@ class RoverEnv(gym.Env):
             twist, fisheye kinematics, the slip filter) and the task features from the on-board
             tracker on the dead-reckoned pose; ``info["estimate"]`` then holds the estimate
             under the keys of ``info["ground_truth"]`` (its ``pose`` dead-reckoned: x, y, the
-            start height and the yaw), plus ``odometry_pose`` (x, y, yaw) and ``quality``
-            (odometry, kinematics: the observation's quality fields), ``info["quality"]`` the
-            odometry, kinematics and slip quality, and
+            start height and the yaw; with an IMU, its height and tilt dead-reckoned too), plus
+            ``odometry_pose`` (x, y, yaw) and ``quality`` (odometry, kinematics, attitude: the
+            observation's quality fields), ``info["quality"]`` the odometry, kinematics,
+            attitude and slip quality, and
             ``info["slip"]`` the slip filter's per-wheel ``valid``, ``events`` (its slip-event
             detection) and ``slip_ratio_std``.
             ``"ground_truth"``: the same layout from the simulator (for ablations).
@@ -443,10 +445,11 @@ class RoverEnv(gym.Env):
         if self._est is None:
             gt = self._gt
             assert gt is not None
-            state, quality = gt.as_dict(), (1.0, 1.0)
+            state, quality = gt.as_dict(), (1.0, 1.0, 1.0)
         else:
             state = self._est.values
-            quality = (self._est.odometry_quality, self._est.kinematics_quality)
+            est = self._est
+            quality = (est.odometry_quality, est.kinematics_quality, est.attitude_quality)
         values = obs_table.state_values(state, quality, task_values(feats))
         return obs_table.assemble(self.obs_fields, values, self._prev_action)
 
@@ -461,7 +464,7 @@ class RoverEnv(gym.Env):
         out.update({k: np.array(v[k], dtype=np.float64) for k in GROUND_TRUTH_KEYS if k != "pose"})
         out["odometry_pose"] = np.array(v["odometry_pose"], dtype=np.float64)
         out["quality"] = np.array(
-            [self._est.odometry_quality, self._est.kinematics_quality], dtype=np.float64
+            [est.odometry_quality, est.kinematics_quality, est.attitude_quality], dtype=np.float64
         )
         return out
 
@@ -520,6 +523,7 @@ class RoverEnv(gym.Env):
             out["quality"] = {
                 "odometry": self._est.odometry_quality,
                 "kinematics": self._est.kinematics_quality,
+                "attitude": self._est.attitude_quality,
                 "slip": float(self._est.slip.quality),
             }
             sl = self._est.slip
