@@ -116,6 +116,9 @@ PERCEPTION_PRESETS: dict[str, PerceptionPreset] = _presets()
 #: The gyro's bias is calibrated on its samples over this long before t = 0 [s], the second half
 #: of the simulation's settling: the rover is then at rest on its wheels.
 IMU_CALIBRATION_S = 0.25
+#: The rate of the fused velocity that the attitude filter takes out of the specific force is a
+#: difference over at least this long [s] (shorter: the odometry's frame-to-frame noise).
+VELOCITY_RATE_S = 0.25
 
 
 @dataclass
@@ -206,6 +209,7 @@ class PerceptionPipeline:
             self.attitude = AttitudeFilter(self.imu.R_body_imu)
         self._z = 0.0  # dead-reckoned height change [m] (with an IMU)
         self._twist = np.zeros(3)  # the twist of the last dead-reckoning step
+        self._twist_hist: list[tuple[float, float, float]] = []  # (t, v_x, v_y) for the velocity's rate
         self._imu_batch: list[np.ndarray] = []  # samples since the last flush, and the last one's time
         self._imu_t = 0.0
         self._gyro_xy: list[np.ndarray] = []  # body roll and pitch rates since the last downward frame
@@ -213,6 +217,7 @@ class PerceptionPipeline:
         self._imu_used = 0  # in-range samples this control period
         self._attitude_s = 0.0  # IMU time the attitude has run on since the reset [s]
         self._attitude_ready = False  # initialised from a standstill, or settled on gravity
+        self._attitude_q = 0.0  # the attitude quality of the last processed step
         self._sim_timing = sim.timing
         g = sim.geometry
         self._steer_max_rate = g.steer_max_rate
@@ -279,8 +284,10 @@ class PerceptionPipeline:
         self._imu_used = 0
         self._attitude_s = 0.0
         self._attitude_ready = False
+        self._attitude_q = 0.0
         self._z = 0.0
         self._twist = np.zeros(3)
+        self._twist_hist = []
         if self.imu is not None:
             self.attitude.reset()
         self.fisheye.request_window(0.0, None)
@@ -346,6 +353,23 @@ class PerceptionPipeline:
             if est.valid:
                 self.slip.add_odometry(t, est.twist, est.dt, est.quality, cov=est.twist_cov)
 
+    def _velocity_rate(self) -> tuple[float, float]:
+        """d(v_x, v_y)/dt of the fused twist over the last ``VELOCITY_RATE_S`` or more [m/s^2].
+
+        The fused velocity rests on the odometry at every frame, whatever the attitude's error
+        (the slip filter's accelerometer bias state takes up the gravity that leaks through it).
+        """
+        t, (vx, vy, _) = self._t_pose, self._twist
+        hist = self._twist_hist
+        if not hist or t > hist[-1][0]:
+            hist.append((t, vx, vy))
+        while len(hist) > 2 and t - hist[1][0] >= VELOCITY_RATE_S:
+            hist.pop(0)
+        t0, vx0, vy0 = hist[0]
+        if t - t0 < VELOCITY_RATE_S:
+            return 0.0, 0.0
+        return (vx - vx0) / (t - t0), (vy - vy0) / (t - t0)
+
     def _frame_rate_xy(self) -> np.ndarray | None:
         """The gyro's mean body roll and pitch rates since the last downward frame (None: no gyro)."""
         if self.imu is None or not self.odometry_gyro or not self._gyro_xy:
@@ -373,8 +397,10 @@ class PerceptionPipeline:
         mean = np.mean(batch, axis=0) if n > 1 else batch[0]
         window = n * self.imu.period  # each sample integrates the period before it
         vx, vy, w = self._twist
-        # the centripetal acceleration omega x v of a turn is not gravity
-        self.attitude.update(mean[:3], mean[3:], window, (-w * vy, w * vx, 0.0))
+        # neither the centripetal acceleration omega x v of a turn nor the rate of the body's
+        # velocity (a rover speeding up, or sliding down a slope) is gravity
+        dvx, dvy = self._velocity_rate()
+        self.attitude.update(mean[:3], mean[3:], window, (dvx - w * vy, dvy + w * vx, 0.0))
         self._attitude_s += window
         # without a standstill to start from, three time constants of gravity settle the tilt
         self._attitude_ready |= self._attitude_s >= 3.0 * self.attitude.time_constant
@@ -420,6 +446,8 @@ class PerceptionPipeline:
             self._flush_imu()
         self._integrate(t)
         self._t = float(t)
+        n = self._imu_used + self._imu_saturated
+        self._attitude_q = self._imu_used / n if self._attitude_ready and n else 0.0
         out = self.estimate()
         self._imu_saturated = 0
         self._imu_used = 0
@@ -469,8 +497,7 @@ class PerceptionPipeline:
         if self.imu is None:
             return StepEstimate(values, q_odo, q_kin, 0.0, sl, odo, ks)
         tilt = (self.attitude.roll, self.attitude.pitch)
-        n = self._imu_used + self._imu_saturated
-        q_att = self._imu_used / n if self._attitude_ready and n else 0.0
+        q_att = self._attitude_q
         values["tilt"] = np.array(tilt)
         values["quality"][2] = q_att
         bias = self.slip.gyro_bias

@@ -162,6 +162,31 @@ def test_the_estimated_observation_holds_no_truth(env_id):
         env.close()
 
 
+def test_with_an_imu_the_observation_holds_no_truth_and_its_tilt_is_the_imus():
+    """On the loose slope with a BMI088: rebuilt from info["estimate"] alone, and the observed roll
+    and pitch are the attitude filter's, off the truth by what the accelerometer's bias makes."""
+    import gymnasium as gym
+
+    from controllers import PathFollower
+
+    env = gym.make("RoverSlopeLoose-v0", imu="bmi088").unwrapped
+    try:
+        rebuilt, _ = _check_no_truth(env, PathFollower.for_env(env), seed=1, steps=60)
+        assert rebuilt == 61
+        est = env.pipeline.estimate()
+        truth = env.sim.ground_truth().tilt
+        print(f"tilt: estimated {np.degrees(est.values['tilt'])}, true {np.degrees(truth)} deg")
+        assert est.attitude_quality == 1.0 and abs(truth[1]) > np.radians(5.0)
+        # sliding down at ~0.7 m/s^2: without the velocity's rate taken out, the pitch would be
+        # 4 deg off; what is left is the accelerometer's turn-on bias drawn for this episode
+        bias = env.pipeline.imu.noise.turn_on[3:5]  # x, y [m/s^2]
+        print(f"accelerometer bias {bias} m/s^2")
+        expected = np.array([bias[1], -bias[0]]) / 9.81  # roll, pitch error [rad]
+        np.testing.assert_allclose(est.values["tilt"] - truth, expected, atol=np.radians(0.5))
+    finally:
+        env.close()
+
+
 def test_the_tracker_passes_waypoints_on_the_estimate_alone(tmp_path):
     """A short course driven to its end by traction control: every waypoint switch is the tracker's."""
     from controllers import SlipAwareController
