@@ -16,7 +16,7 @@ Two dead-reckoned paths are scored against the truth by the paper's method
 Both columns use the vision-only velocities, as the paper does (``odometry_gyro=False``: the
 gyro's roll and pitch rates are not given to the odometry's fit).
 
-Writes a markdown table (``--out``/table1.md) and a figure of the paths (``--out``/paths.png).
+Writes a markdown table (``--out``/table1.md) and a figure of the paths (``--out``/table1_paths.png).
 
 Run: LP_NUM_THREADS=1 python benchmarks/odometry_table1.py [--distance 300] [--out benchmarks/results/imu]
 """
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
         ax.legend()
     (out / "table1.md").write_text("\n".join(lines) + "\n")
     fig.tight_layout()
-    fig.savefig(out / "paths.png", dpi=100)
+    fig.savefig(out / "table1_paths.png", dpi=100)
     print("\n".join(lines))
     return 0
 
