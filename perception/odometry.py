@@ -269,7 +269,7 @@ def velocity_from_points(
     if rate_xy is None:
         sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     else:  # the known roll and pitch rates moved to the right-hand side
-        w = np.asarray(rate_xy, dtype=np.float64)
+        w = _rates(rate_xy)
         part, *_ = np.linalg.lstsq(A[:, [0, 1, 2, 5]], b - A[:, 3:5] @ w, rcond=None)
         sol = np.array([part[0], part[1], part[2], w[0], w[1], part[3]])
     res = (A @ sol - b).reshape(n, 3)[:, :2].reshape(-1)
