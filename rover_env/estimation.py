@@ -212,7 +212,7 @@ class PerceptionPipeline:
         self._twist_hist: list[tuple[float, float, float]] = []  # (t, v_x, v_y) for the velocity's rate
         self._imu_batch: list[np.ndarray] = []  # samples since the last flush, and the last one's time
         self._imu_t = 0.0
-        self._gyro_xy: list[np.ndarray] = []  # body roll and pitch rates since the last downward frame
+        self._gyro_xy: list[np.ndarray] = []  # gyro samples (IMU frame) since the last downward frame
         self._imu_saturated = 0
         self._imu_used = 0  # in-range samples this control period
         self._attitude_s = 0.0  # IMU time the attitude has run on since the reset [s]
@@ -375,7 +375,7 @@ class PerceptionPipeline:
         if self.imu is None or not self.odometry_gyro or not self._gyro_xy:
             self._gyro_xy = []
             return None
-        w = np.mean(self._gyro_xy, axis=0) - self.attitude.bias[:2]
+        w = self.imu.R_body_imu[:2] @ np.mean(self._gyro_xy, axis=0) - self.attitude.bias[:2]
         self._gyro_xy = []
         return w
 
@@ -383,7 +383,7 @@ class PerceptionPipeline:
         if data[6] > 0 or not np.all(np.isfinite(data[:6])):
             self._imu_saturated += 1  # a clipped rate is not a rate: left out, and counted
             return
-        self._gyro_xy.append(self.imu.R_body_imu[:2] @ data[:3])
+        self._gyro_xy.append(data[:3])
         self._imu_batch.append(data[:6])
         self._imu_used += 1
         self._imu_t = t
