@@ -37,24 +37,83 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Most seeds one ``--seeds`` range may name (a sweep runs one episode per seed and controller).
+MAX_SEEDS = 10_000
+
+
 def _seeds(text: str) -> list[int]:
-    """``"0-19"`` or ``"3"`` -> seeds."""
+    """``"0-19"`` or ``"3"`` -> seeds (0 <= N <= M, at most ``MAX_SEEDS`` of them)."""
     lo, sep, hi = text.partition("-")
     try:
-        return list(range(int(lo), int(hi) + 1)) if sep else [int(lo)]
+        a, b = (int(lo), int(hi)) if sep else (int(lo), int(lo))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"seeds: {text!r} is not N or N-M") from None
+        raise argparse.ArgumentTypeError(f"seeds: {text!r} is not N or N-M (whole numbers >= 0)") from None
+    if b < a:
+        raise argparse.ArgumentTypeError(f"seeds: {text!r} is an empty range; give N-M with N <= M")
+    if b - a + 1 > MAX_SEEDS:
+        raise argparse.ArgumentTypeError(
+            f"seeds: {text!r} names {b - a + 1} seeds; at most {MAX_SEEDS} a range"
+        )
+    return list(range(a, b + 1))
+
+
+def _int_in(lo: int, hi: int | None = None):
+    """An argparse type: a whole number in [lo, hi]."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if v < lo or (hi is not None and v > hi):
+            span = f">= {lo}" if hi is None else f"from {lo} to {hi}"
+            raise argparse.ArgumentTypeError(f"{text}: use a whole number {span}")
+        return v
+
+    return parse
+
+
+def _float_in(lo: float, hi: float):
+    """An argparse type: a finite number in (lo, hi]."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(v) and lo < v <= hi):
+            raise argparse.ArgumentTypeError(f"{text}: use a number above {lo:g} and at most {hi:g}")
+        return v
+
+    return parse
+
+
+def _max_workers() -> int:
+    """Most local worker processes ``rover eval`` starts: four per CPU (each holds a simulation)."""
+    import os
+
+    return 4 * (os.cpu_count() or 1)
 
 
 def _weight(text: str) -> tuple[str, float]:
-    """``"slip=5"`` -> ("slip", 5.0)."""
+    """``"slip=5"`` -> ("slip", 5.0); the term must be one of RewardConfig's, the weight in [0, 1e6]."""
+    from rover_env.task import RewardConfig
+
     key, sep, value = text.partition("=")
+    terms = tuple(RewardConfig.__dataclass_fields__)
     try:
         if not sep:
             raise ValueError
-        return key, float(value)
+        w = float(value)
     except ValueError:
         raise argparse.ArgumentTypeError(f"reward weight: {text!r} is not TERM=NUMBER") from None
+    if key not in terms:
+        raise argparse.ArgumentTypeError(
+            f"reward weight: {key!r} is not a reward term; use one of {', '.join(terms)}"
+        )
+    if not (math.isfinite(w) and 0.0 <= w <= 1e6):
+        raise argparse.ArgumentTypeError(f"reward weight: {text!r}; a weight is a number from 0 to 1e6")
+    return key, w
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
@@ -199,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="headless demo mission: video, plots and metrics")
     d.add_argument("--out", required=True, help="output folder (created if missing)")
     d.add_argument("--scenario", default="flat_patches", help="preset name or YAML path")
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="episode seed (0 to 2^32 - 1)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
     d.set_defaults(func=_cmd_demo)
     from rover_env.evaluation import CONTROLLERS
@@ -221,7 +280,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
     e.add_argument("--executor", default="local", choices=("local", "ray"),
                    help="local processes, or a Ray cluster (RAY_ADDRESS, else a local one)")  # fmt: skip
-    e.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
+    e.add_argument("--workers", type=_int_in(1, _max_workers()), default=None,
+                   help=f"local processes, 1 to {_max_workers()} (default: CPU count)")  # fmt: skip
     e.add_argument("--videos", action="store_true", help="write each run's video")
     e.add_argument("--out", required=True, help="output folder (created if missing)")
     e.set_defaults(func=_cmd_eval)
@@ -232,8 +292,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--algo", default="ppo", choices=("ppo", "sac"))
     t.add_argument("--missions", nargs="+", default=["Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0",
                                                       "RoverSlopeLoose-v0"])  # fmt: skip
-    t.add_argument("--steps", type=int, default=200_000, help="environment steps in all")
-    t.add_argument("--envs", type=int, default=2, help="environments, one process each")
+    t.add_argument("--steps", type=_int_in(1), default=200_000, help="environment steps in all")
+    t.add_argument(
+        "--envs", type=_int_in(1, _max_workers()), default=2, help="environments, one process each"
+    )
     t.add_argument("--obs-source", default="estimated", choices=("estimated", "ground_truth"))
     t.add_argument("--preset", default="train", choices=("train", "eval"))
     t.add_argument("--residual", type=float, nargs=3, default=[0.5, 0.3, 0.3],
@@ -242,15 +304,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the residual's base: traction control on each wheel (wheels action mode) "
                         "or the path follower alone (drive mode)")  # fmt: skip
     t.add_argument("--no-residual", action="store_true", help="learn the whole action")
-    t.add_argument("--eval-every", type=int, default=20_000, help="steps between evaluations and checkpoints")
+    t.add_argument("--eval-every", type=_int_in(1), default=20_000,
+                   help="steps between evaluations and checkpoints (>= 1)")  # fmt: skip
     t.add_argument("--reward", nargs="+", type=_weight, default=[], metavar="TERM=WEIGHT",
                    help="reward weights unlike the environment's (RewardConfig), e.g. slip=5")  # fmt: skip
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="training seed (0 to 2^32 - 1)")
     t.set_defaults(func=_cmd_train)
     b = sub.add_parser("bench", help="simulation speed benchmarks")
     b.add_argument("--scenarios", nargs="+", default=["flat_patches", "rough"])
-    b.add_argument("--steps", type=int, default=600, help="environment steps per scenario")
-    b.add_argument("--frames", type=int, default=8, help="frames per camera row")
+    b.add_argument("--steps", type=_int_in(1, 1_000_000), default=600, help="environment steps per scenario")
+    b.add_argument("--frames", type=_int_in(1, 10_000), default=8, help="frames per camera row")
     b.add_argument("--no-cameras", action="store_true", help="physics only")
     b.add_argument(
         "--renderers",
@@ -266,7 +329,9 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument(
         "--calib", required=True, help="calibration YAML (K, distortion, T_body_cam, ground_plane)"
     )
-    o.add_argument("--fps", type=float, required=True, help="frame rate of the images [Hz]")
+    o.add_argument(
+        "--fps", type=_float_in(0.0, 10_000.0), required=True, help="frame rate of the images [Hz]"
+    )
     o.add_argument("--out", required=True, help="output folder (odometry.csv, trajectory.tum)")
     o.add_argument(
         "--imu",
@@ -288,7 +353,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--camera", required=True, help="omnidirectional calibration YAML (OmniCamera.save)")
     k.add_argument("--rover", required=True, help="rover geometry YAML (RoverKinematicModel.save)")
     k.add_argument("--steering", help="optional steering calibration YAML (eq. 5 ratio map)")
-    k.add_argument("--fps", type=float, required=True, help="frame rate of the images [Hz]")
+    k.add_argument(
+        "--fps", type=_float_in(0.0, 10_000.0), required=True, help="frame rate of the images [Hz]"
+    )
     k.add_argument("--out", required=True, help="output folder (kinematics.csv)")
     k.set_defaults(func=_cmd_kinematics)
     s = sub.add_parser("scenarios", help="list the shipped scenario presets")
