@@ -231,13 +231,19 @@ class KinematicStateEstimator:
 
         Args:
             image: (H, W, 3) uint8 RGB fisheye frame at the camera's resolution.
-            t: Its time [s].
+            t: Its time [s], finite and later than the last frame's (else ValueError).
 
         Returns:
             The state; a frame that cannot be used (wrong size or type, black, saturated, no
             markers) gives the previous state carried forward, finite, with every flag False.
         """
+        if not math.isfinite(t):
+            raise ValueError(f"t={t!r}: a frame's time must be finite [s]")
         prev = self._state
+        if math.isfinite(prev.t) and not t > prev.t:
+            raise ValueError(
+                f"t={t!r} s does not follow the last frame's {prev.t!r} s; give increasing times"
+            )
         img = np.asarray(image)
         w, h = self.camera.image_size
         usable = img.dtype == np.uint8 and img.ndim == 3 and img.shape[:2] == (h, w) and img.shape[2] == 3

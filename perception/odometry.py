@@ -342,6 +342,11 @@ class FlowOdometryConfig:
             shadowed and rough ground.
         use_mask: Ablation switch: the shadow-edge feature mask.
         use_ransac: Ablation switch: RANSAC (off: every tracked feature is used).
+        repeated_frames: What two bit-identical frames mean. ``"invalid"`` (the default): a real
+            camera's frames always differ by sensor noise, so an identical pair is a frozen
+            camera or a repeated frame, and no motion is observable. ``"still"``: the camera is
+            noise-free and renders every frame anew (the simulation's), so the rover stands
+            still and the pair is tracked as any other (a valid zero).
     """
 
     min_level_size: tuple[int, int] = (80, 60)
@@ -366,6 +371,7 @@ class FlowOdometryConfig:
     noise_scale: float = 1.5
     use_mask: bool = True
     use_ransac: bool = True
+    repeated_frames: str = "invalid"
 
     @classmethod
     def for_camera(cls, width: int, rate_hz: float, **overrides) -> FlowOdometryConfig:
@@ -425,6 +431,8 @@ class FlowOdometryConfig:
             raise ValueError(f"roi_margin: {self.roi_margin}; use a share in [0, 0.5)")
         if self.min_inliers < 2:
             raise ValueError("min_inliers: at least 2 features are needed for (v_x, v_y, omega)")
+        if self.repeated_frames not in ("invalid", "still"):
+            raise ValueError(f"repeated_frames: {self.repeated_frames!r}; use 'invalid' or 'still'")
 
 
 @dataclass
@@ -724,6 +732,8 @@ class FlowOdometry:
 
         if n_feat < cfg.min_inliers:
             return invalid(f"too few features ({n_feat}): dark, saturated or textureless image")
+        if cfg.repeated_frames == "invalid" and np.array_equal(selection.gray, gray):
+            return invalid("no motion observable: the frame repeats the last one exactly (a frozen camera?)")
         p0 = selection.features.reshape(-1, 1, 2)
         lk = dict(
             winSize=(cfg.window, cfg.window),

@@ -74,6 +74,41 @@ def list_images(folder: str | Path) -> list[Path]:
     return files
 
 
+def bit_depth(image: np.ndarray) -> int:
+    """Bits per sample of an image: 8, or 10 to 16 for a 16-bit container.
+
+    For a 16-bit container, the smallest of 10, 12, 14 and 16 bits that holds the image's largest value (a
+    12-bit sensor never exceeds 4095). One depth serves the whole log, so every frame is scaled
+    alike (scaling each frame by its own maximum lets one glint darken it).
+
+    Raises:
+        ValueError: A sample type other than 8- or 16-bit unsigned integers.
+    """
+    if image.dtype == np.uint8:
+        return 8
+    if image.dtype != np.uint16:
+        raise ValueError(f"images of {image.dtype}: use 8- or 16-bit unsigned integer images")
+    top = int(image.max())
+    return next(b for b in (10, 12, 14, 16) if top < 1 << b)
+
+
+def _log_bit_depth(files: list[Path], n: int = 9) -> int:
+    """The median :func:`bit_depth` of a log's first ``n`` readable images (not one glint's)."""
+    depths = []
+    for path in files[:n]:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is not None:
+            depths.append(bit_depth(img))
+    return int(np.median(depths)) if depths else 8
+
+
+def to_8bit(image: np.ndarray, bits: int) -> np.ndarray:
+    """``image`` of ``bits`` bits per sample as 8-bit grey levels (values above the depth saturate)."""
+    if image.dtype == np.uint8:
+        return image
+    return cv2.convertScaleAbs(image, alpha=255.0 / ((1 << bits) - 1))
+
+
 def _open_run(images, out, fps: float, image_size: tuple[int, int]) -> tuple[list[Path], Path]:
     """Checks shared by the folder runs: frame rate, images, the first image's size; makes ``out``."""
     if not (math.isfinite(fps) and fps > 0):
@@ -132,6 +167,7 @@ def run_folder_odometry(
     odo = FlowOdometry(camera, config)
     imu_in = None if imu is None else _open_imu(imu, imu_rpy, imu_still)  # (log, mount z row)
     files, out = _open_run(images, out, fps, camera.image_size)
+    bits = _log_bit_depth(files)
     rows = []
     times, twists = [0.0], [np.zeros(3)]
     for k, path in enumerate(files):
@@ -144,8 +180,8 @@ def run_folder_odometry(
             img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
         elif img.ndim == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-        if img is not None and img.dtype != np.uint8:  # 16-bit cameras: scale to 8 bits
-            img = cv2.convertScaleAbs(img, alpha=255.0 / max(1.0, float(img.max())))
+        if img is not None and img.dtype != np.uint8:  # 16-bit containers: the log's depth to 8 bits
+            img = to_8bit(img, max(bits, 10))
         if not reason and (img.shape[1], img.shape[0]) != camera.image_size:
             reason = f"{path.name}: {img.shape[1]}x{img.shape[0]} px differs from the calibration"
         if reason:

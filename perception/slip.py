@@ -46,6 +46,9 @@ from perception.wheel_kinematics import slip_angle, slip_ratio, wheel_ground_vel
 log = logging.getLogger(__name__)
 
 N_WHEELS = 4
+#: Readings beyond these magnitudes are no rover's: they are left out, counted and logged
+#: (speed [m/s], yaw rate [rad/s], wheel rate [rad/s], acceleration [m/s^2]).
+MAX_SPEED, MAX_YAW_RATE, MAX_WHEEL_RATE, MAX_ACCEL = 50.0, 50.0, 500.0, 1000.0
 _BIAS = 3 + N_WHEELS  # index of the gyro's yaw-rate bias in the state
 _ODOM_BIAS = _BIAS + 1  # index of the odometry's yaw-rate bias (estimated only with a gyro)
 _ACC_BIAS = _ODOM_BIAS + 1  # the accelerometer's x and y bias (estimated only with one)
@@ -313,6 +316,7 @@ class SlipEstimator:
         self._events = np.zeros(N_WHEELS, bool)
         self._above_since = np.full(N_WHEELS, math.nan)  # when |s| last rose to event_on [s]
         self._seq = 0
+        self.rejected = 0  # readings left out as impossible (see MAX_SPEED and the others)
 
     # ------------------------------------------------------------------ inputs
     def add_odometry(self, t: float, twist, dt: float, quality: float = 1.0, cov=None) -> None:
@@ -322,14 +326,22 @@ class SlipEstimator:
             t: Time of the later frame of the pair [s].
             twist: (v_x, v_y, omega), the average over the pair [m/s, m/s, rad/s].
             dt: Time between the pair's frames [s]; the measurement applies at t - dt/2.
-            quality: The odometry's quality in (0, 1]; without ``cov`` it scales the noise
-                ``odom_std`` by 1/quality.
+            quality: The odometry's quality in (0, 1] (ValueError above 1); without ``cov`` it
+                scales the noise ``odom_std`` by 1/quality; 0 or NaN: invalid, left out.
             cov: (3, 3) covariance of the twist (the odometry's ``twist_cov``), if known; the
                 noise is then ``cov`` plus ``odom_std`` squared on the diagonal (a floor).
+                ValueError unless finite, symmetric and positive semi-definite.
+
+        A twist beyond ``MAX_SPEED`` or ``MAX_YAW_RATE`` is left out and counted (``rejected``).
         """
         z = np.asarray(twist, dtype=np.float64).reshape(-1)
+        if quality > 1:
+            raise ValueError(f"quality: {quality!r}; the odometry's quality is a share in (0, 1]")
         if z.shape != (3,) or not np.all(np.isfinite(z)) or not (quality > 0):
             return  # an invalid estimate carries no information
+        if max(abs(z[0]), abs(z[1])) > MAX_SPEED or abs(z[2]) > MAX_YAW_RATE:
+            self._reject(f"odometry twist {z.tolist()} at t={t}")
+            return
         floor = np.asarray(self.config.odom_std)
         if cov is not None:
             C = np.asarray(cov, dtype=np.float64)
@@ -337,6 +349,11 @@ class SlipEstimator:
                 raise ValueError(
                     f"cov: shape {C.shape}; give a finite (3, 3) covariance of (v_x, v_y, omega)"
                 )
+            if (
+                not np.allclose(C, C.T, rtol=1e-6, atol=1e-12)
+                or np.linalg.eigvalsh(0.5 * (C + C.T)).min() < -1e-12
+            ):
+                raise ValueError(f"cov: {C.tolist()} is not a covariance (symmetric, positive semi-definite)")
             R = 0.5 * (C + C.T) + np.diag(floor**2)
         else:
             q = max(float(quality), self.config.min_quality)
@@ -363,6 +380,10 @@ class SlipEstimator:
         if z.shape != (N_WHEELS,):
             raise ValueError(f"wheel_rate: shape {z.shape}; expected (4,) rates FL, FR, RL, RR [rad/s]")
         ok = np.isfinite(z) if valid is None else np.asarray(valid, bool) & np.isfinite(z)
+        wild = ok & (np.abs(np.where(ok, z, 0.0)) > MAX_WHEEL_RATE)
+        if wild.any():
+            self._reject(f"wheel rates {z.tolist()} at t={t}")
+            ok &= ~wild
         if steering is not None:
             d = np.asarray(steering, dtype=np.float64).reshape(-1)
             if d.shape != (N_WHEELS,):
@@ -392,6 +413,9 @@ class SlipEstimator:
         """
         if not (math.isfinite(rate) and std > 0 and math.isfinite(std)):
             return
+        if abs(rate) > MAX_YAW_RATE:
+            self._reject(f"gyro rate {rate!r} at t={t}")
+            return
         self._gyro_used = True
         H = np.zeros((1, len(self._x)))
         H[0, 2] = H[0, _BIAS] = 1.0
@@ -411,8 +435,16 @@ class SlipEstimator:
             raise ValueError(f"accel_xy: shape {a.shape}; expected (a_x, a_y) [m/s^2]")
         if not (np.all(np.isfinite(a)) and math.isfinite(t) and dt > 0 and math.isfinite(dt)):
             return
+        if np.abs(a).max() > MAX_ACCEL:
+            self._reject(f"acceleration {a.tolist()} at t={t}")
+            return
         self._accel_used = True
         self._inputs.append((float(t) - float(dt), float(t), float(a[0]), float(a[1])))
+
+    def _reject(self, what: str) -> None:
+        """Leave out an impossible reading: count it and say so."""
+        self.rejected += 1
+        log.warning("slip filter: left out %s (beyond any rover's range)", what)
 
     def _velocity_change(self, t0: float, t1: float) -> np.ndarray:
         """The integral of the measured acceleration from ``t0`` to ``t1`` [m/s] (none where no input)."""

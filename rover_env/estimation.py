@@ -225,7 +225,11 @@ class PerceptionPipeline:
         down = preset.downward
         self.odometry = FlowOdometry(
             self.downward.model,
-            odometry or FlowOdometryConfig.for_camera(down.width, down.rate_hz, **preset.odometry),
+            # the simulated camera is noise-free and renders each frame anew: a repeat is a standstill
+            odometry
+            or FlowOdometryConfig.for_camera(
+                down.width, down.rate_hz, **({"repeated_frames": "still"} | preset.odometry)
+            ),
         )
         self.kinematics = KinematicStateEstimator(self.fisheye.model, self.model, kinematics)
         nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))

@@ -3,6 +3,9 @@ result, never a traceback, a silently wrong answer or lost work."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
 from rover_env.cli import build_parser
@@ -54,3 +57,152 @@ def test_cli_accepts_the_edges():
         ("time", 0.0),
     ]
     assert p.parse_args(["eval", "--out", "o", "--workers", "1"]).workers == 1
+
+
+# ---------------------------------------------------------------- estimators
+
+
+def _textured(size=(160, 120), seed=0):
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    w, h = size
+    img = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 2.0)
+    return np.clip(128 + 40 * img / img.std(), 0, 255).astype(np.uint8)
+
+
+def _odometry(**cfg):
+    from test_odometry import mast_camera
+
+    from perception.odometry import FlowOdometry, FlowOdometryConfig
+
+    return FlowOdometry(mast_camera((160, 120)), FlowOdometryConfig.for_camera(160, 30.0, **cfg))
+
+
+def test_a_frozen_camera_is_no_motion_observable_not_a_confident_zero():
+    img = _textured()
+    odo = _odometry()
+    assert odo.update(img, 0.0) is None
+    est = odo.update(img.copy(), 1 / 30)
+    assert not est.valid and "no motion observable" in est.reason
+    assert np.isnan(est.v_x) and est.quality == 0.0
+    # a frame that moved is tracked again
+    moved = np.roll(img, 2, axis=0)
+    assert odo.update(moved, 2 / 30).valid
+    # a noise-free simulated camera says a repeat is a standstill: a valid zero
+    still = _odometry(repeated_frames="still")
+    still.update(img, 0.0)
+    est = still.update(img.copy(), 1 / 30)
+    assert est.valid and abs(est.v_x) < 1e-9 and abs(est.v_y) < 1e-9
+    with pytest.raises(ValueError, match="repeated_frames"):
+        _odometry(repeated_frames="maybe")
+
+
+def test_the_kinematics_estimator_refuses_a_non_finite_or_backward_time():
+    from test_markers import fisheye, rover_model
+
+    from perception.fisheye_kinematics import KinematicStateEstimator
+
+    model = rover_model()
+    est = KinematicStateEstimator(fisheye(model), model)
+    frame = np.zeros((480, 640, 3), np.uint8)
+    for bad in (math.inf, -math.inf, math.nan):
+        with pytest.raises(ValueError, match="finite"):
+            est.update(frame, bad)
+    s = est.update(frame, 0.0)
+    assert not any(s.valid.values())  # a black frame: nothing measured
+    with pytest.raises(ValueError, match="increasing"):
+        est.update(frame, 0.0)
+    assert not any(est.update(frame, 0.1).valid.values())
+
+
+def test_the_slip_filter_validates_odometry_noise_and_leaves_out_impossible_readings():
+    from perception.slip import SlipEstimator
+
+    xy = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])
+    f = SlipEstimator(xy, 0.115)
+    with pytest.raises(ValueError, match="not a covariance"):
+        f.add_odometry(0.1, (1.0, 0.0, 0.0), 1 / 30, cov=-np.eye(3))
+    with pytest.raises(ValueError, match="not a covariance"):
+        f.add_odometry(0.1, (1.0, 0.0, 0.0), 1 / 30, cov=[[1e-4, 1.0, 0], [0, 1e-4, 0], [0, 0, 1e-4]])
+    with pytest.raises(ValueError, match="quality"):
+        f.add_odometry(0.1, (1.0, 0.0, 0.0), 1 / 30, quality=1e9)
+    for k in range(1, 11):  # 1 m/s, wheels rolling
+        t = k / 30
+        f.add_odometry(t, (1.0, 0.0, 0.0), 1 / 30, 1.0)
+        f.add_wheels(t, np.full(4, 1.0 / 0.115), 1 / 30)
+    f.add_odometry(11 / 30, (1e300, 0.0, 0.0), 1 / 30, 1.0)
+    f.add_wheels(11 / 30, np.array([1e300, 8.7, 8.7, 8.7]), 1 / 30)
+    est = f.estimate(11 / 30)
+    assert f.rejected == 2
+    assert np.all(np.isfinite(est.twist)) and est.twist[0] == pytest.approx(1.0, abs=0.02)
+    assert np.all(np.isfinite(est.wheel_rate)) and est.wheel_rate[0] == pytest.approx(8.7, abs=0.1)
+
+
+def test_16_bit_images_are_scaled_by_the_logs_bit_depth_so_a_glint_costs_nothing(tmp_path):
+    import cv2
+    from test_odometry import START, make_ground, mast_camera, pose_after, render
+
+    from perception.offline import bit_depth, run_folder_odometry
+
+    ground = make_ground()
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    twist, fps, n = (1.0, 0.0, 0.0), 60.0, 10
+    pose = START
+    for k in range(n):
+        if k:
+            pose = pose_after(pose, twist, 1 / fps)
+        img = (
+            render(mast_camera(), ground, pose, rng=np.random.default_rng(k)).astype(np.uint16) * 16
+        )  # 12 bits
+        if k % 3 == 1:
+            img[5, 5] = 65535  # a glint: one saturated pixel at the container's top
+        cv2.imwrite(str(folder / f"f{k:02d}.png"), img)
+    assert bit_depth(cv2.imread(str(folder / "f00.png"), cv2.IMREAD_UNCHANGED)) == 12
+    calib = mast_camera().save(tmp_path / "calib.yaml")
+    res = run_folder_odometry(folder, calib, fps, tmp_path / "out")
+    rows = np.genfromtxt(res.csv_path, delimiter=",", names=True, dtype=None, encoding=None)
+    assert res.valid == n - 1
+    np.testing.assert_allclose(rows["v_x"], twist[0], rtol=0.02)
+    with pytest.raises(ValueError, match="float32"):
+        bit_depth(np.zeros((4, 4), np.float32))
+
+
+# ---------------------------------------------------------------- environment
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"blackout": 5},
+        {"blackout": "1-2"},
+        {"blackout": [(1.0,)]},
+        {"blackout": [(2.0, 1.0)]},
+        {"blackout": [("a", "b")]},
+        {"blackout": [(0.0, math.inf)]},
+        {"fault": 1},
+        ["blackout"],
+    ],
+)
+def test_a_bad_reset_option_is_refused_before_anything_moves_and_the_episode_goes_on(options):
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401
+
+    env = gym.make("Rover-v0", obs_source="estimated")
+    try:
+        env.reset(seed=3)
+        for _ in range(3):
+            env.step(np.array([0.5, 0.0, 0.0], np.float32))
+        sim = env.unwrapped.sim
+        before, t = sim.ground_truth().pose.copy(), sim.t
+        with pytest.raises(ValueError, match="blackout|options"):
+            env.reset(seed=4, options=options)
+        assert sim.t == t
+        np.testing.assert_array_equal(sim.ground_truth().pose, before)
+        _, _, term, trunc, info = env.step(np.array([0.5, 0.0, 0.0], np.float32))
+        assert info["t"] > t and not term
+        env.reset(seed=4, options={"blackout": [(0.5, 1.0)]})  # a good one works after it
+    finally:
+        env.close()

@@ -245,10 +245,16 @@ class RoverEnv(gym.Env):
         ``options``: ``{"blackout": [(t0, t1), ...]}`` makes both cameras deliver black frames
         between t0 and t1 [s] of episode time (a camera fault; the estimator sees only the images).
         """
+        # every option is checked before anything moves: a bad one leaves the environment as it was
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset options: {options!r}; give a dict such as {{'blackout': [(2.0, 3.0)]}}")
         options = dict(options or {})
         unknown = set(options) - {"blackout"}
         if unknown:
             raise ValueError(f"reset options {sorted(unknown)} are unknown; the only option is 'blackout'")
+        blackout = _blackout_windows(options.get("blackout", ()))
+        if blackout and self.pipeline is None:
+            raise ValueError("reset option 'blackout' needs obs_source='estimated' (there are no cameras)")
         super().reset(seed=seed)
         st = self.scenario.start
         rng = self.np_random
@@ -260,11 +266,9 @@ class RoverEnv(gym.Env):
         fix_noise = rng.normal(size=3) * np.array([st.fix_std[0], st.fix_std[0], math.radians(st.fix_std[1])])
         if self.pipeline is not None:
             for cam in (self.pipeline.downward, self.pipeline.fisheye):
-                cam.set_blackout(options.get("blackout", ()))
+                cam.set_blackout(blackout)
             if self.pipeline.imu is not None:  # this episode's turn-on bias, scale factors, noise
                 self.pipeline.imu.reset(int(rng.integers(2**63 - 1)))
-        elif options.get("blackout"):
-            raise ValueError("reset option 'blackout' needs obs_source='estimated' (there are no cameras)")
         self._gt = self.sim.reset(x, y, yaw)
         messages = self.sim.take_messages()
         if self.pipeline is not None:
@@ -533,3 +537,20 @@ class RoverEnv(gym.Env):
                 "slip_ratio_std": sl.slip_ratio_std.copy(),
             }
         return out
+
+
+def _blackout_windows(value) -> list[tuple[float, float]]:
+    """The ``blackout`` reset option as (t0, t1) windows [s]; ValueError naming what is wrong."""
+    how = "give a list of (t0, t1) windows of episode time [s] with t0 < t1, e.g. [(2.0, 3.5)]"
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+        raise ValueError(f"reset option blackout={value!r}: {how}")
+    out = []
+    for w in value:
+        try:
+            t0, t1 = (float(v) for v in w)
+        except (TypeError, ValueError):
+            raise ValueError(f"reset option blackout: window {w!r}: {how}") from None
+        if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
+            raise ValueError(f"reset option blackout: window {w!r}: {how}")
+        out.append((t0, t1))
+    return out
