@@ -29,15 +29,17 @@ def read_mapping(path: str | Path, required: set[str], optional: set[str]) -> di
     if not p.is_file():
         raise CalibrationError(f"{p}: calibration file not found")
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(f"{p}: not UTF-8 text (offset {exc.start}); save it as UTF-8") from None
     except (OSError, yaml.YAMLError) as exc:
         raise CalibrationError(f"{p}: not readable as YAML ({exc})") from exc
     if not isinstance(data, dict):
         raise CalibrationError(f"{p}: expected a mapping of keys at the top level")
-    missing = sorted(required - data.keys())
+    missing = sorted(required - data.keys(), key=str)
     if missing:
         raise CalibrationError(f"{p}: missing key {missing[0]!r} (required: {sorted(required)})")
-    unknown = sorted(data.keys() - required - optional)
+    unknown = sorted(data.keys() - required - optional, key=str)
     if unknown:
         raise CalibrationError(f"{p}: unknown key {unknown[0]!r} (accepted: {sorted(required | optional)})")
     return data

@@ -104,7 +104,7 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
     hints = get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
     dot = f"{prefix}." if prefix else ""
-    unknown = sorted(set(data) - set(fields))
+    unknown = sorted(set(data) - set(fields), key=str)  # keys may mix numbers and strings
     if unknown:
         raise ConfigError(f"unknown key '{dot}{unknown[0]}' (allowed keys: {', '.join(sorted(fields))})")
     kwargs = {}
@@ -142,7 +142,12 @@ def load_yaml_dataclass(cls: type[T], path: str | Path) -> T:
     if not path.is_file():
         raise ConfigError(f"{path}: file not found")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset {exc.start}); "
+            "save it as UTF-8"
+        ) from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from None
     if data is None:

@@ -22,6 +22,14 @@ from rover_env.textures import CHECKER_SQUARES_PER_TILE
 TEXTURE_PRESETS: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete", "checkerboard")
 
 
+#: Most heightfield points a rough terrain may have (the memory budget): 1001 x 1001, e.g.
+#: 100 m x 100 m at 0.1 m or 20 m x 20 m at 0.02 m. A simulation holds about 1.3 kB a point
+#: (collision shape, heights, visual mesh): 1.4 GB at this budget, 5.3 GB at 2001 x 2001
+#: (measured, peak RSS with the GL renderer); PyBullet's heightfield crashes the process
+#: (SIGSEGV) between 9 and 16 million points.
+MAX_HEIGHTFIELD_POINTS = 1001 * 1001
+
+
 @dataclass(frozen=True)
 class TerrainConfig:
     """Ground shape and appearance. The terrain is centred on the world origin.
@@ -75,12 +83,26 @@ class TerrainConfig:
         check_range("slope_azimuth_deg", self.slope_azimuth_deg, -360.0, 360.0)
         check_range("texture_tile", self.texture_tile, 0.1, 100.0)
         check_range("texture_px", self.texture_px, 16, 8192)
+        if self.kind == "rough":
+            points = self.grid_points
+            if points > MAX_HEIGHTFIELD_POINTS:
+                raise ConfigError(
+                    f"size {list(self.size)} m at cell {self.cell} m is a heightfield of {points:,} points; "
+                    f"at most {MAX_HEIGHTFIELD_POINTS:,} fit the memory budget "
+                    "(docs/rover_and_scenarios.md): use a larger cell or a smaller terrain"
+                )
         if self.kind == "flat" and self.roughness > 0:
             raise ConfigError("roughness: must be 0 for kind 'flat' (use kind 'rough')")
         if self.kind == "rough" and self.roughness == 0:
             raise ConfigError("roughness: must be > 0 for kind 'rough'")
         if not self.texture:
             raise ConfigError("texture: must name a preset or an image file")
+
+    @property
+    def grid_points(self) -> int:
+        """Points of the rough terrain's heightfield grid (its rows times its columns)."""
+        nx, ny = (int(math.ceil(s / self.cell)) + 1 for s in self.size)
+        return nx * ny
 
     @property
     def slope(self) -> float:

@@ -111,6 +111,10 @@ def quat_to_yaw(quat_xyzw) -> float:
     return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+#: Most constraint-solver iterations per physics step (a step's cost grows with them).
+MAX_SOLVER_ITERATIONS = 1000
+
+
 class RoverSim:
     """A terrain, a rover and the physics loop.
 
@@ -145,6 +149,15 @@ class RoverSim:
     ) -> None:
         if not (60.0 <= physics_hz <= 2000.0):
             raise ValueError(f"physics_hz={physics_hz}: use 60 to 2000 Hz (240 recommended)")
+        if (
+            isinstance(solver_iterations, bool)
+            or not isinstance(solver_iterations, int)
+            or not (1 <= solver_iterations <= MAX_SOLVER_ITERATIONS)
+        ):
+            raise ValueError(
+                f"solver_iterations={solver_iterations!r}: use a whole number from 1 to "
+                f"{MAX_SOLVER_ITERATIONS} (10 is the default; 20 halves a braked rover's creep)"
+            )
         self.scenario = scenario
         self.geometry = geometry or RoverGeometry()
         self.dt = 1.0 / physics_hz

@@ -206,3 +206,57 @@ def test_a_bad_reset_option_is_refused_before_anything_moves_and_the_episode_goe
         env.reset(seed=4, options={"blackout": [(0.5, 1.0)]})  # a good one works after it
     finally:
         env.close()
+
+
+# ---------------------------------------------------------------- configuration
+
+
+@pytest.mark.parametrize(
+    ("size", "cell", "points"), [((80.0, 80.0), 0.02, "16,008,001"), ((500.0, 500.0), 0.1, "25,010,001")]
+)
+def test_a_heightfield_beyond_the_memory_budget_is_refused_with_the_numbers(size, cell, points):
+    from rover_env.config_io import ConfigError
+    from rover_env.scenario import MAX_HEIGHTFIELD_POINTS, TerrainConfig
+
+    with pytest.raises(ConfigError, match=points) as exc:
+        TerrainConfig(kind="rough", size=size, cell=cell, roughness=0.03, wavelength=1.0)
+    assert f"{MAX_HEIGHTFIELD_POINTS:,}" in str(exc.value) and "cell" in str(exc.value)
+    ok = TerrainConfig(kind="rough", size=(20.0, 20.0), cell=0.02, roughness=0.03, wavelength=1.0)
+    assert ok.grid_points == MAX_HEIGHTFIELD_POINTS  # the budget's edge is accepted
+
+
+def test_yaml_that_is_not_utf8_or_mixes_key_types_names_the_file(tmp_path):
+    from perception.calib_io import CalibrationError, read_mapping
+    from rover_env.config_io import ConfigError
+    from rover_env.scenario import load_scenario
+
+    latin = tmp_path / "latin1.yaml"
+    latin.write_bytes("name: caf\xe9\ncourse: {waypoints: [[5, 0]]}\n".encode("latin-1"))
+    with pytest.raises(ConfigError, match=r"latin1\.yaml: not UTF-8"):
+        load_scenario(latin)
+    with pytest.raises(CalibrationError, match=r"latin1\.yaml: not UTF-8"):
+        read_mapping(latin, {"K"}, set())
+    mixed = tmp_path / "mixed.yaml"
+    mixed.write_text("name: x\n1: 2\nzz: 3\ncourse: {waypoints: [[5, 0]]}\n")
+    with pytest.raises(ConfigError, match=r"mixed\.yaml: unknown key '1'"):
+        load_scenario(mixed)
+    with pytest.raises(CalibrationError, match=r"mixed\.yaml: unknown key 1"):
+        read_mapping(mixed, {"name", "course"}, set())
+
+
+@pytest.mark.parametrize("hz", [0, -30, math.nan, math.inf, "30"])
+def test_a_control_rate_that_is_not_a_positive_rate_is_refused(hz):
+    from rover_env.envs.rover_env import RoverEnv
+
+    with pytest.raises(ValueError, match="control_hz"):
+        RoverEnv(control_hz=hz)
+
+
+@pytest.mark.parametrize("n", [-1, 0, 10**9, 2.5, True])
+def test_solver_iterations_out_of_range_are_refused_before_a_simulation_is_built(n):
+    from conftest import flat_scenario
+
+    from rover_env.sim import RoverSim
+
+    with pytest.raises(ValueError, match="solver_iterations"):
+        RoverSim(flat_scenario(), solver_iterations=n)

@@ -182,9 +182,15 @@ class RoverEnv(gym.Env):
         self.preset = preset
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}: use None or 'rgb_array'")
+        for name, hz in (("physics_hz", physics_hz), ("control_hz", control_hz)):
+            if isinstance(hz, bool) or not isinstance(hz, int | float) or not (math.isfinite(hz) and hz > 0):
+                raise ValueError(f"{name}={hz!r}: give a rate in Hz, finite and > 0")
         substeps = physics_hz / control_hz
-        if control_hz <= 0 or abs(substeps - round(substeps)) > 1e-9 or round(substeps) < 1:
-            raise ValueError(f"control_hz={control_hz} must divide physics_hz={physics_hz} into whole steps")
+        if abs(substeps - round(substeps)) > 1e-9 or round(substeps) < 1:
+            raise ValueError(
+                f"control_hz={control_hz} must divide physics_hz={physics_hz} into whole steps "
+                "(e.g. 30 of 240)"
+            )
         if not (0.0 < v_max <= 5.0):
             raise ValueError(f"v_max={v_max}: use a speed in (0, 5] m/s")
         if len(render_size) != 2 or min(render_size) < 96 or max(render_size) > 4096:
