@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -36,8 +37,13 @@ log = logging.getLogger(__name__)
 #: The policy shipped with the package (``rover train`` output, see the README).
 SHIPPED = Path(__file__).parent / "policies" / "ppo_residual"
 POLICY_FILE = "policy.zip"
+#: The observation statistics as plain arrays (mean, var, count, clip_obs, epsilon): no pickle.
+STATS_FILE = "obs_stats.npz"
+#: What older folders hold instead: SB3's pickled VecNormalize (loading it runs code).
 NORMALIZE_FILE = "vecnormalize.pkl"
 META_FILE = "policy.json"
+#: Keys that ``policy.json`` must hold.
+META_KEYS = ("algo", "action_mode", "obs_fields", "residual")
 
 
 #: Bases of a residual policy: the environment action mode each acts in.
@@ -336,11 +342,15 @@ def save_policy(model, cfg: TrainConfig, out: str | Path) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model.save(out / POLICY_FILE)
-    model.get_vec_normalize_env().save(str(out / NORMALIZE_FILE))
+    save_obs_stats(model.get_vec_normalize_env(), out / STATS_FILE)
+    space = model.action_space
     meta = asdict(cfg) | {
         "action_mode": BASES[cfg.base],
         "obs_fields": _obs_fields(),
         "steps": int(model.num_timesteps),
+        "obs_dim": int(np.prod(model.observation_space.shape)),
+        "action_low": np.asarray(space.low, dtype=float).tolist(),
+        "action_high": np.asarray(space.high, dtype=float).tolist(),
     }
     (out / META_FILE).write_text(json.dumps(meta, indent=2) + "\n")
     return out
@@ -490,6 +500,134 @@ def _obs_fields() -> list[str]:
     return list(OBS_FIELDS)
 
 
+def save_obs_stats(vec_normalize, path: str | Path) -> Path:
+    """Write a VecNormalize's observation statistics to ``path`` (.npz, plain arrays, no pickle)."""
+    rms = vec_normalize.obs_rms
+    np.savez(
+        path,
+        mean=np.asarray(rms.mean, dtype=np.float64),
+        var=np.asarray(rms.var, dtype=np.float64),
+        count=np.float64(rms.count),
+        clip_obs=np.float64(vec_normalize.clip_obs),
+        epsilon=np.float64(vec_normalize.epsilon),
+    )
+    return Path(path)
+
+
+class ObsStats:
+    """Running observation statistics of a training run, and the normalisation VecNormalize applies.
+
+    Args:
+        mean, var: Per input [its units, squared].
+        count: Samples behind them.
+        clip_obs: Normalised inputs are clipped to +-clip_obs.
+        epsilon: Added to the variance.
+    """
+
+    def __init__(self, mean, var, count: float, clip_obs: float, epsilon: float) -> None:
+        self.mean = np.asarray(mean, dtype=np.float64)
+        self.var = np.asarray(var, dtype=np.float64)
+        self.count, self.clip_obs, self.epsilon = float(count), float(clip_obs), float(epsilon)
+        ok = self.mean.ndim == 1 and self.var.shape == self.mean.shape
+        ok = ok and np.all(np.isfinite(self.mean)) and np.all(np.isfinite(self.var)) and np.all(self.var >= 0)
+        if not (ok and self.count > 0 and self.clip_obs > 0 and self.epsilon > 0):
+            raise ValueError(
+                "observation statistics: need finite 1-D mean and var >= 0, count, clip_obs, epsilon > 0"
+            )
+
+    @classmethod
+    def load(cls, path: str | Path) -> ObsStats:
+        """Read :func:`save_obs_stats`'s file (ValueError naming it if it is not one)."""
+        try:
+            with np.load(path, allow_pickle=False) as d:
+                return cls(d["mean"], d["var"], d["count"], d["clip_obs"], d["epsilon"])
+        except (OSError, KeyError, ValueError, TypeError) as exc:
+            raise ValueError(f"{path}: not observation statistics written by rover train ({exc})") from None
+
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        """``x`` as the policy saw it in training: centred, scaled and clipped."""
+        z = (np.asarray(x, dtype=np.float64) - self.mean) / np.sqrt(self.var + self.epsilon)
+        return np.clip(z, -self.clip_obs, self.clip_obs)
+
+
+def _read_meta(path: Path) -> dict:
+    """``policy.json`` of a policy folder, checked: a mapping with :data:`META_KEYS` and a known algorithm."""
+    meta_path = path / META_FILE
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{meta_path}: not readable JSON ({exc}); retrain or restore the file") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{meta_path}: expected a JSON object with keys {', '.join(META_KEYS)}")
+    missing = [k for k in META_KEYS if k not in meta]
+    if missing:
+        raise ValueError(f"{meta_path}: missing {', '.join(missing)}; retrain or restore the file")
+    if meta["algo"] not in ("ppo", "sac"):
+        raise ValueError(f"{meta_path}: algo {meta['algo']!r} is not 'ppo' or 'sac'")
+    if meta["action_mode"] not in BASES.values():
+        raise ValueError(
+            f"{meta_path}: action_mode {meta['action_mode']!r} is not one of {sorted(BASES.values())}"
+        )
+    if not (isinstance(meta["obs_fields"], list) and all(isinstance(n, str) for n in meta["obs_fields"])):
+        raise ValueError(f"{meta_path}: obs_fields must be a list of observation field names")
+    res = meta["residual"]
+    if res is not None and not (
+        isinstance(res, list)
+        and len(res) == 3
+        and all(isinstance(v, int | float) and math.isfinite(v) for v in res)
+    ):
+        raise ValueError(f"{meta_path}: residual must be null or three finite numbers")
+    return meta
+
+
+def _load_model(cls, file: Path, meta: dict):
+    """The SB3 model in ``file``, built without unpickling anything when ``meta`` gives its spaces.
+
+    An SB3 zip holds its network weights (read with ``torch.load(weights_only=True)``) and a JSON
+    of parameters, some of which are cloudpickled objects (the policy class, the spaces, the
+    schedules, the last observation): unpickling runs code. With ``obs_dim``, ``action_low`` and
+    ``action_high`` in ``policy.json`` (``rover train`` writes them), every pickled entry is
+    replaced by its known value, so nothing is unpickled. Older folders fall back to SB3's
+    loader (with a warning).
+    """
+    import zipfile
+
+    from gymnasium import spaces
+
+    if not all(k in meta for k in ("obs_dim", "action_low", "action_high")):
+        log.warning(
+            "%s: policy.json has no spaces (an older rover train); loading unpickles its objects, "
+            "which runs code: load only folders you trust", file.parent,
+        )  # fmt: skip
+        return cls.load(file, device="cpu")
+    try:
+        with zipfile.ZipFile(file) as z:
+            data = json.loads(z.read("data"))
+    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{file}: not a policy saved by rover train ({exc})") from None
+    low = np.asarray(meta["action_low"], dtype=np.float32)
+    high = np.asarray(meta["action_high"], dtype=np.float32)
+    known = {
+        "policy_class": cls.policy_aliases["MlpPolicy"],
+        "observation_space": spaces.Box(-np.inf, np.inf, (int(meta["obs_dim"]),), np.float32),
+        "action_space": spaces.Box(low, high, dtype=np.float32),
+        "lr_schedule": lambda _: 0.0,
+        "learning_rate": 0.0,
+        "clip_range": lambda _: 0.0,
+        "clip_range_vf": None,
+        "rollout_buffer_class": None,
+        "replay_buffer_class": None,
+    }
+    custom = {}
+    for key, item in data.items():
+        if isinstance(item, dict) and ":serialized:" in item:
+            custom[key] = known.get(key)  # None for the rest (last observation, episode buffers)
+    try:
+        return cls.load(file, device="cpu", custom_objects=custom)
+    except (ValueError, KeyError, RuntimeError) as exc:
+        raise ValueError(f"{file}: does not load as a {meta['algo']} policy ({exc})") from None
+
+
 def policy_action_mode(path: str | Path) -> str:
     """The environment action mode (``"wheels"`` or ``"drive"``) of the policy saved in ``path``."""
     meta = Path(path) / META_FILE
@@ -513,6 +651,27 @@ def shipped_policy() -> Path:
     return SHIPPED
 
 
+def _load_stats(path: Path) -> ObsStats:
+    """The folder's observation statistics: ``obs_stats.npz``, else (older folders) ``vecnormalize.pkl``."""
+    if (path / STATS_FILE).is_file():
+        return ObsStats.load(path / STATS_FILE)
+    pkl = path / NORMALIZE_FILE
+    if not pkl.is_file():
+        raise FileNotFoundError(f"{path / STATS_FILE} is missing; point to the folder `rover train` wrote")
+    import pickle
+
+    log.warning("%s: unpickling it (an older rover train) runs code: load only folders you trust", pkl)
+    try:
+        with open(pkl, "rb") as fh:
+            vn = pickle.load(fh)  # noqa: S301 (documented trust boundary)
+        rms = vn.obs_rms
+        return ObsStats(rms.mean, rms.var, rms.count, vn.clip_obs, vn.epsilon)
+    except Exception as exc:  # a garbage pickle raises anything
+        raise ValueError(
+            f"{pkl}: not a VecNormalize saved by rover train ({type(exc).__name__}: {exc})"
+        ) from None
+
+
 class PolicyController:
     """A saved policy (:func:`train`) as a :class:`~controllers.Controller` for one environment.
 
@@ -529,15 +688,19 @@ class PolicyController:
     """
 
     def __init__(self, path: str | Path, env: gym.Env, deterministic: bool = True) -> None:
-        import pickle
-
         from stable_baselines3 import PPO, SAC
 
         path = Path(path)
-        for name in (POLICY_FILE, NORMALIZE_FILE, META_FILE):
+        for name in (POLICY_FILE, META_FILE):
             if not (path / name).is_file():
                 raise FileNotFoundError(f"{path / name} is missing; point to the folder `rover train` wrote")
-        self.meta = json.loads((path / META_FILE).read_text())
+        if path.resolve() != SHIPPED.resolve():
+            log.warning(
+                "policy from outside the package (%s): its weights and statistics load without "
+                "unpickling, but older folders unpickle theirs (running code) and any policy decides "
+                "how the rover drives: use folders you made or trust", path,
+            )  # fmt: skip
+        self.meta = _read_meta(path)
         if env.unwrapped.action_mode.value != self.meta["action_mode"]:
             raise ValueError(f"the policy acts in action_mode={self.meta['action_mode']!r}; make the env so")
         # the policy's inputs by name: a policy trained before fields were added still reads its own
@@ -552,19 +715,18 @@ class PolicyController:
         n_state = len(_obs_fields())  # the previous action follows the state fields
         self._inputs = np.array([names.index(n) for n in trained] + list(range(n_state, len(names))))
         cls = {"ppo": PPO, "sac": SAC}[self.meta["algo"]]
-        self.model = cls.load(path / POLICY_FILE, device="cpu")
-        with open(path / NORMALIZE_FILE, "rb") as fh:
-            self._normalize = pickle.load(fh)  # VecNormalize: its normalize_obs, no environment needed
+        self.model = _load_model(cls, path / POLICY_FILE, self.meta)
+        self._normalize = _load_stats(path)
         scale = self.meta["residual"]
         self.residual = None if scale is None else Residual.for_env(env, scale)
         self.deterministic = deterministic
         # fields that never varied in training (the quality fields on ground truth): their variance
         # is only what the running statistics' prior (variance 1, weight 1e-4) left, and any change
         # there normalises to far outside what the policy saw
-        rms = self._normalize.obs_rms
+        rms = self._normalize
         if rms.mean.shape != self._inputs.shape:
             raise ValueError(
-                f"{path}: {NORMALIZE_FILE} has statistics of {rms.mean.size} inputs, {POLICY_FILE} "
+                f"{path}: the observation statistics cover {rms.mean.size} inputs, {POLICY_FILE} "
                 f"expects {self._inputs.size}; the folder mixes two runs, retrain or restore it"
             )
         prior = 2e-4 * (1.0 + rms.mean**2) / max(float(rms.count), 1e-4)
@@ -591,7 +753,7 @@ class PolicyController:
                 names, self.meta.get("obs_source"),
             )  # fmt: skip
             self._warned = True
-        x = self._normalize.normalize_obs(seen).astype(np.float32)
+        x = self._normalize.normalize(seen).astype(np.float32)
         a, _ = self.model.predict(x, deterministic=self.deterministic)
         if self.residual is not None:
             return self.residual.compose(obs, a)

@@ -81,6 +81,15 @@ class RoverKinematicModel:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise CalibrationError(f"{name}: {v!r} must be a positive length in metres")
+        for name in ("plate_offset", "plate_marker_y", "ackermann_center_x"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise CalibrationError(f"{name}: {v!r} must be a finite length in metres")
+        arc = self.correction_marker_arc
+        if not (isinstance(arc, (int, float)) and 0.0 < arc < math.pi):
+            raise CalibrationError(
+                f"correction_marker_arc: {arc!r}; the tread marker's angular width is in (0, pi) rad"
+            )
         object.__setattr__(self, "arm_tip", tuple(float(v) for v in as_array(self.arm_tip, (3,), "arm_tip")))
         object.__setattr__(self, "T_body_cam", check_rigid(self.T_body_cam, "T_body_cam"))
 

@@ -269,7 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Controllers: "
         + "; ".join(f"{k} ({v.description})" for k, v in CONTROLLERS.items())
         + ". Append @ground_truth to drive on the simulator's state instead of the estimates, "
-        "@imu (or @imu:tactical) to drive on estimates fused with an IMU (BMI088 by default).",
+        "@imu (or @imu:tactical) to drive on estimates fused with an IMU (BMI088 by default). "
+        "policy:DIR loads a folder that rover train wrote: treat it as code (an older folder's "
+        "pickled files run when loaded) and load only folders you made or trust.",
     )
     e.add_argument(
         "--controllers", nargs="+", default=["slip_unaware", "slip_aware", "slip_aware@ground_truth"]

@@ -260,3 +260,100 @@ def test_solver_iterations_out_of_range_are_refused_before_a_simulation_is_built
 
     with pytest.raises(ValueError, match="solver_iterations"):
         RoverSim(flat_scenario(), solver_iterations=n)
+
+
+def test_a_rover_geometry_with_an_impossible_marker_arc_is_refused(tmp_path):
+    from test_markers import rover_model
+
+    from perception.calib_io import CalibrationError
+    from perception.kinematics import RoverKinematicModel
+
+    text = rover_model().save(tmp_path / "rover.yaml").read_text()
+    for bad in (".inf", ".nan", "-0.2", "4.0"):
+        lines = [
+            f"correction_marker_arc: {bad}" if ln.startswith("correction_marker_arc") else ln
+            for ln in text.splitlines()
+        ]
+        (tmp_path / "bad.yaml").write_text("\n".join(lines) + "\n")
+        with pytest.raises(CalibrationError, match=r"bad\.yaml: correction_marker_arc"):
+            RoverKinematicModel.load(tmp_path / "bad.yaml")
+
+
+# ---------------------------------------------------------------- policy folders
+
+
+@pytest.fixture
+def policy_copy(tmp_path):
+    import shutil
+
+    from controllers.rl import shipped_policy
+
+    return shutil.copytree(shipped_policy(), tmp_path / "policy")
+
+
+def _drive_env():
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401
+
+    return gym.make("Rover-v0", obs_source="ground_truth", action_mode="wheels")
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda m: m | {"algo": "dqn"}, "algo 'dqn'"),
+        (lambda m: {k: v for k, v in m.items() if k != "obs_fields"}, "missing obs_fields"),
+        (lambda m: m | {"residual": [0.5, "x", 0.3]}, "residual"),
+        (lambda m: [m], "JSON object"),
+    ],
+)
+def test_a_malformed_policy_json_names_the_file_and_the_key(policy_copy, edit, message):
+    import json
+
+    from controllers.rl import PolicyController
+
+    meta = json.loads((policy_copy / "policy.json").read_text())
+    (policy_copy / "policy.json").write_text(json.dumps(edit(meta)))
+    env = _drive_env()
+    try:
+        with pytest.raises(ValueError, match=message) as exc:
+            PolicyController(policy_copy, env)
+        assert "policy.json" in str(exc.value)
+    finally:
+        env.close()
+
+
+def test_policy_folders_load_without_unpickling_and_garbage_statistics_are_named(
+    policy_copy, caplog, monkeypatch
+):
+    import pickle
+
+    import cloudpickle
+
+    from controllers.rl import PolicyController
+
+    def refuse(*_a, **_k):
+        raise AssertionError("unpickled")
+
+    monkeypatch.setattr(pickle, "load", refuse)
+    monkeypatch.setattr(cloudpickle, "loads", refuse)
+    import stable_baselines3.common.save_util as su
+
+    monkeypatch.setattr(su.cloudpickle, "loads", refuse)
+    env = _drive_env()
+    try:
+        ctrl = PolicyController(policy_copy, env)  # nothing unpickled
+        obs, _ = env.reset(seed=0)
+        assert np.all(np.isfinite(ctrl.act(obs)))
+        assert any("outside" in r.message or "trust" in r.message for r in caplog.records)
+        monkeypatch.undo()
+        (policy_copy / "obs_stats.npz").write_bytes(b"garbage")
+        with pytest.raises(ValueError, match=r"obs_stats\.npz: not observation statistics"):
+            PolicyController(policy_copy, env)
+        (policy_copy / "obs_stats.npz").unlink()
+        (policy_copy / "vecnormalize.pkl").write_bytes(b"\x80\x04garbage")
+        with pytest.raises(ValueError, match=r"vecnormalize\.pkl: not a VecNormalize"):
+            PolicyController(policy_copy, env)
+    finally:
+        env.close()

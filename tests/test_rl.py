@@ -120,7 +120,11 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
         ctrl.reset()
         a = ctrl.act(obs)
         assert a.shape == (6,) and a.dtype == np.float32 and np.all(np.abs(a) <= 1)
-        assert not caplog.records
+        # a fresh folder loads without unpickling: the one warning is the trust note of any outside policy
+        assert [r.message for r in caplog.records if "outside the package" not in r.message] == []
+        assert (out / "obs_stats.npz").is_file() and not (out / "vecnormalize.pkl").exists()
+        assert meta["obs_dim"] == obs.size and meta["action_low"] == [-1.0] * 3
+        caplog.clear()
         # trained on ground truth, the quality fields were always 1: an estimator's 0.5 gets a warning
         q = [f.name for f in env.unwrapped.obs_fields].index("odometry_quality")
         ctrl.act(np.where(np.arange(obs.size) == q, 0.5, obs).astype(np.float32))
