@@ -72,6 +72,9 @@ class PinholeCamera:
         if self.ground_plane is not None:
             gp = as_array(self.ground_plane, (3,), "ground_plane")
             object.__setattr__(self, "ground_plane", tuple(float(v) for v in gp))
+            problem = self.ground_view_error()
+            if problem:
+                raise CalibrationError(problem)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -201,6 +204,41 @@ class PinholeCamera:
         R, t = T_cam_body[:3, :3], T_cam_body[:3, 3]
         m_star = np.column_stack([R[:, 0] + a * R[:, 2], R[:, 1] + b * R[:, 2], t + c * R[:, 2]])
         return self.K @ m_star
+
+    def ground_view_error(self, ground_plane: tuple[float, float, float] | None = None) -> str:
+        """Why this camera cannot see the ground plane, or "" if it can.
+
+        The camera must stand above the plane z = a x + b y + c (body frame) and the ray through
+        the principal point must meet it in front of the camera, at most 100 m away; otherwise
+        every pixel maps to a point behind the camera or beyond the horizon and an estimate
+        would be valid in form but wrong.
+
+        Args:
+            ground_plane: (a, b, c) [-, -, m]; default :attr:`ground_plane`.
+        """
+        plane = ground_plane if ground_plane is not None else self.ground_plane
+        if plane is None:
+            return "ground_plane: not set; pass (a, b, c) with the ground z = a x + b y + c"
+        a, b, c = (float(v) for v in plane)
+        if not all(math.isfinite(v) for v in (a, b, c)):
+            return f"ground_plane: {plane!r} is not finite"
+        n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)  # upward normal
+        centre = self.T_body_cam[:3, 3]
+        height = float(n @ (centre - np.array([0.0, 0.0, c])))
+        if height <= 0:
+            return (
+                f"the camera (at z = {centre[2]:.3f} m in the body frame) is {-height:.3f} m below the "
+                f"ground plane z = {a:g} x + {b:g} y + {c:g}: check ground_plane's sign and T_body_cam"
+            )
+        axis = self.T_body_cam[:3, :3] @ np.array([0.0, 0.0, 1.0])  # optical axis, body frame
+        down = -float(n @ axis)
+        if down <= height / 100.0:
+            return (
+                "T_body_cam: the camera's optical axis does not meet the ground plane in front of it "
+                f"(it points {'away from' if down <= 0 else 'along'} the ground); a downward camera's "
+                "z axis points down"
+            )
+        return ""
 
     def pixels_to_ground(self, pixels, ground_plane: tuple[float, float, float] | None = None) -> np.ndarray:
         """Body-frame ground coordinates (x, y) [m] of distorted pixels (..., 2), via H^-1."""

@@ -756,6 +756,9 @@ class FlowOdometry:
         if n_tr < cfg.min_inliers:
             return invalid(f"too few tracked features ({n_tr} of {n_feat})", n_tracked=n_tr)
         plane_curr = None if ground_plane is None else _plane(ground_plane)
+        for which, plane in (("this", plane_curr), ("the last", selection.ground_plane)):
+            if plane is not None and (problem := self.camera.ground_view_error(plane)):
+                return invalid(f"the ground is not in view in {which} frame: {problem}", n_tracked=n_tr)
         if plane_curr is not None and selection.ground_plane is not None:
             # each frame on its own ground plane, as 3-D body-frame points
             P = self._to_ground_3d(prev_px, selection.ground_plane)

@@ -357,3 +357,35 @@ def test_policy_folders_load_without_unpickling_and_garbage_statistics_are_named
             PolicyController(policy_copy, env)
     finally:
         env.close()
+
+
+# ---------------------------------------------------------------- calibration geometry
+
+
+def test_a_calibration_that_cannot_see_the_ground_is_refused_at_load_and_per_estimate(tmp_path):
+    import yaml
+    from test_odometry import mast_camera
+
+    from perception.calib_io import CalibrationError
+    from perception.cameras import PinholeCamera
+
+    good = mast_camera((160, 120)).save(tmp_path / "calib.yaml")
+    data = yaml.safe_load(good.read_text())
+    above = dict(data, ground_plane=[0.0, 0.0, 0.9])  # the ground 0.37 m above the camera
+    (tmp_path / "above.yaml").write_text(yaml.safe_dump(above))
+    with pytest.raises(CalibrationError, match="below the ground plane"):
+        PinholeCamera.load(tmp_path / "above.yaml")
+    up = np.array(data["T_body_cam"])
+    up[:3, :3] = up[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # turned over: looking at the sky
+    (tmp_path / "up.yaml").write_text(yaml.safe_dump(dict(data, T_body_cam=up.tolist())))
+    with pytest.raises(CalibrationError, match="optical axis"):
+        PinholeCamera.load(tmp_path / "up.yaml")
+    # per estimate: a wheels' plane above the camera makes the pair invalid, not a wrong speed
+    odo = _odometry()
+    img = _textured()
+    odo.update(img, 0.0, ground_plane=(0.0, 0.0, -0.265))
+    est = odo.update(np.roll(img, 2, axis=0), 1 / 30, ground_plane=(0.0, 0.0, 0.9))
+    assert not est.valid and "not in view in this frame" in est.reason
+    est = odo.update(np.roll(img, 4, axis=0), 2 / 30, ground_plane=(0.0, 0.0, -0.265))
+    assert not est.valid and "not in view in the last frame" in est.reason
+    assert odo.update(np.roll(img, 6, axis=0), 3 / 30, ground_plane=(0.0, 0.0, -0.265)).valid
