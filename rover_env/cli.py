@@ -27,7 +27,8 @@ def _progress_bar(label: str):
 def _cmd_demo(args: argparse.Namespace) -> int:
     from rover_env.mission import json_safe, run_demo
 
-    out = Path(args.out)
+    products = ("metrics.json", "demo.mp4", "trajectory.tum", "estimate.tum", "trajectory.png")
+    out = _prepare_out(args.out, products, args.overwrite)
     bar = _progress_bar(f"demo {args.scenario}")
     result = run_demo(out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar)
     bar(1.0)
@@ -116,11 +117,46 @@ def _weight(text: str) -> tuple[str, float]:
     return key, w
 
 
+def _prepare_out(out: str, products: tuple[str, ...], overwrite: bool, keep: bool = False) -> Path:
+    """Make the output folder and check it is writable before any work; refuse to replace results.
+
+    ``products``: the files (or folders) a command writes there. If one exists, the command
+    stops unless ``overwrite`` (replace them) or ``keep`` (``--resume``: reuse them).
+    """
+    import tempfile
+
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    earlier = [p for p in products if (path / p).exists()]
+    if earlier and not (overwrite or keep):
+        raise ValueError(
+            f"--out {out} holds results of an earlier run ({', '.join(earlier)}); pass --overwrite to "
+            "replace them, or choose another folder"
+        )
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise OSError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    if earlier and overwrite:
+        logging.getLogger("rover").warning("--out %s: replacing %s", out, ", ".join(earlier))
+    return path
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from rover_env.evaluation import jobs_for, run_sweep, write_report
+    from rover_env.evaluation import check_jobs, finished_row, jobs_for, run_sweep, write_report
 
     seeds = sorted({s for part in args.seeds for s in part})
     jobs = jobs_for(args.controllers, args.missions, seeds, args.preset, args.out, args.videos)
+    check_jobs(jobs)  # every input before the output folder is touched
+    products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
+    _prepare_out(args.out, products, args.overwrite, keep=args.resume)
+    if args.overwrite and not args.resume:
+        import shutil
+
+        shutil.rmtree(Path(args.out) / "runs", ignore_errors=True)
     start = time.perf_counter()
     fails = []
 
@@ -134,9 +170,23 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         sys.stderr.flush()
 
     sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
-    rows = run_sweep(jobs, executor=args.executor, workers=args.workers, progress=show)
+    command = "rover " + " ".join(sys.argv[1:])
+    try:
+        rows = run_sweep(
+            jobs, executor=args.executor, workers=args.workers, progress=show, resume=args.resume
+        )
+    except BaseException:  # Ctrl-C or a failed run: report what finished, then stop
+        done = [r for r in (finished_row(j) for j in jobs) if r is not None]
+        if done:
+            title = f"Mission evaluation (partial: {len(done)} of {len(jobs)} runs)"
+            write_report(done, args.out, title=title, command=command)
+        sys.stderr.write(
+            f"\nstopped after {len(done)} of {len(jobs)} runs; their report is in {args.out}; "
+            "the same command with --resume runs the rest\n"
+        )
+        raise
     sys.stderr.write("\n")
-    report = write_report(rows, args.out, command="rover " + " ".join(sys.argv[1:]))
+    report = write_report(rows, args.out, command=command)
     print(report.read_text())
     print(f"wrote report.md, results.csv, results.json, summary.csv and runs/ to {Path(args.out).resolve()}")
     return 0
@@ -160,6 +210,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         checkpoint_every=args.eval_every,
         reward=dict(args.reward),
     )
+    _prepare_out(args.out, ("policy.zip", "policy.json", "obs_stats.npz", "checkpoints"), args.overwrite)
     start = time.perf_counter()
     sys.stderr.write(
         f"training {args.algo} for {args.steps} steps on {args.envs} environments; logs: {args.out}/tb\n"
@@ -206,8 +257,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_kinematics(args: argparse.Namespace) -> int:
+    from perception.cameras import OmniCamera
+    from perception.kinematics import RoverKinematicModel
     from perception.offline import run_folder_kinematics
 
+    OmniCamera.load(args.camera), RoverKinematicModel.load(args.rover)  # the inputs before the output
+    _prepare_out(args.out, ("kinematics.csv",), args.overwrite)
     bar = _progress_bar("kinematics")
     res = run_folder_kinematics(
         args.images, args.camera, args.rover, args.fps, args.out, steering=args.steering, progress=bar
@@ -218,8 +273,11 @@ def _cmd_kinematics(args: argparse.Namespace) -> int:
 
 
 def _cmd_odometry(args: argparse.Namespace) -> int:
+    from perception.cameras import PinholeCamera
     from perception.offline import run_folder_odometry
 
+    PinholeCamera.load(args.calib)  # the input before the output
+    _prepare_out(args.out, ("odometry.csv", "trajectory.tum", "trajectory_imu.tum"), args.overwrite)
     bar = _progress_bar("odometry")
     rpy = tuple(math.radians(v) for v in args.imu_rpy)
     res = run_folder_odometry(
@@ -260,6 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--scenario", default="flat_patches", help="preset name or YAML path")
     d.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="episode seed (0 to 2^32 - 1)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
+    d.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     d.set_defaults(func=_cmd_demo)
     from rover_env.evaluation import CONTROLLERS
 
@@ -286,6 +345,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"local processes, 1 to {_max_workers()} (default: CPU count)")  # fmt: skip
     e.add_argument("--videos", action="store_true", help="write each run's video")
     e.add_argument("--out", required=True, help="output folder (created if missing)")
+    e.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
+    e.add_argument(
+        "--resume", action="store_true", help="keep the runs an earlier, interrupted sweep finished in --out"
+    )
     e.set_defaults(func=_cmd_eval)
     t = sub.add_parser("train", help="train a PPO (or SAC) policy on the estimated-observation environments")
     t.add_argument(
@@ -311,6 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--reward", nargs="+", type=_weight, default=[], metavar="TERM=WEIGHT",
                    help="reward weights unlike the environment's (RewardConfig), e.g. slip=5")  # fmt: skip
     t.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="training seed (0 to 2^32 - 1)")
+    t.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     t.set_defaults(func=_cmd_train)
     b = sub.add_parser("bench", help="simulation speed benchmarks")
     b.add_argument("--scenarios", nargs="+", default=["flat_patches", "rough"])
@@ -349,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds of standstill at the IMU log's start, for the gyro's bias "
         "(default: fitted to the odometry's yaw rate)",
     )  # fmt: skip
+    o.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     o.set_defaults(func=_cmd_odometry)
     k = sub.add_parser("kinematics", help="fisheye kinematic state estimation on a folder of fisheye images")
     k.add_argument("images", help="folder of colour images, in name order")
@@ -359,6 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--fps", type=_float_in(0.0, 10_000.0), required=True, help="frame rate of the images [Hz]"
     )
     k.add_argument("--out", required=True, help="output folder (kinematics.csv)")
+    k.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     k.set_defaults(func=_cmd_kinematics)
     s = sub.add_parser("scenarios", help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
@@ -376,6 +442,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:  # includes CalibrationError and ConfigError
         sys.stderr.write(f"rover {args.command}: error: {exc}\n")
         return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"rover {args.command}: interrupted\n")
+        return 130
 
 
 if __name__ == "__main__":

@@ -244,45 +244,104 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)  # one core per run
 
 
+#: Each run's row, written into its folder as soon as it finishes (what ``resume`` reads).
+ROW_FILE = "row.json"
+
+
+def check_jobs(jobs: Sequence[EvalJob]) -> None:
+    """Check every job's controller, mission and preset before anything runs (ValueError naming it)."""
+    import rover_env
+    from rover_env.estimation import PERCEPTION_PRESETS
+    from rover_env.scenario import load_scenario
+
+    missions = {}
+    for job in jobs:
+        parse_controller(job.controller)
+        if job.preset not in PERCEPTION_PRESETS:
+            raise ValueError(f"preset {job.preset!r}: use one of {sorted(PERCEPTION_PRESETS)}")
+        if job.mission not in missions and job.mission not in rover_env.ENV_IDS:
+            try:
+                missions[job.mission] = load_scenario(job.mission)
+            except (ValueError, OSError) as exc:  # ConfigError is a ValueError
+                raise ValueError(
+                    f"mission {job.mission!r}: not an environment id ({', '.join(rover_env.ENV_IDS)}), "
+                    f"scenario preset or readable scenario file ({exc})"
+                ) from None
+
+
+def finished_row(job: EvalJob) -> dict | None:
+    """The row a finished run of ``job`` wrote into its folder (None: not run, or another job's)."""
+    if job.out is None:
+        return None
+    path = Path(job.out) / ROW_FILE
+    try:
+        row = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    same = isinstance(row, dict) and all(
+        row.get(k) == getattr(job, k) for k in ("controller", "mission", "seed", "preset")
+    )
+    return row if same else None
+
+
 def run_sweep(
     jobs: Sequence[EvalJob],
     executor: str = "local",
     workers: int | None = None,
     progress: Callable[[int, int, dict], None] | None = None,
+    resume: bool = False,
 ) -> list[dict]:
     """Run ``jobs``; their rows in the order of ``jobs``.
+
+    Every job is checked before any runs (:func:`check_jobs`). A job with an ``out`` folder
+    writes its row there (``row.json``) as soon as it finishes, so an interrupted sweep loses
+    only the runs under way; with ``resume`` those finished rows are read back and their jobs
+    skipped.
 
     Args:
         jobs: The runs.
         executor: ``"local"`` (a pool of ``workers`` processes; 1 runs them here) or ``"ray"``.
         workers: Local processes (default: the CPU count); with Ray, ignored (one CPU per run).
         progress: Called after each finished run with (finished, total, its row).
+        resume: Skip the jobs whose folders hold their finished rows.
     """
     if executor not in ("local", "ray"):
         raise ValueError(f"executor {executor!r}: use 'local' or 'ray'")
-    for job in jobs:  # fail before starting anything
-        parse_controller(job.controller)
-    rows: list[dict | None] = [None] * len(jobs)
+    check_jobs(jobs)  # fail before starting anything
+    rows: list[dict | None] = [finished_row(job) if resume else None for job in jobs]
+    if resume and any(r is not None for r in rows):
+        log.info("resuming: %d of %d runs already finished", sum(r is not None for r in rows), len(jobs))
+    todo = [i for i, r in enumerate(rows) if r is None]
 
     def done(i: int, row: dict) -> None:
         rows[i] = row
+        if jobs[i].out is not None:
+            Path(jobs[i].out).mkdir(parents=True, exist_ok=True)
+            (Path(jobs[i].out) / ROW_FILE).write_text(json.dumps(row, default=float) + "\n")
         if progress is not None:
             progress(sum(r is not None for r in rows), len(jobs), row)
 
+    run = [jobs[i] for i in todo]
+
     if executor == "ray":
-        _run_ray(jobs, done)
+        _run_ray(run, lambda k, row: done(todo[k], row))
     else:
         n = workers or os.cpu_count() or 1
-        if n <= 1 or len(jobs) <= 1:
+        if n <= 1 or len(run) <= 1:
             _init_worker()
-            for i, job in enumerate(jobs):
-                done(i, run_job(job))
+            for i in todo:
+                done(i, run_job(jobs[i]))
         else:
             ctx = get_context("spawn")  # a clean interpreter: no inherited PyBullet or thread state
             with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker) as pool:
-                futures = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
-                for fut in as_completed(futures):
-                    done(futures[fut], fut.result())
+                futures = {pool.submit(run_job, jobs[i]): i for i in todo}
+                try:
+                    for fut in as_completed(futures):
+                        done(futures[fut], fut.result())
+                except BaseException:
+                    for fut in futures:
+                        fut.cancel()
+                    raise
     return [r for r in rows if r is not None]
 
 
@@ -453,6 +512,8 @@ __all__ = [
     "EvalJob",
     "jobs_for",
     "controller_imu",
+    "check_jobs",
+    "finished_row",
     "parse_controller",
     "run_job",
     "run_sweep",
