@@ -28,6 +28,7 @@ from perception.kinematics import RoverKinematicModel
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
 from perception.trajectory import write_planar_tum
+from perception.validation import image_file_size
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +75,32 @@ def list_images(folder: str | Path) -> list[Path]:
     return files
 
 
+def read_frame(
+    path: Path, size: tuple[int, int], flags: int = cv2.IMREAD_UNCHANGED
+) -> tuple[np.ndarray | None, str]:
+    """A log's image and "" , or None and why not; its size is checked from the header first.
+
+    A file whose header is not an image's, or says another size than the calibration's
+    ``size`` (width, height) [px], or more pixels than the budget
+    (:data:`perception.validation.MAX_IMAGE_PIXELS`), is not decoded.
+    """
+    try:
+        header = image_file_size(path)
+    except ValueError as exc:
+        return None, str(exc)
+    if header is None:
+        return None, f"{path.name}: not a readable image"
+    if header != tuple(size):
+        return (
+            None,
+            f"{path.name}: {header[0]}x{header[1]} px differs from the calibration's {size[0]}x{size[1]}",
+        )
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        return None, f"{path.name}: not a readable image"
+    return img, ""
+
+
 def bit_depth(image: np.ndarray) -> int:
     """Bits per sample of an image: 8, or 10 to 16 for a 16-bit container.
 
@@ -92,11 +119,11 @@ def bit_depth(image: np.ndarray) -> int:
     return next(b for b in (10, 12, 14, 16) if top < 1 << b)
 
 
-def _log_bit_depth(files: list[Path], n: int = 9) -> int:
+def _log_bit_depth(files: list[Path], size: tuple[int, int], n: int = 9) -> int:
     """The median :func:`bit_depth` of a log's first ``n`` readable images (not one glint's)."""
     depths = []
     for path in files[:n]:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img, _ = read_frame(path, size)
         if img is not None:
             depths.append(bit_depth(img))
     return int(np.median(depths)) if depths else 8
@@ -114,13 +141,13 @@ def _open_run(images, out, fps: float, image_size: tuple[int, int]) -> tuple[lis
     if not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps: {fps!r}; give the camera's frame rate in Hz (> 0)")
     files = list_images(images)
-    first = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
+    first = image_file_size(files[0])  # from the header: nothing decoded yet
     if first is None:
         raise ValueError(f"{files[0]}: not a readable image")
-    if (first.shape[1], first.shape[0]) != tuple(image_size):
+    if first != tuple(image_size):
         w, h = image_size
         raise ValueError(
-            f"{files[0]}: {first.shape[1]}x{first.shape[0]} px, but the calibration is for {w}x{h} px; "
+            f"{files[0]}: {first[0]}x{first[1]} px, but the calibration is for {w}x{h} px; "
             "use the calibration of this camera and resolution"
         )
     out = Path(out)
@@ -143,7 +170,7 @@ def run_folder_odometry(
 
     Args:
         images: Folder of images (name order is time order).
-        calibration: Calibration YAML (schema of DESIGN.md, with ``ground_plane``) or a camera.
+        calibration: Calibration YAML (docs/odometry.md; with ``ground_plane``) or a camera.
         fps: Frame rate of the images [Hz].
         out: Output folder (created).
         config: Estimator parameters.
@@ -167,23 +194,16 @@ def run_folder_odometry(
     odo = FlowOdometry(camera, config)
     imu_in = None if imu is None else _open_imu(imu, imu_rpy, imu_still)  # (log, mount z row)
     files, out = _open_run(images, out, fps, camera.image_size)
-    bits = _log_bit_depth(files)
+    bits = _log_bit_depth(files, camera.image_size)
     rows = []
     times, twists = [0.0], [np.zeros(3)]
     for k, path in enumerate(files):
         t = k / fps
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        reason = ""
-        if img is None:
-            reason = f"{path.name}: not a readable image"
-        elif img.ndim == 3 and img.shape[2] == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
-        elif img.ndim == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        img, reason = read_frame(path, camera.image_size)  # size checked before decoding
+        if img is not None and img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
         if img is not None and img.dtype != np.uint8:  # 16-bit containers: the log's depth to 8 bits
             img = to_8bit(img, max(bits, 10))
-        if not reason and (img.shape[1], img.shape[0]) != camera.image_size:
-            reason = f"{path.name}: {img.shape[1]}x{img.shape[0]} px differs from the calibration"
         if reason:
             log.warning("%s; the chain restarts at the next image", reason)
             odo.reset()
@@ -331,15 +351,11 @@ def run_folder_kinematics(
         )
         for k, path in enumerate(files):
             t = k / fps
-            bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-            note = ""
+            bgr, note = read_frame(path, cam.image_size, cv2.IMREAD_COLOR)
             if bgr is None:
-                note = f"{path.name}: not a readable image"
                 rgb = np.zeros((0, 0, 3), np.uint8)  # the estimator flags it and carries on
             else:
                 rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-                if (rgb.shape[1], rgb.shape[0]) != cam.image_size:
-                    note = f"{path.name}: {rgb.shape[1]}x{rgb.shape[0]} px differs from the calibration"
             if note:
                 log.warning("%s; the state is carried over it", note)
             s = est.update(rgb, t)

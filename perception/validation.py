@@ -38,3 +38,30 @@ def check_range(
         lo_s = "-inf" if lo is None else f"{lo:g}"
         hi_s = "inf" if hi is None else f"{hi:g}"
         raise ConfigError(f"{key}: {value!r} is out of range {left}{lo_s}, {hi_s}{right}")
+
+
+#: Most pixels an image file may hold before it is decoded (a memory budget: 64 Mpx is 192 MB
+#: as 8-bit RGB; a 1 kB file can claim 100,000 x 100,000 px).
+MAX_IMAGE_PIXELS = 8192 * 8192
+
+
+def image_file_size(path, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int] | None:
+    """(width, height) [px] of an image file from its header, without decoding it.
+
+    Returns None when the header is not an image's. Raises ValueError (naming the file and the
+    numbers) when the image exceeds ``max_pixels``, before any memory is spent on it.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            w, h = img.size
+    except Image.DecompressionBombError as exc:  # Pillow's own limit, beyond ours
+        raise ValueError(f"{path}: beyond the {max_pixels:,}-pixel budget for one image ({exc})") from None
+    except (OSError, UnidentifiedImageError, ValueError):
+        return None
+    if w * h > max_pixels:
+        raise ValueError(
+            f"{path}: {w} x {h} px is beyond the {max_pixels:,}-pixel budget for one image; scale it down"
+        )
+    return int(w), int(h)

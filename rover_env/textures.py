@@ -231,11 +231,15 @@ def read_texture(path) -> np.ndarray:
     Raises:
         ConfigError: The file does not exist or is not a readable image; the message names it.
     """
-    from perception.validation import ConfigError
+    from perception.validation import ConfigError, image_file_size
 
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"terrain.texture: {p} does not exist; give an image file or a preset name")
+    try:
+        image_file_size(p)  # the size from the header, before any decoding
+    except ValueError as exc:
+        raise ConfigError(f"terrain.texture: {exc}") from None
     img = cv2.imread(str(p), cv2.IMREAD_COLOR)
     if img is None or img.size == 0:
         raise ConfigError(

@@ -465,3 +465,33 @@ def test_output_folders_are_checked_before_work_and_never_silently_replaced(tmp_
     finally:
         tempfile.NamedTemporaryFile = real
     assert "cannot write there (Permission denied)" in capsys.readouterr().err
+
+
+def test_an_image_bomb_is_refused_from_its_header_before_decoding(tmp_path):
+    import struct
+    import zlib
+
+    from perception.validation import MAX_IMAGE_PIXELS, image_file_size
+    from rover_env.config_io import ConfigError
+    from rover_env.textures import read_texture
+
+    def png_header(w, h):  # a valid PNG signature and IHDR claiming w x h, no pixel data
+        ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+        chunk = b"IHDR" + ihdr
+        head = b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + chunk + struct.pack(">I", zlib.crc32(chunk))
+        return head + struct.pack(">I", 0) + b"IEND" + struct.pack(">I", zlib.crc32(b"IEND"))
+
+    bomb = tmp_path / "bomb.png"
+    bomb.write_bytes(png_header(100_000, 100_000))
+    assert bomb.stat().st_size < 100
+    with pytest.raises(ValueError, match="bomb.png: .*pixel budget"):
+        image_file_size(bomb)
+    bomb.write_bytes(png_header(9000, 9000))  # 81 Mpx: within Pillow's limit, beyond ours
+    with pytest.raises(ValueError, match="9000 x 9000 px"):
+        image_file_size(bomb)
+    with pytest.raises(ConfigError, match="terrain.texture: .*bomb.png.*budget"):
+        read_texture(bomb)
+    assert image_file_size(tmp_path / "bomb.png", max_pixels=10**8) == (9000, 9000)
+    (tmp_path / "text.png").write_text("not an image")
+    assert image_file_size(tmp_path / "text.png") is None
+    assert MAX_IMAGE_PIXELS >= 8192 * 8192  # a texture at texture_px's limit fits
