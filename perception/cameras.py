@@ -34,6 +34,15 @@ def _points(a, n_cols: int, name: str) -> tuple[np.ndarray, tuple[int, ...]]:
 
 
 # ---------------------------------------------------------------------------------------- pinhole
+#: What to do when a downward calibration has no ground plane (the odometry's scale rests on it).
+GROUND_PLANE_MISSING = (
+    "ground_plane: not set. The odometry's scale is the camera's height over the ground: add "
+    "ground_plane: [0, 0, -h] to the calibration, h the height of the body frame's origin above flat "
+    "ground [m] (measure the lens's height above the ground with the rover on level ground and "
+    "subtract T_body_cam's z), or [a, b, c] for a ground z = a x + b y + c in the body frame"
+)
+
+
 @dataclass(frozen=True, eq=False)
 class PinholeCamera:
     """Pinhole camera with OpenCV's radial-tangential distortion (k1, k2, p1, p2, k3).
@@ -198,7 +207,7 @@ class PinholeCamera:
         """
         plane = ground_plane if ground_plane is not None else self.ground_plane
         if plane is None:
-            raise CalibrationError("ground_plane: not set; pass (a, b, c) with the ground z = a x + b y + c")
+            raise CalibrationError(GROUND_PLANE_MISSING)
         a, b, c = plane
         T_cam_body = np.linalg.inv(self.T_body_cam)
         R, t = T_cam_body[:3, :3], T_cam_body[:3, 3]
@@ -218,7 +227,7 @@ class PinholeCamera:
         """
         plane = ground_plane if ground_plane is not None else self.ground_plane
         if plane is None:
-            return "ground_plane: not set; pass (a, b, c) with the ground z = a x + b y + c"
+            return GROUND_PLANE_MISSING
         a, b, c = (float(v) for v in plane)
         if not all(math.isfinite(v) for v in (a, b, c)):
             return f"ground_plane: {plane!r} is not finite"

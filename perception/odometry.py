@@ -578,7 +578,9 @@ class FlowOdometry:
 
     def __init__(self, camera: PinholeCamera, config: FlowOdometryConfig | None = None) -> None:
         if camera.ground_plane is None:
-            raise ValueError("camera.ground_plane: not set; the homography needs the ground plane (a, b, c)")
+            from perception.cameras import GROUND_PLANE_MISSING
+
+            raise ValueError(GROUND_PLANE_MISSING)
         self.camera = camera
         self.config = cfg = config or FlowOdometryConfig()
         w, h = camera.image_size

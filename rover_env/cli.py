@@ -257,31 +257,51 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_kinematics(args: argparse.Namespace) -> int:
+    from perception import bags
     from perception.cameras import OmniCamera
     from perception.kinematics import RoverKinematicModel
     from perception.offline import run_folder_kinematics
 
     OmniCamera.load(args.camera), RoverKinematicModel.load(args.rover)  # the inputs before the output
-    _prepare_out(args.out, ("kinematics.csv",), args.overwrite)
+    if bags.is_log(args.source):
+        bags.log_images(args.source, args.topic)
+    else:
+        _need_fps(args)
+    _prepare_out(args.out, ("kinematics.csv", "kinematics.mcap"), args.overwrite)
     bar = _progress_bar("kinematics")
     res = run_folder_kinematics(
-        args.images, args.camera, args.rover, args.fps, args.out, steering=args.steering, progress=bar
-    )
+        args.source, args.camera, args.rover, args.fps, args.out, steering=args.steering, progress=bar,
+        topic=args.topic,
+    )  # fmt: skip
     sys.stderr.write("\n")
-    print(f"{res.frames} images, all 10 degrees of freedom on {res.all_valid}; wrote {res.csv_path}")
+    print(
+        f"{res.frames} images, all 10 degrees of freedom on {res.all_valid}; wrote {res.csv_path} "
+        f"and {res.mcap_path}"
+    )
     return 0
 
 
 def _cmd_odometry(args: argparse.Namespace) -> int:
+    from perception import bags
     from perception.cameras import PinholeCamera
     from perception.offline import run_folder_odometry
 
-    PinholeCamera.load(args.calib)  # the input before the output
-    _prepare_out(args.out, ("odometry.csv", "trajectory.tum", "trajectory_imu.tum"), args.overwrite)
+    if bags.is_log(args.source):
+        bags.log_images(args.source, args.topic)  # the topic before the output
+    else:
+        _need_fps(args)
+        if PinholeCamera.load(args.calib).ground_plane is None:  # the input before the output
+            from perception.cameras import GROUND_PLANE_MISSING
+
+            raise ValueError(f"{args.calib}: {GROUND_PLANE_MISSING}")
+    if args.imu and args.imu_topic:
+        raise ValueError("--imu and --imu-topic: give one IMU source")
+    products = ("odometry.csv", "trajectory.tum", "trajectory_imu.tum", "odometry.mcap")
+    _prepare_out(args.out, products, args.overwrite)
     bar = _progress_bar("odometry")
     rpy = tuple(math.radians(v) for v in args.imu_rpy)
     res = run_folder_odometry(
-        args.images,
+        args.source,
         args.calib,
         args.fps,
         args.out,
@@ -289,15 +309,24 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
         imu=args.imu,
         imu_rpy=rpy,
         imu_still=args.imu_still,
+        topic=args.topic,
+        imu_topic=args.imu_topic,
     )
     sys.stderr.write("\n")
     print(
         f"{res.frames} images, {res.valid} of {res.pairs} pairs valid, path {res.distance:.2f} m; "
-        f"wrote {res.csv_path} and {res.tum_path}"
+        f"wrote {res.csv_path}, {res.tum_path} and {res.mcap_path}"
     )
     if res.tum_imu_path is not None:
         print(f"gyro yaw (bias {res.imu_bias:.5f} rad/s taken out): wrote {res.tum_imu_path}")
     return 0
+
+
+def _need_fps(args: argparse.Namespace) -> None:
+    if args.fps is None:
+        raise ValueError(
+            f"{args.source}: a folder of images needs --fps (a log's messages carry their times)"
+        )
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
@@ -306,6 +335,12 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
     for name in list_scenarios():
         print(f"{name:16s} {load_scenario(name).description}")
     return 0
+
+
+SOURCE_HELP = (
+    "a folder of images (name order is time order), a ROS 1 .bag, a ROS 2 bag folder or an .mcap file "
+    "(read with rosbags; no ROS installation needed)"
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -390,15 +425,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--json", help="also write the results to this JSON file")
     b.set_defaults(func=_cmd_bench)
-    o = sub.add_parser("odometry", help="optical-flow odometry on a folder of downward-camera images")
-    o.add_argument("images", help="folder of images, in name order")
+    o = sub.add_parser(
+        "odometry",
+        help="optical-flow odometry on downward-camera images: a folder, a ROS 1 or 2 bag, or an MCAP file",
+    )
+    o.add_argument("source", help=SOURCE_HELP)
     o.add_argument(
-        "--calib", required=True, help="calibration YAML (K, distortion, T_body_cam, ground_plane)"
+        "--calib",
+        required=True,
+        help="calibration YAML (K, distortion, image_size, T_body_cam, ground_plane; a log's CameraInfo "
+        "fills K, distortion and image_size where the YAML leaves them out)",
     )
     o.add_argument(
-        "--fps", type=_float_in(0.0, 10_000.0), required=True, help="frame rate of the images [Hz]"
-    )
-    o.add_argument("--out", required=True, help="output folder (odometry.csv, trajectory.tum)")
+        "--fps", type=_float_in(0.0, 10_000.0), default=None,
+        help="frame rate of the images [Hz] (a folder only; a log's times come from its messages)",
+    )  # fmt: skip
+    o.add_argument("--topic", help="the log's image topic (default: its only Image or CompressedImage topic)")
+    o.add_argument("--out", required=True, help="output folder (odometry.csv, trajectory.tum, odometry.mcap)")
     o.add_argument(
         "--imu",
         help="IMU CSV beside the images (t, gyro_x, gyro_y, gyro_z, accel_x, accel_y, accel_z; s, rad/s, "
@@ -413,17 +456,25 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds of standstill at the IMU log's start, for the gyro's bias "
         "(default: fitted to the odometry's yaw rate)",
     )  # fmt: skip
+    o.add_argument(
+        "--imu-topic", help="read the IMU from this sensor_msgs/Imu topic of the log (instead of --imu)"
+    )
     o.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     o.set_defaults(func=_cmd_odometry)
-    k = sub.add_parser("kinematics", help="fisheye kinematic state estimation on a folder of fisheye images")
-    k.add_argument("images", help="folder of colour images, in name order")
+    k = sub.add_parser(
+        "kinematics",
+        help="fisheye kinematic state estimation: a folder of images, a ROS 1 or 2 bag, or an MCAP file",
+    )
+    k.add_argument("source", help=SOURCE_HELP)
     k.add_argument("--camera", required=True, help="omnidirectional calibration YAML (OmniCamera.save)")
     k.add_argument("--rover", required=True, help="rover geometry YAML (RoverKinematicModel.save)")
     k.add_argument("--steering", help="optional steering calibration YAML (eq. 5 ratio map)")
     k.add_argument(
-        "--fps", type=_float_in(0.0, 10_000.0), required=True, help="frame rate of the images [Hz]"
-    )
-    k.add_argument("--out", required=True, help="output folder (kinematics.csv)")
+        "--fps", type=_float_in(0.0, 10_000.0), default=None,
+        help="frame rate of the images [Hz] (a folder only; a log's times come from its messages)",
+    )  # fmt: skip
+    k.add_argument("--topic", help="the log's image topic (default: its only Image or CompressedImage topic)")
+    k.add_argument("--out", required=True, help="output folder (kinematics.csv, kinematics.mcap)")
     k.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     k.set_defaults(func=_cmd_kinematics)
     s = sub.add_parser("scenarios", help="list the shipped scenario presets")
