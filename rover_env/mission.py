@@ -111,8 +111,6 @@ def run_mission(
         video_every: Render every n-th control step into the video.
         progress: Called with the fraction of the time limit elapsed.
     """
-    import cv2
-
     obs, info = env.reset(seed=seed)
     controller.reset()
     rec = MissionLog.empty()
@@ -120,11 +118,9 @@ def run_mission(
         rec.estimates = EstimateLog(env.geometry.wheel_radius)
     writer = None
     if video_path is not None:
-        fps = env.control_hz / video_every
-        w, h = env.render_size
-        writer = cv2.VideoWriter(str(video_path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
-        if not writer.isOpened():
-            raise OSError(f"could not open a video writer for {video_path}")
+        from rover_env.video import VideoWriter
+
+        writer = VideoWriter(video_path, env.control_hz / video_every, env.render_size)
     energy = 0.0
     total_reward = 0.0
     stuck, stuck_time = 0, 0.0
@@ -162,8 +158,9 @@ def run_mission(
             else:
                 stuck_time = 0.0
             if writer is not None and step % video_every == 0:
-                frame = env.render()
-                writer.write(np.ascontiguousarray(frame[:, :, ::-1]))
+                from rover_env.video import draw_overlay, overlay_lines
+
+                writer.write(draw_overlay(env.render(), overlay_lines(info["t"], info)))
             step += 1
             if progress is not None and step % 30 == 0:
                 progress(min(info["t"] / env.scenario.duration, 1.0))
@@ -173,7 +170,7 @@ def run_mission(
                 break
     finally:
         if writer is not None:
-            writer.release()
+            writer.close()
     arr = rec.arrays()
     xy = arr["pose"][:, :2]
     path_len = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()) if len(xy) > 1 else 0.0

@@ -406,11 +406,54 @@ class RoverEnv(gym.Env):
         ).rgb
         frame = np.zeros((h, w, 3), dtype=np.uint8)
         frame[:, :left] = chase
+        # the friction patches, outlined and labelled in the chase view only (no camera sees them)
+        self._draw_patches(frame[:, :left], views["chase"], look_at(eye, [pos[0], pos[1], pos[2] - 0.1]))
         for row, cam, label in ((0, views["downward"], "downward camera"), (1, views["fisheye"], "fisheye")):
             img = cv2.resize(cam.capture().image, (side, h // 2), interpolation=cv2.INTER_AREA)
             cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1, cv2.LINE_AA)
             frame[row * (h // 2) : (row + 1) * (h // 2), left:] = img
         return frame
+
+    def _draw_patches(self, img: np.ndarray, camera: PinholeCamera, T_world_cam: np.ndarray) -> None:
+        """Outline each low-friction patch on the ground of a rendered view and label it with its mu."""
+        T_cam_world = np.linalg.inv(T_world_cam)
+        terrain = self.sim.terrain
+        K = camera.K
+
+        def project(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            z = np.asarray(terrain.height_at(xy[:, 0], xy[:, 1]), dtype=np.float64).reshape(-1) + 0.01
+            p = T_cam_world[:3, :3] @ np.column_stack([xy, z]).T + T_cam_world[:3, 3:4]
+            front = p[2] > 0.2
+            uv = (K @ p)[:2] / np.where(front, p[2], 1.0)
+            return uv.T, front
+
+        for patch in self.scenario.friction.patches:
+            cx, cy = patch.center
+            if patch.shape == "circle":
+                a = np.linspace(0.0, 2 * math.pi, 73)
+                xy = np.column_stack([cx + patch.radius * np.cos(a), cy + patch.radius * np.sin(a)])
+            else:
+                hx, hy = patch.size[0] / 2, patch.size[1] / 2
+                s = np.linspace(-1.0, 1.0, 17)
+                one = np.ones_like(s)
+                local = np.concatenate([
+                    np.column_stack([hx * s, -hy * one]), np.column_stack([hx * one, hy * s]),
+                    np.column_stack([-hx * s, hy * one]), np.column_stack([-hx * one, -hy * s]),
+                ])  # fmt: skip
+                c, sn = math.cos(math.radians(patch.yaw_deg)), math.sin(math.radians(patch.yaw_deg))
+                xy = local @ np.array([[c, sn], [-sn, c]]) + (cx, cy)
+            uv, front = project(xy)
+            colour = (255, 170, 0) if patch.mu < 0.5 else (120, 200, 255)
+            for i in range(len(uv) - 1):
+                if front[i] and front[i + 1]:
+                    p0, p1 = (tuple(int(round(v)) for v in uv[j]) for j in (i, i + 1))
+                    cv2.line(img, p0, p1, colour, 2, cv2.LINE_AA)
+            (c_uv,), (c_front,) = project(np.array([[cx, cy]]))
+            if c_front and 0 <= c_uv[0] < img.shape[1] and 0 <= c_uv[1] < img.shape[0]:
+                label = f"mu {patch.mu:g}" + (" loose" if patch.slip_loss > 0 else "")
+                org = (int(c_uv[0]) - 24, int(c_uv[1]))
+                cv2.putText(img, label, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+                cv2.putText(img, label, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
 
     def _render_views(self, left: int, h: int, inset_w: int, inset_h: int) -> dict:
         """Cameras of the composite frame, built on first use (the fisheye precomputes its remap)."""
