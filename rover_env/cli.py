@@ -12,29 +12,59 @@ from dataclasses import asdict
 from pathlib import Path
 
 
-def _progress_bar(label: str):
-    start = time.perf_counter()
+class _Progress:
+    """The command line's one progress display (tqdm on stderr).
 
-    def show(frac: float) -> None:
-        n = int(frac * 30)
-        elapsed = time.perf_counter() - start
-        sys.stderr.write(f"\r{label} [{'#' * n}{'.' * (30 - n)}] {frac * 100:5.1f}% {elapsed:6.1f} s")
-        sys.stderr.flush()
+    ``share(f)`` reports a finished share (0..1) of frames; ``sim(t)`` the simulated time driven
+    [s], shown with the wall time and their ratio (the real-time factor).
+    """
 
-    return show
+    def __init__(self, label: str, unit: str = "%", total: float | None = 100.0) -> None:
+        from tqdm import tqdm
+
+        fmt = "{desc}: {n:.1f}" + ("/{total:.0f}" if total else "") + " {unit} [wall {elapsed}, {rate_fmt}]"
+        self._bar = tqdm(total=total, desc=label, unit=unit, file=sys.stderr, bar_format=fmt, leave=True)
+        self._n = 0.0
+
+    def share(self, frac: float) -> None:
+        """Report the finished share of the work (0..1)."""
+        self._to(100.0 * frac)
+
+    def sim(self, t: float) -> None:
+        """Report the simulated time driven [s] (or any count: runs done)."""
+        self._to(t)
+
+    def _to(self, n: float) -> None:
+        if n > self._n:
+            self._bar.update(n - self._n)
+            self._n = n
+
+    def close(self) -> None:
+        self._bar.close()
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from rover_env.mission import json_safe, run_demo
+    from rover_env.mission import DEMO_RUNS, json_safe, run_demo
 
-    products = ("metrics.json", "demo.mp4", "trajectory.tum", "estimate.tum", "trajectory.png")
+    products = ("metrics.json", "demo.mp4", "slip.png", *(name for name, _ in DEMO_RUNS))
     out = _prepare_out(args.out, products, args.overwrite)
-    bar = _progress_bar(f"demo {args.scenario}")
-    result = run_demo(out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar)
-    bar(1.0)
-    sys.stderr.write("\n")
-    print(json.dumps(json_safe({"metrics": asdict(result.metrics), "estimator": result.estimator}), indent=2))
-    print(f"wrote video, plots, metrics.json and the TUM trajectories to {out.resolve()}")
+    bar = _Progress(f"demo {args.scenario}: simulated", unit="s sim", total=None)
+    start = time.perf_counter()
+    try:
+        results = run_demo(
+            out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar.sim
+        )
+    finally:
+        bar.close()
+    summary = {name: {"metrics": asdict(r.metrics), "estimator": r.estimator} for name, r in results.items()}
+    print(json.dumps(json_safe(summary), indent=2))
+    for name, label in DEMO_RUNS:
+        m = results[name].metrics
+        print(f"{label}: {m.termination} after {m.time:.1f} s, goal error {m.goal_error:.2f} m")
+    print(
+        f"wrote demo.mp4, slip.png, metrics.json and per-run plots and TUM trajectories to {out.resolve()} "
+        f"in {time.perf_counter() - start:.0f} s"
+    )
     return 0
 
 
@@ -157,25 +187,23 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         import shutil
 
         shutil.rmtree(Path(args.out) / "runs", ignore_errors=True)
-    start = time.perf_counter()
     fails = []
+    sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
+    bar = _Progress("eval: runs", unit="runs", total=len(jobs))
 
     def show(done: int, total: int, row: dict) -> None:
         if not row["success"]:
             fails.append(f"{row['controller']} {row['mission']} seed {row['seed']}: {row['termination']}")
-        n = int(done / total * 30)
-        sys.stderr.write(
-            f"\reval [{'#' * n}{'.' * (30 - n)}] {done}/{total} runs {time.perf_counter() - start:7.1f} s"
-        )
-        sys.stderr.flush()
+        bar.sim(done)
 
-    sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
     command = "rover " + " ".join(sys.argv[1:])
     try:
         rows = run_sweep(
             jobs, executor=args.executor, workers=args.workers, progress=show, resume=args.resume
         )
+        bar.close()
     except BaseException:  # Ctrl-C or a failed run: report what finished, then stop
+        bar.close()
         done = [r for r in (finished_row(j) for j in jobs) if r is not None]
         if done:
             title = f"Mission evaluation (partial: {len(done)} of {len(jobs)} runs)"
@@ -185,7 +213,6 @@ def _cmd_eval(args: argparse.Namespace) -> int:
             "the same command with --resume runs the rest\n"
         )
         raise
-    sys.stderr.write("\n")
     report = write_report(rows, args.out, command=command)
     print(report.read_text())
     print(f"wrote report.md, results.csv, results.json, summary.csv and runs/ to {Path(args.out).resolve()}")
@@ -268,12 +295,14 @@ def _cmd_kinematics(args: argparse.Namespace) -> int:
     else:
         _need_fps(args)
     _prepare_out(args.out, ("kinematics.csv", "kinematics.mcap"), args.overwrite)
-    bar = _progress_bar("kinematics")
-    res = run_folder_kinematics(
-        args.source, args.camera, args.rover, args.fps, args.out, steering=args.steering, progress=bar,
-        topic=args.topic,
-    )  # fmt: skip
-    sys.stderr.write("\n")
+    bar = _Progress("kinematics: frames")
+    try:
+        res = run_folder_kinematics(
+            args.source, args.camera, args.rover, args.fps, args.out, steering=args.steering,
+            progress=bar.share, topic=args.topic,
+        )  # fmt: skip
+    finally:
+        bar.close()
     print(
         f"{res.frames} images, all 10 degrees of freedom on {res.all_valid}; wrote {res.csv_path} "
         f"and {res.mcap_path}"
@@ -298,21 +327,23 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
         raise ValueError("--imu and --imu-topic: give one IMU source")
     products = ("odometry.csv", "trajectory.tum", "trajectory_imu.tum", "odometry.mcap")
     _prepare_out(args.out, products, args.overwrite)
-    bar = _progress_bar("odometry")
+    bar = _Progress("odometry: frames")
     rpy = tuple(math.radians(v) for v in args.imu_rpy)
-    res = run_folder_odometry(
-        args.source,
-        args.calib,
-        args.fps,
-        args.out,
-        progress=bar,
-        imu=args.imu,
-        imu_rpy=rpy,
-        imu_still=args.imu_still,
-        topic=args.topic,
-        imu_topic=args.imu_topic,
-    )
-    sys.stderr.write("\n")
+    try:
+        res = run_folder_odometry(
+            args.source,
+            args.calib,
+            args.fps,
+            args.out,
+            progress=bar.share,
+            imu=args.imu,
+            imu_rpy=rpy,
+            imu_still=args.imu_still,
+            topic=args.topic,
+            imu_topic=args.imu_topic,
+        )
+    finally:
+        bar.close()
     print(
         f"{res.frames} images, {res.valid} of {res.pairs} pairs valid, path {res.distance:.2f} m; "
         f"wrote {res.csv_path}, {res.tum_path} and {res.mcap_path}"
@@ -350,7 +381,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("demo", help="headless demo mission: video, plots and metrics")
     d.add_argument("--out", required=True, help="output folder (created if missing)")
-    d.add_argument("--scenario", default="flat_patches", help="preset name or YAML path")
+    d.add_argument(
+        "--scenario", default="slope_loose", help="preset name or YAML path (default: the loose-sand slope)"
+    )
     d.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="episode seed (0 to 2^32 - 1)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
     d.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")

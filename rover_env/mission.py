@@ -109,7 +109,7 @@ def run_mission(
         seed: Episode seed.
         video_path: Where to write an MP4 of the rendered frames, or None.
         video_every: Render every n-th control step into the video.
-        progress: Called with the fraction of the time limit elapsed.
+        progress: Called every 30 steps with the simulated time driven [s].
     """
     obs, info = env.reset(seed=seed)
     controller.reset()
@@ -163,7 +163,7 @@ def run_mission(
                 writer.write(draw_overlay(env.render(), overlay_lines(info["t"], info)))
             step += 1
             if progress is not None and step % 30 == 0:
-                progress(min(info["t"] / env.scenario.duration, 1.0))
+                progress(float(info["t"]))
             if term or trunc:
                 termination = info["termination"] or "unknown"
                 success = bool(info["is_success"])
@@ -334,31 +334,112 @@ def write_outputs(out: Path, env: RoverEnv, result: MissionResult, plots: bool =
     return paths
 
 
+#: The demo's two drivers: (controller name in :data:`rover_env.evaluation.CONTROLLERS`, label).
+DEMO_RUNS = (
+    ("slip_unaware", "path follower, slip-unaware"),
+    ("slip_aware", "path follower + traction control"),
+)
+
+
 def run_demo(
     out: Path,
-    scenario: str = "flat_patches",
+    scenario: str = "slope_loose",
     seed: int = 0,
     video: bool = True,
     progress: Callable[[float], None] | None = None,
-) -> MissionResult:
-    """The headless demo: the slip-aware controller on estimated observations through ``scenario``.
+) -> dict[str, MissionResult]:
+    """The headless demo: one mission driven on estimates without and with slip-aware traction control.
 
-    The path follower with per-wheel traction control (:class:`~controllers.SlipAwareController`,
-    ``action_mode="wheels"``) drives on perception's estimates (``obs_source="estimated"``).
-    Writes ``demo.mp4`` (chase view, downward and fisheye images), the plots, ``metrics.json``
-    and the TUM trajectories (:func:`write_outputs`) into ``out``.
+    Both drivers (:data:`DEMO_RUNS`: the path follower alone, and the path follower with
+    per-wheel traction control) drive ``scenario`` on perception's estimates
+    (``obs_source="estimated"``) from the same seed. On the default, the loose-sand slope, the
+    first digs in and slides off while the second climbs to the goal. Writes into ``out``:
+
+    - ``demo.mp4``: both runs one above the other (chase view with the friction patches, the
+      downward and fisheye images, an overlay of the state), H.264;
+    - ``slip.png``: both runs' slip and progress over time;
+    - ``metrics.json``: both runs' metrics and the estimator's errors;
+    - one folder per driver with its plots, ``metrics.json`` and TUM trajectories
+      (:func:`write_outputs`).
+
+    Args:
+        out: The output folder (created).
+        scenario: A scenario preset name or YAML path.
+        seed: The episode seed of both runs.
+        video: Write ``demo.mp4`` (rendering costs most of the demo's time).
+        progress: Called with the simulated time driven so far, both runs together [s].
+
+    Returns:
+        {driver: its result}.
     """
-    from controllers.traction import SlipAwareController
+    from rover_env.evaluation import CONTROLLERS
 
     out.mkdir(parents=True, exist_ok=True)
-    env = RoverEnv(scenario=scenario, action_mode="wheels", render_mode="rgb_array" if video else None)
-    try:
-        ctrl = SlipAwareController.for_env(env)
-        result = run_mission(
-            env, ctrl, seed=seed, video_path=out / "demo.mp4" if video else None, progress=progress
+    results: dict[str, MissionResult] = {}
+    videos = []
+    done_t = 0.0
+    for name, _ in DEMO_RUNS:
+        spec = CONTROLLERS[name]
+        env = RoverEnv(
+            scenario=scenario, action_mode=spec.action_mode, render_mode="rgb_array" if video else None
         )
-        write_outputs(out, env, result)
-    finally:
-        env.close()
-    log.info("demo finished: success=%s time=%.1f s", result.metrics.success, result.metrics.time)
-    return result
+        try:
+            ctrl = spec.make(env)
+            clip = out / name / "video.mp4" if video else None
+            (out / name).mkdir(parents=True, exist_ok=True)
+            base = done_t
+            tick = None if progress is None else (lambda t, base=base: progress(base + t))
+            result = run_mission(env, ctrl, seed=seed, video_path=clip, progress=tick)
+            write_outputs(out / name, env, result)
+            done_t += result.metrics.time
+        finally:
+            env.close()
+        results[name] = result
+        if clip is not None:
+            videos.append(clip)
+        log.info("demo %s: success=%s time=%.1f s", name, result.metrics.success, result.metrics.time)
+    data = {
+        "scenario": results[DEMO_RUNS[0][0]].metrics.scenario,
+        "seed": seed,
+        "runs": {n: {"metrics": asdict(r.metrics), "estimator": r.estimator} for n, r in results.items()},
+    }
+    (out / "metrics.json").write_text(json.dumps(json_safe(data), indent=2) + "\n")
+    write_slip_comparison(out / "slip.png", results)
+    if videos:
+        from rover_env.video import stack_videos
+
+        stack_videos(videos, [label for _, label in DEMO_RUNS], out / "demo.mp4")
+        for clip in videos:
+            clip.unlink()
+    return results
+
+
+def write_slip_comparison(path: Path, results: dict[str, MissionResult]) -> Path:
+    """Both demo runs' largest true slip ratio and progress along the course over time (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = dict(DEMO_RUNS)
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for k, (name, res) in enumerate(results.items()):
+        arr = res.log.arrays()
+        colour = f"C{k + 3}"
+        axes[0].plot(arr["t"], np.abs(arr["slip"]).max(axis=1), colour, label=f"{labels.get(name, name)}")
+        if res.estimate_arrays is not None:
+            e = res.estimate_arrays
+            axes[0].plot(e["t"], np.abs(e["est"][:, 7:11]).max(axis=1), colour, ls=":", lw=1)
+        start = np.asarray(arr["pose"][0, :2])
+        axes[1].plot(arr["t"], np.linalg.norm(arr["pose"][:, :2] - start, axis=1), colour,
+                     label=f"{labels.get(name, name)}: {res.metrics.termination}")  # fmt: skip
+    axes[0].axhline(SLIP_EVENT, color="0.5", lw=0.8, ls="--", label=f"slip event ({SLIP_EVENT:g})")
+    axes[0].set_ylabel("largest |slip ratio| [-]")
+    axes[0].set_title("wheel slip: truth (solid), estimate (dotted)")
+    axes[1].set_ylabel("distance from the start [m]")
+    axes[1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path

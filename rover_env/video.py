@@ -90,9 +90,8 @@ def overlay_lines(t: float, info: dict) -> list[str]:
     """The overlay's text for one step from ``env.step``'s ``info`` (true and, if any, estimated state)."""
     gt = info["ground_truth"]
     est = info.get("estimate")
-    v_true = float(np.hypot(*gt["twist"][:2]))
-    speed = f"t {t:6.1f} s   v {v_true:4.2f} m/s"
-    lines = [speed + (f" (est {np.hypot(*est['twist'][:2]):4.2f})" if est else "")]
+    speed = f"t {t:6.1f} s   v_x {gt['twist'][0]:+5.2f} m/s"
+    lines = [speed + (f" (est {est['twist'][0]:+5.2f})" if est else "")]
     s_true = np.asarray(gt["slip_ratio"], dtype=float)
     if est is not None:
         s_est = np.asarray(est["slip_ratio"], dtype=float)
@@ -128,3 +127,48 @@ def draw_overlay(rgb: np.ndarray, lines: list[str], scale: float = 0.45) -> np.n
         org = (x0 + 5, y0 + step * (i + 1))
         cv2.putText(rgb, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA)
     return rgb
+
+
+def stack_videos(clips: list[Path], labels: list[str], path: str | Path, fps: float | None = None) -> Path:
+    """One video of ``clips`` one above the other, each under its label (H.264, :class:`VideoWriter`).
+
+    A clip that ends first holds its last frame. The clips must share their width.
+    """
+    import av
+
+    containers = [av.open(str(c)) for c in clips]
+    try:
+        streams = [c.streams.video[0] for c in containers]
+        rate = fps or float(streams[0].average_rate or 15)
+        width = streams[0].codec_context.width
+        bar = 22
+        heights = [s.codec_context.height for s in streams]
+        if any(s.codec_context.width != width for s in streams):
+            raise ValueError(f"stack_videos: clips of widths {[s.codec_context.width for s in streams]}")
+        decoders = [c.decode(s) for c, s in zip(containers, streams, strict=True)]
+        last = [np.zeros((h, width, 3), np.uint8) for h in heights]
+        ended = [False] * len(clips)
+        with VideoWriter(path, rate, (width, sum(heights) + bar * len(clips))) as out:
+            while True:
+                for i, dec in enumerate(decoders):
+                    if ended[i]:
+                        continue
+                    try:
+                        last[i] = next(dec).to_ndarray(format="rgb24")
+                    except StopIteration:
+                        ended[i] = True
+                if all(ended):
+                    break
+                rows = []
+                for i, label in enumerate(labels):
+                    head = np.full((bar, width, 3), 32, np.uint8)
+                    text = label + ("   (finished)" if ended[i] else "")
+                    cv2.putText(
+                        head, text, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA
+                    )
+                    rows += [head, last[i]]
+                out.write(np.vstack(rows))
+    finally:
+        for c in containers:
+            c.close()
+    return Path(path)

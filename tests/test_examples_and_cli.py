@@ -29,24 +29,21 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
     )
     out = tmp_path / "out"
     assert main(["demo", "--out", str(out), "--scenario", str(scenario)]) == 0
-    for name in (
-        "demo.mp4",
-        "trajectory.png",
-        "velocity_slip.png",
-        "joints.png",
-        "metrics.json",
-        "trajectory.tum",
-        "estimate.tum",
-    ):
+    for name in ("demo.mp4", "slip.png", "metrics.json"):
         assert (out / name).stat().st_size > 300, name
+    for run in ("slip_unaware", "slip_aware"):  # both drivers, each with its plots and trajectories
+        for name in ("trajectory.png", "velocity_slip.png", "joints.png", "metrics.json", "trajectory.tum"):
+            assert (out / run / name).stat().st_size > 300, (run, name)
     data = json.loads((out / "metrics.json").read_text())
-    metrics, est = data["metrics"], data["estimator"]
+    assert set(data["runs"]) == {"slip_unaware", "slip_aware"} and data["seed"] == 0
+    metrics, est = data["runs"]["slip_aware"]["metrics"], data["runs"]["slip_aware"]["estimator"]
     assert metrics["success"] is True
     assert 3.0 < metrics["path_length"] < 5.0
     # the demo drives on estimates: their errors against the truth are reported, and small
     assert est["mae_v_x"] < 0.05 and est["mae_steering"] < 0.02
     assert est["position_error_final"] < 0.3
-    tum, tum_est = np.loadtxt(out / "trajectory.tum"), np.loadtxt(out / "estimate.tum")
+    run = out / "slip_aware"
+    tum, tum_est = np.loadtxt(run / "trajectory.tum"), np.loadtxt(run / "estimate.tum")
     assert tum.shape[1] == tum_est.shape[1] == 8 and len(tum) == len(tum_est)
     np.testing.assert_allclose(np.linalg.norm(tum[:, 4:], axis=1), 1.0, atol=1e-6)
     assert np.abs(tum[-1, 1:3] - tum_est[-1, 1:3]).max() < 0.3
@@ -59,9 +56,11 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
         assert stream.codec_context.name == "h264" and stream.codec_context.pix_fmt == "yuv420p"
         frames = [f.to_ndarray(format="rgb24") for f in container.decode(stream)]
     frame = frames[len(frames) // 2]
-    assert frame.shape == (480, 960, 3) and frame.std() > 5  # chase view + both cameras
-    # the overlay: white text on a dark band at the top left, and the time in it changes
+    # both runs one above the other, each under a 22 px label: chase view + both cameras
+    assert frame.shape == (2 * (480 + 22), 960, 3) and frame.std() > 5
+    # the overlay: white text on a dark band at the top left of each run, and the time in it changes
     x0, y0, x1, y1 = overlay_box(5)
+    y0, y1 = y0 + 22, y1 + 22
     band = frame[y0:y1, x0:x1].max(axis=2)
     assert np.median(band) < 90 and (band > 200).sum() > 300
     assert np.abs(frames[5][y0:y1, x0:x1].astype(int) - frames[-5][y0:y1, x0:x1]).max() > 100
