@@ -38,10 +38,11 @@ def write_tum(path: str | Path, t, position, quat_xyzw) -> Path:
     return path
 
 
-def write_planar_tum(path: str | Path, t, poses_xy_yaw) -> Path:
-    """TUM file of planar poses (x [m], y [m], yaw [rad]) at z = 0."""
+def write_planar_tum(path: str | Path, t, poses_xy_yaw, z=None) -> Path:
+    """TUM file of planar poses (x [m], y [m], yaw [rad]) at height ``z`` [m] (default 0)."""
     p = np.asarray(poses_xy_yaw, dtype=np.float64).reshape(-1, 3)
-    xyz = np.column_stack([p[:, 0], p[:, 1], np.zeros(len(p))])
+    zz = np.zeros(len(p)) if z is None else np.broadcast_to(np.asarray(z, dtype=np.float64), (len(p),))
+    xyz = np.column_stack([p[:, 0], p[:, 1], zz])
     return write_tum(path, t, xyz, yaw_to_quat_xyzw(p[:, 2]))
 
 

@@ -57,7 +57,7 @@ class EstimateLog:
     def __init__(self, radius: float) -> None:
         self.radius = radius
         self.est, self.events, self.tru, self.speed, self.t = [], [], [], [], []
-        self.est_pose, self.true_pose = [], []
+        self.est_pose, self.true_pose, self.est_z = [], [], []
 
     def add(self, obs: np.ndarray, info: dict) -> None:
         """Record one step from the observation and ``info`` of ``env.step`` (estimated source)."""
@@ -69,10 +69,11 @@ class EstimateLog:
         self.t.append(info["t"])
         for poses, p in ((self.est_pose, info["estimate"]["pose"]), (self.true_pose, gt["pose"])):
             poses.append((p[0], p[1], quat_to_yaw(p[3:7])))
+        self.est_z.append(float(info["estimate"]["pose"][2]))  # the body origin's height [m], as the truth's
 
     def arrays(self, frame: float) -> dict:
         """The rows as arrays, with the fisheye's frame period ``frame`` [s] and the wheel radius."""
-        names = ("est", "events", "tru", "speed", "t", "est_pose", "true_pose")
+        names = ("est", "events", "tru", "speed", "t", "est_pose", "true_pose", "est_z")
         return {k: np.array(getattr(self, k), dtype=float) for k in names} | {
             "frame": frame,
             "radius": self.radius,
@@ -129,10 +130,10 @@ def slip_metrics(runs: list[dict]) -> dict:
                 else:
                     fn += 1
             fp += len(e_runs) - len(matched)
-    prec = tp / max(tp + fp, 1)
-    rec = tp / max(tp + fn, 1)
+    prec = tp / (tp + fp) if tp + fp else math.nan  # no estimated event: precision is undefined
+    rec = tp / (tp + fn) if tp + fn else math.nan  # no true event: recall is undefined
     # no event on either side: detection is not scored
-    f1 = 2 * prec * rec / max(prec + rec, 1e-12) if tp + fp + fn else math.nan
+    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else math.nan
     # latencies are counted in control steps; a fisheye frame spans frame / (step time) of them
     step = float(np.median(np.diff(runs[0]["t"]))) if runs and len(runs[0]["t"]) > 1 else math.nan
     lat_frames = np.array(lat) * step / runs[0]["frame"] if lat else np.zeros(0)
@@ -151,6 +152,27 @@ def slip_metrics(runs: list[dict]) -> dict:
         latency_max=float(lat_frames.max()) if len(lat_frames) else math.nan,
         within_2=float(np.mean(lat_frames <= 2 + 1e-9)) if len(lat_frames) else math.nan,
     )
+
+
+_UNIT_OF = {
+    "v_x": "m/s", "v_y": "m/s", "omega": "rad/s", "wheel_rate": "rad/s", "slip": "-",
+    "axle_roll": "rad", "axle_height": "m", "steering": "rad",
+}  # fmt: skip
+
+
+def estimator_unit(key: str) -> str:
+    """The unit of an :func:`estimator_summary` key ("-": a ratio; "count"; "frames"; "%")."""
+    if key.startswith(("mae_", "p95_")):
+        return _UNIT_OF.get(key[4:], "-")
+    if key.startswith("segment_"):
+        return "%"
+    if key.startswith("position_error"):
+        return "m"
+    if key in ("slip_events", "slip_events_matched", "slip_events_false", "slip_events_missed"):
+        return "count"
+    if key == "slip_latency_max":
+        return "frames"
+    return "-"
 
 
 def estimator_summary(run: dict, segment_lengths=(2.0, 5.0, 10.0)) -> dict[str, float]:
@@ -181,10 +203,10 @@ def estimator_summary(run: dict, segment_lengths=(2.0, 5.0, 10.0)) -> dict[str, 
     out.update(
         slip_mae_slipping=s["mae_slip"],
         slip_mae_otherwise=s["mae_calm"],
-        slip_events=float(s["events"]),
-        slip_events_matched=float(s["matched"]),
-        slip_events_false=float(s["false"]),
-        slip_events_missed=float(s["missed"]),
+        slip_events=int(s["events"]),
+        slip_events_matched=int(s["matched"]),
+        slip_events_false=int(s["false"]),
+        slip_events_missed=int(s["missed"]),
         slip_precision=s["precision"],
         slip_recall=s["recall"],
         slip_f1=s["f1"],

@@ -315,6 +315,24 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
     return paths
 
 
+#: Units of :class:`MissionMetrics`' fields ("-": a ratio or a label; "count": whole numbers).
+METRIC_UNITS = {
+    "scenario": "-", "seed": "-", "success": "-", "termination": "-", "time": "s", "path_length": "m",
+    "course_length": "m", "progress": "m", "cross_track_rms": "m", "energy": "J", "mean_speed": "m/s",
+    "max_abs_slip": "-", "time_in_slip": "s", "stuck_events": "count", "total_reward": "-", "goal_error": "m",
+}  # fmt: skip
+
+
+def metric_units(result: MissionResult) -> dict[str, dict[str, str]]:
+    """Units of the keys of ``metrics.json``: the mission's metrics and the estimator's errors."""
+    out = {"metrics": dict(METRIC_UNITS)}
+    if result.estimator is not None:
+        from rover_env.estimator_metrics import estimator_unit
+
+        out["estimator"] = {k: estimator_unit(k) for k in result.estimator}
+    return out
+
+
 def write_outputs(out: Path, env: RoverEnv, result: MissionResult, plots: bool = True) -> list[Path]:
     """Write a mission's ``metrics.json`` (with the estimator's errors), TUM trajectories and plots.
 
@@ -323,12 +341,13 @@ def write_outputs(out: Path, env: RoverEnv, result: MissionResult, plots: bool =
     """
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "metrics.json", out / "trajectory.tum"]
-    data = {"metrics": asdict(result.metrics), "estimator": result.estimator}
+    data = {"metrics": asdict(result.metrics), "estimator": result.estimator, "units": metric_units(result)}
     paths[0].write_text(json.dumps(json_safe(data), indent=2) + "\n")
     write_tum(paths[1], result.log)
     if result.estimate_arrays is not None:
         e = result.estimate_arrays
-        paths.append(tum.write_planar_tum(out / "estimate.tum", e["t"], e["est_pose"]))
+        # the body origin's height, as in trajectory.tum: the start's plus the estimated change
+        paths.append(tum.write_planar_tum(out / "estimate.tum", e["t"], e["est_pose"], z=e["est_z"]))
     if plots:
         paths += write_plots(out, env, result)
     return paths

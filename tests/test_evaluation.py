@@ -123,3 +123,18 @@ def test_ray_executor_gives_the_local_executor_s_metrics(tiny_scenario):
     for (_, ea), (_, eb) in zip(a, b, strict=True):  # and estimator errors
         np.testing.assert_array_equal(ea, eb)
     assert any(len(e) > 0 for _, e in a)  # the estimated run was scored
+
+
+def test_slip_detection_scores_are_undefined_without_events_not_zero():
+    from rover_env.estimator_metrics import slip_metrics
+
+    t = np.arange(60) / 30.0 + 1.5
+    calm = np.zeros((60, 19))
+    run = {"t": t, "est": calm, "tru": calm, "events": np.zeros((60, 4), bool), "speed": np.ones((60, 4)),
+           "frame": 1 / 30}  # fmt: skip
+    m = slip_metrics([run])
+    assert m["events"] == 0 and math.isnan(m["f1"]) and math.isnan(m["precision"]) and math.isnan(m["recall"])
+    tru = calm.copy()
+    tru[10:20, 7] = 0.5  # one true event on FL, missed
+    m = slip_metrics([dict(run, tru=tru)])
+    assert (m["events"], m["missed"], m["f1"], m["recall"]) == (1, 1, 0.0, 0.0) and math.isnan(m["precision"])

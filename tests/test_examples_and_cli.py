@@ -47,6 +47,14 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
     assert tum.shape[1] == tum_est.shape[1] == 8 and len(tum) == len(tum_est)
     np.testing.assert_allclose(np.linalg.norm(tum[:, 4:], axis=1), 1.0, atol=1e-6)
     assert np.abs(tum[-1, 1:3] - tum_est[-1, 1:3]).max() < 0.3
+    assert abs(tum[0, 3] - tum_est[0, 3]) < 0.01  # one z convention: the body origin's height
+    # units beside every key, counts as integers, and no F1 without events
+    sub = json.loads((run / "metrics.json").read_text())
+    assert sub["units"]["metrics"]["energy"] == "J" and sub["units"]["estimator"]["mae_v_x"] == "m/s"
+    assert set(sub["units"]["estimator"]) == set(sub["estimator"])
+    assert isinstance(sub["estimator"]["slip_events"], int)
+    if sub["estimator"]["slip_events"] == 0 and sub["estimator"]["slip_events_false"] == 0:
+        assert sub["estimator"]["slip_f1"] is None and sub["estimator"]["slip_precision"] is None
     import av
 
     from rover_env.video import overlay_box
