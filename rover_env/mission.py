@@ -252,7 +252,11 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
         vmax=1.2,
         alpha=0.6,
     )
-    fig.colorbar(im, ax=ax, label="friction coefficient")
+    fig.colorbar(im, ax=ax, label="friction coefficient μ [-]")
+    for patch in sc.friction.patches:  # each patch named by its μ
+        loose = ", loose" if patch.slip_loss > 0 else ""
+        ax.annotate(f"μ {patch.mu:g}{loose}", patch.center, ha="center", va="center", fontsize=8,
+                    bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="0.5", alpha=0.8))  # fmt: skip
     course = env.course.points
     ax.plot(course[:, 0], course[:, 1], "k--o", label="course")
     ax.plot(arr["pose"][:, 0], arr["pose"][:, 1], "b-", label="rover (ground truth)")
@@ -269,7 +273,7 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(f"{sc.name}: trajectory")
-    ax.legend(loc="best")
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.12), ncol=2, fontsize=8)  # below the map
     paths.append(out / "trajectory.png")
     fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
     plt.close(fig)
@@ -281,17 +285,18 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
         axes[0].plot(t, arr["twist"][:, i], colours[i], label=label)
         if est is not None:
             axes[0].plot(est["t"], est["est"][:, i], colours[i], ls=":", lw=1)
-    axes[0].legend(loc="upper right")
+    axes[0].set_ylabel("twist [m/s, rad/s]")
     axes[0].set_title("body twist" + (": truth (solid), estimate (dotted)" if est is not None else ""))
     for i, n in enumerate(names):
         axes[1].plot(t, arr["slip"][:, i], colours[i], label=n)
         if est is not None:
             axes[1].plot(est["t"], est["est"][:, 7 + i], colours[i], ls=":", lw=1)
         axes[2].plot(t, arr["friction"][:, i], colours[i], label=n)
-    axes[1].set_ylabel("slip ratio")
-    axes[1].legend(loc="upper right")
-    axes[2].set_ylabel("friction under wheel")
+    axes[1].set_ylabel("slip ratio [-]")
+    axes[2].set_ylabel("friction μ under wheel [-]")
     axes[2].set_xlabel("time [s]")
+    for ax in axes:  # legends beside the axes, off the data
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     paths.append(out / "velocity_slip.png")
     fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
     plt.close(fig)
@@ -306,7 +311,7 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
             if est is not None:
                 ax.plot(est["t"], np.degrees(est["est"][:, col + i]), colours[i], ls=":", lw=1)
         ax.set_ylabel(label)
-        ax.legend(loc="upper right")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     axes[0].set_title("joints" + (": truth (solid), estimate (dotted)" if est is not None else ""))
     axes[1].set_xlabel("time [s]")
     paths.append(out / "joints.png")
