@@ -1,6 +1,6 @@
 """Camera models shared by the simulator and the estimators: pinhole and omnidirectional.
 
-Frames (DESIGN.md): the camera optical frame has z along the optical axis, x right and y down
+Frames (docs/environment.md): the camera optical frame has z along the optical axis, x right and y down
 in the image; pixel coordinates are (x = column, y = row) with the centre of the top-left pixel at
 (0, 0). ``T_body_cam`` maps camera-frame coordinates into the body frame.
 """
@@ -263,7 +263,7 @@ class PinholeCamera:
 
     @classmethod
     def load(cls, path: str | Path) -> PinholeCamera:
-        """Read the downward-camera calibration YAML of DESIGN.md.
+        """Read a downward-camera calibration YAML (docs/odometry.md).
 
         Keys: ``image_size: [W, H]``, ``K`` (3x3), ``distortion: [k1, k2, p1, p2, k3]``,
         ``T_body_cam`` (4x4, camera optical frame to body frame), optional ``ground_plane: [a, b, c]``.

@@ -1,6 +1,6 @@
 """Wheel-ground kinematics shared by ground truth and estimators: slip ratio and slip angle.
 
-Definitions (DESIGN.md): for wheel i with spin rate omega_i [rad/s] and radius r [m], and ground
+Definitions (docs/environment.md): for wheel i with spin rate omega_i [rad/s] and radius r [m], and ground
 velocity v_i of its centre along its heading (longitudinal) and across it (lateral) [m/s],
 
     s_i    = (omega_i r - v_i,long) / max(|omega_i r|, |v_i,long|, eps)    in [-1, 1]

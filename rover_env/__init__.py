@@ -5,9 +5,24 @@
 
 from __future__ import annotations
 
-from rover_env.config_io import ConfigError
-from rover_env.geometry import WHEELS, RoverGeometry
-from rover_env.scenario import ScenarioConfig, list_scenarios, load_scenario
+
+def _import_pybullet_quietly() -> None:
+    """Import pybullet with its build banner ("pybullet build time: ...") kept off stdout."""
+    import sys
+
+    if "pybullet" in sys.modules:
+        return
+    from rover_env._quiet import quiet_c_output
+
+    with quiet_c_output():
+        import pybullet  # noqa: F401
+
+
+_import_pybullet_quietly()
+
+from rover_env.config_io import ConfigError  # noqa: E402
+from rover_env.geometry import WHEELS, RoverGeometry  # noqa: E402
+from rover_env.scenario import ScenarioConfig, list_scenarios, load_scenario  # noqa: E402
 
 __version__ = "0.1.0"
 

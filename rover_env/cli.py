@@ -368,6 +368,20 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
+class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each option's default, except where there is none to show (None, off flags, required)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        if (
+            action.required
+            or action.default is None
+            or action.default is False
+            or "default" in (action.help or "")
+        ):
+            return action.help or ""
+        return super()._get_help_string(action) or ""
+
+
 SOURCE_HELP = (
     "a folder of images (name order is time order), a ROS 1 .bag, a ROS 2 bag folder or an .mcap file "
     "(read with rosbags; no ROS installation needed)"
@@ -376,13 +390,20 @@ SOURCE_HELP = (
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``rover`` command."""
-    p = argparse.ArgumentParser(prog="rover", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="rover",
+        description="Camera-based state estimation and slip-aware driving of planetary rovers: "
+        "demo, eval, train, bench, odometry, kinematics, scenarios.",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = p.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("demo", help="headless demo mission: video, plots and metrics")
+    fmt = {"formatter_class": _DefaultsFormatter}
+    d = sub.add_parser("demo", **fmt, help="headless demo mission: video, plots and metrics")
     d.add_argument("--out", required=True, help="output folder (created if missing)")
     d.add_argument(
-        "--scenario", default="slope_loose", help="preset name or YAML path (default: the loose-sand slope)"
+        "--scenario",
+        default="slope_loose",
+        help="scenario preset (slope_loose: the loose-sand slope) or YAML path",
     )
     d.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="episode seed (0 to 2^32 - 1)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
@@ -392,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser(
         "eval",
+        **fmt,
         help="sweep controllers x missions x seeds; one merged report",
         description="Controllers: "
         + "; ".join(f"{k} ({v.description})" for k, v in CONTROLLERS.items())
@@ -401,11 +423,14 @@ def build_parser() -> argparse.ArgumentParser:
         "pickled files run when loaded) and load only folders you made or trust.",
     )
     e.add_argument(
-        "--controllers", nargs="+", default=["slip_unaware", "slip_aware", "slip_aware@ground_truth"]
-    )
+        "--controllers", nargs="+", default=["slip_unaware", "slip_aware", "slip_aware@ground_truth"],
+        help="controllers to compare (above), each optionally with @ground_truth, @imu or @imu:tactical",
+    )  # fmt: skip
     e.add_argument("--missions", nargs="+", default=["Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0"],
                    help="environment ids, scenario presets or YAML paths")  # fmt: skip
-    e.add_argument("--seeds", nargs="+", type=_seeds, default=[[0, 1, 2]], help="seeds: N or N-M")
+    e.add_argument(
+        "--seeds", nargs="+", type=_seeds, default=[[0, 1, 2]], help="seeds: N or N-M (default: 0-2)"
+    )
     e.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
     e.add_argument("--executor", default="local", choices=("local", "ray"),
                    help="local processes, or a Ray cluster (RAY_ADDRESS, else a local one)")  # fmt: skip
@@ -418,19 +443,24 @@ def build_parser() -> argparse.ArgumentParser:
         "--resume", action="store_true", help="keep the runs an earlier, interrupted sweep finished in --out"
     )
     e.set_defaults(func=_cmd_eval)
-    t = sub.add_parser("train", help="train a PPO (or SAC) policy on the estimated-observation environments")
+    t = sub.add_parser(
+        "train", **fmt, help="train a PPO (or SAC) policy on the estimated-observation environments"
+    )
     t.add_argument(
         "--out", required=True, help="output folder: policy, normalisation, checkpoints, TensorBoard"
     )
-    t.add_argument("--algo", default="ppo", choices=("ppo", "sac"))
+    t.add_argument("--algo", default="ppo", choices=("ppo", "sac"), help="stable-baselines3 algorithm")
     t.add_argument("--missions", nargs="+", default=["Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0",
-                                                      "RoverSlopeLoose-v0"])  # fmt: skip
+                                                      "RoverSlopeLoose-v0"],
+                   help="environment ids to train on, one per episode in turn")  # fmt: skip
     t.add_argument("--steps", type=_int_in(1), default=200_000, help="environment steps in all")
     t.add_argument(
         "--envs", type=_int_in(1, _max_workers()), default=2, help="environments, one process each"
     )
-    t.add_argument("--obs-source", default="estimated", choices=("estimated", "ground_truth"))
-    t.add_argument("--preset", default="train", choices=("train", "eval"))
+    t.add_argument("--obs-source", default="estimated", choices=("estimated", "ground_truth"),
+                   help="train on perception's estimates or on the simulator's state")  # fmt: skip
+    t.add_argument("--preset", default="train", choices=("train", "eval"),
+                   help="camera preset (train: 160x120, 30 Hz; eval: 640x480, 60 Hz)")  # fmt: skip
     t.add_argument("--residual", type=float, nargs=3, default=[0.5, 0.3, 0.3],
                    help="residual range on the drive command (speed, lam_F, lam_R)")  # fmt: skip
     t.add_argument("--base", default="traction", choices=("traction", "follower"),
@@ -444,8 +474,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="training seed (0 to 2^32 - 1)")
     t.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     t.set_defaults(func=_cmd_train)
-    b = sub.add_parser("bench", help="simulation speed benchmarks")
-    b.add_argument("--scenarios", nargs="+", default=["flat_patches", "rough"])
+    b = sub.add_parser("bench", **fmt, help="simulation speed benchmarks")
+    b.add_argument(
+        "--scenarios", nargs="+", default=["flat_patches", "rough"], help="scenario presets or YAML paths"
+    )
     b.add_argument("--steps", type=_int_in(1, 1_000_000), default=600, help="environment steps per scenario")
     b.add_argument("--frames", type=_int_in(1, 10_000), default=8, help="frames per camera row")
     b.add_argument("--no-cameras", action="store_true", help="physics only")
@@ -460,6 +492,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=_cmd_bench)
     o = sub.add_parser(
         "odometry",
+        **fmt,
         help="optical-flow odometry on downward-camera images: a folder, a ROS 1 or 2 bag, or an MCAP file",
     )
     o.add_argument("source", help=SOURCE_HELP)
@@ -496,6 +529,7 @@ def build_parser() -> argparse.ArgumentParser:
     o.set_defaults(func=_cmd_odometry)
     k = sub.add_parser(
         "kinematics",
+        **fmt,
         help="fisheye kinematic state estimation: a folder of images, a ROS 1 or 2 bag, or an MCAP file",
     )
     k.add_argument("source", help=SOURCE_HELP)
@@ -510,7 +544,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", required=True, help="output folder (kinematics.csv, kinematics.mcap)")
     k.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     k.set_defaults(func=_cmd_kinematics)
-    s = sub.add_parser("scenarios", help="list the shipped scenario presets")
+    s = sub.add_parser("scenarios", **fmt, help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
     return p
 

@@ -1,4 +1,4 @@
-"""Exact ground truth read from the simulator, in the frames and units of DESIGN.md."""
+"""Exact ground truth read from the simulator, in the frames and units of docs/environment.md."""
 
 from __future__ import annotations
 

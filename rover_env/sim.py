@@ -165,7 +165,10 @@ class RoverSim:
         #: The renderer in use: ``"gl"`` or ``"tiny"``.
         self.renderer = resolve_renderer(renderer)
         self._gl = None
-        self.client = BulletClient(connection_mode=pb.DIRECT)
+        from rover_env._quiet import quiet_c_output
+
+        with quiet_c_output():  # PyBullet prints "argv[0]=" on connecting
+            self.client = BulletClient(connection_mode=pb.DIRECT)
         self._closed = False
         c = self.client
         c.setPhysicsEngineParameter(

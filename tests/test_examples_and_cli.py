@@ -171,3 +171,25 @@ def test_rover_kinematics_cli_on_a_folder_of_fisheye_images(tmp_path, capsys):
     args[args.index(str(rover_yaml))] = str(tmp_path / "bad.yaml")
     assert main([*args, "--out", str(out)]) == 2
     assert "wheel_radiu" in capsys.readouterr().err
+
+
+def test_every_option_has_help_without_markup_and_pybullet_prints_no_banner():
+    import subprocess
+    import sys
+
+    from rover_env.cli import build_parser
+
+    parser = build_parser()
+    for name, sub in parser._subparsers._group_actions[0].choices.items():
+        text = sub.format_help()
+        assert "``" not in text and ":class:" not in text, name
+        for action in sub._actions:
+            assert action.help, (name, action.dest)
+    helps = {
+        n: " ".join(s.format_help().split()) for n, s in parser._subparsers._group_actions[0].choices.items()
+    }
+    assert "(default: 0-2)" in helps["eval"] and "(default: slope_loose)" in helps["demo"]
+    code = "import gymnasium as gym, rover_env; gym.make('Rover-v0', obs_source='ground_truth').reset(seed=0)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "pybullet build time" not in out.stdout + out.stderr and "argv[0]" not in out.stdout + out.stderr

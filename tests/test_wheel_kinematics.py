@@ -1,4 +1,4 @@
-"""Slip definitions of DESIGN.md (perception, no simulator)."""
+"""Slip definitions of perception.wheel_kinematics (perception, no simulator)."""
 
 import numpy as np
 import pytest
