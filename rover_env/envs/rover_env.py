@@ -403,9 +403,13 @@ class RoverEnv(gym.Env):
             far=60.0,
             caster=self.sim.shadow_caster if views["lighting"].shadows else None,
             renderer=self.sim.backend,
-        ).rgb
+        )
         frame = np.zeros((h, w, 3), dtype=np.uint8)
-        frame[:, :left] = chase
+        frame[:, :left] = chase.rgb
+        if chase.segmentation is not None:  # past the terrain's edge: a dark sky, not the clear colour
+            void = chase.segmentation < 0
+            sky = np.linspace(70, 20, h, dtype=np.float32)[:, None, None] * np.array([0.8, 0.9, 1.2])
+            frame[:, :left][void] = np.broadcast_to(sky, (h, left, 3))[void].astype(np.uint8)
         # the friction patches, outlined and labelled in the chase view only (no camera sees them)
         self._draw_patches(frame[:, :left], views["chase"], look_at(eye, [pos[0], pos[1], pos[2] - 0.1]))
         for row, cam, label in ((0, views["downward"], "downward camera"), (1, views["fisheye"], "fisheye")):
