@@ -51,9 +51,14 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     bar = _Progress(f"demo {args.scenario}: simulated", unit="s sim", total=None)
     start = time.perf_counter()
     try:
+        if args.rerun:
+            from rover_env.rerun_log import _rerun
+
+            _rerun()  # the SDK is there, before anything runs
         results = run_demo(
-            out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar.sim
-        )
+            out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar.sim,
+            rerun=Path(args.rerun) if args.rerun else None,
+        )  # fmt: skip
     finally:
         bar.close()
     summary = {name: {"metrics": asdict(r.metrics), "estimator": r.estimator} for name, r in results.items()}
@@ -62,7 +67,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         m = results[name].metrics
         print(f"{label}: {m.termination} after {m.time:.1f} s, goal error {m.goal_error:.2f} m")
     print(
-        f"wrote demo.mp4, slip.png, metrics.json and per-run plots and TUM trajectories to {out.resolve()} "
+        f"wrote {'demo.mp4, ' if not args.no_video else ''}slip.png, metrics.json"
+        f"{', ' + str(args.rerun) if args.rerun else ''} and per-run plots and TUM trajectories "
+        f"to {out.resolve()} "
         f"in {time.perf_counter() - start:.0f} s"
     )
     return 0
@@ -179,7 +186,11 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     from rover_env.evaluation import check_jobs, finished_row, jobs_for, run_sweep, write_report
 
     seeds = sorted({s for part in args.seeds for s in part})
-    jobs = jobs_for(args.controllers, args.missions, seeds, args.preset, args.out, args.videos)
+    if args.rerun:
+        from rover_env.rerun_log import _rerun
+
+        _rerun()  # the SDK is there, before anything runs
+    jobs = jobs_for(args.controllers, args.missions, seeds, args.preset, args.out, args.videos, args.rerun)
     check_jobs(jobs)  # every input before the output folder is touched
     products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
     _prepare_out(args.out, products, args.overwrite, keep=args.resume)
@@ -407,6 +418,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="episode seed (0 to 2^32 - 1)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
+    d.add_argument(
+        "--rerun", metavar="FILE.rrd",
+        help="also log both runs to this Rerun file: cameras, trajectories, twist, slip, joints "
+        "(pip install 'rover-vision[rerun]')",
+    )  # fmt: skip
     d.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     d.set_defaults(func=_cmd_demo)
     from rover_env.evaluation import CONTROLLERS
@@ -437,6 +453,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--workers", type=_int_in(1, _max_workers()), default=None,
                    help=f"local processes, 1 to {_max_workers()} (default: CPU count)")  # fmt: skip
     e.add_argument("--videos", action="store_true", help="write each run's video")
+    e.add_argument(
+        "--rerun", action="store_true",
+        help="also log each run to Rerun: runs/<name>/mission.rrd (pip install 'rover-vision[rerun]')",
+    )  # fmt: skip
     e.add_argument("--out", required=True, help="output folder (created if missing)")
     e.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     e.add_argument(

@@ -213,6 +213,7 @@ class PerceptionPipeline:
         self._imu_batch: list[np.ndarray] = []  # samples since the last flush, and the last one's time
         self._imu_t = 0.0
         self._gyro_xy: list[np.ndarray] = []  # gyro samples (IMU frame) since the last downward frame
+        self.last_images: dict[str, np.ndarray | None] = {"downward": None, "fisheye": None}
         self._imu_saturated = 0
         self._imu_used = 0  # in-range samples this control period
         self._attitude_s = 0.0  # IMU time the attitude has run on since the reset [s]
@@ -284,6 +285,7 @@ class PerceptionPipeline:
         self._last_odom = None
         self._imu_batch = []
         self._gyro_xy = []
+        self.last_images = {"downward": None, "fisheye": None}  # the latest images given to perception
         self._imu_saturated = 0
         self._imu_used = 0
         self._attitude_s = 0.0
@@ -332,6 +334,7 @@ class PerceptionPipeline:
         )
 
     def _on_fisheye(self, img: np.ndarray, t: float) -> None:
+        self.last_images["fisheye"] = img
         state = self.kinematics.update(img, t)
         self.frames["fisheye"] += 1
         self.frames["fisheye_windowed"] = self.fisheye.sampled["windowed"]
@@ -347,6 +350,7 @@ class PerceptionPipeline:
         self._window_s += time.perf_counter() - t0
 
     def _on_downward(self, img: np.ndarray, t: float) -> None:
+        self.last_images["downward"] = img
         self.frames["downward"] += 1
         s = self.kinematics.state
         centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])

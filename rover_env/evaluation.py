@@ -163,6 +163,7 @@ class EvalJob:
         preset: Camera preset of the estimator (``train`` or ``eval``).
         out: Folder for this run's metrics, TUM trajectories and plots (None: none written).
         video: Also write ``video.mp4`` there (composite camera view).
+        rerun: Also write ``mission.rrd`` there (Rerun; :mod:`rover_env.rerun_log`).
     """
 
     controller: str
@@ -171,6 +172,7 @@ class EvalJob:
     preset: str = "train"
     out: str | None = None
     video: bool = False
+    rerun: bool = False
 
     @property
     def name(self) -> str:
@@ -224,7 +226,16 @@ def run_job(job: EvalJob) -> dict:
         video = out / "video.mp4" if (out is not None and job.video) else None
         if out is not None:
             out.mkdir(parents=True, exist_ok=True)
-        result = run_mission(env.unwrapped, ctrl, seed=job.seed, video_path=video)
+        log_rr = None
+        if job.rerun and out is not None:
+            from rover_env.rerun_log import RerunLog
+
+            log_rr = RerunLog(out / "mission.rrd")
+            log_rr.start_run(job.name, env.unwrapped.course.points)
+        result = run_mission(env.unwrapped, ctrl, seed=job.seed, video_path=video, rerun=log_rr)
+        if log_rr is not None:
+            log_rr.end_run()
+            log_rr.close()
         if out is not None:
             write_outputs(out, env.unwrapped, result)
     finally:
@@ -379,6 +390,7 @@ def jobs_for(
     preset: str = "train",
     out: str | Path | None = None,
     video: bool = False,
+    rerun: bool = False,
 ) -> list[EvalJob]:
     """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""
     jobs = []
@@ -387,7 +399,7 @@ def jobs_for(
             for s in seeds:
                 job = EvalJob(c, m, int(s), preset)
                 if out is not None:
-                    job = EvalJob(c, m, int(s), preset, str(Path(out) / "runs" / job.name), video)
+                    job = EvalJob(c, m, int(s), preset, str(Path(out) / "runs" / job.name), video, rerun)
                 jobs.append(job)
     return jobs
 

@@ -100,6 +100,7 @@ def run_mission(
     video_path: Path | None = None,
     video_every: int = 2,
     progress: Callable[[float], None] | None = None,
+    rerun=None,
 ) -> MissionResult:
     """Drive one episode with ``controller`` and collect metrics, a log and the estimator's errors.
 
@@ -110,6 +111,7 @@ def run_mission(
         video_path: Where to write an MP4 of the rendered frames, or None.
         video_every: Render every n-th control step into the video.
         progress: Called every 30 steps with the simulated time driven [s].
+        rerun: A :class:`rover_env.rerun_log.RerunLog` to log every step to (its run started).
     """
     obs, info = env.reset(seed=seed)
     controller.reset()
@@ -145,6 +147,8 @@ def run_mission(
             energy += info["wheel_power"] * env.control_dt
             if rec.estimates is not None:
                 rec.estimates.add(obs, info)
+            if rerun is not None:
+                rerun.log_step(info, env.pipeline.last_images if env.pipeline is not None else None)
             # stuck: commanding motion but the body barely moves for 2 s
             commanded = (
                 abs(float(action[0])) > 0.05
@@ -371,6 +375,7 @@ def run_demo(
     seed: int = 0,
     video: bool = True,
     progress: Callable[[float], None] | None = None,
+    rerun: Path | None = None,
 ) -> dict[str, MissionResult]:
     """The headless demo: one mission driven on estimates without and with slip-aware traction control.
 
@@ -392,6 +397,7 @@ def run_demo(
         seed: The episode seed of both runs.
         video: Write ``demo.mp4`` (rendering costs most of the demo's time).
         progress: Called with the simulated time driven so far, both runs together [s].
+        rerun: Also log both runs to this Rerun file (``.rrd``; :mod:`rover_env.rerun_log`).
 
     Returns:
         {driver: its result}.
@@ -402,6 +408,11 @@ def run_demo(
     results: dict[str, MissionResult] = {}
     videos = []
     done_t = 0.0
+    log_rr = None
+    if rerun is not None:
+        from rover_env.rerun_log import RerunLog
+
+        log_rr = RerunLog(rerun)
     for name, _ in DEMO_RUNS:
         spec = CONTROLLERS[name]
         env = RoverEnv(
@@ -413,7 +424,11 @@ def run_demo(
             (out / name).mkdir(parents=True, exist_ok=True)
             base = done_t
             tick = None if progress is None else (lambda t, base=base: progress(base + t))
-            result = run_mission(env, ctrl, seed=seed, video_path=clip, progress=tick)
+            if log_rr is not None:
+                log_rr.start_run(name, env.course.points)
+            result = run_mission(env, ctrl, seed=seed, video_path=clip, progress=tick, rerun=log_rr)
+            if log_rr is not None:
+                log_rr.end_run()
             write_outputs(out / name, env, result)
             done_t += result.metrics.time
         finally:
@@ -429,6 +444,8 @@ def run_demo(
     }
     (out / "metrics.json").write_text(json.dumps(json_safe(data), indent=2) + "\n")
     write_slip_comparison(out / "slip.png", results)
+    if log_rr is not None:
+        log_rr.close()
     if videos:
         from rover_env.video import stack_videos
 

@@ -5,6 +5,7 @@ import runpy
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rover_env.cli import main
 
@@ -193,3 +194,35 @@ def test_every_option_has_help_without_markup_and_pybullet_prints_no_banner():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert "pybullet build time" not in out.stdout + out.stderr and "argv[0]" not in out.stdout + out.stderr
+
+
+def test_rover_demo_logs_both_runs_to_rerun(tmp_path):
+    pytest.importorskip("rerun", reason="the rerun extra is not installed: pip install 'rover-vision[rerun]'")
+    import subprocess
+    import sys
+
+    scenario = tmp_path / "tiny.yaml"
+    scenario.write_text(
+        "name: tiny\ncourse: {waypoints: [[1.5, 0.0]], tolerance: 0.5, speed: 0.8}\n"
+        "terrain: {kind: flat, size: [12.0, 12.0], texture: gravel, texture_px: 128}\nduration: 6.0\n"
+    )
+    rrd = tmp_path / "out" / "mission.rrd"
+    argv = [
+        "demo",
+        "--out",
+        str(tmp_path / "out"),
+        "--scenario",
+        str(scenario),
+        "--no-video",
+        "--rerun",
+        str(rrd),
+    ]
+    assert main(argv) == 0
+    dump = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "print", str(rrd)], capture_output=True, text=True, timeout=120
+    )
+    assert dump.returncode == 0, dump.stderr
+    for run in ("slip_unaware", "slip_aware"):
+        for entity in ("cameras/downward", "cameras/fisheye", "world/truth_path", "world/estimate_path",
+                       "twist/v_x/estimate", "slip/FL/truth", "joints/steering_F/estimate"):  # fmt: skip
+            assert f"/{run}/{entity}" in dump.stdout, (run, entity)
