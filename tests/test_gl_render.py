@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from conftest import flat_scenario, rough_scenario
 
-from rover_env.config_io import ConfigError
 from rover_env.gl_render import GLRenderer, gl_status, load_obj, projection_from_K
 from rover_env.sim import RoverSim
 
@@ -66,32 +65,6 @@ def test_no_gl_objects_leak_across_resets_and_close_releases_the_context():
     finally:
         env.close()
     assert gl.released and env.unwrapped.sim._gl is None
-
-
-def test_a_texture_file_that_is_not_an_image_is_a_config_error(tmp_path):
-    import dataclasses
-
-    bad = tmp_path / "ground.png"
-    bad.write_text("not an image")
-    scenario = flat_scenario()
-    scenario = dataclasses.replace(scenario, terrain=dataclasses.replace(scenario.terrain, texture=str(bad)))
-    with pytest.raises(ConfigError, match="ground.png.*not a readable image"):
-        RoverSim(scenario, renderer="gl")
-
-
-def test_a_corrupt_cached_texture_is_rebuilt(tmp_path, monkeypatch, caplog):
-    import logging
-
-    from rover_env.textures import read_texture, texture_file
-
-    monkeypatch.setenv("ROVER_CACHE_DIR", str(tmp_path))
-    path = texture_file("regolith", 64, 5)
-    good = read_texture(path)
-    path.write_bytes(path.read_bytes()[:40])  # truncated
-    with caplog.at_level(logging.WARNING):
-        again = texture_file("regolith", 64, 5)
-    assert again == path and "rebuilding" in caplog.text
-    np.testing.assert_array_equal(read_texture(again), good)
 
 
 @pytest.mark.parametrize("scenario", [flat_scenario, rough_scenario])

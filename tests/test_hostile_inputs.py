@@ -495,3 +495,47 @@ def test_an_image_bomb_is_refused_from_its_header_before_decoding(tmp_path):
     (tmp_path / "text.png").write_text("not an image")
     assert image_file_size(tmp_path / "text.png") is None
     assert MAX_IMAGE_PIXELS >= 8192 * 8192  # a texture at texture_px's limit fits
+
+
+# ---------------------------------------------------------------- textures and geometry
+
+
+def test_a_texture_file_that_is_not_an_image_is_a_config_error(tmp_path):
+    import dataclasses
+
+    from conftest import flat_scenario
+
+    from rover_env.config_io import ConfigError
+    from rover_env.sim import RoverSim
+
+    bad = tmp_path / "ground.png"
+    bad.write_text("not an image")
+    scenario = flat_scenario()
+    scenario = dataclasses.replace(scenario, terrain=dataclasses.replace(scenario.terrain, texture=str(bad)))
+    with pytest.raises(ConfigError, match="ground.png.*not a readable image"):
+        RoverSim(scenario, renderer="gl")
+
+
+def test_a_corrupt_cached_texture_is_rebuilt(tmp_path, monkeypatch, caplog):
+    import logging
+
+    from rover_env.textures import read_texture, texture_file
+
+    monkeypatch.setenv("ROVER_CACHE_DIR", str(tmp_path))
+    path = texture_file("regolith", 64, 5)
+    good = read_texture(path)
+    path.write_bytes(path.read_bytes()[:40])  # truncated
+    with caplog.at_level(logging.WARNING):
+        again = texture_file("regolith", 64, 5)
+    assert again == path and "rebuilding" in caplog.text
+    np.testing.assert_array_equal(read_texture(again), good)
+
+
+@pytest.mark.parametrize("key", ["wheel_radius", "track", "body_mass"])
+def test_non_finite_rover_geometry_names_the_key(key):
+    from rover_env.config_io import ConfigError
+    from rover_env.geometry import RoverGeometry
+
+    for bad in (math.nan, math.inf):
+        with pytest.raises(ConfigError, match=key):
+            RoverGeometry(**{key: bad})
