@@ -189,17 +189,29 @@ def test_rover_odometry_reads_ros1_ros2_and_mcap_logs(tmp_path, frames, kind, na
     assert msgs[0].header.frame_id == "odom" and msgs[0].child_frame_id == "base_link"
 
 
-def test_rover_kinematics_reads_a_log_and_writes_joint_states(tmp_path):
+@pytest.mark.parametrize(
+    ("kind", "name", "how"),
+    [("ros1", "fisheye.bag", "rgb8"), ("ros2", "fisheye_ros2", "png"), ("mcap", "fisheye.mcap", "bgr8")],
+)
+def test_rover_kinematics_reads_ros1_ros2_and_mcap_logs_and_writes_joint_states(tmp_path, kind, name, how):
     from mcap.reader import make_reader
 
     model = rover_model()
     cam = fisheye(model)
     psis = [(0.02 * k, -0.01 * k) for k in range(4)]
-    path = tmp_path / "fisheye.bag"
-    with LogWriter(path, "ros1") as lw:
+    path = tmp_path / name
+    with LogWriter(path, kind) as lw:
         for k, psi in enumerate(psis):
             rgb = render_markers(model, cam, psi, (0.15, 0.15), model.wheel_angles(0.1, -0.1))
-            lw.image("/fisheye/image_raw", T0 + k / 30, rgb, encoding="rgb8")
+            t = T0 + k / 30
+            if how == "png":
+                lw.image(
+                    "/fisheye/image_raw/compressed", t, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), compressed="png"
+                )
+            elif how == "bgr8":
+                lw.image("/fisheye/image_raw", t, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), encoding="bgr8")
+            else:
+                lw.image("/fisheye/image_raw", t, rgb, encoding="rgb8")
     out = tmp_path / "out"
     argv = ["kinematics", str(path), "--camera", str(cam.save(tmp_path / "omni.yaml"))]
     argv += ["--rover", str(model.save(tmp_path / "rover.yaml")), "--out", str(out)]
