@@ -1,0 +1,138 @@
+"""Record the slip filter's inputs on the slip-accuracy drives once, then replay them through other
+filter settings in seconds (the drives do not depend on the estimates, so a replay of the same
+inputs is the live run; it reproduces the live events exactly with the same settings).
+
+    python benchmarks/slip_replay.py record --seeds 301 302 303 304 305 306 --imu bmi088 --out rec/
+    python benchmarks/slip_replay.py score rec/ [--set event_on=0.21 grip_std=0.05]
+    python benchmarks/slip_replay.py score rec/ --perfect-odometry   # the truth's v_x instead
+
+``record`` runs ``slip_accuracy.drive`` (train preset) on every mission and writes one pickle per
+mission and seed set (local files of your own: ``score`` unpickles them). ``score`` prints the
+slip metrics of ``rover_env.estimator_metrics.slip_metrics`` per mission and in all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import pickle
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import perception.slip as ps  # noqa: E402
+from rover_env.estimator_metrics import slip_metrics  # noqa: E402
+
+METHODS = (
+    "add_odometry", "add_wheels", "add_gyro", "add_accel", "calibrate_gyro", "estimate", "twist_at", "reset",
+)  # fmt: skip
+
+
+def record(args) -> None:
+    import slip_accuracy as sa
+
+    import rover_env
+
+    calls: list = []
+    originals = {}
+    for name in METHODS:
+        originals[name] = getattr(ps.SlipEstimator, name)
+
+        def wrap(self, *a, _n=name, **k):
+            calls.append((_n, a, k))
+            return originals[_n](self, *a, **k)
+
+        setattr(ps.SlipEstimator, name, wrap)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for env_id in args.envs or rover_env.ENV_IDS:
+        span = sa.patch_span(env_id)
+        runs = []
+        for seed in args.seeds:
+            calls.clear()
+            run = sa.drive(seed, "train", env_id, span, 20.0, 0.05, args.renderer, args.imu)
+            runs.append({"seed": seed, "run": run, "calls": list(calls)})
+        path = out / f"{env_id}_{args.imu}_{args.seeds[0]}.pkl"
+        with open(path, "wb") as fh:
+            pickle.dump(runs, fh)
+        print(f"recorded {env_id}, seeds {args.seeds}: {path}", flush=True)
+
+
+def replay(rec: dict, config, perfect_odometry: bool = False) -> dict:
+    """The run of ``rec`` with its slip estimates and events from a fresh filter of ``config``."""
+    from rover_env.geometry import RoverGeometry
+
+    g = RoverGeometry()  # the rover's wheel positions (FL, FR, RL, RR) and radius
+    xy = np.array([[s * g.wheelbase / 2, side * g.track / 2] for s in (1, -1) for side in (1, -1)])
+    est = ps.SlipEstimator(xy, g.wheel_radius, config)
+    t_run, tru = rec["run"]["t"], rec["run"]["tru"]
+    out = {}
+    for name, a, k in rec["calls"]:
+        if name == "reset":
+            est.reset()
+            out = {}
+            continue
+        if name == "add_odometry" and perfect_odometry:
+            z = np.array(a[1], dtype=float)
+            z[0] = np.interp(a[0] - 0.5 * a[2], t_run, tru[:, 0])
+            a = (a[0], z, *a[2:])
+        r = getattr(est, name)(*a, **k)
+        if name == "estimate":
+            out[round(a[0], 9)] = (r.slip_ratio.copy(), r.events.copy())
+    run = dict(rec["run"])
+    run["est"] = run["est"].copy()
+    run["est"][:, 7:11] = [out[round(t, 9)][0] for t in t_run]
+    run["events"] = np.array([out[round(t, 9)][1] for t in t_run])
+    return run
+
+
+def score(args) -> None:
+    changes = {}
+    for item in args.set or []:
+        key, _, value = item.partition("=")
+        changes[key] = ast.literal_eval(value)
+    config = ps.SlipConfig(**changes)
+    every = []
+    print(
+        "| mission | F1 | false | missed | events | within 2 frames | latest [frames] | slip MAE, slipping |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for path in sorted(Path(args.folder).glob("*.pkl")):
+        with open(path, "rb") as fh:  # your own recording
+            recs = pickle.load(fh)  # noqa: S301
+        runs = [replay(r, config, args.perfect_odometry) for r in recs]
+        every += runs
+        _row(path.stem, slip_metrics(runs))
+    _row("all", slip_metrics(every))
+
+
+def _row(name: str, m: dict) -> None:
+    print(
+        f"| {name} | {m['f1']:.3f} | {m['false']} | {m['missed']} | {m['events']} "
+        f"| {100 * m['within_2']:.1f} % | {m['latency_max']:.0f} | {m['mae_slip']:.3f} |"
+    )
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("record", help="drive and record the filter's inputs")
+    r.add_argument("--seeds", type=int, nargs="+", required=True)
+    r.add_argument("--imu", default=None, help="IMU preset (default: none)")
+    r.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
+    r.add_argument("--envs", nargs="+", default=None, help="environment ids (default: all)")
+    r.add_argument("--out", required=True, help="folder for the recordings")
+    s = sub.add_parser("score", help="replay recordings through a filter's settings")
+    s.add_argument("folder")
+    s.add_argument("--set", nargs="+", metavar="KEY=VALUE", help="SlipConfig fields to change")
+    s.add_argument("--perfect-odometry", action="store_true", help="the truth's v_x for the odometry's")
+    args = ap.parse_args(argv)
+    record(args) if args.cmd == "record" else score(args)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
