@@ -209,6 +209,9 @@ def test_subproc_vec_env(env_id, obs_source):
     make = functools.partial(_make, env_id, obs_source)
     sb3 = SubprocVecEnv([make, make])
     try:
+        # seeded: unseeded starts put the rover's shadow on a tread in about 1 % of RoverShadows-v0
+        # starts, and that wheel's rate is then unmeasured for the first frames
+        sb3.seed(0)
         obs = sb3.reset()
         for _ in range(5):
             obs, rew, done, infos = sb3.step(np.tile([0.5, 0.0, 0.0], (2, 1)))
