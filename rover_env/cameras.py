@@ -33,6 +33,23 @@ R_BODY_DOWNCAM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]
 DOWNWARD_PRESETS: dict[str, tuple[int, int]] = {"full": (640, 480), "half": (320, 240), "train": (160, 120)}
 
 
+def blackout_windows(value, name: str = "blackout") -> list[tuple[float, float]]:
+    """``value`` as a list of (t0, t1) time windows [s], t0 < t1, both finite; ValueError naming ``name``."""
+    how = "give a list of (t0, t1) windows of time [s] with t0 < t1, e.g. [(2.0, 3.5)]"
+    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+        raise ValueError(f"{name}={value!r}: {how}")
+    out = []
+    for w in value:
+        try:
+            t0, t1 = (float(v) for v in w)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: window {w!r}: {how}") from None
+        if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
+            raise ValueError(f"{name}: window {w!r}: {how}")
+        out.append((t0, t1))
+    return out
+
+
 @dataclass(frozen=True)
 class DownwardCameraConfig:
     """Downward pinhole camera on the mast.
@@ -145,18 +162,9 @@ class _RoverCamera(ABC):
         """Deliver black frames from :meth:`sample` within each (t0, t1) window [s] of simulation time.
 
         Raises:
-            ValueError: a window is not two finite times with t0 < t1.
+            ValueError: ``windows`` is not a list of two finite times with t0 < t1.
         """
-        out = []
-        for w in windows:
-            try:
-                t0, t1 = (float(v) for v in w)
-            except (TypeError, ValueError):
-                raise ValueError(f"blackout window {w!r}: give (t0, t1) with t0 < t1 [s]") from None
-            if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
-                raise ValueError(f"blackout window {w!r}: give (t0, t1) with t0 < t1 [s]")
-            out.append((t0, t1))
-        self.blackout = out
+        self.blackout = blackout_windows(windows)
 
     def _dark(self) -> bool:
         t = self.sim.t

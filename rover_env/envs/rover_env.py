@@ -15,7 +15,7 @@ from gymnasium import spaces
 
 from perception import observation as obs_table
 from perception.cameras import PinholeCamera
-from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
+from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera, blackout_windows
 from rover_env.estimation import PERCEPTION_PRESETS, PerceptionPipeline, StepEstimate
 from rover_env.fisheye import FisheyeCameraConfig
 from rover_env.geometry import RoverGeometry
@@ -258,7 +258,7 @@ class RoverEnv(gym.Env):
         unknown = set(options) - {"blackout"}
         if unknown:
             raise ValueError(f"reset options {sorted(unknown)} are unknown; the only option is 'blackout'")
-        blackout = _blackout_windows(options.get("blackout", ()))
+        blackout = blackout_windows(options.get("blackout", ()), "reset option blackout")
         if blackout and self.pipeline is None:
             raise ValueError("reset option 'blackout' needs obs_source='estimated' (there are no cameras)")
         super().reset(seed=seed)
@@ -590,20 +590,3 @@ class RoverEnv(gym.Env):
                 "slip_ratio_std": sl.slip_ratio_std.copy(),
             }
         return out
-
-
-def _blackout_windows(value) -> list[tuple[float, float]]:
-    """The ``blackout`` reset option as (t0, t1) windows [s]; ValueError naming what is wrong."""
-    how = "give a list of (t0, t1) windows of episode time [s] with t0 < t1, e.g. [(2.0, 3.5)]"
-    if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
-        raise ValueError(f"reset option blackout={value!r}: {how}")
-    out = []
-    for w in value:
-        try:
-            t0, t1 = (float(v) for v in w)
-        except (TypeError, ValueError):
-            raise ValueError(f"reset option blackout: window {w!r}: {how}") from None
-        if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
-            raise ValueError(f"reset option blackout: window {w!r}: {how}")
-        out.append((t0, t1))
-    return out
