@@ -9,6 +9,7 @@ path with that yaw (``trajectory_imu.tum``): both yaw sources of the odometry pa
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import logging
@@ -209,7 +210,7 @@ def run_folder_odometry(
         source = bags.log_images(images, topic)
         camera = _log_camera(calibration, source)
         n_frames = source.count
-        frames = ((t, img, why) for t, img, why in source.frames())
+        frames = source.frames()
     else:
         camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
         files = _open_run(images, fps, camera.image_size)
@@ -351,14 +352,20 @@ def _log_camera(calibration, source) -> PinholeCamera:
         raise CalibrationError(f"{calibration}: {exc}") from None
 
 
-def _open_imu(imu, imu_rpy, imu_still: float) -> tuple:
-    """The IMU log and the body-z row of its mount, checked before the images are processed."""
+def _mount_z_row(imu_rpy, imu_still: float) -> np.ndarray:
+    """The body-z row of the IMU's mount (roll-pitch-yaw [rad]), with both inputs checked."""
     rpy = np.asarray(imu_rpy, dtype=np.float64)
     if rpy.shape != (3,) or not np.all(np.isfinite(rpy)):
         raise ValueError(f"imu_rpy: {imu_rpy!r}; give the mount's roll, pitch, yaw [rad]")
     if not (math.isfinite(imu_still) and imu_still >= 0):
         raise ValueError(f"imu_still: {imu_still!r} s; give the standstill's length (>= 0)")
-    return (None if imu is None else read_imu_csv(imu)), Rotation.from_euler("xyz", rpy).as_matrix()[2]
+    return Rotation.from_euler("xyz", rpy).as_matrix()[2]
+
+
+def _open_imu(imu, imu_rpy, imu_still: float) -> tuple:
+    """The IMU CSV's log and the body-z row of its mount, checked before the images are processed."""
+    z_row = _mount_z_row(imu_rpy, imu_still)
+    return read_imu_csv(imu), z_row
 
 
 def _imu_rows(data: np.ndarray, imu_rpy, imu_still: float, name: str) -> tuple:
@@ -372,7 +379,7 @@ def _imu_rows(data: np.ndarray, imu_rpy, imu_still: float, name: str) -> tuple:
     if dropped:
         log.warning("%s: %d IMU samples with a repeated time left out", name, dropped)
     imu_log = ImuLog(data[keep, 0], data[keep, 1:4], data[keep, 4:7], dropped)
-    return imu_log, _open_imu(None, imu_rpy, imu_still)[1]
+    return imu_log, _mount_z_row(imu_rpy, imu_still)
 
 
 def _imu_yaw_rates(imu_log, z_row, rows, pair_start, imu_still: float, name) -> tuple:
@@ -481,7 +488,7 @@ def run_folder_kinematics(
     t_last = -math.inf
     mw = bags.McapWriter(out / "kinematics.mcap") if mcap else None
     names = [*DOF_NAMES, *(f"wheel_{w}" for w in ("FL", "FR", "RL", "RR"))]
-    with open(csv_path, "w", newline="") as fh, mw if mw is not None else _Null():
+    with open(csv_path, "w", newline="") as fh, mw if mw is not None else contextlib.nullcontext():
         wr = csv.writer(fh)
         wr.writerow(
             ["t", *DOF_NAMES, "rate_FL", "rate_FR", "rate_RL", "rate_RR", "quality"]
@@ -527,13 +534,3 @@ def run_folder_kinematics(
     log.info("kinematics: %d frames, all 10 DOF on %d", n_rows, n_all)
     result = FolderKinematicsResult(n_rows, n_all, csv_path)
     return dataclasses.replace(result, mcap_path=out / "kinematics.mcap") if mcap else result
-
-
-class _Null:
-    """A context manager that does nothing (no MCAP writer)."""
-
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc) -> None:
-        return None

@@ -120,7 +120,7 @@ def run_mission(
         rec.estimates = EstimateLog(env.geometry.wheel_radius)
     writer = None
     if video_path is not None:
-        from rover_env.video import VideoWriter
+        from rover_env.video import VideoWriter, draw_overlay, overlay_lines
 
         writer = VideoWriter(video_path, env.control_hz / video_every, env.render_size)
     energy = 0.0
@@ -162,8 +162,6 @@ def run_mission(
             else:
                 stuck_time = 0.0
             if writer is not None and step % video_every == 0:
-                from rover_env.video import draw_overlay, overlay_lines
-
                 writer.write(draw_overlay(env.render(), overlay_lines(info["t"], info)))
             step += 1
             if progress is not None and step % 30 == 0:

@@ -239,6 +239,7 @@ class RoverEnv(gym.Env):
         self._progress = 0.0
         self._closed = False
         self._views: dict | None = None
+        self._outlines: list | None = None  # the friction patches drawn in the chase view
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -395,10 +396,11 @@ class RoverEnv(gym.Env):
         ]
         views = self._render_views(left, h, side, h // 2)
         self.sim.prepare_render()
+        T_world_chase = look_at(eye, [pos[0], pos[1], pos[2] - 0.1])
         chase = render_pinhole(
             c,
             views["chase"],
-            look_at(eye, [pos[0], pos[1], pos[2] - 0.1]),
+            T_world_chase,
             views["lighting"],
             far=60.0,
             caster=self.sim.shadow_caster if views["lighting"].shadows else None,
@@ -408,10 +410,9 @@ class RoverEnv(gym.Env):
         frame[:, :left] = chase.rgb
         if chase.segmentation is not None:  # past the terrain's edge: a dark sky, not the clear colour
             void = chase.segmentation < 0
-            sky = np.linspace(70, 20, h, dtype=np.float32)[:, None, None] * np.array([0.8, 0.9, 1.2])
-            frame[:, :left][void] = np.broadcast_to(sky, (h, left, 3))[void].astype(np.uint8)
+            frame[:, :left][void] = views["sky"][void]
         # the friction patches, outlined and labelled in the chase view only (no camera sees them)
-        self._draw_patches(frame[:, :left], views["chase"], look_at(eye, [pos[0], pos[1], pos[2] - 0.1]))
+        self._draw_patches(frame[:, :left], views["chase"], T_world_chase)
         for row, cam, label in ((0, views["downward"], "downward camera"), (1, views["fisheye"], "fisheye")):
             img = cv2.resize(cam.capture().image, (side, h // 2), interpolation=cv2.INTER_AREA)
             cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1, cv2.LINE_AA)
@@ -421,43 +422,51 @@ class RoverEnv(gym.Env):
     def _draw_patches(self, img: np.ndarray, camera: PinholeCamera, T_world_cam: np.ndarray) -> None:
         """Outline each low-friction patch on the ground of a rendered view and label it with its mu."""
         T_cam_world = np.linalg.inv(T_world_cam)
-        terrain = self.sim.terrain
-        K = camera.K
 
-        def project(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            z = np.asarray(terrain.height_at(xy[:, 0], xy[:, 1]), dtype=np.float64).reshape(-1) + 0.01
-            p = T_cam_world[:3, :3] @ np.column_stack([xy, z]).T + T_cam_world[:3, 3:4]
-            front = p[2] > 0.2
-            uv = (K @ p)[:2] / np.where(front, p[2], 1.0)
-            return uv.T, front
+        def project(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            q = T_cam_world[:3, :3] @ p.T + T_cam_world[:3, 3:4]
+            front = q[2] > 0.2
+            return ((camera.K @ q)[:2] / np.where(front, q[2], 1.0)).T, front
 
-        for patch in self.scenario.friction.patches:
-            cx, cy = patch.center
-            if patch.shape == "circle":
-                a = np.linspace(0.0, 2 * math.pi, 73)
-                xy = np.column_stack([cx + patch.radius * np.cos(a), cy + patch.radius * np.sin(a)])
-            else:
-                hx, hy = patch.size[0] / 2, patch.size[1] / 2
-                s = np.linspace(-1.0, 1.0, 17)
-                one = np.ones_like(s)
-                local = np.concatenate([
-                    np.column_stack([hx * s, -hy * one]), np.column_stack([hx * one, hy * s]),
-                    np.column_stack([-hx * s, hy * one]), np.column_stack([-hx * one, -hy * s]),
-                ])  # fmt: skip
-                c, sn = math.cos(math.radians(patch.yaw_deg)), math.sin(math.radians(patch.yaw_deg))
-                xy = local @ np.array([[c, sn], [-sn, c]]) + (cx, cy)
-            uv, front = project(xy)
-            colour = (255, 170, 0) if patch.mu < 0.5 else (120, 200, 255)
+        for outline, centre, label, colour in self._patch_outlines():
+            uv, front = project(outline)
             for i in range(len(uv) - 1):
                 if front[i] and front[i + 1]:
                     p0, p1 = (tuple(int(round(v)) for v in uv[j]) for j in (i, i + 1))
                     cv2.line(img, p0, p1, colour, 2, cv2.LINE_AA)
-            (c_uv,), (c_front,) = project(np.array([[cx, cy]]))
+            (c_uv,), (c_front,) = project(centre[None])
             if c_front and 0 <= c_uv[0] < img.shape[1] and 0 <= c_uv[1] < img.shape[0]:
-                label = f"mu {patch.mu:g}" + (" loose" if patch.slip_loss > 0 else "")
                 org = (int(c_uv[0]) - 24, int(c_uv[1]))
                 cv2.putText(img, label, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
                 cv2.putText(img, label, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+
+    def _patch_outlines(self) -> list[tuple[np.ndarray, np.ndarray, str, tuple[int, int, int]]]:
+        """Per friction patch, once: its outline on the ground (N, 3) and centre [m, world], label, colour."""
+        if self._outlines is None:
+            terrain = self.sim.terrain
+            self._outlines = []
+            for patch in self.scenario.friction.patches:
+                cx, cy = patch.center
+                if patch.shape == "circle":
+                    a = np.linspace(0.0, 2 * math.pi, 73)
+                    xy = np.column_stack([cx + patch.radius * np.cos(a), cy + patch.radius * np.sin(a)])
+                else:
+                    hx, hy = patch.size[0] / 2, patch.size[1] / 2
+                    s = np.linspace(-1.0, 1.0, 17)
+                    one = np.ones_like(s)
+                    local = np.concatenate([
+                        np.column_stack([hx * s, -hy * one]), np.column_stack([hx * one, hy * s]),
+                        np.column_stack([-hx * s, hy * one]), np.column_stack([-hx * one, -hy * s]),
+                    ])  # fmt: skip
+                    c, sn = math.cos(math.radians(patch.yaw_deg)), math.sin(math.radians(patch.yaw_deg))
+                    xy = local @ np.array([[c, sn], [-sn, c]]) + (cx, cy)
+                xy = np.vstack([xy, [cx, cy]])
+                z = np.asarray(terrain.height_at(xy[:, 0], xy[:, 1]), dtype=np.float64).reshape(-1) + 0.01
+                pts = np.column_stack([xy, z])
+                label = f"mu {patch.mu:g}" + (" loose" if patch.slip_loss > 0 else "")
+                colour = (255, 170, 0) if patch.mu < 0.5 else (120, 200, 255)
+                self._outlines.append((pts[:-1], pts[-1], label, colour))
+        return self._outlines
 
     def _render_views(self, left: int, h: int, inset_w: int, inset_h: int) -> dict:
         """Cameras of the composite frame, built on first use (the fisheye precomputes its remap)."""
@@ -474,6 +483,11 @@ class RoverEnv(gym.Env):
                     self.sim, DownwardCameraConfig(width=iw, height=ih, shadows=shadows)
                 ),
                 "fisheye": FisheyeCamera(self.sim, FisheyeCameraConfig(width=iw, height=ih, shadows=shadows)),
+                # what the chase view shows past the terrain: a dark sky, lighter at the top
+                "sky": np.broadcast_to(
+                    (np.linspace(70, 20, h)[:, None, None] * np.array([0.8, 0.9, 1.2])).astype(np.uint8),
+                    (h, left, 3),
+                ),
             }
         return self._views
 
