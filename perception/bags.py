@@ -1,22 +1,35 @@
 """Camera and IMU streams from robot logs: ROS 1 bags, ROS 2 bag folders and MCAP files.
 
-Read with the ``rosbags`` library (pure Python, no ROS installation). Messages:
+Messages (deserialised with the ``rosbags`` type system; no ROS installation needed):
 
-- ``sensor_msgs/Image`` (encodings mono8, mono16, 8UC1, 16UC1, rgb8, bgr8, rgba8, bgra8, 8UC3)
-  and ``sensor_msgs/CompressedImage`` (any format OpenCV decodes: JPEG, PNG, ...);
-- ``sensor_msgs/CameraInfo``: the intrinsics (K, plumb-bob distortion, image size);
+- ``sensor_msgs/Image`` (mono8/16, 8UC1, 16UC1, rgb8, bgr8, rgba8, bgra8, 8UC3, the Bayer
+  encodings and packed YUV 4:2:2) and ``sensor_msgs/CompressedImage`` (any format OpenCV
+  decodes: JPEG, PNG, ...);
+- ``sensor_msgs/CameraInfo``: the intrinsics (K, ``plumb_bob`` or ``rational_polynomial``
+  distortion, image size);
 - ``sensor_msgs/Imu``: angular velocity [rad/s] and linear acceleration [m/s^2].
 
-Times are the messages' header stamps [s] (the bag's receive time where a stamp is zero), so
-no frame rate is needed. Writers of ``nav_msgs/Odometry`` and ``sensor_msgs/JointState`` into an
-MCAP file (ROS 2 CDR, playable by Foxglove and ``ros2 bag play``) are at the end.
+Logs are streams that can be damaged. ROS 1 bags are read with ``rosbags``; ROS 2 SQLite bags
+row by row with the standard library's ``sqlite3``; MCAP files record by record with ``mcap``.
+A message that does not deserialise is skipped with a warning naming its topic, its index and
+its time. A damaged MCAP chunk or SQLite message row loses only itself. Damage that breaks a
+file's structure (a ROS 1 chunk, an SQLite b-tree page, a truncated MCAP) ends the reading at
+the last good message, with a warning naming the file and the position. Frame times are the
+header stamps [s], checked against the log's receive times by :class:`StampClock`.
+
+Writers of ``nav_msgs/Odometry`` and ``sensor_msgs/JointState`` into an MCAP file (ROS 2 CDR,
+playable by Foxglove and ``ros2 bag play``) are at the end.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
-from collections.abc import Iterator
+import shutil
+import sqlite3
+import tempfile
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,51 +43,468 @@ CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 IMU_TYPE = "sensor_msgs/msg/Imu"
 #: Most pixels of one image message (the same budget as image files).
 MAX_MESSAGE_PIXELS = 8192 * 8192
+#: Largest MCAP record read into memory [bytes]: a damaged length field claims more.
+MAX_RECORD_BYTES = 1 << 30
 
 
 def is_log(path: str | Path) -> bool:
-    """Whether ``path`` is a robot log: a ``.bag`` (ROS 1) or ``.mcap`` file, or a ROS 2 bag folder."""
+    """Whether ``path`` is a robot log: a ``.bag``, ``.mcap`` or ``.db3`` file, or a ROS 2 bag folder."""
     p = Path(path)
     if p.is_file():
         return p.suffix.lower() in (".bag", ".mcap", ".db3")
     return p.is_dir() and (p / "metadata.yaml").is_file()
 
 
-def _reader(path: Path):
-    """An open-able rosbags reader of ``path`` (ValueError naming it if it is not a log)."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    if not (path.exists()):
-        raise FileNotFoundError(f"{path}: no such log")
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    return AnyReader([path], default_typestore=store)
+def _ros2_name(name: str) -> str:
+    """A message type in ROS 2 form: ``sensor_msgs/Image`` -> ``sensor_msgs/msg/Image``."""
+    parts = name.split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
 
 
-def _open(path: Path):
-    reader = _reader(path)
-    try:
-        reader.open()
-    except Exception as exc:  # rosbags raises its own errors for every kind of damage
-        raise ValueError(f"{path}: not a readable ROS 1 bag, ROS 2 bag or MCAP file ({exc})") from None
-    return reader
+@dataclass(frozen=True)
+class LogMessage:
+    """One message of a log, not yet deserialised.
+
+    Attributes:
+        topic: Its topic.
+        msgtype: Its type, ROS 2 form (``sensor_msgs/msg/Image``).
+        index: Its number on the topic, from 0, in the order read.
+        log_ns: The log's receive time [ns].
+        data: The serialised message.
+        encoding: ``"cdr"`` (ROS 2) or ``"ros1"``.
+    """
+
+    topic: str
+    msgtype: str
+    index: int
+    log_ns: int
+    data: bytes
+    encoding: str
 
 
-def topics(path: str | Path) -> dict[str, tuple[str, int]]:
-    """{topic: (message type, message count)} of a log."""
-    reader = _open(Path(path))
-    try:
-        out: dict[str, tuple[str, int]] = {}
-        for c in reader.connections:
-            n = out.get(c.topic, (c.msgtype, 0))[1] + c.msgcount
+def _where(m: LogMessage) -> str:
+    return f"{m.topic} message {m.index} (log time {1e-9 * m.log_ns:.6f} s)"
+
+
+class RobotLog:
+    """An open log: its topics and a message stream that survives damage.
+
+    Use :func:`open_log`; as a context manager it closes the file.
+    """
+
+    path: Path
+
+    def topics(self) -> dict[str, tuple[str, int | None]]:
+        """{topic: (message type, message count or None where the log does not say)}."""
+        raise NotImplementedError
+
+    def messages(self, topics: Collection[str]) -> Iterator[LogMessage]:
+        """The messages of ``topics`` in the log's order; damage is skipped or ends the stream (warned)."""
+        raise NotImplementedError
+
+    def span(self) -> float | None:
+        """How long the log lasts on its receive clock [s], or None where it does not say."""
+        return None
+
+    def decode(self, m: LogMessage):
+        """The deserialised message, or None (with a warning naming it) if it does not deserialise."""
+        try:
+            return self._decode(m)
+        except Exception as exc:  # any damage: the message is skipped, the run goes on
+            log.warning("%s: %s does not deserialise (%s); skipped", self.path, _where(m), _short(exc))
+            return None
+
+    def _decode(self, m: LogMessage):
+        from rosbags.typesys import Stores, get_typestore
+
+        if m.encoding == "ros1":
+            return get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(m.data, m.msgtype)
+        return get_typestore(Stores.ROS2_HUMBLE).deserialize_cdr(m.data, m.msgtype)
+
+    def close(self) -> None:
+        """Release the file."""
+
+    def __enter__(self) -> RobotLog:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _ended(self, where: str, after: LogMessage | None, exc: Exception) -> None:
+        pos = f"after {_where(after)}" if after is not None else "before its first message"
+        log.warning(
+            "%s: damaged %s (%s); reading ends there: everything read so far is used",
+            where, pos, _short(exc),
+        )  # fmt: skip
+
+
+def _short(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0][:200]}" if text else type(exc).__name__
+
+
+class _RosbagsLog(RobotLog):
+    """A log read with rosbags' AnyReader (ROS 1 bags; compressed ROS 2 bags)."""
+
+    def __init__(self, path: Path) -> None:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+
+        self.path = path
+        self._reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        try:
+            self._reader.open()
+        except Exception as exc:  # rosbags raises its own errors for every kind of damage
+            hint = (
+                "; if the recording was cut off, 'rosbag reindex' rebuilds its index"
+                if path.suffix == ".bag"
+                else ""
+            )
+            raise ValueError(
+                f"{path}: not a readable ROS 1 bag, ROS 2 bag or MCAP file ({_short(exc)}){hint}"
+            ) from None
+
+    def topics(self) -> dict[str, tuple[str, int | None]]:
+        out: dict[str, tuple[str, int | None]] = {}
+        for c in self._reader.connections:
+            n = (out.get(c.topic, (c.msgtype, 0))[1] or 0) + c.msgcount
             out[c.topic] = (c.msgtype, n)
         return out
-    finally:
-        reader.close()
+
+    def messages(self, topics: Collection[str]) -> Iterator[LogMessage]:
+        conns = [c for c in self._reader.connections if c.topic in topics]
+        if not conns:
+            return
+        it = self._reader.messages(connections=conns)
+        counts: dict[str, int] = {}
+        last = None
+        while True:
+            try:
+                conn, ns, raw = next(it)
+            except StopIteration:
+                return
+            except Exception as exc:  # a damaged chunk: the iterator is spent
+                self._ended(str(self.path), last, exc)
+                return
+            k = counts.get(conn.topic, 0)
+            counts[conn.topic] = k + 1
+            last = LogMessage(conn.topic, conn.msgtype, k, int(ns), bytes(raw), "rosbags")
+            yield last
+
+    def _decode(self, m: LogMessage):
+        return self._reader.deserialize(m.data, m.msgtype)
+
+    def span(self) -> float | None:
+        try:
+            return 1e-9 * (self._reader.end_time - self._reader.start_time)
+        except Exception:  # noqa: BLE001 - an empty or odd log: unknown
+            return None
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._reader.close()
+
+
+class _SqliteLog(RobotLog):
+    """A ROS 2 bag in SQLite storage, read row by row.
+
+    A damaged message row loses only itself; a damaged page of the table's b-tree, the rows
+    after it.
+    """
+
+    def __init__(self, path: Path, files: list[Path], counts: dict[str, int] | None = None) -> None:
+        self.path = path
+        self._files = files
+        self._meta_counts = counts or {}
+        self._dbs: list[sqlite3.Connection] = []
+        self._topics: dict[str, tuple[str, str]] = {}  # name -> (type, serialisation)
+        self._ids: list[dict[int, str]] = []
+        for f in files:
+            try:
+                db = sqlite3.connect(f"file:{f}?mode=ro", uri=True)
+                rows = db.execute("SELECT id, name, type, serialization_format FROM topics").fetchall()
+            except sqlite3.Error as exc:
+                raise ValueError(f"{f}: not a readable ROS 2 SQLite bag ({_short(exc)})") from None
+            self._dbs.append(db)
+            ids = {}
+            for tid, name, ty, ser in rows:
+                ids[int(tid)] = str(name)
+                self._topics.setdefault(str(name), (_ros2_name(str(ty)), str(ser)))
+            self._ids.append(ids)
+
+    def topics(self) -> dict[str, tuple[str, int | None]]:
+        counts: dict[str, int | None] = {}
+        for db, ids in zip(self._dbs, self._ids, strict=True):
+            try:
+                rows = db.execute("SELECT topic_id, count(*) FROM messages GROUP BY topic_id").fetchall()
+            except sqlite3.Error:  # damaged: the metadata's counts, or unknown
+                return {n: (ty, self._meta_counts.get(n)) for n, (ty, _) in self._topics.items()}
+            for tid, n in rows:
+                name = ids.get(int(tid))
+                if name is not None:
+                    counts[name] = (counts.get(name) or 0) + int(n)
+        return {n: (ty, counts.get(n, 0)) for n, (ty, _) in self._topics.items()}
+
+    def span(self) -> float | None:
+        lo, hi = math.inf, -math.inf
+        for db in self._dbs:
+            try:
+                a, b = db.execute("SELECT MIN(timestamp), MAX(timestamp) FROM messages").fetchone()
+            except sqlite3.Error:
+                return None
+            if a is not None:
+                lo, hi = min(lo, a), max(hi, b)
+        return 1e-9 * (hi - lo) if hi >= lo else None
+
+    def messages(self, topics: Collection[str]) -> Iterator[LogMessage]:
+        counts: dict[str, int] = {}
+        for f, db, ids in zip(self._files, self._dbs, self._ids, strict=True):
+            want = {tid for tid, name in ids.items() if name in topics}
+            if not want:
+                continue
+            rows: list[tuple[int, int, int]] = []  # (timestamp, id, topic id)
+            try:  # the table's b-tree, in row order; its damage ends the file here
+                for rid, tid, ts in db.execute("SELECT id, topic_id, timestamp FROM messages"):
+                    if tid in want:
+                        rows.append((int(ts), int(rid), int(tid)))
+            except sqlite3.Error as exc:
+                where = f"{f}, message row {rows[-1][1] + 1 if rows else 1}"
+                log.warning(
+                    "%s: damaged page (%s); the rows after it are lost: everything read so far is used",
+                    where, _short(exc),
+                )  # fmt: skip
+            rows.sort()
+            for ts, rid, tid in rows:
+                name = ids[tid]
+                k = counts.get(name, 0)
+                counts[name] = k + 1
+                try:
+                    (data,) = db.execute("SELECT data FROM messages WHERE id = ?", (rid,)).fetchone()
+                except (sqlite3.Error, TypeError) as exc:  # a damaged row: only it is lost
+                    log.warning(
+                        "%s: %s message %d (log time %.6f s, row %d) is damaged (%s); skipped",
+                        f, name, k, 1e-9 * ts, rid, _short(exc),
+                    )  # fmt: skip
+                    continue
+                ty, ser = self._topics[name]
+                yield LogMessage(name, ty, k, ts, bytes(data), "ros1" if ser == "ros1" else "cdr")
+
+    def close(self) -> None:
+        for db in self._dbs:
+            db.close()
+
+
+class _McapLog(RobotLog):
+    """MCAP files read record by record: a damaged chunk loses only itself, a truncation the rest."""
+
+    def __init__(self, path: Path, files: list[Path]) -> None:
+        self.path = path
+        self._files = files
+        for f in files:
+            try:
+                with open(f, "rb") as fh:
+                    head = fh.read(8)
+            except OSError as exc:
+                raise ValueError(f"{f}: not readable ({exc.strerror or exc})") from None
+            if head != b"\x89MCAP0\r\n":
+                raise ValueError(f"{f}: not an MCAP file (its first bytes are not MCAP's magic)")
+        self._topics: dict[str, tuple[str, int | None]] | None = None
+
+    def span(self) -> float | None:
+        from mcap.reader import make_reader
+
+        lo, hi = math.inf, -math.inf
+        for f in self._files:
+            try:
+                with open(f, "rb") as fh:
+                    st = make_reader(fh).get_summary().statistics
+                lo, hi = min(lo, st.message_start_time), max(hi, st.message_end_time)
+            except Exception:  # noqa: BLE001 - no or a damaged summary: unknown
+                return None
+        return 1e-9 * (hi - lo) if hi >= lo else None
+
+    def topics(self) -> dict[str, tuple[str, int | None]]:
+        if self._topics is None:
+            self._topics = {}
+            for f in self._files:
+                for name, (ty, n) in self._file_topics(f).items():
+                    old = self._topics.get(name, (ty, 0))[1]
+                    self._topics[name] = (ty, None if n is None or old is None else old + n)
+        return self._topics
+
+    def _file_topics(self, f: Path) -> dict[str, tuple[str, int | None]]:
+        """Topics from the summary; where it is damaged or missing (a cut-off recording), from the data."""
+        from mcap.reader import make_reader
+
+        try:
+            with open(f, "rb") as fh:
+                summary = make_reader(fh).get_summary()
+            if summary is not None and summary.statistics is not None:
+                counts = summary.statistics.channel_message_counts
+                out: dict[str, tuple[str, int | None]] = {}
+                for cid, ch in summary.channels.items():
+                    schema = summary.schemas.get(ch.schema_id)
+                    ty = _ros2_name(schema.name) if schema is not None else "?"
+                    out[ch.topic] = (ty, (out.get(ch.topic, (ty, 0))[1] or 0) + int(counts.get(cid, 0)))
+                return out
+        except Exception:  # noqa: S110 - a damaged summary: count in a pass over the data
+            pass
+        out = {}
+        for ch, _schema, _msg in self._records(f, quiet=True):
+            ty, n = out.get(ch[0], (ch[1], 0))
+            out[ch[0]] = (ty, (n or 0) + 1)
+        return out
+
+    def _records(self, f: Path, quiet: bool = False):
+        """((topic, type, encoding), None, Message) of each readable message of ``f``, in file order."""
+        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.stream_reader import StreamReader, breakup_chunk
+
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, tuple[str, str, str]] = {}
+        last: tuple | None = None
+
+        def handle(rec):
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                s = schemas.get(rec.schema_id)
+                channels[rec.id] = (
+                    rec.topic,
+                    _ros2_name(s.name) if s is not None else "?",
+                    rec.message_encoding,
+                )
+            elif isinstance(rec, Message) and rec.channel_id in channels:
+                return channels[rec.channel_id]
+            return None
+
+        with open(f, "rb") as fh:
+            reader = StreamReader(fh, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES)
+            it = iter(reader.records)
+            n_chunks = 0
+            while True:
+                try:
+                    rec = next(it)
+                except StopIteration:
+                    return
+                except Exception as exc:  # a cut-off recording or a damaged record header
+                    if not quiet:
+                        pos = (
+                            f"after {last[0][0]} message at log time {1e-9 * last[1].log_time:.6f} s"
+                            if last is not None else "before its first message"
+                        )  # fmt: skip
+                        log.warning(
+                            "%s: damaged or cut off at byte %d, %s (%s); reading ends there: everything "
+                            "read so far is used", f, fh.tell(), pos, _short(exc),
+                        )  # fmt: skip
+                    return
+                if isinstance(rec, Chunk):
+                    n_chunks += 1
+                    try:
+                        inner = breakup_chunk(rec, validate_crc=True)
+                    except Exception as exc:  # only this chunk is lost
+                        if not quiet:
+                            log.warning(
+                                "%s: chunk %d (log times %.6f to %.6f s) is damaged (%s); its messages are "
+                                "skipped", f, n_chunks, 1e-9 * rec.message_start_time,
+                                1e-9 * rec.message_end_time, _short(exc),
+                            )  # fmt: skip
+                        continue
+                    for r in inner:
+                        ch = handle(r)
+                        if ch is not None:
+                            last = (ch, r)
+                            yield ch, None, r
+                else:
+                    ch = handle(rec)
+                    if ch is not None:
+                        last = (ch, rec)
+                        yield ch, None, rec
+
+    def messages(self, topics: Collection[str]) -> Iterator[LogMessage]:
+        counts: dict[str, int] = {}
+        for f in self._files:
+            for (topic, ty, enc), _s, msg in self._records(f):
+                if topic not in topics:
+                    continue
+                k = counts.get(topic, 0)
+                counts[topic] = k + 1
+                yield LogMessage(
+                    topic, ty, k, int(msg.log_time), bytes(msg.data), "ros1" if enc == "ros1" else "cdr"
+                )
+
+
+def open_log(path: str | Path) -> RobotLog:
+    """Open a ROS 1 bag, a ROS 2 bag folder (or ``.db3`` file) or an MCAP file for reading.
+
+    Raises:
+        FileNotFoundError: No such log.
+        ValueError: Not a log, or one whose structure cannot be read at all (the message names
+            the file and what is wrong).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such log")
+    if p.is_file():
+        suffix = p.suffix.lower()
+        if suffix == ".mcap":
+            return _McapLog(p, [p])
+        if suffix == ".db3":
+            return _SqliteLog(p, [p])
+        return _RosbagsLog(p)
+    meta = p / "metadata.yaml"
+    info = _bag_metadata(meta)
+    if info is None:  # the metadata is damaged: the folder's storage files, in name order
+        dbs, mcaps = sorted(p.glob("*.db3")), sorted(p.glob("*.mcap"))
+        if not (dbs or mcaps):
+            raise ValueError(f"{meta}: not readable, and {p} holds no .db3 or .mcap files")
+        log.warning(
+            "%s: not readable; reading the folder's %s files in name order", meta, ".db3" if dbs else ".mcap"
+        )
+        return _SqliteLog(p, dbs) if dbs else _McapLog(p, mcaps)
+    storage, compression, files, counts = info
+    if compression:  # compressed bags: rosbags decompresses them
+        return _RosbagsLog(p)
+    paths = [p / f for f in files]
+    missing = [str(f) for f in paths if not f.is_file()]
+    if missing:
+        log.warning("%s: %s named by metadata.yaml missing; reading the rest", p, ", ".join(missing))
+        paths = [f for f in paths if f.is_file()]
+        if not paths:
+            raise ValueError(f"{p}: none of the storage files metadata.yaml names is there")
+    if storage == "sqlite3":
+        return _SqliteLog(p, paths, counts)
+    if storage == "mcap":
+        return _McapLog(p, paths)
+    raise ValueError(f"{meta}: storage {storage!r} is not sqlite3 or mcap")
+
+
+def _bag_metadata(meta: Path) -> tuple[str, str, list[str], dict[str, int]] | None:
+    """(storage, compression mode, relative files, {topic: count}) of a ROS 2 bag, or None if unreadable."""
+    import yaml
+
+    try:
+        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        storage = str(info["storage_identifier"])
+        files = [str(f) for f in info["relative_file_paths"]]
+        compression = str(info.get("compression_mode") or "")
+        counts = {
+            str(t["topic_metadata"]["name"]): int(t["message_count"])
+            for t in info.get("topics_with_message_count") or []
+        }
+    except Exception:  # noqa: S110 - any damage: the caller falls back to the folder's files
+        return None
+    return storage, compression, files, counts
+
+
+def topics(path: str | Path) -> dict[str, tuple[str, int | None]]:
+    """{topic: (message type, message count or None)} of a log."""
+    with open_log(path) as lg:
+        return lg.topics()
 
 
 def _pick(
-    path: Path, found: dict[str, tuple[str, int]], types: tuple[str, ...], topic: str | None, what: str
+    path: Path, found: dict[str, tuple[str, int | None]], types: tuple[str, ...], topic: str | None, what: str
 ) -> str:
     """The topic to read: ``topic`` if given and of ``types``, else the only one of ``types``."""
     fit = [t for t, (ty, _) in found.items() if ty in types]
@@ -91,11 +521,36 @@ def _pick(
     raise ValueError(f"{path}: {len(fit)} {what} topics {sorted(fit)}; choose one with --topic")
 
 
-def _stamp(msg, bag_ns: int) -> float:
-    """The header stamp [s], or the bag's time where the stamp is zero."""
-    st = msg.header.stamp
-    t = int(st.sec) + 1e-9 * int(st.nanosec)
-    return t if t > 0 else 1e-9 * bag_ns
+def _stamp(msg) -> float | None:
+    """The header stamp [s], or None where it is zero (or not there)."""
+    try:
+        st = msg.header.stamp
+        t = int(st.sec) + 1e-9 * int(st.nanosec)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return t if t > 0 else None
+
+
+# ---------------------------------------------------------------------------- images
+
+#: Encodings of ``sensor_msgs/Image`` read as they are: (sample type, channels).
+_LAYOUTS = {
+    "mono8": (np.uint8, 1), "8uc1": (np.uint8, 1), "mono16": (np.uint16, 1), "16uc1": (np.uint16, 1),
+    "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3), "8uc3": (np.uint8, 3),
+    "bgra8": (np.uint8, 4), "rgba8": (np.uint8, 4),
+}  # fmt: skip
+#: Bayer mosaics (ROS name -> OpenCV demosaicing code; OpenCV names the pattern from the second
+#: row's second pixel, ROS from the first row's first, as cv_bridge maps them).
+_BAYER = {
+    "bayer_rggb": cv2.COLOR_BayerBG2BGR, "bayer_bggr": cv2.COLOR_BayerRG2BGR,
+    "bayer_gbrg": cv2.COLOR_BayerGR2BGR, "bayer_grbg": cv2.COLOR_BayerGB2BGR,
+}  # fmt: skip
+#: Packed YUV 4:2:2 (two bytes a pixel): ROS's ``yuv422`` is UYVY.
+_YUV = {
+    "yuv422": cv2.COLOR_YUV2BGR_UYVY, "uyvy": cv2.COLOR_YUV2BGR_UYVY,
+    "yuv422_yuy2": cv2.COLOR_YUV2BGR_YUYV, "yuyv": cv2.COLOR_YUV2BGR_YUYV,
+}  # fmt: skip
+SUPPORTED_ENCODINGS = tuple(sorted([*_LAYOUTS, *(f"{b}{n}" for b in _BAYER for n in (8, 16)), *_YUV]))
 
 
 def decode_image(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
@@ -114,14 +569,18 @@ def decode_image(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
             return None, f"{img.shape[1]}x{img.shape[0]} px is beyond the image budget"
         return img, ""
     enc = str(msg.encoding).lower()
-    layouts = {
-        "mono8": (np.uint8, 1), "8uc1": (np.uint8, 1), "mono16": (np.uint16, 1), "16uc1": (np.uint16, 1),
-        "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3), "8uc3": (np.uint8, 3),
-        "bgra8": (np.uint8, 4), "rgba8": (np.uint8, 4),
-    }  # fmt: skip
-    if enc not in layouts:
-        return None, f"image encoding {msg.encoding!r} is not one of {sorted(layouts)}"
-    dtype, ch = layouts[enc]
+    bayer = next((b for b in _BAYER if enc in (f"{b}8", f"{b}16")), None)
+    if enc in _LAYOUTS:
+        dtype, ch = _LAYOUTS[enc]
+    elif bayer is not None:
+        dtype, ch = (np.uint16 if enc.endswith("16") else np.uint8), 1
+    elif enc in _YUV:
+        dtype, ch = np.uint8, 2
+    else:
+        return None, (
+            f"image encoding {msg.encoding!r} is not a camera image this package decodes "
+            f"(supported: {', '.join(SUPPORTED_ENCODINGS)})"
+        )
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     item = np.dtype(dtype).itemsize
     if w * h > MAX_MESSAGE_PIXELS or w <= 0 or h <= 0:
@@ -136,110 +595,244 @@ def decode_image(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     elif enc == "rgba8":
         img = cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA)
+    elif bayer is not None:
+        img = cv2.cvtColor(img, _BAYER[bayer])
+    elif enc in _YUV:
+        img = cv2.cvtColor(img, _YUV[enc])
     return img, ""
 
 
 @dataclass(frozen=True)
+class LogFrame:
+    """One image message of a log.
+
+    Attributes:
+        index: Its number on the topic, from 0.
+        stamp: Its header stamp [s] (the receive time where the stamp is zero).
+        recv: The log's receive time [s].
+        image: The image (BGR, BGRA or grey; 8 or 16 bits), or None.
+        why: Why there is no image ("" if there is one).
+    """
+
+    index: int
+    stamp: float
+    recv: float
+    image: np.ndarray | None
+    why: str
+
+
+@dataclass(frozen=True)
 class LogImages:
-    """An image topic of a log: its frames in time order (read lazily by :meth:`frames`).
+    """An image topic of a log: its frames in the log's order (read lazily by :meth:`frames`).
 
     Attributes:
         path: The log.
         topic: The image topic.
         msgtype: ``sensor_msgs/msg/Image`` or ``sensor_msgs/msg/CompressedImage``.
-        count: Messages on the topic.
+        count: Messages on the topic (None where the log does not say).
+        span: How long the log lasts on its receive clock [s] (None where it does not say).
     """
 
     path: Path
     topic: str
     msgtype: str
-    count: int
+    count: int | None
+    span: float | None = None
 
-    def frames(self) -> Iterator[tuple[float, np.ndarray | None, str]]:
-        """(time [s], image or None, why not) per message, in the order of the log."""
-        reader = _open(self.path)
-        try:
-            conns = [c for c in reader.connections if c.topic == self.topic]
-            for conn, bag_ns, raw in reader.messages(connections=conns):
-                try:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                except Exception as exc:  # a damaged message: flagged, the run goes on
-                    yield math.nan, None, f"message at {1e-9 * bag_ns:.6f} s does not deserialise ({exc})"
+    def frames(self) -> Iterator[LogFrame]:
+        """Every image message that deserialises (damaged ones are skipped with a warning)."""
+        with open_log(self.path) as lg:
+            for m in lg.messages([self.topic]):
+                msg = lg.decode(m)
+                if msg is None:
                     continue
-                img, why = decode_image(msg, conn.msgtype)
-                yield _stamp(msg, bag_ns), img, why
-        finally:
-            reader.close()
+                img, why = decode_image(msg, m.msgtype)
+                recv = 1e-9 * m.log_ns
+                stamp = _stamp(msg)
+                yield LogFrame(m.index, recv if stamp is None else stamp, recv, img, why)
 
 
 def log_images(path: str | Path, topic: str | None = None) -> LogImages:
     """The image topic ``topic`` of a log (default: its only image topic)."""
     p = Path(path)
-    found = topics(p)
-    name = _pick(p, found, IMAGE_TYPES, topic, "image")
-    return LogImages(p, name, found[name][0], found[name][1])
+    with open_log(p) as lg:
+        found = lg.topics()
+        name = _pick(p, found, IMAGE_TYPES, topic, "image")
+        return LogImages(p, name, found[name][0], found[name][1], lg.span())
+
+
+#: Distortion models of ``sensor_msgs/CameraInfo`` the pinhole camera holds, and their lengths.
+DISTORTION_MODELS = {"plumb_bob": (4, 5), "rational_polynomial": (8,)}
 
 
 def camera_info(path: str | Path, image_topic: str) -> dict | None:
-    """The first ``sensor_msgs/CameraInfo`` beside ``image_topic``, or None if the log has none.
+    """The first readable ``sensor_msgs/CameraInfo`` beside ``image_topic``, or None if the log has none.
 
     Beside: in the image topic's namespace, else the log's only one. Returned as
-    {"image_size": (w, h), "K": (3, 3), "distortion": (5,), "topic": name}.
+    {"image_size": (w, h), "K": (3, 3), "distortion": (5,) or (8,), "topic": name}. Damaged
+    messages are skipped (with a warning).
+
+    Raises:
+        ValueError: The CameraInfo holds a distortion model the pinhole camera does not model
+            (named), coefficients of the wrong number, or an impossible K; the message names the
+            log and the topic.
     """
     p = Path(path)
-    found = topics(p)
-    infos = [t for t, (ty, _) in found.items() if ty == CAMERA_INFO_TYPE]
-    ns = image_topic.rsplit("/", 1)[0]
-    near = [t for t in infos if t.rsplit("/", 1)[0] == ns]
-    pick = near[0] if near else (infos[0] if len(infos) == 1 else None)
-    if pick is None:
-        return None
-    reader = _open(p)
-    try:
-        conns = [c for c in reader.connections if c.topic == pick]
-        for conn, _, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
-            k_, d_ = (msg.k, msg.d) if hasattr(msg, "k") else (msg.K, msg.D)  # ROS 2, ROS 1 names
-            K = np.asarray(k_, dtype=np.float64).reshape(3, 3)
-            d = np.zeros(5)
-            dist = np.asarray(d_, dtype=np.float64)
-            if str(msg.distortion_model) not in ("plumb_bob", "rational_polynomial", "") and dist.any():
-                raise ValueError(f"{p}: {pick}: distortion model {msg.distortion_model!r}; use plumb_bob")
-            d[: min(5, dist.size)] = dist[:5]
+    with open_log(p) as lg:
+        found = lg.topics()
+        infos = [t for t, (ty, _) in found.items() if ty == CAMERA_INFO_TYPE]
+        ns = image_topic.rsplit("/", 1)[0]
+        near = [t for t in infos if t.rsplit("/", 1)[0] == ns]
+        pick = near[0] if near else (infos[0] if len(infos) == 1 else None)
+        if pick is None:
+            return None
+        for m in lg.messages([pick]):
+            msg = lg.decode(m)
+            if msg is None:
+                continue
+            where = f"{p}: {pick} (message {m.index})"
+            try:
+                k_, d_ = (msg.k, msg.d) if hasattr(msg, "k") else (msg.K, msg.D)  # ROS 2, ROS 1 names
+                K = np.asarray(k_, dtype=np.float64).reshape(3, 3)
+                dist = np.asarray(d_, dtype=np.float64).ravel()
+                size = (int(msg.width), int(msg.height))
+            except (AttributeError, TypeError, ValueError) as exc:
+                raise ValueError(f"{where}: not a usable CameraInfo ({_short(exc)})") from None
+            if not np.all(np.isfinite(dist)):
+                raise ValueError(f"{where}: distortion {dist.tolist()} is not finite")
+            model = str(msg.distortion_model) or ("rational_polynomial" if dist.size == 8 else "plumb_bob")
+            nonzero = np.flatnonzero(dist)
+            used = int(nonzero[-1]) + 1 if nonzero.size else 0  # trailing zeros carry nothing
+            if used:
+                if model not in DISTORTION_MODELS:
+                    raise ValueError(
+                        f"{where}: distortion model {model!r} is not one the pinhole camera models "
+                        f"({', '.join(DISTORTION_MODELS)}); rectify the images, or give K and distortion "
+                        "in the calibration file"
+                    )
+                if used > max(DISTORTION_MODELS[model]):
+                    raise ValueError(
+                        f"{where}: {model} has {' or '.join(map(str, DISTORTION_MODELS[model]))} "
+                        f"coefficients, this CameraInfo {dist.size}: {dist.tolist()}"
+                    )
+            d = np.zeros(8 if used > 5 else 5)
+            d[:used] = dist[:used]
             if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
-                raise ValueError(f"{p}: {pick}: K {K.tolist()} has no positive focal lengths")
-            return {"image_size": (int(msg.width), int(msg.height)), "K": K, "distortion": d, "topic": pick}
-    finally:
-        reader.close()
+                raise ValueError(f"{where}: K {K.tolist()} has no positive focal lengths")
+            return {"image_size": size, "K": K, "distortion": d, "topic": pick, "where": where}
+    log.warning("%s: no readable CameraInfo on %s", p, pick)
     return None
 
 
 def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str]:
     """(N, 7) IMU samples of a log (t [s], gyro xyz [rad/s], accel xyz [m/s^2]) and the topic.
 
-    Samples with a non-finite value are left out (and counted in the log's warning).
+    Samples with a non-finite value, and damaged messages, are left out (with a warning).
     """
     p = Path(path)
-    found = topics(p)
-    name = _pick(p, found, (IMU_TYPE,), topic, "IMU")
-    reader = _open(p)
-    rows, bad = [], 0
-    try:
-        conns = [c for c in reader.connections if c.topic == name]
-        for conn, bag_ns, raw in reader.messages(connections=conns):
-            m = reader.deserialize(raw, conn.msgtype)
-            w, a = m.angular_velocity, m.linear_acceleration
-            row = [_stamp(m, bag_ns), w.x, w.y, w.z, a.x, a.y, a.z]
+    with open_log(p) as lg:
+        name = _pick(p, lg.topics(), (IMU_TYPE,), topic, "IMU")
+        rows, bad = [], 0
+        for m in lg.messages([name]):
+            msg = lg.decode(m)
+            if msg is None:
+                continue
+            try:
+                w, a = msg.angular_velocity, msg.linear_acceleration
+                stamp = _stamp(msg)
+                row = [1e-9 * m.log_ns if stamp is None else stamp, w.x, w.y, w.z, a.x, a.y, a.z]
+                row = [float(v) for v in row]
+            except (AttributeError, TypeError, ValueError):
+                bad += 1
+                continue
             if all(math.isfinite(v) for v in row):
                 rows.append(row)
             else:
                 bad += 1
-    finally:
-        reader.close()
     if bad:
         log.warning("%s: %s: %d IMU samples with non-finite values left out", p, name, bad)
     data = np.array(rows, dtype=np.float64).reshape(-1, 7)
     return data[np.argsort(data[:, 0], kind="stable")], name
+
+
+# ---------------------------------------------------------------------------- clocks
+
+#: Largest difference between a frame's header-stamp step and its receive-time step [s]
+#: before the stamp is flagged (transport and recording delays stay well below it).
+STAMP_TOLERANCE = 0.5
+#: Largest forward step of the stamps where the receive clock stands still (a log whose
+#: receive times were all written at once) [s].
+MAX_BLIND_STEP = 5.0
+
+
+class StampClock:
+    """Frame times from header stamps, with the log's receive times as the witness.
+
+    A frame is accepted when its stamp moves forward from the last accepted frame's by what the
+    receive time moved, within ``tolerance``. Otherwise (a stamp that goes backward, jumps, or
+    disagrees with the receive time) it is flagged: its time is then estimated on the receive
+    clock, and the caller makes the pairs touching it invalid. A flagged frame whose successor
+    agrees with it is the start of a new clock segment (a clock that jumped and stayed): the
+    stamps from then on are shifted onto the first segment's time line, so time keeps running
+    forward and no frame after the jump is lost.
+
+    Args:
+        tolerance: See :data:`STAMP_TOLERANCE` [s].
+    """
+
+    def __init__(self, tolerance: float = STAMP_TOLERANCE) -> None:
+        if not (math.isfinite(tolerance) and tolerance > 0):
+            raise ValueError(f"tolerance: {tolerance!r} s; give a positive time")
+        self.tolerance = tolerance
+        self._last: tuple[float, float, float] | None = None  # stamp, receive, time of the last accepted
+        self._cand: tuple[float, float] | None = None  # stamp, receive of a flagged frame
+        self.shift = 0.0  # added to the current segment's stamps [s]
+        self.jumps = 0
+
+    def _agrees(self, ds: float, dr: float) -> bool:
+        if dr <= 0:  # the receive clock stood still: no witness
+            return 0 < ds <= MAX_BLIND_STEP
+        return ds > 0 and abs(ds - dr) <= self.tolerance
+
+    def place(self, stamp: float, recv: float) -> tuple[float, str]:
+        """(time [s], "") of an accepted frame, or (estimated time or NaN, why it is flagged).
+
+        Args:
+            stamp: The frame's header stamp [s].
+            recv: Its receive time [s].
+        """
+        if not (math.isfinite(stamp) and math.isfinite(recv)):
+            return math.nan, f"stamp {stamp!r} s or receive time {recv!r} s is not a finite time"
+        if self._last is None:
+            self._last = (stamp, recv, stamp)
+            return stamp, ""
+        s0, r0, t0 = self._last
+        ds, dr = stamp - s0, recv - r0
+        if self._agrees(ds, dr):
+            t = stamp + self.shift
+            self._last, self._cand = (stamp, recv, t), None
+            return t, ""
+        if self._cand is not None and self._agrees(stamp - self._cand[0], recv - self._cand[1]):
+            cs, cr = self._cand  # the flagged frame began a new clock: its time on the receive clock
+            old = self.shift
+            self.shift = t0 + (cr - r0) - cs
+            self.jumps += 1
+            log.warning(
+                "header clock jumped by %+.3f s (stamp %.6f s); the stamps from there on are shifted by "
+                "%+.3f s onto the log's time line", cs - (s0 + (cr - r0)), cs, self.shift - old,
+            )  # fmt: skip
+            t = stamp + self.shift
+            self._last, self._cand = (stamp, recv, t), None
+            return t, ""
+        self._cand = (stamp, recv)
+        if ds <= 0:
+            why = f"header stamp {stamp:.6f} s goes back {-ds:.3f} s from the last good frame's"
+        else:
+            why = (
+                f"header stamp steps {ds:.3f} s where the receive time steps {dr:.3f} s (tolerance "
+                f"{self.tolerance:g} s)"
+            )
+        return (t0 + dr if dr > 0 else math.nan), why
 
 
 # ---------------------------------------------------------------------------- writing
@@ -248,10 +841,12 @@ def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str
 class McapWriter:
     """A ROS 2 MCAP file of ``nav_msgs/Odometry`` and ``sensor_msgs/JointState`` messages.
 
-    Use as a context manager; :meth:`odometry` and :meth:`joints` add one message each.
+    Use as a context manager; :meth:`odometry` and :meth:`joints` add one message each. The
+    file is written in a temporary folder beside ``path`` that this writer creates, and moved
+    to ``path`` when it closes without an error; nothing else is touched.
 
     Args:
-        path: The ``.mcap`` file to write (replaced if it exists).
+        path: The ``.mcap`` file to write (replaced at close if it exists).
         frame_id: The odometry's fixed frame (``odom``).
         child_frame_id: The body frame (``base_link``).
     """
@@ -263,30 +858,32 @@ class McapWriter:
         self.path = Path(path)
         self.frame_id, self.child_frame_id = frame_id, child_frame_id
         self._store = get_typestore(Stores.ROS2_HUMBLE)
-        self._dir = self.path.with_suffix("")  # rosbags writes a bag folder; the .mcap is moved out
-        for old in (self._dir, self.path):
-            if old.is_dir():
-                import shutil
-
-                shutil.rmtree(old)
-            elif old.exists():
-                old.unlink()
-        self._writer = Writer(self._dir, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._tmp = Path(tempfile.mkdtemp(dir=self.path.parent, prefix=f".{self.path.name}."))
+        self._writer = Writer(self._tmp / "bag", version=9, storage_plugin=StoragePlugin.MCAP)
         self._conns: dict[str, object] = {}
         self.count = {"odometry": 0, "joints": 0}
 
     def __enter__(self) -> McapWriter:
-        self._writer.open()
+        try:
+            self._writer.open()
+        except Exception:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
         return self
 
-    def __exit__(self, *exc) -> None:
-        self._writer.close()
-        files = sorted(self._dir.glob("*.mcap"))
-        if files:
-            files[0].replace(self.path)
-        import shutil
-
-        shutil.rmtree(self._dir, ignore_errors=True)
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self._writer.close()
+            if exc_type is None:
+                files = sorted((self._tmp / "bag").glob("*.mcap"))
+                if not files:
+                    raise OSError(f"{self.path}: the MCAP writer produced no file")
+                files[0].replace(self.path)
+        except OSError as err:
+            if exc_type is None:
+                raise OSError(f"{self.path}: cannot write ({err.strerror or err})") from None
+        finally:
+            shutil.rmtree(self._tmp, ignore_errors=True)  # this writer's own folder
 
     def _conn(self, topic: str, msgtype: str):
         if topic not in self._conns:
@@ -355,4 +952,7 @@ class McapWriter:
     def _write(self, topic: str, msgtype: str, msg, t: float) -> None:
         conn = self._conn(topic, msgtype)
         data = self._store.serialize_cdr(msg, msgtype)
-        self._writer.write(conn, max(0, int(round(t * 1e9))), data)
+        try:
+            self._writer.write(conn, max(0, int(round(t * 1e9))), data)
+        except OSError as exc:
+            raise OSError(f"{self.path}: cannot write ({exc.strerror or exc})") from None

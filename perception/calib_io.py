@@ -13,8 +13,10 @@ from typing import Any
 import numpy as np
 import yaml
 
+from perception.validation import ConfigError, not_a_number
 
-class CalibrationError(ValueError):
+
+class CalibrationError(ConfigError):
     """A calibration file or value is missing, malformed or physically impossible."""
 
 
@@ -51,6 +53,9 @@ def as_array(value: Any, shape: tuple[int, ...], key: str, where: str = "") -> n
     A dimension of -1 in ``shape`` accepts any length.
     """
     prefix = f"{where}: " if where else ""
+    why = _not_numbers(value)
+    if why:
+        raise CalibrationError(f"{prefix}{key}: expected numbers, got {value!r} ({why})")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -61,6 +66,46 @@ def as_array(value: Any, shape: tuple[int, ...], key: str, where: str = "") -> n
         raise CalibrationError(f"{prefix}{key}: expected shape {want}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise CalibrationError(f"{prefix}{key}: contains NaN or infinite values")
+    return arr
+
+
+def _not_numbers(value: Any) -> str:
+    """Why ``value`` (a number or nested lists of them) holds something that is not a real number, or ""."""
+    if isinstance(value, np.ndarray):
+        return "" if value.dtype.kind in "iuf" else f"an array of {value.dtype}"
+    if isinstance(value, list | tuple):
+        for v in value:
+            why = _not_numbers(v)
+            if why:
+                return why
+        return ""
+    return not_a_number(value)
+
+
+#: Lengths of the distortion vectors the pinhole camera models: ROS's plumb_bob (4 or 5) and
+#: rational_polynomial (8), OpenCV's 5- and 8-coefficient models.
+DISTORTION_LENGTHS = (4, 5, 8)
+
+
+def check_distortion(value: Any, key: str = "distortion", where: str = "") -> np.ndarray:
+    """Validate a distortion vector: (k1, k2, p1, p2[, k3]) or (k1, k2, p1, p2, k3, k4, k5, k6).
+
+    Returns 5 coefficients (4 are padded with k3 = 0; 8 whose k4..k6 are zero are the plain
+    model) or 8. Other lengths (OpenCV's 12- and 14-coefficient thin-prism and tilt models)
+    are refused by name, never truncated.
+    """
+    prefix = f"{where}: " if where else ""
+    arr = as_array(value, (-1,), key, where)
+    if arr.size not in DISTORTION_LENGTHS:
+        raise CalibrationError(
+            f"{prefix}{key}: {arr.size} coefficients; give 5 (k1, k2, p1, p2, k3: plumb_bob) or 8 (k1, k2, "
+            "p1, p2, k3, k4, k5, k6: rational_polynomial). The 12- and 14-coefficient models (thin prism, "
+            "tilted sensor) are not modelled: rectify the images first"
+        )
+    if arr.size == 4:
+        arr = np.r_[arr, 0.0]
+    if arr.size == 8 and not np.any(arr[5:]):
+        arr = arr[:5]
     return arr
 
 

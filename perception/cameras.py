@@ -17,6 +17,7 @@ import numpy as np
 from perception.calib_io import (
     CalibrationError,
     as_array,
+    check_distortion,
     check_image_size,
     check_rigid,
     read_mapping,
@@ -45,11 +46,16 @@ GROUND_PLANE_MISSING = (
 
 @dataclass(frozen=True, eq=False)
 class PinholeCamera:
-    """Pinhole camera with OpenCV's radial-tangential distortion (k1, k2, p1, p2, k3).
+    """Pinhole camera with OpenCV's radial-tangential distortion, plain or rational.
+
+    The distortion is ROS's ``plumb_bob`` (k1, k2, p1, p2[, k3]) or ``rational_polynomial``
+    (k1, k2, p1, p2, k3, k4, k5, k6), OpenCV's 5- and 8-coefficient models: radial factor
+    (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6).
 
     Attributes:
         K: 3x3 intrinsic matrix [px].
-        distortion: (k1, k2, p1, p2, k3).
+        distortion: (k1, k2, p1, p2, k3) or (k1, k2, p1, p2, k3, k4, k5, k6); 4 given are
+            padded with k3 = 0.
         image_size: (W, H) [px].
         T_body_cam: 4x4 transform from the camera optical frame to the body frame [m].
         ground_plane: (a, b, c): the ground is z = a x + b y + c in the body frame [m]; None
@@ -73,7 +79,7 @@ class PinholeCamera:
             )
         if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
             raise CalibrationError("K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
-        dist = as_array(self.distortion, (5,), "distortion")
+        dist = check_distortion(self.distortion)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "distortion", dist)
         object.__setattr__(self, "image_size", (w, h))
@@ -142,10 +148,19 @@ class PinholeCamera:
         v = K[1, 1] * yd + K[1, 2]
         return np.stack([u, v], -1).reshape(*lead, 2)
 
+    def _radial(self, r2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The radial factor at r^2 and its derivative with respect to r^2."""
+        k1, k2, _, _, k3, k4, k5, k6 = np.r_[self.distortion, np.zeros(8 - len(self.distortion))]
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        dnum = k1 + r2 * (2 * k2 + 3 * r2 * k3)
+        dden = k4 + r2 * (2 * k5 + 3 * r2 * k6)
+        return num / den, (dnum * den - num * dden) / (den * den)
+
     def _distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        k1, k2, p1, p2, k3 = self.distortion
+        p1, p2 = self.distortion[2], self.distortion[3]
         r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        radial, _ = self._radial(r2)
         xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
         return xd, yd
@@ -163,13 +178,12 @@ class PinholeCamera:
         xd = (p[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
         x, y = xd.copy(), yd.copy()
         # Gauss-Newton on distort(x, y) = (xd, yd) with the analytic 2x2 Jacobian
-        k1, k2, p1, p2, k3 = self.distortion
+        p1, p2 = self.distortion[2], self.distortion[3]
         for _ in range(20):
             fx, fy = self._distort(x, y)
             ex, ey = fx - xd, fy - yd
-            r2 = x * x + y * y
-            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            drad = 2 * (k1 + r2 * (2 * k2 + 3 * r2 * k3))  # d(radial)/d(r2) * 2
+            radial, dr2 = self._radial(x * x + y * y)
+            drad = 2 * dr2  # d(radial)/d(r2) * 2
             jxx = radial + x * x * drad + 2 * p1 * y + 6 * p2 * x
             jxy = x * y * drad + 2 * p1 * x + 2 * p2 * y
             jyx = x * y * drad + 2 * p1 * x + 2 * p2 * y
@@ -265,7 +279,8 @@ class PinholeCamera:
     def load(cls, path: str | Path) -> PinholeCamera:
         """Read a downward-camera calibration YAML (docs/odometry.md).
 
-        Keys: ``image_size: [W, H]``, ``K`` (3x3), ``distortion: [k1, k2, p1, p2, k3]``,
+        Keys: ``image_size: [W, H]``, ``K`` (3x3), ``distortion: [k1, k2, p1, p2, k3]`` (or the
+        8 coefficients of the rational model, ``[k1, k2, p1, p2, k3, k4, k5, k6]``),
         ``T_body_cam`` (4x4, camera optical frame to body frame), optional ``ground_plane: [a, b, c]``.
 
         Raises:
@@ -276,7 +291,7 @@ class PinholeCamera:
         try:
             return cls(
                 K=as_array(d["K"], (3, 3), "K"),
-                distortion=as_array(d["distortion"], (5,), "distortion"),
+                distortion=check_distortion(d["distortion"]),
                 image_size=check_image_size(d["image_size"]),
                 T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),
                 ground_plane=d.get("ground_plane"),

@@ -234,3 +234,122 @@ def read_imu_csv(path) -> ImuLog:
     if not ok.all():
         log.warning("%s: %d rows with non-finite readings left out", p, int((~ok).sum()))
     return ImuLog(t[ok], a[ok, 1:4], a[ok, 4:7], dropped=int((~ok).sum()))
+
+
+#: Widest full-scale range of MEMS gyros (parts of +-4000 deg/s exist) [rad/s]: a reading beyond
+#: it is not in rad/s.
+GYRO_RANGE_MAX = math.radians(4000.0)
+#: Widest standstill gyro bias of the data sheets (the MPU-6050's zero-rate output, +-20 deg/s)
+#: [rad/s].
+GYRO_BIAS_MAX = math.radians(20.0)
+#: How far the standstill accelerometer's norm may be from gravity [m/s^2]: MEMS zero-g offsets
+#: and scale errors stay within 0.25 g. While driving (no standstill given) the median norm
+#: over the log may be 0.3 g from it.
+ACCEL_STILL_TOL = 0.25 * G
+ACCEL_DRIVE_TOL = 0.3 * G
+
+
+def _accel_hint(norm: float) -> str:
+    """The likely unit of an accelerometer whose gravity reads ``norm``."""
+    for scale, unit in ((1.0 / G, "g"), (1000.0, "mm/s^2"), (1000.0 / G, "mg"), (100.0, "cm/s^2")):
+        if abs(norm / scale - G) < 0.3 * G:
+            return f"; it looks like {unit}: multiply by {1 / scale:g} for m/s^2"
+    if norm < 0.3 * G:
+        return (
+            "; gravity is missing: give the specific force (what the part reads), not a linear acceleration"
+        )
+    return ""
+
+
+def check_imu_units(imu: ImuLog, name: str, still: float = 0.0) -> None:
+    """Refuse IMU samples whose numbers are not rad/s and m/s^2, suggesting the likely unit.
+
+    Checks: no gyro reading beyond the widest MEMS range (:data:`GYRO_RANGE_MAX`); over the
+    standstill of ``still`` seconds at the start (if > 0), a mean gyro rate within the widest
+    data-sheet bias (:data:`GYRO_BIAS_MAX`) and an accelerometer norm within
+    :data:`ACCEL_STILL_TOL` of gravity; without a standstill, a median accelerometer norm
+    within :data:`ACCEL_DRIVE_TOL` of it. An accelerometer that reads exactly zero throughout
+    (not recorded) passes with a warning.
+
+    Args:
+        imu: The samples (gyro [rad/s], accel [m/s^2] expected).
+        name: The file or topic, for the messages.
+        still: Seconds of standstill at the start of the log (0: none known).
+
+    Raises:
+        ValueError: A check failed; the message names ``name``, the number and the likely unit.
+    """
+    if not len(imu.t):
+        raise ValueError(f"{name}: no IMU samples")
+    peak = float(np.abs(imu.gyro).max())
+    if peak > GYRO_RANGE_MAX:
+        hint = "; it looks like deg/s: multiply by pi/180" if peak * math.pi / 180 <= GYRO_RANGE_MAX else ""
+        raise ValueError(
+            f"{name}: a gyro reading of {peak:.4g} is beyond any gyro's range ({GYRO_RANGE_MAX:.1f} rad/s = "
+            f"4000 deg/s){hint}; give rad/s"
+        )
+    norms = np.linalg.norm(imu.accel, axis=1)
+    recorded = bool(np.any(imu.accel != 0))
+    if not recorded:
+        log.warning(
+            "%s: the accelerometer reads exactly zero throughout (not recorded?); only the gyro is used", name
+        )
+    if still > 0:
+        m = imu.t <= imu.t[0] + still
+        bias = imu.gyro[m].mean(axis=0)
+        b = float(np.linalg.norm(bias))
+        if b > GYRO_BIAS_MAX:
+            deg = b * math.pi / 180 <= GYRO_BIAS_MAX
+            hint = "it looks like deg/s (multiply by pi/180)" if deg else "check the units (rad/s)"
+            raise ValueError(
+                f"{name}: over the first {still:g} s (the standstill) the gyro reads {b:.4g} rad/s, beyond "
+                f"any data sheet's bias ({GYRO_BIAS_MAX:.2f} rad/s = 20 deg/s): {hint}, and that the rover "
+                "stands still then"
+            )
+        f = float(np.linalg.norm(imu.accel[m].mean(axis=0)))
+        if recorded and abs(f - G) > ACCEL_STILL_TOL:
+            raise ValueError(
+                f"{name}: at the standstill the accelerometer reads {f:.4g}, not gravity ({G} m/s^2 within "
+                f"{ACCEL_STILL_TOL:.1f}){_accel_hint(f)}"
+            )
+    elif recorded:
+        f = float(np.median(norms))
+        if abs(f - G) > ACCEL_DRIVE_TOL:
+            raise ValueError(
+                f"{name}: the accelerometer's median norm is {f:.4g}, not gravity ({G} m/s^2 within "
+                f"{ACCEL_DRIVE_TOL:.1f}){_accel_hint(f)}"
+            )
+
+
+def check_gyro_against_odometry(gyro_z, omega, name: str) -> None:
+    """Refuse a gyro whose yaw rate is not the odometry's in scale (units, axis or mount).
+
+    Fits gyro_z = s * omega + b over the pairs where both are known. With enough turning
+    (omega spread over 0.05 rad/s, at least 10 pairs) the scale s must lie in [0.5, 2]: a
+    gyro in deg/s reads 57 times the odometry's rate, one about another axis near 0, one
+    mounted upside down -1.
+
+    Args:
+        gyro_z: (n,) the gyro's body-z rate per pair, bias not removed [rad/s].
+        omega: (n,) the odometry's yaw rate per pair (NaN where invalid) [rad/s].
+        name: The IMU file or topic, for the message.
+
+    Raises:
+        ValueError: The scale is outside [0.5, 2]; the message gives it and the likely cause.
+    """
+    g, w = np.asarray(gyro_z, dtype=np.float64), np.asarray(omega, dtype=np.float64)
+    ok = np.isfinite(g) & np.isfinite(w)
+    if ok.sum() < 10 or float(np.std(w[ok])) < 0.05:
+        return
+    s, _b = np.polyfit(w[ok], g[ok], 1)
+    if 0.5 <= s <= 2.0:
+        return
+    if abs(s * math.pi / 180 - 1) < 0.3:
+        cause = "it looks like deg/s: multiply the gyro by pi/180"
+    elif abs(s + 1) < 0.3:
+        cause = "the IMU's z axis points down: give its mount with --imu-rpy (e.g. 180 0 0)"
+    elif abs(s) < 0.5:
+        cause = "the yaw is about another of the IMU's axes: give its mount with --imu-rpy"
+    else:
+        cause = "check the gyro's units (rad/s) and the mount (--imu-rpy)"
+    raise ValueError(f"{name}: the gyro's yaw rate is {s:.3g} times the odometry's; {cause}")

@@ -25,6 +25,7 @@ from perception.drive_geometry import (
     axle_steering_angles,
     wheel_steering_angles,
 )
+from perception.validation import real_number
 
 PLATE = {"F": ("A1", "A2"), "R": ("C1", "C2")}
 ROD = {"F": ("B1", "B2"), "R": ("D1", "D2")}
@@ -241,7 +242,7 @@ class RoverKinematicModel:
         """Read a model written by :meth:`save` (every key required; unknown keys are errors)."""
         d = read_mapping(path, set(cls._KEYS), set())
         try:
-            kw = {k: float(d[k]) for k in cls._KEYS - {"arm_tip", "T_body_cam"}}
+            kw = {k: real_number(k, d[k]) for k in cls._KEYS - {"arm_tip", "T_body_cam"}}
             return cls(
                 arm_tip=tuple(as_array(d["arm_tip"], (3,), "arm_tip")),
                 T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),

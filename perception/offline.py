@@ -1,20 +1,31 @@
-"""Odometry on a folder of images from a real (or simulated) downward camera.
+"""Odometry and kinematics on robot logs: folders of images, ROS 1 and 2 bags, MCAP files.
 
-``run_folder_odometry`` reads the images in name order, runs :class:`FlowOdometry` in chained mode
-at a fixed frame rate, and writes ``odometry.csv`` (one row per frame pair: t, v_x, v_y, omega,
-quality, valid, inliers, reason) and ``trajectory.tum`` (the integrated planar pose). With an
-IMU CSV beside the images it also reports the gyro's yaw rate per pair (``omega_imu``) and the
-path with that yaw (``trajectory_imu.tum``): both yaw sources of the odometry paper's Table I.
+``run_folder_odometry`` runs :class:`FlowOdometry` in chained mode over a downward camera's
+frames and writes ``odometry.csv`` (one row per frame after the first: t, v_x, v_y, omega,
+quality, valid, inliers, reason), ``trajectory.tum`` (the integrated planar pose) and
+``odometry.mcap``. With an IMU it also reports the gyro's yaw rate per pair (``omega_imu``)
+and the path with that yaw (``trajectory_imu.tum``): both yaw sources of the odometry paper's
+Table I. ``run_folder_kinematics`` runs the fisheye kinematics estimator and writes
+``kinematics.csv`` and ``kinematics.mcap``.
+
+Both treat a log as a stream that can be damaged or glitched (docs/logs.md): frame times come
+from the header stamps checked against the receive times (:class:`perception.bags.StampClock`);
+a bad frame becomes an invalid row with the reason and the frames after it are kept; outputs
+go through :class:`perception.outputs.OutputFolder` (staged files, one commit, nothing of the
+user's removed).
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import csv
 import dataclasses
+import itertools
 import logging
 import math
-from collections.abc import Callable
+import re
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,18 +33,26 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from perception.bags import LogFrame, StampClock
 from perception.cameras import OmniCamera, PinholeCamera
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
-from perception.inertial import read_imu_csv
+from perception.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
 from perception.kinematics import RoverKinematicModel
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
-from perception.trajectory import write_planar_tum
+from perception.outputs import OutputFolder
+from perception.trajectory import format_planar_tum
 from perception.validation import image_file_size
 
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+ODOMETRY_PRODUCTS = ("odometry.csv", "trajectory.tum", "trajectory_imu.tum", "odometry.mcap")
+KINEMATICS_PRODUCTS = ("kinematics.csv", "kinematics.mcap")
+
+
+class NothingValidError(ValueError):
+    """A run read its input but produced no valid estimate; its files say why, row by row."""
 
 
 @dataclass(frozen=True)
@@ -41,8 +60,8 @@ class FolderOdometryResult:
     """Summary of :func:`run_folder_odometry`.
 
     Attributes:
-        frames: Images found.
-        pairs: Frame pairs estimated.
+        frames: Frames read.
+        pairs: Rows written (one per frame after the first that could be placed in time).
         valid: Pairs with a valid estimate.
         distance: Length of the integrated path [m].
         csv_path: The per-pair CSV.
@@ -50,6 +69,7 @@ class FolderOdometryResult:
         tum_imu_path: The trajectory with the gyro's yaw (None without an IMU log).
         imu_bias: The gyro's body-z bias taken out [rad/s] (None without an IMU log).
         mcap_path: ``odometry.mcap`` (None when not written).
+        reasons: {reason: count} of the invalid rows (frame numbers left out).
     """
 
     frames: int
@@ -61,6 +81,7 @@ class FolderOdometryResult:
     tum_imu_path: Path | None = None
     imu_bias: float | None = None
     mcap_path: Path | None = None
+    reasons: dict = dataclasses.field(default_factory=dict)
 
 
 def list_images(folder: str | Path) -> list[Path]:
@@ -156,6 +177,90 @@ def _open_run(images, fps: float | None, image_size: tuple[int, int]) -> list[Pa
     return files
 
 
+def _cell(text: str) -> str:
+    """A reason as one CSV cell that naive comma splitting reads too (no commas, one line)."""
+    return " ".join(str(text).replace(",", ";").split())
+
+
+def _reason_key(reason: str) -> str:
+    """A reason without its frame number or numbers, for counting alike reasons."""
+    text = re.sub(r"^frame \d+: ", "", reason)
+    return re.sub(r"-?\d+(\.\d+)?(e[-+]?\d+)?", "#", text)
+
+
+def _summary(reasons: collections.Counter) -> str:
+    """The most common reason of a run's invalid rows, and how often."""
+    if not reasons:
+        return "no frame pair"
+    (key, n), *_ = reasons.most_common(1)
+    return f"{key} ({n} times)"
+
+
+@dataclass
+class _Source:
+    """A run's frames: LogFrames of a log (stamps checked by a clock) or of an image folder."""
+
+    frames: Iterator[LogFrame]
+    count: int | None
+    clock: StampClock | None
+    span: tuple[float, float] | None  # the images' time span, where known [s]
+    inputs: tuple
+
+
+def _log_source(src, images) -> _Source:
+    """The frames of a log's image topic, their stamps checked by a :class:`StampClock`."""
+    frames = src.frames()
+    first = next(frames, None)
+    if first is None:
+        raise ValueError(f"{images}: no readable message on {src.topic}")
+    span = None if src.span is None else (first.stamp, first.stamp + src.span)
+    return _Source(itertools.chain([first], frames), src.count, StampClock(), span, (images,))
+
+
+def _folder_source(images, fps, size: tuple[int, int], colour: bool = False) -> _Source:
+    """The frames of an image folder at ``fps`` (``colour``: 8-bit BGR, for the fisheye)."""
+    files = _open_run(images, fps, size)
+    span = (0.0, (len(files) - 1) / fps)
+    return _Source(_folder_frames(files, fps, size, colour), len(files), None, span, (images,))
+
+
+def _folder_frames(files: list[Path], fps: float, size: tuple[int, int], colour: bool) -> Iterator[LogFrame]:
+    """The frames of an image folder at ``fps``: frame k at k / fps [s]."""
+    if colour:
+        for k, path in enumerate(files):
+            yield LogFrame(k, k / fps, math.nan, *read_frame(path, size, cv2.IMREAD_COLOR))
+        return
+    bits = _log_bit_depth(files, size)
+    for k, path in enumerate(files):
+        img, reason = read_frame(path, size)  # size checked before decoding
+        if img is not None and img.dtype != np.uint8:
+            img = to_8bit(img, max(bits, 10))
+        yield LogFrame(k, k / fps, math.nan, img, reason)
+
+
+class _Timeline:
+    """Each frame's time and whether it is usable, in the order read; rows stay in time order."""
+
+    def __init__(self, clock: StampClock | None) -> None:
+        self.clock = clock
+        self.t_last = -math.inf  # the last row's (or first frame's) time
+
+    def place(self, k: int, frame: LogFrame) -> tuple[float, str]:
+        """(time [s] or NaN, "" or why the frame is flagged) of frame ``k``."""
+        if self.clock is not None:
+            t, why = self.clock.place(frame.stamp, frame.recv)
+        else:
+            t, why = frame.stamp, ""
+        if why:
+            why = f"frame {k}: {why}"
+        elif not t > self.t_last:
+            why = f"frame {k}: time {t!r} s does not follow the last frame's {self.t_last!r} s"
+            t = math.nan
+        if not (math.isfinite(t) and t > self.t_last):
+            t = math.nan
+        return t, why
+
+
 def run_folder_odometry(
     images: str | Path,
     calibration: str | Path | PinholeCamera,
@@ -169,6 +274,7 @@ def run_folder_odometry(
     topic: str | None = None,
     imu_topic: str | None = None,
     mcap: bool = True,
+    overwrite: bool = False,
 ) -> FolderOdometryResult:
     """Chained optical-flow odometry over a folder of downward-camera images or a robot log.
 
@@ -179,8 +285,9 @@ def run_folder_odometry(
             a log with a ``CameraInfo`` beside the images, the YAML's intrinsics (``image_size``,
             ``K``, ``distortion``) may be left out: the log's fill them.
         fps: Frame rate of the images [Hz] (image folders only; ignored for logs).
-        out: Output folder (created): ``odometry.csv``, ``trajectory.tum`` and, with ``mcap``,
-            ``odometry.mcap`` (one ``nav_msgs/Odometry`` per estimate).
+        out: Output folder (:class:`perception.outputs.OutputFolder`): ``odometry.csv``,
+            ``trajectory.tum`` and, with ``mcap``, ``odometry.mcap`` (one ``nav_msgs/Odometry``
+            per estimate). Written only when the run succeeds; a user's files there stay.
         config: Estimator parameters.
         progress: Called with the finished share (0..1).
         imu: An IMU CSV (:func:`perception.inertial.read_imu_csv`; times on the images' clock,
@@ -192,132 +299,199 @@ def run_folder_odometry(
         topic: The log's image topic (default: its only image topic).
         imu_topic: Read the IMU from this topic of the log instead of a CSV.
         mcap: Also write ``odometry.mcap``.
+        overwrite: Replace the results of an earlier run in ``out``.
 
     Raises:
         FileNotFoundError: Missing folder or log, or no images.
         CalibrationError: Missing or malformed calibration (the message names the key).
-        ValueError: A bad frame rate, a first image whose size differs from the calibration, or
-            a log without the topic.
+        ValueError: A bad frame rate, a first image whose size differs from the calibration, a
+            log without the topic, IMU data in other units or on another clock, an ``out``
+            that holds the input or earlier results (without ``overwrite``).
+        NothingValidError: No pair gave a valid estimate (the files are written; their rows
+            say why).
 
-    Unreadable images, later images of another size and frames whose time does not follow the
-    last one's do not stop the run: their rows are marked invalid with the reason, and the chain
-    restarts at the next good image.
+    Unreadable images, images of another size and frames whose stamp is flagged
+    (:class:`perception.bags.StampClock`) do not stop the run: the pairs touching them are
+    invalid rows with the reason, and the chain restarts at the next good frame.
     """
     from perception import bags
 
     is_log = bags.is_log(images)
     if is_log:
-        source = bags.log_images(images, topic)
-        camera = _log_camera(calibration, source)
-        n_frames = source.count
-        frames = source.frames()
+        src = bags.log_images(images, topic)
+        camera = _log_camera(calibration, src)
+        source = _log_source(src, images)
     else:
         camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
-        files = _open_run(images, fps, camera.image_size)
-        n_frames = len(files)
-        frames = _folder_frames(files, fps, camera.image_size)
-    odo = FlowOdometry(camera, config)
+        source = _folder_source(images, fps, camera.image_size)
+    imu_in = _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, source.span)
+    inputs = (images, None if isinstance(calibration, PinholeCamera) else calibration, imu)
+    with OutputFolder(out, ODOMETRY_PRODUCTS, overwrite, inputs) as folder:
+        res = _odometry(source, camera, config, progress, imu_in, imu_still, imu or imu_topic, mcap, folder)
+    if not res.valid:
+        raise NothingValidError(
+            f"{images}: no valid estimate in {res.pairs} pairs of {res.frames} frames; most often: "
+            f"{_summary(collections.Counter(res.reasons))}. {res.csv_path} says why, row by row"
+        )
+    return res
+
+
+def _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, span) -> tuple | None:
+    """The IMU's log and mount row, checked (units, clock) before any image is processed."""
+    if imu is not None and imu_topic is not None:
+        raise ValueError("imu and imu_topic: give one IMU source")
     if imu_topic is not None:
+        from perception import bags
+
         if not is_log:
             raise ValueError("imu_topic: an IMU topic needs a log (bag or MCAP) as the image source")
         data, _ = bags.log_imu(images, imu_topic)
         imu_in = _imu_rows(data, imu_rpy, imu_still, f"{images}:{imu_topic}")
+        name = f"{images}:{imu_topic}"
+    elif imu is not None:
+        imu_in = _open_imu(imu, imu_rpy, imu_still)
+        name = str(imu)
     else:
-        imu_in = None if imu is None else _open_imu(imu, imu_rpy, imu_still)  # (log, mount z row)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+        return None
+    imu_log = imu_in[0]
+    check_imu_units(imu_log, name, imu_still)
+    if span is not None:
+        a, b = float(imu_log.t[0]), float(imu_log.t[-1])
+        if b < span[0] or a > span[1]:
+            raise ValueError(
+                f"{name}: the IMU's samples span {a:.3f} to {b:.3f} s, the images {span[0]:.3f} to "
+                f"{span[1]:.3f} s: no overlap; put the IMU's times on the images' clock"
+                + (" (t = 0 at the first image of a folder)" if not is_log else "")
+            )
+    return imu_in
+
+
+def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mcap, folder):
+    """The odometry loop and its files (staged in ``folder``, committed at the end)."""
+    odo = FlowOdometry(camera, config)
+    line = _Timeline(source.clock)
     rows, pair_start = [], []
     times, twists, covs = [], [], []
-    t_last = -math.inf
+    reasons: collections.Counter = collections.Counter()
     depth = None
-    for k, (t, img, reason) in enumerate(frames):
-        if img is not None and not reason and (img.shape[1], img.shape[0]) != camera.image_size:
+    chain = False  # a frame of the current chain has been given to the odometry
+    n = 0
+    bad_k = -1  # the last unusable frame
+
+    def invalid(t: float, reason: str) -> None:
+        rows.append([t, math.nan, math.nan, math.nan, 0.0, 0, 0, reason])
+        pair_start.append(line.t_last)
+        times.append(t)
+        twists.append(np.full(3, math.nan))
+        covs.append(None)
+        reasons[_reason_key(reason)] += 1
+        line.t_last = t
+
+    for k, frame in enumerate(source.frames):
+        n = k + 1
+        t, reason = line.place(k, frame)
+        img = frame.image
+        if not reason:
+            reason = f"frame {k}: {frame.why}" if frame.why else ""
+        if not reason and img is not None and (img.shape[1], img.shape[0]) != camera.image_size:
             reason = f"frame {k}: {img.shape[1]}x{img.shape[0]} px differs from the calibration"
-        if not reason and not t > t_last:
-            reason = f"frame {k}: time {t!r} s does not follow the last frame's {t_last!r} s"
-        if img is not None and not reason:
-            if img.ndim == 3:
-                img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-            if img.dtype != np.uint8:  # 16-bit containers: the log's depth (its first such frame's)
-                depth = depth or max(bit_depth(img), 10)
-                img = to_8bit(img, depth)
-        if reason or img is None:
-            reason = reason or f"frame {k}: no image"
-            log.warning("%s; the chain restarts at the next image", reason)
+        if not reason and img is None:
+            reason = f"frame {k}: no image"
+        if reason:
+            log.warning("%s; the chain restarts at the next good frame", reason)
             odo.reset()
-            if times and math.isfinite(t) and t > t_last:
-                rows.append([t, math.nan, math.nan, math.nan, 0.0, 0, 0, reason])
-                pair_start.append(t_last)
-                times.append(t)
-                twists.append(np.full(3, math.nan))
-                covs.append(None)
-                t_last = t
+            chain, bad_k = False, k
+            if times and math.isfinite(t):
+                invalid(t, reason)
+            elif not times:
+                reasons[_reason_key(reason)] += 1
             continue
+        if img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+        if img.dtype != np.uint8:  # 16-bit containers: the log's depth (its first such frame's)
+            depth = depth or max(bit_depth(img), 10)
+            img = to_8bit(img, depth)
         est = odo.update(img, t)
         if est is not None:
             rows.append(
                 [t, est.v_x, est.v_y, est.omega, est.quality, int(est.valid), est.n_inliers, est.reason]
             )
-            pair_start.append(t_last)
+            pair_start.append(line.t_last)
             times.append(t)
             twists.append(est.twist)
             covs.append(est.twist_cov if est.valid else None)
-        else:  # the first frame of a chain
-            if not times:
-                times.append(t)
-                twists.append(np.zeros(3))
-                covs.append(None)
-        t_last = t
-        if progress is not None:
-            progress(min(1.0, (k + 1) / max(n_frames, 1)))
+            if not est.valid:
+                reasons[_reason_key(est.reason)] += 1
+            line.t_last = t
+        elif not times:  # the very first frame: the path's origin
+            times.append(t)
+            twists.append(np.zeros(3))
+            covs.append(None)
+            line.t_last = t
+        elif chain is False:  # the first frame after a flagged one: its pair touches the flag
+            invalid(t, f"frame {k}: its pair begins at the unusable frame {bad_k}; the chain restarts here")
+        chain = True
+        if progress is not None and source.count:
+            progress(min(1.0, (k + 1) / source.count))
     if not times:
-        raise ValueError(f"{images}: no readable image of the calibration's size")
+        raise ValueError(
+            f"no usable frame in {n} frames; most often: {_summary(reasons)}" if n else "no frames to read"
+        )
     header = ["t", "v_x", "v_y", "omega", "quality", "valid", "inliers", "reason"]
-    extra = [[] for _ in rows]
+    extra: list[list] = [[] for _ in rows]
+    imu_error = None
+    w_imu = bias = None
     if imu_in is not None:  # the gyro's yaw rate per pair and its sample count
-        w_imu, counts, bias = _imu_yaw_rates(*imu_in, rows, pair_start, imu_still, imu or imu_topic)
-        header += ["omega_imu", "imu_samples"]
-        extra = [[f"{wi:.6f}", n] for wi, n in zip(w_imu, counts, strict=True)]
-    csv_path = out / "odometry.csv"
-    with open(csv_path, "w", newline="") as fh:
+        try:
+            w_imu, counts, bias = _imu_yaw_rates(*imu_in, rows, pair_start, imu_still, imu_name)
+            header += ["omega_imu", "imu_samples"]
+            extra = [[f"{wi:.6f}", c] for wi, c in zip(w_imu, counts, strict=True)]
+        except ValueError as exc:  # the odometry's own files are still written
+            imu_error = exc
+    n_valid = sum(r[5] for r in rows)
+    with folder.open("odometry.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for r, x in zip(rows, extra, strict=True):
-            w.writerow([f"{r[0]:.6f}", *(f"{v:.6f}" for v in r[1:5]), r[5], r[6], r[7], *x])
-    poses = integrate_twist(np.array(times), np.array(twists))
-    tum_path = write_planar_tum(out / "trajectory.tum", times, poses)
+            w.writerow([f"{r[0]:.6f}", *(f"{v:.6f}" for v in r[1:5]), r[5], r[6], _cell(r[7]), *x])
+    t_arr = np.array(times)
+    poses = integrate_twist(t_arr, np.array(twists))
+    folder.write_text("trajectory.tum", format_planar_tum(t_arr, poses))
     if mcap:
-        with bags.McapWriter(out / "odometry.mcap") as mw:
+        from perception import bags
+
+        with folder.writing("odometry.mcap") as tmp, bags.McapWriter(tmp) as mw:
             for t, pose, tw, cov in zip(times[1:], poses[1:], twists[1:], covs[1:], strict=True):
                 mw.odometry(t, pose, tw, cov)
+    tum_imu = None
+    if w_imu is not None:  # the same path with the gyro's yaw rate where it has samples
+        tw = np.array(twists, dtype=np.float64)
+        gyro_w = np.concatenate([[math.nan], w_imu])
+        tw[:, 2] = np.where(np.isfinite(gyro_w), gyro_w, tw[:, 2])
+        tum_imu = folder.write_text(
+            "trajectory_imu.tum", format_planar_tum(t_arr, integrate_twist(t_arr, tw))
+        )
+    folder.commit()
+    out = folder.path
     distance = float(np.sum(np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))))
-    n_valid = sum(r[5] for r in rows)
-    log.info("odometry: %d frames, %d of %d pairs valid, %.2f m", n_frames, n_valid, len(rows), distance)
-    result = FolderOdometryResult(n_frames, len(rows), n_valid, distance, csv_path, tum_path)
-    if mcap:
-        result = dataclasses.replace(result, mcap_path=out / "odometry.mcap")
-    if imu_in is None:
-        return result
-    # the same path with the gyro's yaw rate where it has samples (times[0] is the first frame)
-    tw = np.array(twists, dtype=np.float64)
-    gyro_w = np.concatenate([[math.nan], w_imu])
-    tw[:, 2] = np.where(np.isfinite(gyro_w), gyro_w, tw[:, 2])
-    tum_imu = write_planar_tum(out / "trajectory_imu.tum", times, integrate_twist(np.array(times), tw))
-    return dataclasses.replace(result, tum_imu_path=tum_imu, imu_bias=bias)
-
-
-def _folder_frames(files: list[Path], fps: float, size: tuple[int, int]):
-    """(t [s], image or None, why not) of each file of an image folder at ``fps``."""
-    bits = _log_bit_depth(files, size)
-    for k, path in enumerate(files):
-        img, reason = read_frame(path, size)  # size checked before decoding
-        if img is not None and img.dtype != np.uint8:
-            img = to_8bit(img, max(bits, 10))
-        yield k / fps, img, reason
+    log.info("odometry: %d frames, %d of %d pairs valid, %.2f m", n, n_valid, len(rows), distance)
+    if imu_error is not None:
+        raise ValueError(
+            f"{imu_error}. The odometry without the IMU is in {out} (odometry.csv, trajectory.tum"
+            f"{', odometry.mcap' if mcap else ''})"
+        )
+    return FolderOdometryResult(
+        n, len(rows), n_valid, distance, out / "odometry.csv", out / "trajectory.tum",
+        tum_imu_path=tum_imu, imu_bias=bias, mcap_path=out / "odometry.mcap" if mcap else None,
+        reasons=dict(reasons),
+    )  # fmt: skip
 
 
 def _log_camera(calibration, source) -> PinholeCamera:
-    """The downward camera for a log: the calibration, its missing intrinsics from the log's CameraInfo."""
+    """The downward camera for a log: the calibration, its missing intrinsics from the log's CameraInfo.
+
+    A CameraInfo the camera cannot use is blamed on the log and its topic, not the calibration.
+    """
     from perception import bags
     from perception.calib_io import CalibrationError, read_mapping
 
@@ -325,31 +499,40 @@ def _log_camera(calibration, source) -> PinholeCamera:
         return calibration
     intrinsics = {"image_size", "K", "distortion"}
     data = read_mapping(calibration, {"T_body_cam"}, intrinsics | {"ground_plane"})
-    info = bags.camera_info(source.path, source.topic)
     if intrinsics <= data.keys():
         cam = PinholeCamera.load(calibration)
+        try:
+            info = bags.camera_info(source.path, source.topic)
+        except ValueError as exc:  # not needed: the calibration has every intrinsic
+            log.warning("%s; the calibration's intrinsics are used", exc)
+            info = None
         if info is not None and tuple(info["image_size"]) != cam.image_size:
             log.warning("%s: CameraInfo says %s px, the calibration %s px; using the calibration",
                         info["topic"], info["image_size"], cam.image_size)  # fmt: skip
         return cam
+    info = bags.camera_info(source.path, source.topic)
     if info is None:
         missing = sorted(intrinsics - data.keys())
         raise CalibrationError(
-            f"{calibration}: missing {', '.join(missing)}, and {source.path} has no CameraInfo beside "
-            f"{source.topic} to fill them; add them to the calibration"
+            f"{calibration}: missing {', '.join(missing)}, and {source.path} has no readable CameraInfo "
+            f"beside {source.topic} to fill them; add them to the calibration"
         )
+    try:  # the log's intrinsics on their own: their faults are the log's
+        PinholeCamera(image_size=info["image_size"], K=info["K"], distortion=info["distortion"])
+    except (CalibrationError, TypeError, ValueError) as exc:
+        raise ValueError(f"{info['where']}: the CameraInfo's intrinsics are not usable ({exc})") from None
     log.info("intrinsics from %s (CameraInfo)", info["topic"])
     merged = {k: data.get(k, info[k]) for k in ("image_size", "K", "distortion")}
     try:
         return PinholeCamera(
-            image_size=tuple(int(v) for v in merged["image_size"]),
-            K=np.asarray(merged["K"], dtype=np.float64),
-            distortion=np.asarray(merged["distortion"], dtype=np.float64),
-            T_body_cam=np.asarray(data["T_body_cam"], dtype=np.float64),
+            image_size=merged["image_size"],
+            K=merged["K"],
+            distortion=merged["distortion"],
+            T_body_cam=data["T_body_cam"],
             ground_plane=data.get("ground_plane"),
         )
-    except (TypeError, ValueError) as exc:
-        raise CalibrationError(f"{calibration}: {exc}") from None
+    except (CalibrationError, TypeError, ValueError) as exc:
+        raise CalibrationError(f"{calibration} (with {info['topic']}'s intrinsics): {exc}") from None
 
 
 def _mount_z_row(imu_rpy, imu_still: float) -> np.ndarray:
@@ -370,8 +553,6 @@ def _open_imu(imu, imu_rpy, imu_still: float) -> tuple:
 
 def _imu_rows(data: np.ndarray, imu_rpy, imu_still: float, name: str) -> tuple:
     """An IMU topic's (N, 7) samples as the IMU log and the body-z row of its mount."""
-    from perception.inertial import ImuLog
-
     if len(data) < 2:
         raise ValueError(f"{name}: fewer than two IMU samples")
     keep = np.r_[True, np.diff(data[:, 0]) > 0]  # repeated stamps: the first of each
@@ -384,6 +565,8 @@ def _imu_rows(data: np.ndarray, imu_rpy, imu_still: float, name: str) -> tuple:
 
 def _imu_yaw_rates(imu_log, z_row, rows, pair_start, imu_still: float, name) -> tuple:
     """The gyro's body-z rate over each pair, less its bias: (rates, sample counts, bias) [rad/s]."""
+    from perception.inertial import GYRO_BIAS_MAX
+
     gyro_z = imu_log.gyro @ z_row
     raw = np.full(len(rows), math.nan)
     counts = np.zeros(len(rows), int)
@@ -394,14 +577,22 @@ def _imu_yaw_rates(imu_log, z_row, rows, pair_start, imu_still: float, name) -> 
             raw[k], counts[k] = gyro_z[i0:i1].mean(), i1 - i0
     if not np.isfinite(raw).any():
         raise ValueError(f"{name}: no IMU samples between the images' times; check the IMU's clock")
+    odo_w = np.array([r[3] if r[5] else math.nan for r in rows])
+    check_gyro_against_odometry(raw, odo_w, str(name))
     if imu_still > 0:
         bias = float(gyro_z[imu_log.t <= imu_log.t[0] + imu_still].mean())
     else:
-        diff = raw - np.array([r[3] if r[5] else math.nan for r in rows])
+        diff = raw - odo_w
         diff = diff[np.isfinite(diff)]
         if not len(diff):
             raise ValueError(f"{name}: no IMU samples during a valid frame pair; give imu_still for the bias")
         bias = float(np.median(diff))
+        if abs(bias) > GYRO_BIAS_MAX:
+            raise ValueError(
+                f"{name}: the gyro's yaw rate differs from the odometry's by {bias:.4g} rad/s, beyond any "
+                f"data sheet's bias ({GYRO_BIAS_MAX:.2f} rad/s = 20 deg/s); check its units (rad/s), its "
+                "clock and its mount (imu_rpy)"
+            )
     log.info("imu: %d samples (%d left out), body-z bias %.5f rad/s", len(imu_log.t), imu_log.dropped, bias)
     return raw - bias, counts, bias
 
@@ -411,15 +602,20 @@ class FolderKinematicsResult:
     """Summary of :func:`run_folder_kinematics`.
 
     Attributes:
-        frames: Images found.
+        frames: Rows written (frames that could be placed in time).
         all_valid: Frames on which all 10 degrees of freedom were measured.
         csv_path: The per-frame CSV.
+        mcap_path: ``kinematics.mcap`` (None when not written).
+        any_valid: Frames on which at least one degree of freedom was measured.
+        reasons: {note: count} of the frames with a note (frame numbers left out).
     """
 
     frames: int
     all_valid: int
     csv_path: Path
     mcap_path: Path | None = None
+    any_valid: int = 0
+    reasons: dict = dataclasses.field(default_factory=dict)
 
 
 def run_folder_kinematics(
@@ -433,6 +629,7 @@ def run_folder_kinematics(
     progress: Callable[[float], None] | None = None,
     topic: str | None = None,
     mcap: bool = True,
+    overwrite: bool = False,
 ) -> FolderKinematicsResult:
     """The fisheye kinematics estimator over a folder of fisheye images or a robot log.
 
@@ -443,26 +640,31 @@ def run_folder_kinematics(
         rover: Rover geometry YAML (:meth:`RoverKinematicModel.save`) or a model; its
             ``T_body_cam`` must be the camera's.
         fps: Frame rate of the images [Hz] (image folders only; ignored for logs).
-        out: Output folder (created); ``kinematics.csv`` gets one row per image: t, the 10
-            degrees of freedom (psi_F, psi_R [rad], d_F, d_R [m], lambda_F, lambda_R [rad],
-            theta FL..RR [rad]), the four wheel rates [rad/s], quality and a validity flag per
-            degree of freedom. With ``mcap``, ``kinematics.mcap`` holds one
-            ``sensor_msgs/JointState`` per image (NaN where a joint was not measured).
+        out: Output folder (:class:`perception.outputs.OutputFolder`); ``kinematics.csv`` gets
+            one row per image: t, the 10 degrees of freedom (psi_F, psi_R [rad], d_F, d_R [m],
+            lambda_F, lambda_R [rad], theta FL..RR [rad]), the four wheel rates [rad/s],
+            quality, a validity flag per degree of freedom and a note. With ``mcap``,
+            ``kinematics.mcap`` holds one ``sensor_msgs/JointState`` per image (NaN where a
+            joint was not measured).
         steering: Optional steering calibration (eq. 5 ratio map) YAML or object.
         config: Estimator parameters.
         progress: Called with the finished share (0..1).
         topic: The log's image topic (default: its only image topic).
         mcap: Also write ``kinematics.mcap``.
+        overwrite: Replace the results of an earlier run in ``out``.
 
     Raises:
         FileNotFoundError: Missing folder or log, or no images.
         CalibrationError: Missing or malformed calibration files (the message names the key).
         ValueError: A bad frame rate, a first image whose size differs from the calibration, a
-            log without the topic, or camera and rover files with different mounts.
+            log without the topic, camera and rover files with different mounts, or an ``out``
+            that holds the input or earlier results (without ``overwrite``).
+        NothingValidError: No frame gave any degree of freedom (the files are written; their
+            notes say why).
 
-    Unreadable images, images of another size and frames whose time does not follow the last
-    one's do not stop the run: the estimator carries its state over them with every flag down,
-    and the row says why.
+    Unreadable images, images of another size and frames whose stamp is flagged do not stop
+    the run: the estimator carries its state over them with every flag down, and the row says
+    why.
     """
     from perception import bags
 
@@ -473,47 +675,66 @@ def run_folder_kinematics(
         cal = SteeringCalibration.load(steering)
     est = KinematicStateEstimator(cam, model, config, cal)
     if bags.is_log(images):
-        source = bags.log_images(images, topic)
-        n_frames, frames = source.count, source.frames()
+        source = _log_source(bags.log_images(images, topic), images)
     else:
-        files = _open_run(images, fps, cam.image_size)
-        n_frames = len(files)
-        frames = (
-            (k / fps, *read_frame(path, cam.image_size, cv2.IMREAD_COLOR)) for k, path in enumerate(files)
+        source = _folder_source(images, fps, cam.image_size, colour=True)
+    inputs = [images] + [p for p in (camera, rover, steering) if isinstance(p, str | Path)]
+    with OutputFolder(out, KINEMATICS_PRODUCTS, overwrite, inputs) as folder:
+        res = _kinematics(source, cam, est, progress, mcap, folder)
+    if not res.any_valid:
+        raise NothingValidError(
+            f"{images}: no degree of freedom measured on any of {res.frames} frames; most often: "
+            f"{_summary(collections.Counter(res.reasons))}. {res.csv_path} says why, row by row"
         )
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "kinematics.csv"
-    n_all = n_rows = 0
-    t_last = -math.inf
-    mw = bags.McapWriter(out / "kinematics.mcap") if mcap else None
+    return res
+
+
+def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsResult:
+    from perception import bags
+
+    line = _Timeline(source.clock)
+    n_all = n_any = n_rows = 0
+    reasons: collections.Counter = collections.Counter()
     names = [*DOF_NAMES, *(f"wheel_{w}" for w in ("FL", "FR", "RL", "RR"))]
-    with open(csv_path, "w", newline="") as fh, mw if mw is not None else contextlib.nullcontext():
+    with contextlib.ExitStack() as stack:
+        fh = stack.enter_context(folder.open("kinematics.csv", "w", newline=""))
+        mw = None
+        if mcap:
+            tmp = stack.enter_context(folder.writing("kinematics.mcap"))
+            mw = stack.enter_context(bags.McapWriter(tmp))
         wr = csv.writer(fh)
         wr.writerow(
             ["t", *DOF_NAMES, "rate_FL", "rate_FR", "rate_RL", "rate_RR", "quality"]
             + [f"valid_{d}" for d in DOF_NAMES]
             + ["note"]
         )
-        for k, (t, bgr, note) in enumerate(frames):
+        for k, frame in enumerate(source.frames):
+            t, note = line.place(k, frame)
+            bgr = frame.image
+            if not note and frame.why:
+                note = f"frame {k}: {frame.why}"
             if not note and bgr is not None and (bgr.shape[1], bgr.shape[0]) != cam.image_size:
                 note = f"frame {k}: {bgr.shape[1]}x{bgr.shape[0]} px differs from the calibration"
-            if not (math.isfinite(t) and t > t_last):
-                log.warning("frame %d: time %r s does not follow the last frame's; left out", k, t)
+            if not math.isfinite(t):
+                log.warning("%s; no row: it cannot be placed in time", note)
+                reasons[_reason_key(note)] += 1
                 continue
-            t_last = t
-            if bgr is None or note:
-                rgb = np.zeros((0, 0, 3), np.uint8)  # the estimator flags it and carries on
-            elif bgr.ndim == 2 or bgr.dtype != np.uint8:
-                note = f"frame {k}: a colour 8-bit image is needed (got {bgr.dtype}, {bgr.ndim} axes)"
-                rgb = np.zeros((0, 0, 3), np.uint8)
-            else:
+            line.t_last = t
+            rgb = np.zeros((0, 0, 3), np.uint8)  # the estimator flags it and carries on
+            if not note and bgr is None:
+                note = f"frame {k}: no image"
+            elif not note and (bgr.ndim == 2 or bgr.dtype != np.uint8):
+                kind = "a grey" if bgr.ndim == 2 else f"a {bgr.dtype}"
+                note = f"frame {k}: {kind} image; the markers are found by colour: give 8-bit colour images"
+            elif not note:
                 rgb = cv2.cvtColor(bgr, cv2.COLOR_BGRA2RGB if bgr.shape[2] == 4 else cv2.COLOR_BGR2RGB)
             if note:
                 log.warning("%s; the state is carried over it", note)
+                reasons[_reason_key(note)] += 1
             s = est.update(rgb, t)
             n_rows += 1
             n_all += int(all(s.valid.values()))
+            n_any += int(any(s.valid.values()))
             dof = np.r_[s.psi, s.depth, s.lam, s.theta]
             wr.writerow(
                 [
@@ -523,14 +744,19 @@ def run_folder_kinematics(
                     f"{s.quality:.2f}",
                 ]
                 + [int(s.valid[d]) for d in DOF_NAMES]
-                + [note]
+                + [_cell(note)]
             )
             if mw is not None:
                 pos = np.where([s.valid[d] for d in DOF_NAMES], dof, math.nan)
                 vel = np.r_[np.full(len(DOF_NAMES), math.nan), s.theta_dot]
                 mw.joints(t, names, np.r_[pos, np.full(4, math.nan)], vel)
-            if progress is not None:
-                progress(min(1.0, (k + 1) / max(n_frames, 1)))
+            if progress is not None and source.count:
+                progress(min(1.0, (k + 1) / source.count))
+    if not n_rows:
+        raise ValueError(f"no usable frame; most often: {_summary(reasons)}")
+    folder.commit()
     log.info("kinematics: %d frames, all 10 DOF on %d", n_rows, n_all)
-    result = FolderKinematicsResult(n_rows, n_all, csv_path)
-    return dataclasses.replace(result, mcap_path=out / "kinematics.mcap") if mcap else result
+    out = folder.path
+    return FolderKinematicsResult(
+        n_rows, n_all, out / "kinematics.csv", out / "kinematics.mcap" if mcap else None, n_any, dict(reasons)
+    )

@@ -38,6 +38,19 @@ def write_tum(path: str | Path, t, position, quat_xyzw) -> Path:
     return path
 
 
+def format_planar_tum(t, poses_xy_yaw, z=None) -> str:
+    """The text of a TUM file of planar poses (x [m], y [m], yaw [rad]) at height ``z`` [m] (default 0)."""
+    import io
+
+    p = np.asarray(poses_xy_yaw, dtype=np.float64).reshape(-1, 3)
+    zz = np.zeros(len(p)) if z is None else np.broadcast_to(np.asarray(z, dtype=np.float64), (len(p),))
+    t = np.asarray(t, dtype=np.float64).reshape(-1, 1)
+    data = np.hstack([t, p[:, :2], zz[:, None], yaw_to_quat_xyzw(p[:, 2])])
+    buf = io.StringIO()
+    np.savetxt(buf, data, fmt="%.6f")
+    return buf.getvalue()
+
+
 def write_planar_tum(path: str | Path, t, poses_xy_yaw, z=None) -> Path:
     """TUM file of planar poses (x [m], y [m], yaw [rad]) at height ``z`` [m] (default 0)."""
     p = np.asarray(poses_xy_yaw, dtype=np.float64).reshape(-1, 3)

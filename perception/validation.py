@@ -4,9 +4,51 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 
 class ConfigError(ValueError):
     """A configuration value or file is invalid. The message names the key and what to do."""
+
+
+def not_a_number(value: object) -> str:
+    """Why ``value`` is not a real number as a configuration value, or "" if it is one.
+
+    Real numbers are Python and NumPy integers and floats. A bool (YAML ``true``), a string
+    (YAML reads ``inf`` or ``1e-3`` without a dot before the e as text) or None is not one,
+    even where Python would convert it.
+    """
+    import numbers
+
+    if isinstance(value, bool | np.bool_):
+        return f"{value!r} is a true/false value, not a number"
+    if isinstance(value, str):
+        hint = (
+            " (YAML writes infinity as .inf)"
+            if value.strip().lower().lstrip("+-") in ("inf", "infinity")
+            else ""
+        )
+        return f"{value!r} is text, not a number{hint}"
+    if not isinstance(value, numbers.Real):
+        return f"{value!r} is not a number"
+    return ""
+
+
+def real_number(key: str, value: object, allow_inf: bool = False) -> float:
+    """``value`` as a float, or :class:`ConfigError` naming ``key`` if it is not a real number.
+
+    Args:
+        key: The value's key path, for the message.
+        value: The value read from a file or given by a caller.
+        allow_inf: Accept +-infinity (NaN never).
+    """
+    why = not_a_number(value)
+    if why:
+        raise ConfigError(f"{key}: expected a number, got {why}")
+    v = float(value)  # type: ignore[arg-type]
+    if math.isnan(v) or (math.isinf(v) and not allow_inf):
+        raise ConfigError(f"{key}: must be finite, got {value!r}")
+    return v
 
 
 def check_range(
@@ -28,6 +70,9 @@ def check_range(
         lo_open: Exclude ``lo`` itself.
         hi_open: Exclude ``hi`` itself.
     """
+    why = not_a_number(value)
+    if why:
+        raise ConfigError(f"{key}: expected a number, got {why}")
     if not math.isfinite(value):
         raise ConfigError(f"{key}: must be a finite number, got {value!r}")
     bad_lo = lo is not None and (value <= lo if lo_open else value < lo)

@@ -296,21 +296,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 def _cmd_kinematics(args: argparse.Namespace) -> int:
     from perception import bags
-    from perception.cameras import OmniCamera
-    from perception.kinematics import RoverKinematicModel
     from perception.offline import run_folder_kinematics
 
-    OmniCamera.load(args.camera), RoverKinematicModel.load(args.rover)  # the inputs before the output
-    if bags.is_log(args.source):
-        bags.log_images(args.source, args.topic)
-    else:
+    if not bags.is_log(args.source):
         _need_fps(args)
-    _prepare_out(args.out, ("kinematics.csv", "kinematics.mcap"), args.overwrite)
     bar = _Progress("kinematics: frames")
     try:
         res = run_folder_kinematics(
             args.source, args.camera, args.rover, args.fps, args.out, steering=args.steering,
-            progress=bar.share, topic=args.topic,
+            progress=bar.share, topic=args.topic, overwrite=args.overwrite,
         )  # fmt: skip
     finally:
         bar.close()
@@ -326,9 +320,7 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     from perception.cameras import PinholeCamera
     from perception.offline import run_folder_odometry
 
-    if bags.is_log(args.source):
-        bags.log_images(args.source, args.topic)  # the topic before the output
-    else:
+    if not bags.is_log(args.source):
         _need_fps(args)
         if PinholeCamera.load(args.calib).ground_plane is None:  # the input before the output
             from perception.cameras import GROUND_PLANE_MISSING
@@ -336,8 +328,6 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.calib}: {GROUND_PLANE_MISSING}")
     if args.imu and args.imu_topic:
         raise ValueError("--imu and --imu-topic: give one IMU source")
-    products = ("odometry.csv", "trajectory.tum", "trajectory_imu.tum", "odometry.mcap")
-    _prepare_out(args.out, products, args.overwrite)
     bar = _Progress("odometry: frames")
     rpy = tuple(math.radians(v) for v in args.imu_rpy)
     try:
@@ -352,6 +342,7 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
             imu_still=args.imu_still,
             topic=args.topic,
             imu_topic=args.imu_topic,
+            overwrite=args.overwrite,
         )
     finally:
         bar.close()
@@ -571,18 +562,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rover`` command."""
+    from perception.offline import NothingValidError
+
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
     )
     try:
         return int(args.func(args))
-    except (ValueError, OSError) as exc:  # includes CalibrationError and ConfigError
+    except NothingValidError as exc:  # the input was read; nothing valid came of it
         sys.stderr.write(f"rover {args.command}: error: {exc}\n")
+        return 1
+    except (ValueError, OSError) as exc:  # includes CalibrationError and ConfigError
+        sys.stderr.write(f"rover {args.command}: error: {_one_line(exc)}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write(f"rover {args.command}: interrupted\n")
         return 130
+    except Exception as exc:  # a failure no check foresaw: one line, the traceback on -v
+        if args.verbose:
+            raise
+        sys.stderr.write(
+            f"rover {args.command}: error: {type(exc).__name__}: {_one_line(exc)} (unexpected: run with -v "
+            "for the traceback and report it)\n"
+        )
+        return 3
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line."""
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":

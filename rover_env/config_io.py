@@ -7,7 +7,6 @@ unknown keys, missing required keys, wrong types and out-of-range values are all
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from pathlib import Path
@@ -15,7 +14,7 @@ from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_
 
 import yaml
 
-from perception.validation import ConfigError, check_range
+from perception.validation import ConfigError, check_range, real_number
 
 __all__ = ["ConfigError", "check_range", "from_dict", "to_dict", "load_yaml_dataclass", "replace"]
 
@@ -26,8 +25,11 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
 
 
-def _coerce(value: Any, tp: Any, key: str) -> Any:
-    """Convert ``value`` to type ``tp`` or raise ConfigError naming ``key``."""
+def _coerce(value: Any, tp: Any, key: str, allow_inf: bool = False) -> Any:
+    """Convert ``value`` to type ``tp`` or raise ConfigError naming ``key``.
+
+    ``allow_inf``: a float may be infinite (a field whose metadata says ``allow_inf``).
+    """
     origin = get_origin(tp)
     if tp is Any:
         return value
@@ -40,7 +42,7 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
             if arg is type(None):
                 continue
             try:
-                return _coerce(value, arg, key)
+                return _coerce(value, arg, key, allow_inf)
             except ConfigError as exc:
                 errors.append(str(exc))
         raise ConfigError(f"{key}: {value!r} does not match {_type_name(tp)}")
@@ -73,11 +75,7 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
             raise ConfigError(f"{key}: expected an integer, got {value!r}")
         return value
     if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        if not math.isfinite(float(value)):
-            raise ConfigError(f"{key}: must be finite, got {value!r}")
-        return float(value)
+        return real_number(key, value, allow_inf=allow_inf)
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"{key}: expected a string, got {value!r}")
@@ -115,7 +113,7 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
             if no_default:
                 raise ConfigError(f"missing required key '{key}'")
             continue
-        kwargs[name] = _coerce(data[name], hints[name], key)
+        kwargs[name] = _coerce(data[name], hints[name], key, bool(field.metadata.get("allow_inf", False)))
     try:
         return cls(**kwargs)
     except ConfigError as exc:

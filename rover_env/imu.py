@@ -30,7 +30,7 @@ import numpy as np
 from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
-from rover_env.config_io import ConfigError, check_range
+from rover_env.config_io import ConfigError, check_range, from_dict, real_number, to_dict
 
 #: Gravity of the simulation [m/s^2] (``RoverSim`` sets (0, 0, -9.81)).
 G = 9.81
@@ -92,20 +92,17 @@ class TriadNoise:
     turn_on_bias: float = 0.0
     scale_factor: float = 0.0
     misalignment: float = 0.0
-    range: float = math.inf
+    range: float = field(default=math.inf, metadata={"allow_inf": True})
     resolution: float = 0.0
 
     def check(self, prefix: str) -> None:
-        """Raise :class:`ConfigError` naming ``prefix.key`` for a negative or non-finite value."""
+        """Raise :class:`ConfigError` naming ``prefix.key`` for a non-number or a bad value."""
         for key, value in asdict(self).items():
             name = f"{prefix}.{key}"
-            try:
-                v = float(value)
-            except (TypeError, ValueError):
-                raise ConfigError(f"{name}: {value!r} is not a number") from None
+            v = real_number(name, value, allow_inf=key == "range")
             if key == "range":
-                if not v > 0 or math.isnan(v):
-                    raise ConfigError(f"{name}: {value!r}; give a positive full-scale value (inf: none)")
+                if not v > 0:
+                    raise ConfigError(f"{name}: {value!r}; give a positive full-scale value (.inf: none)")
             else:
                 check_range(name, v, 0.0)
 
@@ -131,15 +128,15 @@ class ImuConfig:
     accel: TriadNoise = field(default_factory=TriadNoise)
 
     def __post_init__(self) -> None:
-        check_range("imu.rate_hz", float(self.rate_hz), 0.0, lo_open=True)
+        if not isinstance(self.name, str):
+            raise ConfigError(f"imu.name: {self.name!r}; give a name")
+        check_range("imu.rate_hz", self.rate_hz, 0.0, lo_open=True)
         for key in ("position", "rpy"):
             v = getattr(self, key)
-            try:
-                arr = np.asarray(v, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise ConfigError(f"imu.{key}: {v!r}; give three numbers") from None
-            if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-                raise ConfigError(f"imu.{key}: {v!r}; give three finite numbers")
+            if not isinstance(v, list | tuple | np.ndarray) or len(v) != 3:
+                raise ConfigError(f"imu.{key}: {v!r}; give three numbers")
+            for i, x in enumerate(v):
+                real_number(f"imu.{key}[{i}]", x)
         self.gyro.check("imu.gyro")
         self.accel.check("imu.accel")
 
@@ -152,33 +149,35 @@ class ImuConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> ImuConfig:
-        """From a scenario or preset mapping: ``preset`` (optional) and overrides, triads as mappings."""
+        """From a scenario or preset mapping: ``preset`` (optional) and overrides, triads as mappings.
+
+        Every value is checked by the one path of scenario files
+        (:func:`rover_env.config_io.from_dict`): numbers must be numbers (not text, not
+        true/false), unknown keys are named.
+        """
         if not isinstance(d, dict):
             raise ConfigError(f"imu: {d!r}; give a mapping (preset, rate_hz, position, rpy, gyro, accel)")
         d = dict(d)
-        base = cls.preset(str(d.pop("preset", "bmi088")))
+        name = d.pop("preset", "bmi088")
+        if not isinstance(name, str):
+            raise ConfigError(f"imu.preset: {name!r}; choose one of {sorted(IMU_PRESETS)}")
+        base = cls.preset(name)
         known = {"rate_hz", "position", "rpy", "gyro", "accel"}
-        unknown = set(d) - known
+        unknown = sorted(set(d) - known, key=str)
         if unknown:
-            raise ConfigError(
-                f"imu: unknown keys {sorted(unknown)}; allowed: preset, {', '.join(sorted(known))}"
-            )
-        kw: dict = {}
+            raise ConfigError(f"imu: unknown keys {unknown}; allowed: preset, {', '.join(sorted(known))}")
+        merged = to_dict(base)
         for key in ("gyro", "accel"):
             if key in d:
                 sub = d.pop(key)
-                fields = set(asdict(getattr(base, key)))
-                if not isinstance(sub, dict) or set(sub) - fields:
-                    raise ConfigError(f"imu.{key}: {sub!r}; give a mapping of {sorted(fields)}")
-                kw[key] = replace(getattr(base, key), **sub)
-        for key in ("position", "rpy"):
-            if key in d:
-                v = d.pop(key)
-                if not isinstance(v, (list, tuple)):
-                    raise ConfigError(f"imu.{key}: {v!r}; give three numbers")
-                kw[key] = tuple(v)
-        kw.update(d)
-        return replace(base, name="custom" if kw else base.name, **kw)
+                if not isinstance(sub, dict):
+                    fields = sorted(asdict(getattr(base, key)))
+                    raise ConfigError(f"imu.{key}: {sub!r}; give a mapping of {fields}")
+                merged[key] = {**merged[key], **sub}
+        overridden = bool(d) or merged != to_dict(base)
+        merged.update(d)
+        merged["name"] = "custom" if overridden else base.name
+        return from_dict(cls, merged, "imu")
 
 
 # Bosch BMI088 (data sheet BST-BMI088-DS001): gyro output noise 0.014 deg/s/sqrt(Hz), bias

@@ -468,14 +468,15 @@ def test_folder_odometry_writes_csv_and_tum_of_the_true_path(ground, tmp_path):
     calib = mast_camera().save(tmp_path / "calib.yaml")
     res = run_folder_odometry(tmp_path / "imgs", calib, fps, tmp_path / "out")
     rows = np.genfromtxt(res.csv_path, delimiter=",", names=True, dtype=None, encoding=None)
-    assert res.frames == n and res.pairs == n - 2  # the unreadable frame costs one pair
-    bad = rows[rows["valid"] == 0]
-    assert len(bad) == 1 and "not a readable image" in bad["reason"][0]
+    assert res.frames == n and res.pairs == n - 1  # a row for every frame after the first
+    bad = rows[rows["valid"] == 0]  # the two pairs that touch the unreadable frame
+    assert len(bad) == 2 and "not a readable image" in bad["reason"][0]
+    assert "begins at the unusable frame 12" in bad["reason"][1]
     good = rows[rows["valid"] == 1]
     np.testing.assert_allclose(good["v_x"], twist[0], rtol=0.01)
     np.testing.assert_allclose(good["omega"], twist[2], atol=math.radians(0.5))
     tum = np.loadtxt(res.tum_path)
-    assert tum.shape == (n - 1, 8)
+    assert tum.shape == (n, 8)
     # the path starts at the origin of the first frame's body frame
     c, s = math.cos(-START[2]), math.sin(-START[2])
     dx, dy = end[0] - START[0], end[1] - START[1]

@@ -1,0 +1,194 @@
+"""Output folders that never lose a user's files: staged writes, one commit, named errors.
+
+An :class:`OutputFolder` is where an offline tool puts its results. It
+
+- refuses a folder that holds the input, or results of an earlier run unless ``overwrite``;
+- writes every product to a temporary file beside it and renames them all into place at
+  :meth:`OutputFolder.commit`, so a crash, a full disk or an error leaves the earlier results
+  or nothing, never half a file;
+- removes only what it wrote in this run (its temporary files, and the folder itself if it
+  created it and it is empty): a user's files in the folder, whatever their names, stay;
+- names the file in every write error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO
+
+log = logging.getLogger(__name__)
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    """Whether ``child`` is ``parent`` or lies under it (both resolved)."""
+    c, p = child.resolve(), parent.resolve()
+    return c == p or p in c.parents
+
+
+class OutputFolder:
+    """A results folder for one run of a tool.
+
+    Args:
+        path: The folder (created if missing).
+        products: The file names the tool may write there (its own results).
+        overwrite: Replace the results of an earlier run. Without it, a folder that holds any
+            of ``products`` is refused. With it, an earlier product that this run does not
+            write again is removed at :meth:`commit` (it is the tool's own, and would
+            otherwise sit beside the new results as if it were one of them).
+        inputs: Paths the run reads; a folder that is or contains one of them is refused.
+
+    Raises:
+        ValueError: The folder is an input or holds one, is a file, or holds earlier results
+            without ``overwrite``.
+        OSError: The folder cannot be created or written (the message names it).
+
+    Use as a context manager: on an exception the staged files are discarded (and the folder
+    removed if this run created it and nothing else is in it); on success, :meth:`commit` must
+    have been called.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        products: Iterable[str],
+        overwrite: bool = False,
+        inputs: Iterable[str | Path | None] = (),
+    ) -> None:
+        self.path = Path(path)
+        self.products = tuple(products)
+        self.overwrite = overwrite
+        for src in inputs:
+            if src is not None and Path(src).exists() and _inside(Path(src), self.path):
+                raise ValueError(
+                    f"--out {self.path}: holds the input {src}; choose an output folder outside the input"
+                )
+        if self.path.exists() and not self.path.is_dir():
+            raise ValueError(f"--out {self.path}: exists and is not a folder")
+        self.earlier = [p for p in self.products if (self.path / p).exists()]
+        if self.earlier and not overwrite:
+            raise ValueError(
+                f"--out {self.path} holds results of an earlier run ({', '.join(self.earlier)}); pass "
+                "--overwrite to replace them, or choose another folder"
+            )
+        self._created: list[Path] = []  # folders this run made, outermost first
+        missing = [p for p in (self.path, *self.path.parents) if not p.exists()]
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            self._created = list(reversed(missing))
+            with tempfile.NamedTemporaryFile(dir=self.path, prefix=".write-check-"):
+                pass
+        except OSError as exc:
+            self._remove_created()
+            raise OSError(f"--out {self.path}: cannot write there ({exc.strerror or exc})") from None
+        self._staged: dict[str, Path] = {}  # product -> its temporary file or folder
+        self._scratch: list[Path] = []
+        self.committed = False
+
+    # ------------------------------------------------------------------ writing
+    def _check(self, name: str) -> None:
+        if name not in self.products:
+            raise ValueError(f"{name}: not one of this tool's products {self.products}")
+        if self.committed:
+            raise RuntimeError(f"{self.path}: already committed")
+
+    def stage(self, name: str) -> Path:
+        """A temporary path in the folder for the product ``name`` (renamed into place at commit)."""
+        self._check(name)
+        fd, tmp = tempfile.mkstemp(dir=self.path, prefix=f".{name}.", suffix=".part")
+        os.close(fd)
+        self._staged[name] = Path(tmp)
+        return Path(tmp)
+
+    def scratch_dir(self, name: str) -> Path:
+        """A temporary folder in the output folder for this run (removed at commit or failure)."""
+        d = Path(tempfile.mkdtemp(dir=self.path, prefix=f".{name}."))
+        self._scratch.append(d)
+        return d
+
+    @contextlib.contextmanager
+    def writing(self, name: str) -> Iterator[Path]:
+        """The staged path of the product ``name``, for a writer that takes a path; errors name the file."""
+        tmp = self.stage(name)
+        try:
+            yield tmp
+        except OSError as exc:
+            if str(self.path / name) in str(exc):
+                raise
+            raise OSError(f"{self.path / name}: cannot write ({exc.strerror or exc})") from None
+
+    @contextlib.contextmanager
+    def open(self, name: str, mode: str = "w", **kwargs) -> Iterator[IO]:
+        """Open the product ``name`` for writing (a staged temporary file); errors name the file."""
+        tmp = self.stage(name)
+        try:
+            with open(tmp, mode, **kwargs) as fh:
+                yield fh
+        except OSError as exc:
+            raise OSError(f"{self.path / name}: cannot write ({exc.strerror or exc})") from None
+
+    def write_text(self, name: str, text: str) -> Path:
+        """Stage the product ``name`` with ``text``; returns its final path."""
+        with self.open(name, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        return self.path / name
+
+    # ------------------------------------------------------------------ ending
+    def commit(self) -> list[Path]:
+        """Rename every staged product into place; with ``overwrite``, drop stale earlier ones.
+
+        Returns:
+            The final paths of the products written.
+        """
+        done = []
+        for name, tmp in self._staged.items():
+            final = self.path / name
+            try:
+                os.replace(tmp, final)
+            except OSError as exc:
+                raise OSError(f"{final}: cannot write ({exc.strerror or exc})") from None
+            done.append(final)
+        stale = [p for p in self.earlier if p not in self._staged]
+        for name in stale:  # the earlier run's own product, which this run did not remake
+            old = self.path / name
+            if old.is_file():
+                old.unlink()
+                log.warning(
+                    "--out %s: removed %s of the earlier run (this run does not make it)", self.path, name
+                )
+        self._staged.clear()
+        self._drop_scratch()
+        self.committed = True
+        return done
+
+    def discard(self) -> None:
+        """Remove what this run staged, and the folder if this run created it and it is empty."""
+        for tmp in self._staged.values():
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        self._staged.clear()
+        self._drop_scratch()
+        self._remove_created()
+
+    def _drop_scratch(self) -> None:
+        for d in self._scratch:
+            shutil.rmtree(d, ignore_errors=True)
+        self._scratch.clear()
+
+    def _remove_created(self) -> None:
+        for d in reversed(self._created):  # innermost first; only if empty
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        self._created = []
+
+    def __enter__(self) -> OutputFolder:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None or not self.committed:
+            self.discard()
