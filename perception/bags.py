@@ -358,7 +358,7 @@ class _McapLog(RobotLog):
     def _records(self, f: Path, quiet: bool = False):
         """((topic, type, encoding), None, Message) of each readable message of ``f``, in file order."""
         from mcap.records import Channel, Chunk, Message, Schema
-        from mcap.stream_reader import StreamReader, breakup_chunk
+        from mcap.stream_reader import StreamReader
 
         schemas: dict[int, Schema] = {}
         channels: dict[int, tuple[str, str, str]] = {}
@@ -401,20 +401,18 @@ class _McapLog(RobotLog):
                 if isinstance(rec, Chunk):
                     n_chunks += 1
                     try:
-                        inner = breakup_chunk(rec, validate_crc=True)
-                    except Exception as exc:  # only this chunk is lost
+                        for r in _chunk_records(rec):
+                            ch = handle(r)
+                            if ch is not None:
+                                last = (ch, r)
+                                yield ch, None, r
+                    except Exception as exc:  # the rest of this chunk is lost, the next one is read
                         if not quiet:
                             log.warning(
-                                "%s: chunk %d (log times %.6f to %.6f s) is damaged (%s); its messages are "
-                                "skipped", f, n_chunks, 1e-9 * rec.message_start_time,
+                                "%s: chunk %d (log times %.6f to %.6f s) is damaged (%s); its messages from "
+                                "there on are skipped", f, n_chunks, 1e-9 * rec.message_start_time,
                                 1e-9 * rec.message_end_time, _short(exc),
                             )  # fmt: skip
-                        continue
-                    for r in inner:
-                        ch = handle(r)
-                        if ch is not None:
-                            last = (ch, r)
-                            yield ch, None, r
                 else:
                     ch = handle(rec)
                     if ch is not None:
@@ -432,6 +430,32 @@ class _McapLog(RobotLog):
                 yield LogMessage(
                     topic, ty, k, int(msg.log_time), bytes(msg.data), "ros1" if enc == "ros1" else "cdr"
                 )
+
+
+def _chunk_records(chunk) -> Iterator:
+    """The schema, channel and message records of an MCAP chunk, up to any damage (which raises).
+
+    A chunk with a checksum that does not match is refused whole; one without a checksum is read
+    up to its first broken record.
+    """
+    from mcap.opcode import Opcode
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import get_chunk_data_stream
+
+    stream, length = get_chunk_data_stream(chunk, validate_crc=True)
+    while stream.count < length:
+        opcode = stream.read1()
+        size = stream.read8()
+        if size > length - stream.count:
+            raise ValueError(f"a record of {size} bytes at byte {stream.count} overruns the chunk")
+        if opcode == Opcode.MESSAGE:
+            yield Message.read(stream, size)
+        elif opcode == Opcode.CHANNEL:
+            yield Channel.read(stream)
+        elif opcode == Opcode.SCHEMA:
+            yield Schema.read(stream)
+        else:
+            stream.read(size)
 
 
 def open_log(path: str | Path) -> RobotLog:

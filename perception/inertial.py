@@ -324,10 +324,11 @@ def check_imu_units(imu: ImuLog, name: str, still: float = 0.0) -> None:
 def check_gyro_against_odometry(gyro_z, omega, name: str) -> None:
     """Refuse a gyro whose yaw rate is not the odometry's in scale (units, axis or mount).
 
-    Fits gyro_z = s * omega + b over the pairs where both are known. With enough turning
-    (omega spread over 0.05 rad/s, at least 10 pairs) the scale s must lie in [0.5, 2]: a
-    gyro in deg/s reads 57 times the odometry's rate, one about another axis near 0, one
-    mounted upside down -1.
+    Fits gyro_z = s * omega + b over the pairs where both are known (omega spread over
+    0.05 rad/s, at least 10 pairs), or takes s as the median ratio gyro_z / omega where the
+    odometry turns faster than 0.05 rad/s (a steady turn); with neither there is nothing to
+    check. The scale s must lie in [0.5, 2]: a gyro in deg/s reads 57 times the odometry's
+    rate, one about another axis near 0, one mounted upside down -1.
 
     Args:
         gyro_z: (n,) the gyro's body-z rate per pair, bias not removed [rad/s].
@@ -339,9 +340,13 @@ def check_gyro_against_odometry(gyro_z, omega, name: str) -> None:
     """
     g, w = np.asarray(gyro_z, dtype=np.float64), np.asarray(omega, dtype=np.float64)
     ok = np.isfinite(g) & np.isfinite(w)
-    if ok.sum() < 10 or float(np.std(w[ok])) < 0.05:
-        return
-    s, _b = np.polyfit(w[ok], g[ok], 1)
+    if ok.sum() >= 10 and float(np.std(w[ok])) >= 0.05:
+        s = float(np.polyfit(w[ok], g[ok], 1)[0])
+    else:  # a steady turn: the ratio of the rates where the odometry turns
+        turn = ok & (np.abs(w) > 0.05)
+        if turn.sum() < 5:
+            return
+        s = float(np.median(g[turn] / w[turn]))
     if 0.5 <= s <= 2.0:
         return
     if abs(s * math.pi / 180 - 1) < 0.3:

@@ -182,18 +182,37 @@ def _cell(text: str) -> str:
     return " ".join(str(text).replace(",", ";").split())
 
 
-def _reason_key(reason: str) -> str:
-    """A reason without its frame number or numbers, for counting alike reasons."""
-    text = re.sub(r"^frame \d+: ", "", reason)
-    return re.sub(r"-?\d+(\.\d+)?(e[-+]?\d+)?", "#", text)
-
-
-def _summary(reasons: collections.Counter) -> str:
-    """The most common reason of a run's invalid rows, and how often."""
+def _most(reasons: dict[str, int]) -> str:
+    """The most common kind of reason of a result's ``reasons``, and how often."""
     if not reasons:
         return "no frame pair"
-    (key, n), *_ = reasons.most_common(1)
-    return f"{key} ({n} times)"
+    text, n = max(reasons.items(), key=lambda kv: kv[1])
+    return f"{text} ({n} alike)"
+
+
+class _Reasons:
+    """Why rows were invalid: alike reasons (the same but for their numbers) counted together."""
+
+    def __init__(self) -> None:
+        self.counts: collections.Counter = collections.Counter()
+        self.example: dict[str, str] = {}
+
+    def add(self, reason: str) -> None:
+        text = re.sub(r"^frame \d+: ", "", reason)
+        key = re.sub(r"\d+(\.\d+)?", "#", text)
+        self.counts[key] += 1
+        self.example.setdefault(key, text)
+
+    def as_dict(self) -> dict[str, int]:
+        """{the first of each kind of reason: how many rows had a reason of that kind}."""
+        return {self.example[k]: n for k, n in self.counts.most_common()}
+
+    def summary(self) -> str:
+        """The most common kind of reason, and how often."""
+        if not self.counts:
+            return "no frame pair"
+        key, n = self.counts.most_common(1)[0]
+        return f"{self.example[key]} ({n} alike)"
 
 
 @dataclass
@@ -331,7 +350,7 @@ def run_folder_odometry(
     if not res.valid:
         raise NothingValidError(
             f"{images}: no valid estimate in {res.pairs} pairs of {res.frames} frames; most often: "
-            f"{_summary(collections.Counter(res.reasons))}. {res.csv_path} says why, row by row"
+            f"{_most(res.reasons)}. {res.csv_path} says why, row by row"
         )
     return res
 
@@ -372,7 +391,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
     line = _Timeline(source.clock)
     rows, pair_start = [], []
     times, twists, covs = [], [], []
-    reasons: collections.Counter = collections.Counter()
+    reasons = _Reasons()
     depth = None
     chain = False  # a frame of the current chain has been given to the odometry
     n = 0
@@ -384,7 +403,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
         times.append(t)
         twists.append(np.full(3, math.nan))
         covs.append(None)
-        reasons[_reason_key(reason)] += 1
+        reasons.add(reason)
         line.t_last = t
 
     for k, frame in enumerate(source.frames):
@@ -404,7 +423,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
             if times and math.isfinite(t):
                 invalid(t, reason)
             elif not times:
-                reasons[_reason_key(reason)] += 1
+                reasons.add(reason)
             continue
         if img.ndim == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
@@ -421,7 +440,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
             twists.append(est.twist)
             covs.append(est.twist_cov if est.valid else None)
             if not est.valid:
-                reasons[_reason_key(est.reason)] += 1
+                reasons.add(est.reason)
             line.t_last = t
         elif not times:  # the very first frame: the path's origin
             times.append(t)
@@ -435,7 +454,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
             progress(min(1.0, (k + 1) / source.count))
     if not times:
         raise ValueError(
-            f"no usable frame in {n} frames; most often: {_summary(reasons)}" if n else "no frames to read"
+            f"no usable frame in {n} frames; most often: {reasons.summary()}" if n else "no frames to read"
         )
     header = ["t", "v_x", "v_y", "omega", "quality", "valid", "inliers", "reason"]
     extra: list[list] = [[] for _ in rows]
@@ -483,7 +502,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
     return FolderOdometryResult(
         n, len(rows), n_valid, distance, out / "odometry.csv", out / "trajectory.tum",
         tum_imu_path=tum_imu, imu_bias=bias, mcap_path=out / "odometry.mcap" if mcap else None,
-        reasons=dict(reasons),
+        reasons=reasons.as_dict(),
     )  # fmt: skip
 
 
@@ -684,7 +703,7 @@ def run_folder_kinematics(
     if not res.any_valid:
         raise NothingValidError(
             f"{images}: no degree of freedom measured on any of {res.frames} frames; most often: "
-            f"{_summary(collections.Counter(res.reasons))}. {res.csv_path} says why, row by row"
+            f"{_most(res.reasons)}. {res.csv_path} says why, row by row"
         )
     return res
 
@@ -694,7 +713,7 @@ def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsRes
 
     line = _Timeline(source.clock)
     n_all = n_any = n_rows = 0
-    reasons: collections.Counter = collections.Counter()
+    reasons = _Reasons()
     names = [*DOF_NAMES, *(f"wheel_{w}" for w in ("FL", "FR", "RL", "RR"))]
     with contextlib.ExitStack() as stack:
         fh = stack.enter_context(folder.open("kinematics.csv", "w", newline=""))
@@ -717,7 +736,7 @@ def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsRes
                 note = f"frame {k}: {bgr.shape[1]}x{bgr.shape[0]} px differs from the calibration"
             if not math.isfinite(t):
                 log.warning("%s; no row: it cannot be placed in time", note)
-                reasons[_reason_key(note)] += 1
+                reasons.add(note)
                 continue
             line.t_last = t
             rgb = np.zeros((0, 0, 3), np.uint8)  # the estimator flags it and carries on
@@ -730,7 +749,7 @@ def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsRes
                 rgb = cv2.cvtColor(bgr, cv2.COLOR_BGRA2RGB if bgr.shape[2] == 4 else cv2.COLOR_BGR2RGB)
             if note:
                 log.warning("%s; the state is carried over it", note)
-                reasons[_reason_key(note)] += 1
+                reasons.add(note)
             s = est.update(rgb, t)
             n_rows += 1
             n_all += int(all(s.valid.values()))
@@ -753,10 +772,15 @@ def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsRes
             if progress is not None and source.count:
                 progress(min(1.0, (k + 1) / source.count))
     if not n_rows:
-        raise ValueError(f"no usable frame; most often: {_summary(reasons)}")
+        raise ValueError(f"no usable frame; most often: {reasons.summary()}")
     folder.commit()
     log.info("kinematics: %d frames, all 10 DOF on %d", n_rows, n_all)
     out = folder.path
     return FolderKinematicsResult(
-        n_rows, n_all, out / "kinematics.csv", out / "kinematics.mcap" if mcap else None, n_any, dict(reasons)
+        n_rows,
+        n_all,
+        out / "kinematics.csv",
+        out / "kinematics.mcap" if mcap else None,
+        n_any,
+        reasons.as_dict(),
     )

@@ -194,10 +194,11 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     check_jobs(jobs)  # every input before the output folder is touched
     products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
     _prepare_out(args.out, products, args.overwrite, keep=args.resume)
-    if args.overwrite and not args.resume:
-        import shutil
+    if args.overwrite and not args.resume:  # the earlier sweep's finished-run marks, nothing else
+        from rover_env.evaluation import ROW_FILE
 
-        shutil.rmtree(Path(args.out) / "runs", ignore_errors=True)
+        for job in jobs:
+            (Path(job.out) / ROW_FILE).unlink(missing_ok=True)
     fails = []
     sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
     bar = _Progress("eval: runs", unit="runs", total=len(jobs))

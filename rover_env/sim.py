@@ -368,6 +368,12 @@ class RoverSim:
             )
         return self._gl
 
+    def __deepcopy__(self, memo):
+        raise TypeError("a RoverSim cannot be copied: it owns a PyBullet client; make a second RoverSim")
+
+    def __reduce_ex__(self, protocol):
+        raise TypeError("a RoverSim cannot be pickled: it owns a PyBullet client; make one where it is used")
+
     def close(self) -> None:
         """Disconnect this simulation's client and release its GL context; safe to call more than once."""
         if self._gl is not None:

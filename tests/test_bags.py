@@ -60,34 +60,40 @@ class LogWriter:
         return T["std_msgs/msg/Header"](stamp=stamp, frame_id="camera", **extra)
 
     def write(self, topic, msgtype, msg, t):
+        ser = self.store.serialize_ros1 if self.kind == "ros1" else self.store.serialize_cdr
+        self.write_raw(topic, msgtype, ser(msg, msgtype), t)
+
+    def write_raw(self, topic, msgtype, data, t):
+        """Bytes as a message of ``msgtype`` received at ``t`` (a damaged message, if they are garbage)."""
         if topic not in self.conns:
             self.conns[topic] = self.w.add_connection(topic, msgtype, typestore=self.store)
-        ser = self.store.serialize_ros1 if self.kind == "ros1" else self.store.serialize_cdr
-        self.w.write(self.conns[topic], int(round(t * 1e9)), ser(msg, msgtype))
+        self.w.write(self.conns[topic], int(round(t * 1e9)), bytes(data))
 
-    def image(self, topic, t, img, encoding=None, compressed=None):
+    def image(self, topic, t, img, encoding=None, compressed=None, stamp=None):
+        """An image received at ``t`` [s] with the header stamp ``stamp`` (default ``t``)."""
         T = self.store.types
+        stamp = t if stamp is None else stamp
         if compressed:
             ok, buf = cv2.imencode(f".{compressed}", img)
             assert ok
             msg = T["sensor_msgs/msg/CompressedImage"](
-                header=self.header(t), format=compressed, data=buf.ravel()
+                header=self.header(stamp), format=compressed, data=buf.ravel()
             )
             self.write(topic, "sensor_msgs/msg/CompressedImage", msg, t)
             return
         h, w = img.shape[:2]
         ch = 1 if img.ndim == 2 else img.shape[2]
         msg = T["sensor_msgs/msg/Image"](
-            header=self.header(t), height=h, width=w, encoding=encoding, is_bigendian=0,
+            header=self.header(stamp), height=h, width=w, encoding=encoding, is_bigendian=0,
             step=w * ch * img.itemsize, data=np.ascontiguousarray(img).view(np.uint8).ravel(),
         )  # fmt: skip
         self.write(topic, "sensor_msgs/msg/Image", msg, t)
 
-    def camera_info(self, topic, t, cam):
+    def camera_info(self, topic, t, cam, model="plumb_bob", K=None):
         T = self.store.types
         w, h = cam.image_size
         names = {
-            "k": cam.K.ravel(),
+            "k": (cam.K if K is None else np.asarray(K, dtype=np.float64)).ravel(),
             "d": np.asarray(cam.distortion),
             "r": np.eye(3).ravel(),
             "p": np.zeros(12),
@@ -98,7 +104,7 @@ class LogWriter:
             x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
         )
         msg = T["sensor_msgs/msg/CameraInfo"](
-            header=self.header(t), height=h, width=w, distortion_model="plumb_bob", binning_x=0, binning_y=0,
+            header=self.header(t), height=h, width=w, distortion_model=model, binning_x=0, binning_y=0,
             roi=roi, **names,
         )  # fmt: skip
         self.write(topic, "sensor_msgs/msg/CameraInfo", msg, t)

@@ -539,3 +539,100 @@ def test_non_finite_rover_geometry_names_the_key(key):
     for bad in (math.nan, math.inf):
         with pytest.raises(ConfigError, match=key):
             RoverGeometry(**{key: bad})
+
+
+# ---------------------------------------------------------------- numbers that are not numbers
+
+
+@pytest.mark.parametrize(
+    ("imu", "names"),
+    [
+        ("{gyro: {range: inf}}", ["imu.gyro.range", "'inf' is text", ".inf"]),  # YAML 1.1: a string
+        ("{rate_hz: true}", ["imu.rate_hz", "True is a true/false value"]),
+        ("{accel: {noise_density: '1e-3'}}", ["imu.accel.noise_density", "is text"]),
+        ("{position: [0, 0, yes]}", ["imu.position[2]"]),
+    ],
+)
+def test_a_scenario_number_given_as_text_or_a_bool_is_refused_where_it_is_read(tmp_path, imu, names):
+    from rover_env.config_io import ConfigError
+    from rover_env.scenario import load_scenario
+
+    path = tmp_path / "s.yaml"
+    path.write_text(f"name: s\ncourse: {{waypoints: [[5, 0]]}}\nimu: {imu}\n")
+    with pytest.raises(ConfigError) as exc:
+        load_scenario(path)
+    msg = str(exc.value)
+    assert str(path) in msg and all(n in msg for n in names), msg
+    ok = tmp_path / "ok.yaml"  # the same key with a real number, infinity written the YAML way
+    ok.write_text("name: s\ncourse: {waypoints: [[5, 0]]}\nimu: {gyro: {range: .inf}, rate_hz: 120}\n")
+    assert load_scenario(ok).imu == {"gyro": {"range": math.inf}, "rate_hz": 120}
+
+
+def test_rover_eval_on_a_scenario_with_a_text_number_is_one_line_not_a_traceback(tmp_path, capsys):
+    from rover_env.cli import main
+
+    path = tmp_path / "s.yaml"
+    path.write_text("name: s\ncourse: {waypoints: [[5, 0]]}\nimu: {gyro: {range: inf}}\n")
+    argv = ["eval", "--missions", str(path), "--controllers", "slip_aware", "--seeds", "0"]
+    assert main([*argv, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "imu.gyro.range" in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("K", [[600.0, 0, 320], [0, "600", 240], [0, 0, 1]]), ("ground_plane", [0, 0, True]), ("distortion", "0")],
+)
+def test_a_calibration_number_given_as_text_or_a_bool_names_the_key(tmp_path, key, value):
+    import yaml
+    from test_odometry import mast_camera
+
+    from perception.calib_io import CalibrationError
+    from perception.cameras import PinholeCamera
+
+    data = yaml.safe_load(mast_camera().save(tmp_path / "c.yaml").read_text())
+    data[key] = value
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationError, match=rf"bad\.yaml: {key}: expected numbers"):
+        PinholeCamera.load(tmp_path / "bad.yaml")
+
+
+def test_a_rover_geometry_number_given_as_text_names_the_key(tmp_path):
+    import yaml
+    from test_markers import rover_model
+
+    from perception.calib_io import CalibrationError
+    from perception.kinematics import RoverKinematicModel
+
+    data = yaml.safe_load(rover_model().save(tmp_path / "r.yaml").read_text())
+    data["track"] = "1.2"
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationError, match=r"bad\.yaml: track: expected a number, got '1\.2' is text"):
+        RoverKinematicModel.load(tmp_path / "bad.yaml")
+
+
+# ---------------------------------------------------------------- environment copies
+
+
+def test_an_environment_is_not_copied_or_pickled_and_is_unusable_after_close():
+    import copy
+    import pickle
+
+    import gymnasium as gym
+
+    env = gym.make("Rover-v0", obs_source="ground_truth")
+    env.reset(seed=0)
+    with pytest.raises(TypeError, match="gymnasium.make"):
+        copy.deepcopy(env)
+    with pytest.raises(TypeError, match="cannot be pickled"):
+        pickle.dumps(env)
+    with pytest.raises(TypeError, match="cannot be copied"):
+        copy.deepcopy(env.unwrapped.sim)
+    obs, *_ = env.step(np.zeros(3))  # the original is untouched by the attempts
+    assert np.all(np.isfinite(obs))
+    env.close()
+    for call in (lambda: env.step(np.zeros(3)), env.reset, env.unwrapped.render):
+        with pytest.raises(RuntimeError, match=r"after close\(\).*gymnasium\.make"):
+            call()
+    env.close()  # closing twice is fine

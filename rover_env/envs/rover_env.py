@@ -252,6 +252,7 @@ class RoverEnv(gym.Env):
         ``options``: ``{"blackout": [(t0, t1), ...]}`` makes both cameras deliver black frames
         between t0 and t1 [s] of episode time (a camera fault; the estimator sees only the images).
         """
+        self._check_open("reset")
         # every option is checked before anything moves: a bad one leaves the environment as it was
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"reset options: {options!r}; give a dict such as {{'blackout': [(2.0, 3.0)]}}")
@@ -296,6 +297,7 @@ class RoverEnv(gym.Env):
 
     def step(self, action):
         """Apply ``action`` for one control period and advance physics."""
+        self._check_open("step")
         if self._gt is None:
             raise RuntimeError("call reset() before step()")
         act = self._validate_action(action)
@@ -381,6 +383,7 @@ class RoverEnv(gym.Env):
         resolution, with the sun's shadows; everything is rendered now, at the current
         simulation time.
         """
+        self._check_open("render")
         if self.render_mode != "rgb_array":
             return None
         w, h = self.render_size
@@ -496,6 +499,28 @@ class RoverEnv(gym.Env):
         if not self._closed:
             self._closed = True
             self.sim.close()
+
+    def _check_open(self, what: str) -> None:
+        if self._closed:
+            raise RuntimeError(
+                f"{what}() after close(): this environment's physics client is released; make a new one "
+                "with gymnasium.make(...)"
+            )
+
+    # an environment owns a physics client (a process-level resource): it is not copied or pickled
+    def __deepcopy__(self, memo):
+        raise TypeError(
+            "a RoverEnv cannot be deep-copied: it owns a PyBullet client, which a copy would share "
+            "(stepping one would move the other). Make a second environment with gymnasium.make(...) "
+            "and the same arguments, and reset both with the same seed"
+        )
+
+    def __reduce_ex__(self, protocol):
+        raise TypeError(
+            "a RoverEnv cannot be pickled: it owns a PyBullet client. Send its constructor arguments "
+            "(or a function that calls gymnasium.make) to the other process and make it there, as "
+            "SubprocVecEnv does"
+        )
 
     # ------------------------------------------------------------------ helpers
     def _validate_action(self, action) -> np.ndarray:
