@@ -24,6 +24,7 @@ playable by Foxglove and ``ros2 bag play``) are at the end.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import math
 import shutil
@@ -53,6 +54,14 @@ def is_log(path: str | Path) -> bool:
     if p.is_file():
         return p.suffix.lower() in (".bag", ".mcap", ".db3")
     return p.is_dir() and (p / "metadata.yaml").is_file()
+
+
+@functools.lru_cache(maxsize=2)
+def _typestore(which: str):
+    """The type store (rosbags') of ROS 1 (Noetic) or ROS 2 (Humble) messages, built once."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS1_NOETIC if which == "ros1" else Stores.ROS2_HUMBLE)
 
 
 def _ros2_name(name: str) -> str:
@@ -115,11 +124,9 @@ class RobotLog:
             return None
 
     def _decode(self, m: LogMessage):
-        from rosbags.typesys import Stores, get_typestore
-
         if m.encoding == "ros1":
-            return get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(m.data, m.msgtype)
-        return get_typestore(Stores.ROS2_HUMBLE).deserialize_cdr(m.data, m.msgtype)
+            return _typestore("ros1").deserialize_ros1(m.data, m.msgtype)
+        return _typestore("ros2").deserialize_cdr(m.data, m.msgtype)
 
     def close(self) -> None:
         """Release the file."""
@@ -221,7 +228,7 @@ class _SqliteLog(RobotLog):
         self._ids: list[dict[int, str]] = []
         for f in files:
             try:
-                db = sqlite3.connect(f"file:{f}?mode=ro", uri=True)
+                db = sqlite3.connect(f"{f.resolve().as_uri()}?mode=ro", uri=True)
                 rows = db.execute("SELECT id, name, type, serialization_format FROM topics").fetchall()
             except sqlite3.Error as exc:
                 raise ValueError(f"{f}: not a readable ROS 2 SQLite bag ({_short(exc)})") from None

@@ -344,8 +344,7 @@ def run_folder_odometry(
         camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
         source = _folder_source(images, fps, camera.image_size)
     imu_in = _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, source.span)
-    inputs = (images, None if isinstance(calibration, PinholeCamera) else calibration, imu)
-    with OutputFolder(out, ODOMETRY_PRODUCTS, overwrite, inputs) as folder:
+    with OutputFolder(out, ODOMETRY_PRODUCTS, overwrite, inputs=(images,)) as folder:
         res = _odometry(source, camera, config, progress, imu_in, imu_still, imu or imu_topic, mcap, folder)
     if not res.valid:
         raise NothingValidError(
@@ -697,8 +696,7 @@ def run_folder_kinematics(
         source = _log_source(bags.log_images(images, topic), images)
     else:
         source = _folder_source(images, fps, cam.image_size, colour=True)
-    inputs = [images] + [p for p in (camera, rover, steering) if isinstance(p, str | Path)]
-    with OutputFolder(out, KINEMATICS_PRODUCTS, overwrite, inputs) as folder:
+    with OutputFolder(out, KINEMATICS_PRODUCTS, overwrite, inputs=(images,)) as folder:
         res = _kinematics(source, cam, est, progress, mcap, folder)
     if not res.any_valid:
         raise NothingValidError(

@@ -582,7 +582,11 @@ def test_rover_eval_on_a_scenario_with_a_text_number_is_one_line_not_a_traceback
 
 @pytest.mark.parametrize(
     ("key", "value"),
-    [("K", [[600.0, 0, 320], [0, "600", 240], [0, 0, 1]]), ("ground_plane", [0, 0, True]), ("distortion", "0")],
+    [
+        ("K", [[600.0, 0, 320], [0, "600", 240], [0, 0, 1]]),
+        ("ground_plane", [0, 0, True]),
+        ("distortion", "0"),
+    ],
 )
 def test_a_calibration_number_given_as_text_or_a_bool_names_the_key(tmp_path, key, value):
     import yaml
