@@ -323,6 +323,12 @@ def test_nothing_the_user_put_in_out_is_removed_whatever_its_name(tmp_path, fram
     (out / "notes.txt").write_text("mine")
     (out / "kinematics").mkdir()
     (out / "kinematics" / "keep.txt").write_text("mine too")
+    from test_markers import fisheye, render_markers, rover_model
+
+    model = rover_model()
+    cam = fisheye(model)
+    rgb = render_markers(model, cam, (0.0, 0.0), (0.15, 0.15), model.wheel_angles(0.0, 0.0))
+    cv2.imwrite(str(out / "kinematics" / "000.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     # the input inside --out is refused before anything is written
     argv = ["odometry", str(user_frames), "--calib", str(calib(tmp_path)), "--fps", "60", "--out", str(out)]
@@ -331,6 +337,19 @@ def test_nothing_the_user_put_in_out_is_removed_whatever_its_name(tmp_path, fram
     # a log elsewhere, into the same folder: the results go in beside the user's files
     assert main(["odometry", str(write_log(tmp_path / "l.mcap", "mcap", frames[:6])), "--calib",
                  str(calib(tmp_path)), "--out", str(out)]) == 0  # fmt: skip
+    # rover kinematics on a folder of that name inside --out: refused, the folder untouched
+    from test_markers import fisheye, rover_model
+
+    model = rover_model()
+    argv = [
+        "kinematics",
+        str(out / "kinematics"),
+        "--camera",
+        str(fisheye(model).save(tmp_path / "omni.yaml")),
+    ]
+    argv += ["--rover", str(model.save(tmp_path / "rover.yaml")), "--fps", "30", "--out", str(out)]
+    assert main(argv) == 2
+    assert "holds the input" in one_error_line(capsys)
     after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert all(after.get(p) == b for p, b in before.items())
     assert set(after) - set(before) == {out / n for n in ("odometry.csv", "trajectory.tum", "odometry.mcap")}
