@@ -856,7 +856,9 @@ class StampClock:
             self._last, self._cand = (stamp, recv, t), None
             return t, ""
         self._cand = (stamp, recv)
-        if ds <= 0:
+        if ds == 0:
+            why = f"header stamp {stamp:.6f} s repeats the last good frame's"
+        elif ds < 0:
             why = f"header stamp {stamp:.6f} s goes back {-ds:.3f} s from the last good frame's"
         else:
             why = (
@@ -864,6 +866,43 @@ class StampClock:
                 f"{self.tolerance:g} s)"
             )
         return (t0 + dr if dr > 0 else math.nan), why
+
+
+def in_stamp_order(frames: Iterator[LogFrame], tolerance: float = STAMP_TOLERANCE) -> Iterator[LogFrame]:
+    """``frames`` (in the log's receive order) in header-stamp order, where the receive time vouches for it.
+
+    A frame whose clock offset (receive time less stamp) is within ``tolerance`` [s] of the
+    recent frames' median is held for ``tolerance`` seconds of stamp time and released in stamp
+    order: frames a recorder stored slightly out of order are put back in order. A frame whose
+    offset is not (a glitched stamp, a clock that jumped) passes through where it was received,
+    for :class:`StampClock` to flag; three such frames that agree with each other are a new
+    clock, whose frames are then ordered like the first's.
+    """
+    import heapq
+    import statistics
+
+    held: list[tuple[float, int, LogFrame]] = []
+    offsets: list[float] = []  # the recent frames' receive time less stamp [s]
+    odd: list[float] = []  # offsets of the frames since the last one that agreed
+    for seq, f in enumerate(frames):
+        off = f.recv - f.stamp
+        if not math.isfinite(off):
+            yield from (heapq.heappop(held)[2] for _ in range(len(held)))
+            yield f
+            continue
+        if offsets and abs(off - statistics.median(offsets)) > tolerance:
+            odd.append(off)
+            if len(odd) < 3 or max(odd[-3:]) - min(odd[-3:]) > tolerance:
+                yield from (heapq.heappop(held)[2] for _ in range(len(held)))
+                yield f
+                continue
+            offsets = odd[-3:]  # a new clock: its frames from here on are ordered
+        odd = []
+        offsets = (offsets + [off])[-15:]
+        heapq.heappush(held, (f.stamp, seq, f))
+        while held and held[0][0] <= f.stamp - tolerance:
+            yield heapq.heappop(held)[2]
+    yield from (heapq.heappop(held)[2] for _ in range(len(held)))
 
 
 # ---------------------------------------------------------------------------- writing

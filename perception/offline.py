@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from perception.bags import LogFrame, StampClock
+from perception.bags import LogFrame, StampClock, in_stamp_order
 from perception.cameras import OmniCamera, PinholeCamera
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
 from perception.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
@@ -228,7 +228,7 @@ class _Source:
 
 def _log_source(src, images) -> _Source:
     """The frames of a log's image topic, their stamps checked by a :class:`StampClock`."""
-    frames = src.frames()
+    frames = in_stamp_order(src.frames())
     first = next(frames, None)
     if first is None:
         raise ValueError(f"{images}: no readable message on {src.topic}")

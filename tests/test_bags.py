@@ -30,11 +30,13 @@ TWIST, FPS, N = (1.2, 0.1, 0.3), 60.0, 16
 class LogWriter:
     """One log of any of the three kinds, with a stamp per message."""
 
-    def __init__(self, path: Path, kind: str) -> None:
+    def __init__(self, path: Path, kind: str, compression: str | None = None) -> None:
         self.kind, self.path = kind, path
         self.store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
         if kind == "ros1":
             self.w = Ros1Writer(path)
+            if compression:  # "bz2" or "lz4" chunks
+                self.w.set_compression(Ros1Writer.CompressionFormat[compression.upper()])
         else:
             plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
             self.w = Ros2Writer(

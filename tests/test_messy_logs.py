@@ -43,9 +43,11 @@ def frames():
     return out
 
 
-def write_log(path: Path, kind: str, frames, stamps=None, info: bool = False, imu: bool = False) -> Path:
+def write_log(
+    path: Path, kind: str, frames, stamps=None, info: bool = False, imu: bool = False, compression=None
+) -> Path:
     """A log of ``frames`` received at T0 + k / FPS, stamped ``stamps`` (default: the same)."""
-    with LogWriter(path, kind) as lw:
+    with LogWriter(path, kind, compression) as lw:
         for k, img in enumerate(frames):
             t = T0 + k / FPS
             lw.image(TOPIC, t, img, encoding="mono8", stamp=None if stamps is None else stamps[k])
@@ -133,6 +135,31 @@ def test_a_clock_that_jumps_back_10_s_keeps_every_frame_after_the_jump(tmp_path,
     assert np.all(np.diff(tum[:, 0]) > 0)
 
 
+@pytest.mark.parametrize("kind", ["ros2", "mcap"])
+def test_frames_stored_out_of_order_are_put_back_in_stamp_order(tmp_path, frames, clean_rows, kind):
+    path = tmp_path / ("swap_ros2" if kind == "ros2" else "swap.mcap")
+    order = list(range(N))
+    order[20], order[21] = 21, 20  # the recorder stored frame 21 first
+    order[40], order[41], order[42] = 42, 40, 41
+    with LogWriter(path, kind) as lw:
+        for k, j in enumerate(order):  # frame j received in the k-th place, stamped at its own time
+            lw.image(TOPIC, T0 + k / FPS, frames[j], encoding="mono8", stamp=T0 + j / FPS)
+    rc, rows = odometry(tmp_path, path)
+    assert rc == 0 and len(rows) == N - 1 and rows["valid"].all()
+    same_as_clean(rows, clean_rows)
+
+
+def test_a_repeated_stamp_is_flagged_as_such(tmp_path, frames):
+    stamps = T0 + np.arange(12) / FPS
+    stamps[6] = stamps[5]
+    rc, rows = odometry(tmp_path, write_log(tmp_path / "rep.mcap", "mcap", frames[:12], stamps))
+    assert rc == 0 and len(rows) == 11
+    assert (
+        "frame 6: header stamp" in rows["reason"][5] and "repeats the last good frame's" in rows["reason"][5]
+    )
+    assert rows["valid"].sum() == 9
+
+
 def test_stamp_clock_rules():
     clock = bags.StampClock(tolerance=0.5)
     assert clock.place(10.0, 100.0) == (10.0, "")
@@ -149,12 +176,13 @@ def test_stamp_clock_rules():
 # ------------------------------------------------------------------ damaged files
 
 
+@pytest.mark.parametrize("compression", [None, "bz2"])
 def test_a_ros1_bag_whose_last_chunk_is_damaged_keeps_every_frame_before_it(
-    tmp_path, frames, clean_rows, caplog
+    tmp_path, frames, clean_rows, caplog, compression
 ):
     from rosbags.rosbag1 import Reader
 
-    path = write_log(tmp_path / "cut.bag", "ros1", frames)
+    path = write_log(tmp_path / "cut.bag", "ros1", frames, compression=compression)
     with Reader(path) as r:
         chunks = sorted(r.chunk_infos, key=lambda c: c.pos)
         last = chunks[-1]
