@@ -925,17 +925,21 @@ def ground_plane_from_wheels(wheel_centres_body, wheel_radius: float) -> tuple[f
     return float(a), float(b), float(c - wheel_radius * math.sqrt(1.0 + a * a + b * b))
 
 
-def integrate_twist(t: np.ndarray, twist: np.ndarray, pose0=(0.0, 0.0, 0.0)) -> np.ndarray:
+def integrate_twist(
+    t: np.ndarray, twist: np.ndarray, pose0=(0.0, 0.0, 0.0), max_hold: float | None = None
+) -> np.ndarray:
     """Planar poses (x, y, yaw) from body twists (v_x, v_y, omega) held between samples.
 
     Each interval [t_k, t_{k+1}] uses the twist at t_{k+1} (the estimate over that interval),
     integrated exactly as a constant-curvature arc. NaN twists (invalid estimates) hold the
-    previous valid twist.
+    previous valid twist, for at most ``max_hold`` seconds after it if given (then the pose
+    stays: a long gap is not filled with made-up motion).
 
     Args:
         t: (n,) times [s].
         twist: (n, 3) body twists [m/s, m/s, rad/s].
         pose0: Pose at t[0] (x [m], y [m], yaw [rad]).
+        max_hold: Longest time a valid twist is held over invalid ones [s] (None: no limit).
 
     Returns:
         (n, 3) poses.
@@ -945,10 +949,15 @@ def integrate_twist(t: np.ndarray, twist: np.ndarray, pose0=(0.0, 0.0, 0.0)) -> 
     out = np.zeros((len(t), 3))
     out[0] = pose0
     last = np.zeros(3)
+    held_until = math.inf  # the end of the last valid twist's hold [s]
     for k in range(1, len(t)):
         if np.all(np.isfinite(tw[k])):
             last = tw[k]
-        out[k] = arc_step(out[k - 1], last, t[k] - t[k - 1])
+            out[k] = arc_step(out[k - 1], last, t[k] - t[k - 1])
+            held_until = t[k] + max_hold if max_hold is not None else math.inf
+        else:
+            dt = min(t[k], held_until) - t[k - 1]
+            out[k] = arc_step(out[k - 1], last, dt) if dt > 0 else out[k - 1]
     return out
 
 

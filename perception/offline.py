@@ -33,11 +33,12 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from perception.bags import LogFrame, StampClock, in_stamp_order
+from perception.bags import LogFrame
 from perception.cameras import OmniCamera, PinholeCamera
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
 from perception.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
 from perception.kinematics import RoverKinematicModel
+from perception.log_time import Placed, StampClock, in_stamp_order, same_image
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
 from perception.outputs import OutputFolder
@@ -49,6 +50,9 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 ODOMETRY_PRODUCTS = ("odometry.csv", "trajectory.tum", "trajectory_imu.tum", "odometry.mcap")
 KINEMATICS_PRODUCTS = ("kinematics.csv", "kinematics.mcap")
+#: Longest time the integrated path holds the last valid twist over invalid pairs [s]: a few
+#: lost pairs are bridged, a camera drop-out is not filled with made-up motion.
+MAX_HOLD = 0.5
 
 
 class NothingValidError(ValueError):
@@ -217,30 +221,33 @@ class _Reasons:
 
 @dataclass
 class _Source:
-    """A run's frames: LogFrames of a log (stamps checked by a clock) or of an image folder."""
+    """A run's frames placed on the time line (by a :class:`StampClock` for a log), and what is known."""
 
-    frames: Iterator[LogFrame]
+    placed: Iterator[Placed]
     count: int | None
-    clock: StampClock | None
     span: tuple[float, float] | None  # the images' time span, where known [s]
-    inputs: tuple
+    depth: int | None = None  # bits of a log's 16-bit images (the median of its first ones)
 
 
 def _log_source(src, images) -> _Source:
-    """The frames of a log's image topic, their stamps checked by a :class:`StampClock`."""
-    frames = in_stamp_order(src.frames())
-    first = next(frames, None)
-    if first is None:
+    """The frames of a log's image topic in stamp order, placed on the time line by a :class:`StampClock`."""
+    frames = in_stamp_order(src.frames(), same=same_image)
+    first = list(itertools.islice(frames, 9))  # a look at the log's start: its time, its bit depth
+    if not first:
         raise ValueError(f"{images}: no readable message on {src.topic}")
-    span = None if src.span is None else (first.stamp, first.stamp + src.span)
-    return _Source(itertools.chain([first], frames), src.count, StampClock(), span, (images,))
+    span = None if src.span is None else (first[0].stamp, first[0].stamp + src.span)
+    deep = [bit_depth(f.image) for f in first if f.image is not None and f.image.dtype == np.uint16]
+    depth = max(int(np.median(deep)), 10) if deep else None
+    clock = StampClock(name=f"{images}: {src.topic}")
+    return _Source(clock.run(itertools.chain(first, frames)), src.count, span, depth)
 
 
 def _folder_source(images, fps, size: tuple[int, int], colour: bool = False) -> _Source:
     """The frames of an image folder at ``fps`` (``colour``: 8-bit BGR, for the fisheye)."""
     files = _open_run(images, fps, size)
     span = (0.0, (len(files) - 1) / fps)
-    return _Source(_folder_frames(files, fps, size, colour), len(files), None, span, (images,))
+    placed = (Placed(f, f.stamp) for f in _folder_frames(files, fps, size, colour))
+    return _Source(placed, len(files), span)
 
 
 def _folder_frames(files: list[Path], fps: float, size: tuple[int, int], colour: bool) -> Iterator[LogFrame]:
@@ -257,27 +264,15 @@ def _folder_frames(files: list[Path], fps: float, size: tuple[int, int], colour:
         yield LogFrame(k, k / fps, math.nan, img, reason)
 
 
-class _Timeline:
-    """Each frame's time and whether it is usable, in the order read; rows stay in time order."""
-
-    def __init__(self, clock: StampClock | None) -> None:
-        self.clock = clock
-        self.t_last = -math.inf  # the last row's (or first frame's) time
-
-    def place(self, k: int, frame: LogFrame) -> tuple[float, str]:
-        """(time [s] or NaN, "" or why the frame is flagged) of frame ``k``."""
-        if self.clock is not None:
-            t, why = self.clock.place(frame.stamp, frame.recv)
-        else:
-            t, why = frame.stamp, ""
-        if why:
-            why = f"frame {k}: {why}"
-        elif not t > self.t_last:
-            why = f"frame {k}: time {t!r} s does not follow the last frame's {self.t_last!r} s"
-            t = math.nan
-        if not (math.isfinite(t) and t > self.t_last):
-            t = math.nan
-        return t, why
+def _grey8(img: np.ndarray, depth: int | None) -> tuple[np.ndarray | None, str]:
+    """A frame as 8-bit grey (16-bit scaled by the log's ``depth``), or None and why not."""
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    if img.dtype == np.uint16:
+        return to_8bit(img, depth or max(bit_depth(img), 10)), ""
+    if img.dtype != np.uint8:
+        return None, f"an image of {img.dtype}: use 8- or 16-bit images"
+    return img, ""
 
 
 def run_folder_odometry(
@@ -345,7 +340,9 @@ def run_folder_odometry(
         source = _folder_source(images, fps, camera.image_size)
     imu_in = _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, source.span)
     with OutputFolder(out, ODOMETRY_PRODUCTS, overwrite, inputs=(images,)) as folder:
-        res = _odometry(source, camera, config, progress, imu_in, imu_still, imu or imu_topic, mcap, folder)
+        res = _odometry(
+            source, camera, config, progress, imu_in, imu_still, imu or imu_topic, mcap, folder, str(images)
+        )
     if not res.valid:
         raise NothingValidError(
             f"{images}: no valid estimate in {res.pairs} pairs of {res.frames} frames; most often: "
@@ -384,76 +381,82 @@ def _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, span) -> tuple
     return imu_in
 
 
-def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mcap, folder):
+def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mcap, folder, name):
     """The odometry loop and its files (staged in ``folder``, committed at the end)."""
     odo = FlowOdometry(camera, config)
-    line = _Timeline(source.clock)
     rows, pair_start = [], []
     times, twists, covs = [], [], []
     reasons = _Reasons()
-    depth = None
-    chain = False  # a frame of the current chain has been given to the odometry
+    t_row = t_fed = -math.inf  # the last row's time; the last frame given to the odometry
+    chain = False  # the odometry holds a frame to pair the next one with
     n = 0
-    bad_k = -1  # the last unusable frame
 
     def invalid(t: float, reason: str) -> None:
+        nonlocal t_row
         rows.append([t, math.nan, math.nan, math.nan, 0.0, 0, 0, reason])
-        pair_start.append(line.t_last)
+        pair_start.append(t_row)
         times.append(t)
         twists.append(np.full(3, math.nan))
         covs.append(None)
         reasons.add(reason)
-        line.t_last = t
+        t_row = t
 
-    for k, frame in enumerate(source.frames):
-        n = k + 1
-        t, reason = line.place(k, frame)
+    for n, p in enumerate(source.placed, start=1):
+        frame, t = p.item, p.t
+        k = frame.index
+        reason = f"frame {k}: {p.why}" if p.why else (f"frame {k}: {frame.why}" if frame.why else "")
         img = frame.image
-        if not reason:
-            reason = f"frame {k}: {frame.why}" if frame.why else ""
-        if not reason and img is not None and (img.shape[1], img.shape[0]) != camera.image_size:
-            reason = f"frame {k}: {img.shape[1]}x{img.shape[0]} px differs from the calibration"
         if not reason and img is None:
             reason = f"frame {k}: no image"
-        if reason:
-            log.warning("%s; the chain restarts at the next good frame", reason)
+        if not reason and (img.shape[1], img.shape[0]) != camera.image_size:
+            reason = f"frame {k}: {img.shape[1]}x{img.shape[0]} px differs from the calibration"
+        if not reason:
+            img, why = _grey8(img, source.depth)
+            reason = f"frame {k}: {why}" if why else ""
+        if p.anchor:  # a new clock: the pair across the jump is unknown; the chain starts again here
             odo.reset()
-            chain, bad_k = False, k
-            if times and math.isfinite(t):
+            chain = False
+        if reason:
+            log.warning(
+                "%s; %s", reason, "the next pair starts here" if p.anchor else "the frame is left out"
+            )
+            if times and math.isfinite(t) and t > t_row:
                 invalid(t, reason)
             elif not times:
                 reasons.add(reason)
+            if p.anchor and img is not None and frame.why == "":
+                img2, _ = _grey8(frame.image, source.depth)
+                if img2 is not None and (img2.shape[1], img2.shape[0]) == camera.image_size:
+                    odo.update(img2, t)  # the first frame of the new chain
+                    chain, t_fed = True, t
             continue
-        if img.ndim == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-        if img.dtype != np.uint8:  # 16-bit containers: the log's depth (its first such frame's)
-            depth = depth or max(bit_depth(img), 10)
-            img = to_8bit(img, depth)
         est = odo.update(img, t)
         if est is not None:
             rows.append(
                 [t, est.v_x, est.v_y, est.omega, est.quality, int(est.valid), est.n_inliers, est.reason]
             )
-            pair_start.append(line.t_last)
+            pair_start.append(t_fed)
             times.append(t)
             twists.append(est.twist)
             covs.append(est.twist_cov if est.valid else None)
             if not est.valid:
                 reasons.add(est.reason)
-            line.t_last = t
+            t_row = t
         elif not times:  # the very first frame: the path's origin
             times.append(t)
             twists.append(np.zeros(3))
             covs.append(None)
-            line.t_last = t
-        elif chain is False:  # the first frame after a flagged one: its pair touches the flag
-            invalid(t, f"frame {k}: its pair begins at the unusable frame {bad_k}; the chain restarts here")
-        chain = True
+            t_row = t
+        elif not chain and t > t_row:  # the first frame after a clock jump whose frame was unusable
+            invalid(t, f"frame {k}: starts a new chain after the clock jump")
+        chain, t_fed = True, t
         if progress is not None and source.count:
-            progress(min(1.0, (k + 1) / source.count))
+            progress(min(1.0, n / source.count))
     if not times:
         raise ValueError(
-            f"no usable frame in {n} frames; most often: {reasons.summary()}" if n else "no frames to read"
+            f"{name}: no usable frame in {n} frames; most often: {reasons.summary()}"
+            if n
+            else f"{name}: no frames to read"
         )
     header = ["t", "v_x", "v_y", "omega", "quality", "valid", "inliers", "reason"]
     extra: list[list] = [[] for _ in rows]
@@ -473,7 +476,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
         for r, x in zip(rows, extra, strict=True):
             w.writerow([f"{r[0]:.6f}", *(f"{v:.6f}" for v in r[1:5]), r[5], r[6], _cell(r[7]), *x])
     t_arr = np.array(times)
-    poses = integrate_twist(t_arr, np.array(twists))
+    poses = integrate_twist(t_arr, np.array(twists), max_hold=MAX_HOLD)
     folder.write_text("trajectory.tum", format_planar_tum(t_arr, poses))
     if mcap:
         from perception import bags
@@ -487,7 +490,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
         gyro_w = np.concatenate([[math.nan], w_imu])
         tw[:, 2] = np.where(np.isfinite(gyro_w), gyro_w, tw[:, 2])
         tum_imu = folder.write_text(
-            "trajectory_imu.tum", format_planar_tum(t_arr, integrate_twist(t_arr, tw))
+            "trajectory_imu.tum", format_planar_tum(t_arr, integrate_twist(t_arr, tw, max_hold=MAX_HOLD))
         )
     folder.commit()
     out = folder.path
@@ -697,7 +700,7 @@ def run_folder_kinematics(
     else:
         source = _folder_source(images, fps, cam.image_size, colour=True)
     with OutputFolder(out, KINEMATICS_PRODUCTS, overwrite, inputs=(images,)) as folder:
-        res = _kinematics(source, cam, est, progress, mcap, folder)
+        res = _kinematics(source, cam, est, progress, mcap, folder, str(images))
     if not res.any_valid:
         raise NothingValidError(
             f"{images}: no degree of freedom measured on any of {res.frames} frames; most often: "
@@ -706,10 +709,9 @@ def run_folder_kinematics(
     return res
 
 
-def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsResult:
+def _kinematics(source, cam, est, progress, mcap, folder, name) -> FolderKinematicsResult:
     from perception import bags
 
-    line = _Timeline(source.clock)
     n_all = n_any = n_rows = 0
     reasons = _Reasons()
     names = [*DOF_NAMES, *(f"wheel_{w}" for w in ("FL", "FR", "RL", "RR"))]
@@ -725,18 +727,19 @@ def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsRes
             + [f"valid_{d}" for d in DOF_NAMES]
             + ["note"]
         )
-        for k, frame in enumerate(source.frames):
-            t, note = line.place(k, frame)
+        t_row = -math.inf
+        for n, p in enumerate(source.placed, start=1):
+            frame, t = p.item, p.t
+            k = frame.index
+            note = f"frame {k}: {p.why}" if p.why else (f"frame {k}: {frame.why}" if frame.why else "")
             bgr = frame.image
-            if not note and frame.why:
-                note = f"frame {k}: {frame.why}"
             if not note and bgr is not None and (bgr.shape[1], bgr.shape[0]) != cam.image_size:
                 note = f"frame {k}: {bgr.shape[1]}x{bgr.shape[0]} px differs from the calibration"
-            if not math.isfinite(t):
+            if not (math.isfinite(t) and t > t_row):
                 log.warning("%s; no row: it cannot be placed in time", note)
                 reasons.add(note)
                 continue
-            line.t_last = t
+            t_row = t
             rgb = np.zeros((0, 0, 3), np.uint8)  # the estimator flags it and carries on
             if not note and bgr is None:
                 note = f"frame {k}: no image"
@@ -768,9 +771,9 @@ def _kinematics(source, cam, est, progress, mcap, folder) -> FolderKinematicsRes
                 vel = np.r_[np.full(len(DOF_NAMES), math.nan), s.theta_dot]
                 mw.joints(t, names, np.r_[pos, np.full(4, math.nan)], vel)
             if progress is not None and source.count:
-                progress(min(1.0, (k + 1) / source.count))
+                progress(min(1.0, n / source.count))
     if not n_rows:
-        raise ValueError(f"no usable frame; most often: {reasons.summary()}")
+        raise ValueError(f"{name}: no usable frame; most often: {reasons.summary()}")
     folder.commit()
     log.info("kinematics: %d frames, all 10 DOF on %d", n_rows, n_all)
     out = folder.path
