@@ -302,7 +302,14 @@ class _SqliteLog(RobotLog):
 
 
 class _McapLog(RobotLog):
-    """MCAP files read record by record: a damaged chunk loses only itself, a truncation the rest."""
+    """MCAP files read record by record.
+
+    A damaged chunk loses only its records from the damage on; a damaged record header is
+    skipped by the summary's chunk index where there is one (else the reading ends there); a
+    cut-off file keeps every message before the cut, those of the cut chunk included. Schemas
+    and channels come from the summary where it is readable, so a damaged definition in the
+    data costs nothing.
+    """
 
     def __init__(self, path: Path, files: list[Path]) -> None:
         self.path = path
@@ -315,19 +322,29 @@ class _McapLog(RobotLog):
                 raise ValueError(f"{f}: not readable ({exc.strerror or exc})") from None
             if head != b"\x89MCAP0\r\n":
                 raise ValueError(f"{f}: not an MCAP file (its first bytes are not MCAP's magic)")
+        self._summaries: dict[Path, object] = {}
         self._topics: dict[str, tuple[str, int | None]] | None = None
 
-    def span(self) -> float | None:
-        from mcap.reader import make_reader
+    def _summary(self, f: Path):
+        """The file's summary section, or None where it is missing or damaged (a cut-off recording)."""
+        if f not in self._summaries:
+            from mcap.reader import make_reader
 
-        lo, hi = math.inf, -math.inf
-        for f in self._files:
             try:
                 with open(f, "rb") as fh:
-                    st = make_reader(fh).get_summary().statistics
-                lo, hi = min(lo, st.message_start_time), max(hi, st.message_end_time)
-            except Exception:  # noqa: BLE001 - no or a damaged summary: unknown
+                    summary = make_reader(fh).get_summary()
+            except Exception:  # noqa: BLE001 - any damage: read the data section alone
+                summary = None
+            self._summaries[f] = summary
+        return self._summaries[f]
+
+    def span(self) -> float | None:
+        lo, hi = math.inf, -math.inf
+        for f in self._files:
+            st = getattr(self._summary(f), "statistics", None)
+            if st is None:
                 return None
+            lo, hi = min(lo, st.message_start_time), max(hi, st.message_end_time)
         return 1e-9 * (hi - lo) if hi >= lo else None
 
     def topics(self) -> dict[str, tuple[str, int | None]]:
@@ -341,95 +358,134 @@ class _McapLog(RobotLog):
 
     def _file_topics(self, f: Path) -> dict[str, tuple[str, int | None]]:
         """Topics from the summary; where it is damaged or missing (a cut-off recording), from the data."""
-        from mcap.reader import make_reader
-
-        try:
-            with open(f, "rb") as fh:
-                summary = make_reader(fh).get_summary()
-            if summary is not None and summary.statistics is not None:
-                counts = summary.statistics.channel_message_counts
-                out: dict[str, tuple[str, int | None]] = {}
-                for cid, ch in summary.channels.items():
-                    schema = summary.schemas.get(ch.schema_id)
-                    ty = _ros2_name(schema.name) if schema is not None else "?"
-                    out[ch.topic] = (ty, (out.get(ch.topic, (ty, 0))[1] or 0) + int(counts.get(cid, 0)))
-                return out
-        except Exception:  # noqa: S110 - a damaged summary: count in a pass over the data
-            pass
-        out = {}
-        for ch, _schema, _msg in self._records(f, quiet=True):
-            ty, n = out.get(ch[0], (ch[1], 0))
-            out[ch[0]] = (ty, (n or 0) + 1)
+        summary = self._summary(f)
+        out: dict[str, tuple[str, int | None]] = {}
+        if summary is not None and summary.statistics is not None:
+            counts = summary.statistics.channel_message_counts
+            for cid, ch in summary.channels.items():
+                schema = summary.schemas.get(ch.schema_id)
+                ty = _ros2_name(schema.name) if schema is not None else "?"
+                out[ch.topic] = (ty, (out.get(ch.topic, (ty, 0))[1] or 0) + int(counts.get(cid, 0)))
+            return out
+        for (topic, ty, _enc), _msg in self._records(f, quiet=True):
+            n = out.get(topic, (ty, 0))[1] or 0
+            out[topic] = (ty, n + 1)
         return out
 
-    def _records(self, f: Path, quiet: bool = False):
-        """((topic, type, encoding), None, Message) of each readable message of ``f``, in file order."""
-        from mcap.records import Channel, Chunk, Message, Schema
-        from mcap.stream_reader import StreamReader
+    def _records(self, f: Path, quiet: bool = False) -> Iterator[tuple[tuple[str, str, str], object]]:
+        """((topic, type, encoding), Message) of each readable message of ``f``, in file order."""
+        import io
+        import os
+        import struct
 
-        schemas: dict[int, Schema] = {}
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Channel, Chunk, Message, Schema
+
+        last: list = []  # the last message yielded: (topic, log time [ns])
+
+        def warn(fmt: str, *args) -> None:
+            if not quiet:
+                where = (
+                    f" (after the {last[0]} message at log time {1e-9 * last[1]:.6f} s)"
+                    if last
+                    else " (before its first message)"
+                )
+                log.warning(fmt + where, *args)
+
+        summary = self._summary(f)
+        schemas: dict[int, str] = {}
         channels: dict[int, tuple[str, str, str]] = {}
-        last: tuple | None = None
+        starts: list[int] = []
+        if summary is not None:
+            schemas = {i: _ros2_name(sc.name) for i, sc in summary.schemas.items()}
+            for i, ch in summary.channels.items():
+                channels[i] = (ch.topic, schemas.get(ch.schema_id, "?"), ch.message_encoding)
+            starts = sorted(ci.chunk_start_offset for ci in summary.chunk_indexes)
+        orphans = 0
 
         def handle(rec):
+            nonlocal orphans
             if isinstance(rec, Schema):
-                schemas[rec.id] = rec
+                schemas[rec.id] = _ros2_name(rec.name)
             elif isinstance(rec, Channel):
-                s = schemas.get(rec.schema_id)
-                channels[rec.id] = (
-                    rec.topic,
-                    _ros2_name(s.name) if s is not None else "?",
-                    rec.message_encoding,
-                )
-            elif isinstance(rec, Message) and rec.channel_id in channels:
-                return channels[rec.channel_id]
+                channels[rec.id] = (rec.topic, schemas.get(rec.schema_id, "?"), rec.message_encoding)
+            elif isinstance(rec, Message):
+                if rec.channel_id in channels:
+                    last[:] = [channels[rec.channel_id][0], rec.log_time]
+                    return channels[rec.channel_id], rec
+                orphans += 1
             return None
 
+        known = {int(o) for o in Opcode}
         with open(f, "rb") as fh:
-            reader = StreamReader(fh, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES)
-            it = iter(reader.records)
-            n_chunks = 0
-            while True:
+            size = os.fstat(fh.fileno()).st_size
+            pos = 8
+            while pos < size:
+                fh.seek(pos)
+                head = fh.read(9)
+                if len(head) < 9:
+                    warn(
+                        "%s: cut off at byte %d (inside a record's header); everything before it is used",
+                        f,
+                        pos,
+                    )
+                    break
+                opcode, length = struct.unpack("<BQ", head)
+                if opcode not in known or length > MAX_RECORD_BYTES:
+                    nxt = next((s for s in starts if s > pos), None)
+                    if nxt is None:
+                        warn(
+                            "%s: damaged record header at byte %d; reading ends there: everything read "
+                            "so far is used", f, pos,
+                        )  # fmt: skip
+                        break
+                    warn("%s: damaged record header at byte %d; reading resumes at the next chunk (byte %d)",
+                         f, pos, nxt)  # fmt: skip
+                    pos = nxt
+                    continue
+                if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                    break
+                cut = pos + 9 + length > size
+                if cut and opcode != Opcode.CHUNK:
+                    warn("%s: cut off at byte %d (a record of %d bytes); everything before it is used",
+                         f, pos, length)  # fmt: skip
+                    break
+                body = fh.read(length)
+                stream = ReadDataStream(io.BytesIO(body))
                 try:
-                    rec = next(it)
-                except StopIteration:
-                    return
-                except Exception as exc:  # a cut-off recording or a damaged record header
-                    if not quiet:
-                        pos = (
-                            f"after {last[0][0]} message at log time {1e-9 * last[1].log_time:.6f} s"
-                            if last is not None else "before its first message"
-                        )  # fmt: skip
-                        log.warning(
-                            "%s: damaged or cut off at byte %d, %s (%s); reading ends there: everything "
-                            "read so far is used", f, fh.tell(), pos, _short(exc),
-                        )  # fmt: skip
-                    return
-                if isinstance(rec, Chunk):
-                    n_chunks += 1
-                    try:
-                        for r in _chunk_records(rec):
-                            ch = handle(r)
-                            if ch is not None:
-                                last = (ch, r)
-                                yield ch, None, r
-                    except Exception as exc:  # the rest of this chunk is lost, the next one is read
-                        if not quiet:
-                            log.warning(
-                                "%s: chunk %d (log times %.6f to %.6f s) is damaged (%s); its messages from "
-                                "there on are skipped", f, n_chunks, 1e-9 * rec.message_start_time,
-                                1e-9 * rec.message_end_time, _short(exc),
-                            )  # fmt: skip
-                else:
-                    ch = handle(rec)
-                    if ch is not None:
-                        last = (ch, rec)
-                        yield ch, None, rec
+                    if opcode == Opcode.CHUNK:
+                        chunk = Chunk.read(stream)
+                        for r in _chunk_records(chunk, partial=cut):
+                            out = handle(r)
+                            if out is not None:
+                                yield out
+                    elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
+                        rec = {Opcode.SCHEMA: Schema.read, Opcode.CHANNEL: Channel.read}.get(opcode)
+                        out = handle(rec(stream) if rec is not None else Message.read(stream, length))
+                        if out is not None:
+                            yield out
+                except Exception as exc:  # this record (or the rest of this chunk) is lost
+                    what = "chunk" if opcode == Opcode.CHUNK else "record"
+                    warn("%s: the %s at byte %d is damaged (%s); its messages from the damage on are skipped",
+                         f, what, pos, _short(exc))  # fmt: skip
+                if cut:
+                    warn(
+                        "%s: cut off inside the chunk at byte %d; its messages before the cut are used",
+                        f,
+                        pos,
+                    )
+                    break
+                pos += 9 + length
+        if orphans:
+            warn(
+                "%s: %d messages on channels whose definition is damaged or missing were skipped", f, orphans
+            )
 
     def messages(self, topics: Collection[str]) -> Iterator[LogMessage]:
         counts: dict[str, int] = {}
         for f in self._files:
-            for (topic, ty, enc), _s, msg in self._records(f):
+            for (topic, ty, enc), msg in self._records(f):
                 if topic not in topics:
                     continue
                 k = counts.get(topic, 0)
@@ -439,21 +495,31 @@ class _McapLog(RobotLog):
                 )
 
 
-def _chunk_records(chunk) -> Iterator:
+def _chunk_records(chunk, partial: bool = False) -> Iterator:
     """The schema, channel and message records of an MCAP chunk, up to any damage (which raises).
 
-    A chunk with a checksum that does not match is refused whole; one without a checksum is read
-    up to its first broken record.
+    A chunk with a checksum that does not match is refused whole; one without a checksum, or
+    ``partial`` (cut off: its checksum cannot match), is read up to its first broken record.
     """
+    import io
+
+    from mcap.data_stream import ReadDataStream
     from mcap.opcode import Opcode
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import get_chunk_data_stream
 
-    stream, length = get_chunk_data_stream(chunk, validate_crc=True)
+    if partial:
+        if chunk.compression:
+            raise ValueError(f"a cut-off {chunk.compression} chunk cannot be decompressed")
+        stream, length = ReadDataStream(io.BytesIO(chunk.data)), len(chunk.data)
+    else:
+        stream, length = get_chunk_data_stream(chunk, validate_crc=True)
     while stream.count < length:
         opcode = stream.read1()
         size = stream.read8()
         if size > length - stream.count:
+            if partial:
+                return  # the record the cut went through
             raise ValueError(f"a record of {size} bytes at byte {stream.count} overruns the chunk")
         if opcode == Opcode.MESSAGE:
             yield Message.read(stream, size)
@@ -755,33 +821,54 @@ def camera_info(path: str | Path, image_topic: str) -> dict | None:
     return None
 
 
+@dataclass(frozen=True)
+class _ImuSample:
+    stamp: float
+    recv: float
+    values: tuple
+
+
 def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str]:
     """(N, 7) IMU samples of a log (t [s], gyro xyz [rad/s], accel xyz [m/s^2]) and the topic.
 
-    Samples with a non-finite value, and damaged messages, are left out (with a warning).
+    The times are the header stamps placed on the log's time line by a
+    :class:`perception.log_time.StampClock`, as the images' are: a clock jump shifts the IMU's
+    stamps as it shifts the camera's. Samples with a non-finite value or a flagged stamp, and
+    damaged messages, are left out (with a warning).
     """
+    from perception.log_time import StampClock, in_stamp_order
+
     p = Path(path)
+    samples, bad = [], 0
     with open_log(p) as lg:
         name = _pick(p, lg.topics(), (IMU_TYPE,), topic, "IMU")
-        rows, bad = [], 0
         for m in lg.messages([name]):
             msg = lg.decode(m)
             if msg is None:
                 continue
             try:
                 w, a = msg.angular_velocity, msg.linear_acceleration
+                values = tuple(float(v) for v in (w.x, w.y, w.z, a.x, a.y, a.z))
                 stamp = _stamp(msg)
-                row = [1e-9 * m.log_ns if stamp is None else stamp, w.x, w.y, w.z, a.x, a.y, a.z]
-                row = [float(v) for v in row]
             except (AttributeError, TypeError, ValueError):
                 bad += 1
                 continue
-            if all(math.isfinite(v) for v in row):
-                rows.append(row)
-            else:
+            if not all(math.isfinite(v) for v in values):
                 bad += 1
+                continue
+            recv = 1e-9 * m.log_ns
+            samples.append(_ImuSample(recv if stamp is None else stamp, recv, values))
     if bad:
         log.warning("%s: %s: %d IMU samples with non-finite values left out", p, name, bad)
+    clock = StampClock(name=f"{p}: {name}")
+    rows, flagged = [], 0
+    for placed in clock.run(in_stamp_order(samples)):
+        if placed.why or not math.isfinite(placed.t):
+            flagged += 1
+            continue
+        rows.append([placed.t, *placed.item.values])
+    if flagged:
+        log.warning("%s: %s: %d IMU samples with a flagged stamp left out", p, name, flagged)
     data = np.array(rows, dtype=np.float64).reshape(-1, 7)
     return data[np.argsort(data[:, 0], kind="stable")], name
 

@@ -159,7 +159,8 @@ def test_a_repeated_stamp_is_flagged_as_such(tmp_path, frames):
     rc, rows = odometry(tmp_path, write_log(tmp_path / "rep.mcap", "mcap", frames[:12], stamps))
     assert rc == 0 and len(rows) == 11
     assert (
-        "frame 6: header stamp" in rows["reason"][5] and "repeats the last good message's" in rows["reason"][5]
+        "frame 6: header stamp" in rows["reason"][5]
+        and "repeats the last good message's" in rows["reason"][5]
     )
     assert rows["valid"].sum() == 10  # frame 7 pairs with frame 5
 
@@ -304,7 +305,33 @@ def test_a_cut_off_mcap_keeps_every_frame_before_the_cut(tmp_path, frames, clean
     assert rc == 0 and 30 < len(rows) < N - 1 and rows["valid"].all()
     same_as_clean(rows, clean_rows[: len(rows)])
     msg = " ".join(r.getMessage() for r in caplog.records if "cut off" in r.getMessage())
-    assert str(path) in msg and "at byte" in msg and f"after {TOPIC} message" in msg
+    assert str(path) in msg and "at byte" in msg and f"after the {TOPIC} message at log time" in msg
+
+
+def test_a_cut_inside_the_only_chunk_keeps_the_messages_before_it(tmp_path, capsys):
+    """A short recording is one chunk: a cut through it keeps the frames before the cut."""
+    small = mast_camera((160, 120))
+    ground = make_ground()
+    pose, path = START, tmp_path / "one_chunk.mcap"
+    with LogWriter(path, "mcap") as lw:
+        for k in range(20):
+            if k:
+                pose = pose_after(pose, TWIST, 1 / FPS)
+            lw.image(
+                TOPIC,
+                T0 + k / FPS,
+                render(small, ground, pose, rng=np.random.default_rng(k)),
+                encoding="mono8",
+            )
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "o"
+    argv = ["odometry", str(path), "--calib", str(small.save(tmp_path / "small.yaml")), "--out", str(out)]
+    assert main(argv) == 0
+    rows = np.genfromtxt(out / "odometry.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    assert (
+        8 <= len(rows) <= 10 and rows["valid"].all()
+    )  # 19,200 px a frame: 9 or 10 whole frames before the cut
 
 
 def test_damaged_camera_info_and_imu_messages_are_skipped_with_their_topic_index_and_time(
