@@ -49,11 +49,47 @@ MAX_RECORD_BYTES = 1 << 30
 
 
 def is_log(path: str | Path) -> bool:
-    """Whether ``path`` is a robot log: a ``.bag``, ``.mcap`` or ``.db3`` file, or a ROS 2 bag folder."""
+    """Whether ``path`` is a robot log: a ``.bag``, ``.mcap`` or ``.db3`` file, or a ROS 2 bag folder.
+
+    A ROS 2 bag folder holds ``.db3`` or ``.mcap`` storage files (with its ``metadata.yaml``, or
+    without it where a killed recorder never wrote it); a folder of images with a
+    ``metadata.yaml`` of its own is not one.
+    """
     p = Path(path)
     if p.is_file():
         return p.suffix.lower() in (".bag", ".mcap", ".db3")
-    return p.is_dir() and (p / "metadata.yaml").is_file()
+    return p.is_dir() and bool(_storage_files(p)[0] or _storage_files(p)[1])
+
+
+def _natural(path: Path) -> list:
+    """A sort key that puts ``bag_2`` before ``bag_10``."""
+    import re
+
+    return [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", path.name)]
+
+
+def _storage_files(folder: Path) -> tuple[list[Path], list[Path]]:
+    """The folder's .db3 and .mcap files, in natural name order (the order a recorder splits in)."""
+    return (
+        sorted(folder.glob("*.db3"), key=_natural),
+        sorted(folder.glob("*.mcap"), key=_natural),
+    )
+
+
+_warned: set[str] = set()
+
+
+def new_run() -> None:
+    """Forget the warnings given so far: a new run gives each of them again (once)."""
+    _warned.clear()
+
+
+def _warn_once(msg: str, *args) -> None:
+    """A warning that the several opens of one log in a run give only once."""
+    text = msg % args
+    if text not in _warned:
+        _warned.add(text)
+        log.warning(text)
 
 
 @functools.lru_cache(maxsize=2)
@@ -226,18 +262,62 @@ class _SqliteLog(RobotLog):
         self._dbs: list[sqlite3.Connection] = []
         self._topics: dict[str, tuple[str, str]] = {}  # name -> (type, serialisation)
         self._ids: list[dict[int, str]] = []
+        self._tmp: list[tempfile.TemporaryDirectory] = []
         for f in files:
-            try:
-                db = sqlite3.connect(f"{f.resolve().as_uri()}?mode=ro", uri=True)
-                rows = db.execute("SELECT id, name, type, serialization_format FROM topics").fetchall()
-            except sqlite3.Error as exc:
-                raise ValueError(f"{f}: not a readable ROS 2 SQLite bag ({_short(exc)})") from None
+            db, rows = self._open(f)
             self._dbs.append(db)
             ids = {}
             for tid, name, ty, ser in rows:
                 ids[int(tid)] = str(name)
                 self._topics.setdefault(str(name), (_ros2_name(str(ty)), str(ser)))
             self._ids.append(ids)
+
+    _QUERY = "SELECT id, name, type, serialization_format FROM topics"
+
+    def _open(self, f: Path) -> tuple[sqlite3.Connection, list]:
+        """The file's connection and topics.
+
+        A cut-off file, or one on read-only media with a write-ahead log, is read through a
+        repaired copy (with a warning).
+        """
+        try:
+            db = sqlite3.connect(f"{f.resolve().as_uri()}?mode=ro", uri=True)
+            return db, db.execute(self._QUERY).fetchall()
+        except sqlite3.Error as exc:
+            first = exc
+        try:
+            db = self._repaired(f)
+            rows = db.execute(self._QUERY).fetchall()
+        except (OSError, sqlite3.Error, ValueError) as exc:
+            raise ValueError(
+                f"{f}: not a readable ROS 2 SQLite bag ({_short(first)}; {_short(exc)})"
+            ) from None
+        _warn_once("%s: %s; reading a repaired copy of it", f, _short(first))
+        return db, rows
+
+    def _repaired(self, f: Path) -> sqlite3.Connection:
+        """A writable copy of ``f`` (and its write-ahead log), cut to whole pages.
+
+        The header's page count is cleared, so that SQLite counts the pages there are.
+        """
+        tmp = tempfile.TemporaryDirectory(prefix="rover-bag-")
+        self._tmp.append(tmp)
+        copy = Path(tmp.name) / f.name
+        for suffix in ("", "-wal", "-shm"):
+            src = Path(f"{f}{suffix}")
+            if src.is_file():
+                shutil.copyfile(src, Path(f"{copy}{suffix}"))
+        with open(copy, "r+b") as fh:
+            head = fh.read(100)
+            if len(head) < 100 or not head.startswith(b"SQLite format 3\x00"):
+                raise ValueError("its SQLite header is damaged")
+            page = int.from_bytes(head[16:18], "big")
+            page = 65536 if page == 1 else page
+            size = fh.seek(0, 2)
+            fh.truncate(size - size % page)
+            fh.seek(28)
+            fh.write(b"\x00\x00\x00\x00")
+        return sqlite3.connect(str(copy))
 
     def topics(self) -> dict[str, tuple[str, int | None]]:
         counts: dict[str, int | None] = {}
@@ -270,12 +350,16 @@ class _SqliteLog(RobotLog):
             if not want:
                 continue
             rows: list[tuple[int, int, int]] = []  # (timestamp, id, topic id)
+            last_rid = 0
             try:  # the table's b-tree, in row order; its damage ends the file here
                 for rid, tid, ts in db.execute("SELECT id, topic_id, timestamp FROM messages"):
+                    last_rid = int(rid)
                     if tid in want:
                         rows.append((int(ts), int(rid), int(tid)))
             except sqlite3.Error as exc:
-                where = f"{f}, message row {rows[-1][1] + 1 if rows else 1}"
+                where = (
+                    f"{f}, after message row {last_rid}" if last_rid else f"{f}, before its first message row"
+                )
                 log.warning(
                     "%s: damaged page (%s); the rows after it are lost: everything read so far is used",
                     where, _short(exc),
@@ -299,6 +383,8 @@ class _SqliteLog(RobotLog):
     def close(self) -> None:
         for db in self._dbs:
             db.close()
+        for tmp in self._tmp:
+            tmp.cleanup()
 
 
 class _McapLog(RobotLog):
@@ -550,14 +636,17 @@ def open_log(path: str | Path) -> RobotLog:
             return _SqliteLog(p, [p])
         return _RosbagsLog(p)
     meta = p / "metadata.yaml"
-    info = _bag_metadata(meta)
-    if info is None:  # the metadata is damaged: the folder's storage files, in name order
-        dbs, mcaps = sorted(p.glob("*.db3")), sorted(p.glob("*.mcap"))
+    info = _bag_metadata(meta) if meta.is_file() else None
+    if info is None:  # no or a damaged metadata.yaml: the folder's storage files, in name order
+        dbs, mcaps = _storage_files(p)
         if not (dbs or mcaps):
-            raise ValueError(f"{meta}: not readable, and {p} holds no .db3 or .mcap files")
-        log.warning(
-            "%s: not readable; reading the folder's %s files in name order", meta, ".db3" if dbs else ".mcap"
-        )
+            raise ValueError(
+                f"{p}: not a ROS 2 bag folder (no readable metadata.yaml, no .db3 or .mcap files)"
+            )
+        _warn_once(
+            "%s: %s; reading the folder's %s files in name order",
+            meta, "not readable" if meta.is_file() else "missing", ".db3" if dbs else ".mcap",
+        )  # fmt: skip
         return _SqliteLog(p, dbs) if dbs else _McapLog(p, mcaps)
     storage, compression, files, counts = info
     if compression:  # compressed bags: rosbags decompresses them
@@ -565,7 +654,7 @@ def open_log(path: str | Path) -> RobotLog:
     paths = [p / f for f in files]
     missing = [str(f) for f in paths if not f.is_file()]
     if missing:
-        log.warning("%s: %s named by metadata.yaml missing; reading the rest", p, ", ".join(missing))
+        _warn_once("%s: %s named by metadata.yaml missing; reading the rest", p, ", ".join(missing))
         paths = [f for f in paths if f.is_file()]
         if not paths:
             raise ValueError(f"{p}: none of the storage files metadata.yaml names is there")
@@ -688,14 +777,19 @@ def decode_image(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
     rows = data[: step * h].reshape(h, step)[:, : w * ch * item]
     img = rows.copy().view(np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")).astype(dtype)
     img = img.reshape(h, w, ch) if ch > 1 else img.reshape(h, w)
-    if enc == "rgb8":
-        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
-    elif enc == "rgba8":
-        img = cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA)
-    elif bayer is not None:
-        img = cv2.cvtColor(img, _BAYER[bayer])
-    elif enc in _YUV:
-        img = cv2.cvtColor(img, _YUV[enc])
+    if enc in _YUV and w % 2:
+        return None, f"a {enc} image of odd width {w} px: packed YUV 4:2:2 pairs its pixels"
+    try:
+        if enc == "rgb8":
+            img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+        elif enc == "rgba8":
+            img = cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA)
+        elif bayer is not None:
+            img = cv2.cvtColor(img, _BAYER[bayer])
+        elif enc in _YUV:
+            img = cv2.cvtColor(img, _YUV[enc])
+    except cv2.error as exc:
+        return None, f"a {enc} image of {w}x{h} px does not convert ({' '.join(str(exc).split())[:160]})"
     return img, ""
 
 
@@ -778,7 +872,10 @@ def camera_info(path: str | Path, image_topic: str) -> dict | None:
     with open_log(p) as lg:
         found = lg.topics()
         infos = [t for t, (ty, _) in found.items() if ty == CAMERA_INFO_TYPE]
-        ns = image_topic.rsplit("/", 1)[0]
+        base = image_topic
+        for transport in ("/compressed", "/compressedDepth", "/theora", "/zstd"):
+            base = base.removesuffix(transport)  # image_transport's topics beside the raw one
+        ns = base.rsplit("/", 1)[0]
         near = [t for t in infos if t.rsplit("/", 1)[0] == ns]
         pick = near[0] if near else (infos[0] if len(infos) == 1 else None)
         if pick is None:
@@ -816,9 +913,33 @@ def camera_info(path: str | Path, image_topic: str) -> dict | None:
             d[:used] = dist[:used]
             if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):
                 raise ValueError(f"{where}: K {K.tolist()} has no positive focal lengths")
+            K, size = _binned(msg, K, size)
             return {"image_size": size, "K": K, "distortion": d, "topic": pick, "where": where}
     log.warning("%s: no readable CameraInfo on %s", p, pick)
     return None
+
+
+def _binned(msg, K: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, tuple[int, int]]:
+    """K and the image size of the images a CameraInfo's binning and region of interest describe.
+
+    A CameraInfo's K, width and height are the full sensor's; with binning (b_x, b_y) and a
+    region of interest at (x0, y0) the published images are the region's size over the binning,
+    and fx / b_x, (cx - x0) / b_x (likewise in y) their intrinsics (as ROS's image_geometry).
+    """
+    bx, by = (max(1, int(getattr(msg, name, 0) or 0)) for name in ("binning_x", "binning_y"))
+    roi = getattr(msg, "roi", None)
+    x0 = y0 = 0
+    w, h = size
+    if roi is not None and int(roi.width) > 0 and int(roi.height) > 0:
+        x0, y0, w, h = int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height)
+    if (bx, by, x0, y0, w, h) == (1, 1, 0, 0, *size):
+        return K, size
+    K = K.copy()
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    K[0] /= bx
+    K[1] /= by
+    return K, (w // bx, h // by)
 
 
 @dataclass(frozen=True)

@@ -196,7 +196,9 @@ def read_imu_csv(path) -> ImuLog:
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"{p}: no such IMU CSV")
-    with open(p, newline="", encoding="utf-8", errors="replace") as fh:
+    with open(
+        p, newline="", encoding="utf-8-sig", errors="replace"
+    ) as fh:  # -sig: a BOM (Excel) is no header
         reader = csv.reader(fh)
         header = [h.strip() for h in next(reader, [])]
         missing = [c for c in IMU_CSV_COLUMNS if c not in header]

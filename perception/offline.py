@@ -330,6 +330,7 @@ def run_folder_odometry(
     """
     from perception import bags
 
+    bags.new_run()
     is_log = bags.is_log(images)
     if is_log:
         src = bags.log_images(images, topic)
@@ -338,6 +339,12 @@ def run_folder_odometry(
     else:
         camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
         source = _folder_source(images, fps, camera.image_size)
+    if camera.ground_plane is None:  # the scale of every estimate: refused before any frame
+        from perception.calib_io import CalibrationError
+        from perception.cameras import GROUND_PLANE_MISSING
+
+        raise CalibrationError(f"{calibration if not isinstance(calibration, PinholeCamera) else 'camera'}: "
+                               f"{GROUND_PLANE_MISSING}")  # fmt: skip
     imu_in = _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, source.span)
     with OutputFolder(out, ODOMETRY_PRODUCTS, overwrite, inputs=(images,)) as folder:
         res = _odometry(
@@ -695,6 +702,7 @@ def run_folder_kinematics(
     if steering is not None and cal is None:
         cal = SteeringCalibration.load(steering)
     est = KinematicStateEstimator(cam, model, config, cal)
+    bags.new_run()
     if bags.is_log(images):
         source = _log_source(bags.log_images(images, topic), images)
     else:

@@ -16,13 +16,19 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
 
 log = logging.getLogger(__name__)
+
+
+def _umask() -> int:
+    """The process's file-creation mask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _inside(child: Path, parent: Path) -> bool:
@@ -87,7 +93,6 @@ class OutputFolder:
             self._remove_created()
             raise OSError(f"--out {self.path}: cannot write there ({exc.strerror or exc})") from None
         self._staged: dict[str, Path] = {}  # product -> its temporary file or folder
-        self._scratch: list[Path] = []
         self.committed = False
 
     # ------------------------------------------------------------------ writing
@@ -102,14 +107,9 @@ class OutputFolder:
         self._check(name)
         fd, tmp = tempfile.mkstemp(dir=self.path, prefix=f".{name}.", suffix=".part")
         os.close(fd)
+        os.chmod(tmp, 0o666 & ~_umask())  # as open() would make it, not mkstemp's 0600
         self._staged[name] = Path(tmp)
         return Path(tmp)
-
-    def scratch_dir(self, name: str) -> Path:
-        """A temporary folder in the output folder for this run (removed at commit or failure)."""
-        d = Path(tempfile.mkdtemp(dir=self.path, prefix=f".{name}."))
-        self._scratch.append(d)
-        return d
 
     @contextlib.contextmanager
     def writing(self, name: str) -> Iterator[Path]:
@@ -162,7 +162,6 @@ class OutputFolder:
                     "--out %s: removed %s of the earlier run (this run does not make it)", self.path, name
                 )
         self._staged.clear()
-        self._drop_scratch()
         self.committed = True
         return done
 
@@ -172,13 +171,7 @@ class OutputFolder:
             with contextlib.suppress(OSError):
                 tmp.unlink()
         self._staged.clear()
-        self._drop_scratch()
         self._remove_created()
-
-    def _drop_scratch(self) -> None:
-        for d in self._scratch:
-            shutil.rmtree(d, ignore_errors=True)
-        self._scratch.clear()
 
     def _remove_created(self) -> None:
         for d in reversed(self._created):  # innermost first; only if empty

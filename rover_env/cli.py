@@ -299,6 +299,7 @@ def _cmd_kinematics(args: argparse.Namespace) -> int:
     from perception import bags
     from perception.offline import run_folder_kinematics
 
+    _need_source(args.source)
     if not bags.is_log(args.source):
         _need_fps(args)
     bar = _Progress("kinematics: frames")
@@ -321,6 +322,7 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     from perception.cameras import PinholeCamera
     from perception.offline import run_folder_odometry
 
+    _need_source(args.source)
     if not bags.is_log(args.source):
         _need_fps(args)
         if PinholeCamera.load(args.calib).ground_plane is None:  # the input before the output
@@ -354,6 +356,11 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     if res.tum_imu_path is not None:
         print(f"gyro yaw (bias {res.imu_bias:.5f} rad/s taken out): wrote {res.tum_imu_path}")
     return 0
+
+
+def _need_source(source: str) -> None:
+    if not Path(source).exists():
+        raise FileNotFoundError(f"{source}: no such file or folder")
 
 
 def _need_fps(args: argparse.Namespace) -> None:
@@ -569,14 +576,26 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
     )
+    import signal
+
+    def terminated(signum, frame):  # a kill (timeout, docker stop, Slurm): unwind, clean up
+        raise _Terminated
+
+    previous = signal.signal(signal.SIGTERM, terminated)
     try:
-        return int(args.func(args))
+        from tqdm.contrib.logging import logging_redirect_tqdm
+
+        with logging_redirect_tqdm():  # warnings on their own lines, not inside the progress bar
+            return int(args.func(args))
     except NothingValidError as exc:  # the input was read; nothing valid came of it
         sys.stderr.write(f"rover {args.command}: error: {exc}\n")
         return 1
     except (ValueError, OSError) as exc:  # includes CalibrationError and ConfigError
         sys.stderr.write(f"rover {args.command}: error: {_one_line(exc)}\n")
         return 2
+    except _Terminated:
+        sys.stderr.write(f"rover {args.command}: terminated\n")
+        return 143
     except KeyboardInterrupt:
         sys.stderr.write(f"rover {args.command}: interrupted\n")
         return 130
@@ -588,6 +607,12 @@ def main(argv: list[str] | None = None) -> int:
             "for the traceback and report it)\n"
         )
         return 3
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is so that every ``with`` block cleans up."""
 
 
 def _one_line(exc: BaseException) -> str:
