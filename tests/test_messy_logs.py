@@ -740,3 +740,150 @@ def test_a_mono_fisheye_log_exits_non_zero_with_the_reason(tmp_path, capsys):
     assert main(argv) == 1
     line = one_error_line(capsys)
     assert "no degree of freedom measured on any of 3 frames" in line and "give 8-bit colour images" in line
+
+
+# ------------------------------------------------------------------ review findings
+
+
+def test_a_camera_and_imu_clock_that_jump_together_keep_the_imu_on_the_pairs(tmp_path, frames):
+    """The robot's clock is set back 10 s part-way: the IMU's stamps follow the camera's."""
+    path = tmp_path / "jump_imu.mcap"
+    jump = T0 + 30 / FPS - 0.001  # the receive time from which every stamp is 10 s early
+    with LogWriter(path, "mcap") as lw:
+        for k, img in enumerate(frames):
+            t = T0 + k / FPS
+            lw.image(TOPIC, t, img, encoding="mono8", stamp=t - (10.0 if t >= jump else 0.0))
+        T = lw.store.types
+        for j in range(int(N / FPS * 200) + 20):
+            t = T0 - 0.05 + j / 200
+            V3 = T["geometry_msgs/msg/Vector3"]
+            msg = T["sensor_msgs/msg/Imu"](
+                header=lw.header(t - (10.0 if t >= jump else 0.0)),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                orientation_covariance=np.zeros(9),
+                angular_velocity=V3(x=0.0, y=0.0, z=TWIST[2] + 0.01),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=V3(x=0.0, y=0.0, z=9.81),
+                linear_acceleration_covariance=np.zeros(9),
+            )
+            lw.write("/imu/data", "sensor_msgs/msg/Imu", msg, t)
+    rc, rows = odometry(tmp_path, path, "out", "--imu-topic", "/imu/data")
+    assert rc == 0 and len(rows) == N - 1
+    after = rows[31:]  # the pairs after the jump have their IMU samples, on the same time line
+    assert np.all(after["imu_samples"] >= 3)
+    np.testing.assert_allclose(after["omega_imu"], TWIST[2], atol=5e-3)
+
+
+def test_a_camera_drop_out_is_not_filled_with_made_up_motion(tmp_path, frames):
+    """10 s without frames (the log goes on): the path holds the last twist 0.5 s at most."""
+    stamps = T0 + np.arange(12) / FPS
+    stamps[6:] += 10.0
+    path = tmp_path / "drop.mcap"
+    with LogWriter(path, "mcap") as lw:
+        for k, img in enumerate(frames[:12]):
+            img = img if k != 6 else np.zeros_like(img)  # the first frame after the gap is black
+            lw.image(TOPIC, stamps[k], img, encoding="mono8")
+    rc, rows = odometry(tmp_path, path)
+    assert rc == 0
+    tum = np.loadtxt(tmp_path / "out" / "trajectory.tum")
+    travelled = np.sum(np.hypot(np.diff(tum[:, 1]), np.diff(tum[:, 2])))
+    true = TWIST[0] * 10 / FPS  # the frames' own motion (they are consecutive views)
+    assert travelled < true + TWIST[0] * 0.5 + 0.05, travelled  # at most 0.5 s of hold, not 10 s
+
+
+def test_sigterm_mid_run_leaves_nothing_half_written(tmp_path, frames, monkeypatch, capsys):
+    import os
+    import signal
+
+    from perception.odometry import FlowOdometry
+
+    calls = {"n": 0}
+    update = FlowOdometry.update
+
+    def update_then_kill(self, *a, **k):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            os.kill(os.getpid(), signal.SIGTERM)  # what timeout, docker stop and Slurm send
+        return update(self, *a, **k)
+
+    monkeypatch.setattr(FlowOdometry, "update", update_then_kill)
+    path = write_log(tmp_path / "k.mcap", "mcap", frames[:12])
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep")
+    rc = main(["odometry", str(path), "--calib", str(calib(tmp_path)), "--out", str(out)])
+    assert rc == 143 and "terminated" in capsys.readouterr().err
+    assert [p.name for p in out.iterdir()] == ["mine.txt"]  # no staged file, no stray folder
+
+
+def test_results_get_the_usual_file_permissions(tmp_path, frames):
+    import os
+    import stat
+
+    rc, _ = odometry(tmp_path, write_log(tmp_path / "p.mcap", "mcap", frames[:4]))
+    mask = os.umask(0)
+    os.umask(mask)
+    for name in ("odometry.csv", "trajectory.tum", "odometry.mcap"):
+        mode = stat.S_IMODE((tmp_path / "out" / name).stat().st_mode)
+        assert mode == 0o666 & ~mask, (name, oct(mode))
+
+
+def test_camera_info_binning_roi_and_a_compressed_topic_beside_it(tmp_path, frames):
+    """The sensor is 1280x960; the driver bins 2x2: K is the sensor's, the images half its size."""
+    cam = mast_camera()
+    full_K = cam.K.copy()
+    full_K[:2] *= 2.0  # the same lens on the full sensor
+    path = tmp_path / "binned.mcap"
+    with LogWriter(path, "mcap") as lw:
+        T = lw.store.types
+        roi = T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
+        for k, img in enumerate(frames[:8]):
+            t = T0 + k / FPS
+            lw.image("/down/image_raw/compressed", t, img, compressed="png")
+            msg = T["sensor_msgs/msg/CameraInfo"](
+                header=lw.header(t), height=960, width=1280, distortion_model="plumb_bob", binning_x=2,
+                binning_y=2, roi=roi, k=full_K.ravel(), d=np.zeros(5), r=np.eye(3).ravel(), p=np.zeros(12),
+            )  # fmt: skip
+            lw.write("/down/camera_info", "sensor_msgs/msg/CameraInfo", msg, t)
+        lw.camera_info("/other/camera_info", T0, cam)  # a second camera's: not beside the images
+    info = bags.camera_info(path, "/down/image_raw/compressed")
+    assert info["topic"] == "/down/camera_info" and info["image_size"] == cam.image_size
+    np.testing.assert_allclose(info["K"], cam.K, atol=1e-9)
+    data = yaml.safe_load(cam.save(tmp_path / "full.yaml").read_text())
+    (tmp_path / "mount.yaml").write_text(yaml.safe_dump({k: data[k] for k in ("T_body_cam", "ground_plane")}))
+    assert (
+        main(["odometry", str(path), "--calib", str(tmp_path / "mount.yaml"), "--out", str(tmp_path / "o")])
+        == 0
+    )
+    rows = np.genfromtxt(
+        tmp_path / "o" / "odometry.csv", delimiter=",", names=True, dtype=None, encoding=None
+    )
+    np.testing.assert_allclose(rows["v_x"], TWIST[0], rtol=0.01)
+
+
+def test_odd_yuv_a_bom_and_a_missing_source_are_one_line_each(tmp_path, frames, capsys):
+    img, why = bags.decode_image(_image_msg(np.zeros((4, 5, 2), np.uint8), "yuv422"), "sensor_msgs/msg/Image")
+    assert img is None and "odd width 5 px" in why
+    from perception.inertial import read_imu_csv
+
+    bom = tmp_path / "bom.csv"
+    bom.write_text(
+        "\ufefft,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z\n0.0,0,0,0.1,0,0,9.81\n", encoding="utf-8"
+    )
+    assert read_imu_csv(bom).gyro[0, 2] == 0.1
+    assert (
+        main(
+            [
+                "odometry",
+                str(tmp_path / "nope.bag"),
+                "--calib",
+                str(calib(tmp_path)),
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        == 2
+    )
+    assert "nope.bag: no such file or folder" in one_error_line(capsys)
