@@ -13,9 +13,10 @@ Logs are streams that can be damaged. ROS 1 bags are read with ``rosbags``; ROS 
 row by row with the standard library's ``sqlite3``; MCAP files record by record with ``mcap``.
 A message that does not deserialise is skipped with a warning naming its topic, its index and
 its time. A damaged MCAP chunk or SQLite message row loses only itself. Damage that breaks a
-file's structure (a ROS 1 chunk, an SQLite b-tree page, a truncated MCAP) ends the reading at
-the last good message, with a warning naming the file and the position. Frame times are the
-header stamps [s], checked against the log's receive times by :class:`StampClock`.
+file's structure (a ROS 1 chunk, an SQLite b-tree page, a cut-off MCAP) ends the reading at
+the last good message, with a warning naming the file and the position (docs/logs.md). Frame
+times are the header stamps [s], checked against the log's receive times by
+:mod:`perception.log_time`.
 
 Writers of ``nav_msgs/Odometry`` and ``sensor_msgs/JointState`` into an MCAP file (ROS 2 CDR,
 playable by Foxglove and ``ros2 bag play``) are at the end.

@@ -220,7 +220,9 @@ class StampClock:
         return Placed(item, t, why)
 
 
-def in_stamp_order(items: Iterable[Any], tolerance: float = STAMP_TOLERANCE, same=None) -> Iterator[Any]:
+def in_stamp_order(
+    items: Iterable[Any], tolerance: float = STAMP_TOLERANCE, same=None, max_held: int = 32
+) -> Iterator[Any]:
     """``items`` (in the log's receive order) in header-stamp order, where the receive time vouches for it.
 
     An item whose clock offset (receive time less stamp) is within ``tolerance`` [s] of the
@@ -235,6 +237,7 @@ def in_stamp_order(items: Iterable[Any], tolerance: float = STAMP_TOLERANCE, sam
         tolerance: See :data:`STAMP_TOLERANCE` [s].
         same: ``same(a, b)`` says whether two items of the same stamp are one message recorded
             twice; the second is then dropped (counted in one warning).
+        max_held: Most items held at once (a memory bound for large images at high rates).
     """
     held: list[tuple[float, int, Any]] = []
     offsets: deque[float] = deque(maxlen=_HISTORY)
@@ -270,7 +273,7 @@ def in_stamp_order(items: Iterable[Any], tolerance: float = STAMP_TOLERANCE, sam
         odd = []
         offsets.append(off)
         heapq.heappush(held, (float(item.stamp), seq, item))
-        while held and held[0][0] <= float(item.stamp) - tolerance:
+        while held and (held[0][0] <= float(item.stamp) - tolerance or len(held) > max_held):
             x = heapq.heappop(held)[2]
             if release(x):
                 yield x

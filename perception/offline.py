@@ -9,8 +9,8 @@ Table I. ``run_folder_kinematics`` runs the fisheye kinematics estimator and wri
 ``kinematics.csv`` and ``kinematics.mcap``.
 
 Both treat a log as a stream that can be damaged or glitched (docs/logs.md): frame times come
-from the header stamps checked against the receive times (:class:`perception.bags.StampClock`);
-a bad frame becomes an invalid row with the reason and the frames after it are kept; outputs
+from the header stamps checked against the receive times (:mod:`perception.log_time`); a bad
+frame becomes an invalid row with the reason and the frames after it are kept; outputs
 go through :class:`perception.outputs.OutputFolder` (staged files, one commit, nothing of the
 user's removed).
 """
@@ -325,8 +325,9 @@ def run_folder_odometry(
             say why).
 
     Unreadable images, images of another size and frames whose stamp is flagged
-    (:class:`perception.bags.StampClock`) do not stop the run: the pairs touching them are
-    invalid rows with the reason, and the chain restarts at the next good frame.
+    (:class:`perception.log_time.StampClock`) do not stop the run: each is an invalid row with
+    the reason, and the next good frame pairs with the last good one across it. Where the
+    header clock jumps, the pair across the jump is the invalid row and the chain starts again.
     """
     from perception import bags
 
