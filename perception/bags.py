@@ -543,7 +543,8 @@ class _McapLog(RobotLog):
                 try:
                     if opcode == Opcode.CHUNK:
                         chunk = Chunk.read(stream)
-                        for r in _chunk_records(chunk, partial=cut):
+                        damaged = functools.partial(warn, "%s: the chunk at byte %d: %s", f, pos)
+                        for r in _chunk_records(chunk, partial=cut, on_damage=damaged):
                             out = handle(r)
                             if out is not None:
                                 yield out
@@ -582,7 +583,7 @@ class _McapLog(RobotLog):
                 )
 
 
-def _chunk_records(chunk, partial: bool = False) -> Iterator:
+def _chunk_records(chunk, partial: bool = False, on_damage=None) -> Iterator:
     """The schema, channel and message records of an MCAP chunk, up to any damage (which raises).
 
     A chunk with a checksum that does not match is refused whole; one without a checksum, or
@@ -601,21 +602,27 @@ def _chunk_records(chunk, partial: bool = False) -> Iterator:
         stream, length = ReadDataStream(io.BytesIO(chunk.data)), len(chunk.data)
     else:
         stream, length = get_chunk_data_stream(chunk, validate_crc=True)
+    readers = {Opcode.MESSAGE: None, Opcode.CHANNEL: Channel.read, Opcode.SCHEMA: Schema.read}
     while stream.count < length:
+        at = stream.count
         opcode = stream.read1()
         size = stream.read8()
         if size > length - stream.count:
             if partial:
                 return  # the record the cut went through
-            raise ValueError(f"a record of {size} bytes at byte {stream.count} overruns the chunk")
-        if opcode == Opcode.MESSAGE:
-            yield Message.read(stream, size)
-        elif opcode == Opcode.CHANNEL:
-            yield Channel.read(stream)
-        elif opcode == Opcode.SCHEMA:
-            yield Schema.read(stream)
-        else:
-            stream.read(size)
+            raise ValueError(f"a record of {size} bytes at byte {at} overruns the chunk")
+        body = stream.read(size)
+        if opcode not in readers:
+            continue
+        try:  # a record whose length holds but whose content is damaged costs only itself
+            sub = ReadDataStream(io.BytesIO(body))
+            read = readers[opcode]
+            yield Message.read(sub, size) if read is None else read(sub)
+        except Exception as exc:  # noqa: BLE001 - any damage inside the record
+            if on_damage is not None:
+                on_damage(
+                    f"its record at byte {at} is damaged ({_short(exc)}); the chunk's other records are read"
+                )
 
 
 def open_log(path: str | Path) -> RobotLog:

@@ -235,7 +235,10 @@ def _log_source(src, images) -> _Source:
     first = list(itertools.islice(frames, 9))  # a look at the log's start: its time, its bit depth
     if not first:
         raise ValueError(f"{images}: no readable message on {src.topic}")
-    span = None if src.span is None else (first[0].stamp, first[0].stamp + src.span)
+    # the stamp clock at the first frame, robust to a glitched first stamp: the median over the
+    # first frames of each stamp less the receive time since the first frame
+    start = float(np.median([f.stamp - (f.recv - first[0].recv) for f in first]))
+    span = None if src.span is None else (start, start + src.span)
     deep = [bit_depth(f.image) for f in first if f.image is not None and f.image.dtype == np.uint16]
     depth = max(int(np.median(deep)), 10) if deep else None
     clock = StampClock(name=f"{images}: {src.topic}")

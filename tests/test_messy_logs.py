@@ -339,6 +339,21 @@ def test_a_cut_off_mcap_keeps_every_frame_before_the_cut(tmp_path, frames, clean
     assert str(path) in msg and "at byte" in msg and f"after the {TOPIC} message at log time" in msg
 
 
+def test_a_damaged_definition_inside_an_mcap_chunk_costs_no_message(tmp_path, frames, clean_rows, caplog):
+    """The schema record at the head of the first chunk is damaged; the summary still defines it."""
+    path = write_log(tmp_path / "schema.mcap", "mcap", frames)
+    data = bytearray(path.read_bytes())
+    at = data.index(b"sensor_msgs/msg/Image")  # the first chunk's copy of the image schema
+    data[at : at + 16] = b"\xab" * 16
+    path.write_bytes(bytes(data))
+    rc, rows = odometry(tmp_path, path)
+    assert rc == 0 and len(rows) == N - 1 and rows["valid"].all()
+    same_as_clean(rows, clean_rows)
+    assert any(
+        "is damaged" in r.getMessage() and "other records are read" in r.getMessage() for r in caplog.records
+    )
+
+
 def test_a_cut_inside_the_only_chunk_keeps_the_messages_before_it(tmp_path, capsys):
     """A short recording is one chunk: a cut through it keeps the frames before the cut."""
     small = mast_camera((160, 120))
