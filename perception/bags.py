@@ -350,21 +350,7 @@ class _SqliteLog(RobotLog):
             want = {tid for tid, name in ids.items() if name in topics}
             if not want:
                 continue
-            rows: list[tuple[int, int, int]] = []  # (timestamp, id, topic id)
-            last_rid = 0
-            try:  # the table's b-tree, in row order; its damage ends the file here
-                for rid, tid, ts in db.execute("SELECT id, topic_id, timestamp FROM messages"):
-                    last_rid = int(rid)
-                    if tid in want:
-                        rows.append((int(ts), int(rid), int(tid)))
-            except sqlite3.Error as exc:
-                where = (
-                    f"{f}, after message row {last_rid}" if last_rid else f"{f}, before its first message row"
-                )
-                log.warning(
-                    "%s: damaged page (%s); the rows after it are lost: everything read so far is used",
-                    where, _short(exc),
-                )  # fmt: skip
+            rows = _scan_rows(db, want, f)
             rows.sort()
             for ts, rid, tid in rows:
                 name = ids[tid]
@@ -386,6 +372,63 @@ class _SqliteLog(RobotLog):
             db.close()
         for tmp in self._tmp:
             tmp.cleanup()
+
+
+def _scan_rows(db: sqlite3.Connection, want: set[int], f: Path) -> list[tuple[int, int, int]]:
+    """(timestamp, id, topic id) of the message rows of topics ``want``, in row order.
+
+    The table is read in stretches of row ids. A stretch that does not read (a damaged page of
+    the table's b-tree) is read again row by row, each row sought on its own through the
+    b-tree's interior pages, so that only the rows the damaged page holds are lost (one warning
+    names the file and their ids).
+    """
+    stretch = 256
+    try:
+        top = db.execute("SELECT max(id) FROM messages").fetchone()[0]
+    except sqlite3.Error:
+        top = None  # the rightmost path is damaged: read until the ids run out
+    rows: list[tuple[int, int, int]] = []
+    lost: list[int] = []
+    pos = 0
+    damage = ""
+    while top is None or pos <= top:
+        try:
+            batch = db.execute(
+                "SELECT id, topic_id, timestamp FROM messages WHERE id >= ? ORDER BY id LIMIT ?",
+                (pos, stretch),
+            ).fetchall()
+        except sqlite3.Error as exc:
+            damage = damage or _short(exc)
+            found = False
+            for rid in range(pos, pos + stretch):
+                try:
+                    r = db.execute("SELECT topic_id, timestamp FROM messages WHERE id = ?", (rid,)).fetchone()
+                except sqlite3.Error:
+                    lost.append(rid)
+                    continue
+                if r is not None:
+                    found = True
+                    if r[0] in want:
+                        rows.append((int(r[1]), rid, int(r[0])))
+            pos += stretch
+            if top is None and not found:
+                break  # no row in a whole stretch, and no end known: the damage runs to the end
+            continue
+        if not batch:
+            break
+        rows += [(int(ts), int(rid), int(tid)) for rid, tid, ts in batch if tid in want]
+        pos = int(batch[-1][0]) + 1
+    if lost:
+        spans, start = [], lost[0]
+        for a, b in zip(lost, lost[1:] + [None]):
+            if b != a + 1:
+                spans.append(f"{start}" if start == a else f"{start} to {a}")
+                start = b
+        log.warning(
+            "%s: damaged page (%s): message rows %s are lost; every other row is read",
+            f, damage, ", ".join(spans[:5]) + (" ..." if len(spans) > 5 else ""),
+        )  # fmt: skip
+    return rows
 
 
 class _McapLog(RobotLog):
