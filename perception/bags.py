@@ -81,8 +81,14 @@ _warned: set[str] = set()
 
 
 def new_run() -> None:
-    """Forget the warnings given so far: a new run gives each of them again (once)."""
+    """Start a run: forget the warnings given so far, remove the repaired copies an earlier run made.
+
+    Each warning is then given again, once.
+    """
     _warned.clear()
+    for tmp in _REPAIRED.values():
+        tmp.cleanup()
+    _REPAIRED.clear()
 
 
 def _warn_once(msg: str, *args) -> None:
@@ -157,7 +163,7 @@ class RobotLog:
         try:
             return self._decode(m)
         except Exception as exc:  # any damage: the message is skipped, the run goes on
-            log.warning("%s: %s does not deserialise (%s); skipped", self.path, _where(m), _short(exc))
+            _warn_once("%s: %s does not deserialise (%s); skipped", self.path, _where(m), _short(exc))
             return None
 
     def _decode(self, m: LogMessage):
@@ -176,7 +182,7 @@ class RobotLog:
 
     def _ended(self, where: str, after: LogMessage | None, exc: Exception) -> None:
         pos = f"after {_where(after)}" if after is not None else "before its first message"
-        log.warning(
+        _warn_once(
             "%s: damaged %s (%s); reading ends there: everything read so far is used",
             where, pos, _short(exc),
         )  # fmt: skip
@@ -263,7 +269,6 @@ class _SqliteLog(RobotLog):
         self._dbs: list[sqlite3.Connection] = []
         self._topics: dict[str, tuple[str, str]] = {}  # name -> (type, serialisation)
         self._ids: list[dict[int, str]] = []
-        self._tmp: list[tempfile.TemporaryDirectory] = []
         for f in files:
             db, rows = self._open(f)
             self._dbs.append(db)
@@ -297,28 +302,8 @@ class _SqliteLog(RobotLog):
         return db, rows
 
     def _repaired(self, f: Path) -> sqlite3.Connection:
-        """A writable copy of ``f`` (and its write-ahead log), cut to whole pages.
-
-        The header's page count is cleared, so that SQLite counts the pages there are.
-        """
-        tmp = tempfile.TemporaryDirectory(prefix="rover-bag-")
-        self._tmp.append(tmp)
-        copy = Path(tmp.name) / f.name
-        for suffix in ("", "-wal", "-shm"):
-            src = Path(f"{f}{suffix}")
-            if src.is_file():
-                shutil.copyfile(src, Path(f"{copy}{suffix}"))
-        with open(copy, "r+b") as fh:
-            head = fh.read(100)
-            if len(head) < 100 or not head.startswith(b"SQLite format 3\x00"):
-                raise ValueError("its SQLite header is damaged")
-            page = int.from_bytes(head[16:18], "big")
-            page = 65536 if page == 1 else page
-            size = fh.seek(0, 2)
-            fh.truncate(size - size % page)
-            fh.seek(28)
-            fh.write(b"\x00\x00\x00\x00")
-        return sqlite3.connect(str(copy))
+        """A connection to a repaired copy of ``f`` (:func:`_repaired_copy`)."""
+        return sqlite3.connect(str(_repaired_copy(f)))
 
     def topics(self) -> dict[str, tuple[str, int | None]]:
         counts: dict[str, int | None] = {}
@@ -359,7 +344,7 @@ class _SqliteLog(RobotLog):
                 try:
                     (data,) = db.execute("SELECT data FROM messages WHERE id = ?", (rid,)).fetchone()
                 except (sqlite3.Error, TypeError) as exc:  # a damaged row: only it is lost
-                    log.warning(
+                    _warn_once(
                         "%s: %s message %d (log time %.6f s, row %d) is damaged (%s); skipped",
                         f, name, k, 1e-9 * ts, rid, _short(exc),
                     )  # fmt: skip
@@ -370,8 +355,6 @@ class _SqliteLog(RobotLog):
     def close(self) -> None:
         for db in self._dbs:
             db.close()
-        for tmp in self._tmp:
-            tmp.cleanup()
 
 
 def _scan_rows(db: sqlite3.Connection, want: set[int], f: Path) -> list[tuple[int, int, int]]:
@@ -424,11 +407,48 @@ def _scan_rows(db: sqlite3.Connection, want: set[int], f: Path) -> list[tuple[in
             if b != a + 1:
                 spans.append(f"{start}" if start == a else f"{start} to {a}")
                 start = b
-        log.warning(
+        _warn_once(
             "%s: damaged page (%s): message rows %s are lost; every other row is read",
             f, damage, ", ".join(spans[:5]) + (" ..." if len(spans) > 5 else ""),
         )  # fmt: skip
     return rows
+
+
+#: Repaired copies of damaged SQLite files, by (file, size, modification time): made once a run.
+_REPAIRED: dict[tuple[str, int, int], tempfile.TemporaryDirectory] = {}
+
+
+def _repaired_copy(f: Path) -> Path:
+    """A copy of ``f`` (and its write-ahead log) in a temporary folder, cut to whole pages.
+
+    The header's page count is cleared, so that SQLite counts the pages there are. The copy is
+    made once a run (:func:`new_run` and the process's end remove it).
+    """
+    st = f.stat()
+    key = (str(f.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _REPAIRED:
+        tmp = tempfile.TemporaryDirectory(prefix="rover-bag-")
+        copy = Path(tmp.name) / f.name
+        try:
+            for suffix in ("", "-wal", "-shm"):
+                src = Path(f"{f}{suffix}")
+                if src.is_file():
+                    shutil.copyfile(src, Path(f"{copy}{suffix}"))
+            with open(copy, "r+b") as fh:
+                head = fh.read(100)
+                if len(head) < 100 or not head.startswith(b"SQLite format 3\x00"):
+                    raise ValueError("its SQLite header is damaged")
+                page = int.from_bytes(head[16:18], "big")
+                page = 65536 if page == 1 else page
+                size = fh.seek(0, 2)
+                fh.truncate(size - size % page)
+                fh.seek(28)
+                fh.write(b"\x00\x00\x00\x00")
+        except BaseException:
+            tmp.cleanup()
+            raise
+        _REPAIRED[key] = tmp
+    return Path(_REPAIRED[key].name) / f.name
 
 
 class _McapLog(RobotLog):
@@ -490,7 +510,7 @@ class _McapLog(RobotLog):
         """Topics from the summary; where it is damaged or missing (a cut-off recording), from the data."""
         summary = self._summary(f)
         out: dict[str, tuple[str, int | None]] = {}
-        if summary is not None and summary.statistics is not None:
+        if summary is not None and summary.statistics is not None and _definitions_ok(summary):
             counts = summary.statistics.channel_message_counts
             for cid, ch in summary.channels.items():
                 schema = summary.schemas.get(ch.schema_id)
@@ -521,25 +541,28 @@ class _McapLog(RobotLog):
                     if last
                     else " (before its first message)"
                 )
-                log.warning(fmt + where, *args)
+                _warn_once(fmt + where, *args)
 
         summary = self._summary(f)
         schemas: dict[int, str] = {}
         channels: dict[int, tuple[str, str, str]] = {}
         starts: list[int] = []
         if summary is not None:
-            schemas = {i: _ros2_name(sc.name) for i, sc in summary.schemas.items()}
-            for i, ch in summary.channels.items():
-                channels[i] = (ch.topic, schemas.get(ch.schema_id, "?"), ch.message_encoding)
+            if _definitions_ok(summary):
+                schemas = {i: _ros2_name(sc.name) for i, sc in summary.schemas.items()}
+                for i, ch in summary.channels.items():
+                    channels[i] = (ch.topic, schemas.get(ch.schema_id, "?"), ch.message_encoding)
             starts = sorted(ci.chunk_start_offset for ci in summary.chunk_indexes)
         orphans = 0
 
         def handle(rec):
             nonlocal orphans
-            if isinstance(rec, Schema):
-                schemas[rec.id] = _ros2_name(rec.name)
+            if isinstance(rec, Schema):  # the summary's (trusted) definitions win: listing and reading agree
+                schemas.setdefault(rec.id, _ros2_name(rec.name))
             elif isinstance(rec, Channel):
-                channels[rec.id] = (rec.topic, schemas.get(rec.schema_id, "?"), rec.message_encoding)
+                channels.setdefault(
+                    rec.id, (rec.topic, schemas.get(rec.schema_id, "?"), rec.message_encoding)
+                )
             elif isinstance(rec, Message):
                 if rec.channel_id in channels:
                     last[:] = [channels[rec.channel_id][0], rec.log_time]
@@ -577,6 +600,12 @@ class _McapLog(RobotLog):
                 if opcode in (Opcode.DATA_END, Opcode.FOOTER):
                     break
                 cut = pos + 9 + length > size
+                nxt = next((s for s in starts if s > pos), None)
+                if cut and nxt is not None:  # not a cut: a damaged length, and the index knows better
+                    warn("%s: the record at byte %d claims %d bytes, past the end; reading resumes at the "
+                         "next chunk (byte %d)", f, pos, length, nxt)  # fmt: skip
+                    pos = nxt
+                    continue
                 if cut and opcode != Opcode.CHUNK:
                     warn("%s: cut off at byte %d (a record of %d bytes); everything before it is used",
                          f, pos, length)  # fmt: skip
@@ -626,6 +655,17 @@ class _McapLog(RobotLog):
                 )
 
 
+def _definitions_ok(summary) -> bool:
+    """Whether an MCAP summary's schema names and channel topics look like ROS names (not damaged)."""
+    import re
+
+    name = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg/)?[A-Za-z][A-Za-z0-9_]*$")
+    topic = re.compile(r"^/?[A-Za-z0-9_~/]+$")
+    return all(name.match(sc.name) for sc in summary.schemas.values()) and all(
+        topic.match(ch.topic) for ch in summary.channels.values()
+    )
+
+
 def _chunk_records(chunk, partial: bool = False, on_damage=None) -> Iterator:
     """The schema, channel and message records of an MCAP chunk, up to any damage (which raises).
 
@@ -639,10 +679,19 @@ def _chunk_records(chunk, partial: bool = False, on_damage=None) -> Iterator:
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import get_chunk_data_stream
 
-    if partial:
-        if chunk.compression:
+    if partial:  # what decompresses of the part before the cut
+        data = chunk.data
+        if chunk.compression == "zstd":
+            import zstandard
+
+            data = zstandard.ZstdDecompressor().decompressobj().decompress(data)
+        elif chunk.compression == "lz4":
+            import lz4.frame
+
+            data = lz4.frame.LZ4FrameDecompressor().decompress(data)
+        elif chunk.compression:
             raise ValueError(f"a cut-off {chunk.compression} chunk cannot be decompressed")
-        stream, length = ReadDataStream(io.BytesIO(chunk.data)), len(chunk.data)
+        stream, length = ReadDataStream(io.BytesIO(data)), len(data)
     else:
         stream, length = get_chunk_data_stream(chunk, validate_crc=True)
     readers = {Opcode.MESSAGE: None, Opcode.CHANNEL: Channel.read, Opcode.SCHEMA: Schema.read}
@@ -864,6 +913,23 @@ class LogFrame:
 
 
 @dataclass(frozen=True)
+class LogStamp:
+    """When an image message was stamped and received (no image).
+
+    Attributes:
+        index: Its number on the topic, from 0.
+        stamp: Its header stamp [s] (the receive time where the stamp is zero).
+        recv: The log's receive time [s].
+        digest: A hash of the serialised message (equal for a message recorded twice).
+    """
+
+    index: int
+    stamp: float
+    recv: float
+    digest: int
+
+
+@dataclass(frozen=True)
 class LogImages:
     """An image topic of a log: its frames in the log's order (read lazily by :meth:`frames`).
 
@@ -880,6 +946,23 @@ class LogImages:
     msgtype: str
     count: int | None
     span: float | None = None
+
+    def stamps(self) -> list[LogStamp]:
+        """The stamp, receive time and a digest of every image message that deserialises.
+
+        A pass over the topic that decodes no image, for :func:`perception.log_time.place` to
+        see the whole stream before the images are processed.
+        """
+        out = []
+        with open_log(self.path) as lg:
+            for m in lg.messages([self.topic]):
+                msg = lg.decode(m)
+                if msg is None:
+                    continue
+                recv = 1e-9 * m.log_ns
+                stamp = _stamp(msg)
+                out.append(LogStamp(m.index, recv if stamp is None else stamp, recv, hash(m.data)))
+        return out
 
     def frames(self) -> Iterator[LogFrame]:
         """Every image message that deserialises (damaged ones are skipped with a warning)."""
@@ -1003,12 +1086,12 @@ class _ImuSample:
 def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str]:
     """(N, 7) IMU samples of a log (t [s], gyro xyz [rad/s], accel xyz [m/s^2]) and the topic.
 
-    The times are the header stamps placed on the log's time line by a
-    :class:`perception.log_time.StampClock`, as the images' are: a clock jump shifts the IMU's
-    stamps as it shifts the camera's. Samples with a non-finite value or a flagged stamp, and
+    The times are the header stamps placed on the log's time line by
+    :func:`perception.log_time.place`, as the images' are: on one clock, the IMU and the camera
+    share the time line whatever each of them dropped. Samples with a non-finite value or a flagged stamp, and
     damaged messages, are left out (with a warning).
     """
-    from perception.log_time import StampClock, in_stamp_order
+    from perception.log_time import in_stamp_order, place
 
     p = Path(path)
     samples, bad = [], 0
@@ -1032,9 +1115,8 @@ def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str
             samples.append(_ImuSample(recv if stamp is None else stamp, recv, values))
     if bad:
         log.warning("%s: %s: %d IMU samples with non-finite values left out", p, name, bad)
-    clock = StampClock(name=f"{p}: {name}")
     rows, flagged = [], 0
-    for placed in clock.run(in_stamp_order(samples)):
+    for placed in place(in_stamp_order(samples), name=f"{p}: {name}"):
         if placed.why or not math.isfinite(placed.t):
             flagged += 1
             continue

@@ -1,30 +1,47 @@
 """Times of a robot log's messages: header stamps, with the log's receive times as the witness.
 
-Two things can be wrong with a message's time in a real log: its header stamp (a camera driver's
-clock glitches for one frame, or is set back or forward and stays there), or its receive time
-(the recorder stalls and catches up, its host's clock steps, messages arrive in bursts). The
-stamps are the primary clock; the receive times only vouch for them:
+Two things can be wrong with a message's time in a real log: its header stamp (a driver's
+clock glitches for one message, or is set back or forward and stays there), or its receive
+time (the recorder stalls and catches up in a burst, its host's clock steps, messages arrive
+late). Receive delays are never negative, so a stream's *base* offset (receive time less stamp)
+is its smallest one; stalls and jitter only raise offsets for a while. The stamps are the clock;
+the receive times vouch for them.
 
-- :func:`in_stamp_order` puts messages a recorder stored slightly out of order back in stamp
-  order, where their clock offsets (receive time less stamp) agree;
-- :class:`StampClock` places each message on the log's time line. A stamp that moves forward
-  by what the receive time moved (within :data:`STAMP_TOLERANCE`), or by a step like the
-  recent ones while the receive time hiccups, is accepted. A stamp that goes backward, repeats,
-  or jumps while the receive time does not is *flagged*, unless the messages after it continue
-  from it: then the clock jumped there, and the stamps from then on are shifted onto the time
-  line by the jump measured on the receive clock.
+:func:`place` looks at a whole stream (the stamps and receive times of a topic, read before its
+images are decoded) and places every message on the log's time line:
 
-Both take any objects with ``stamp`` and ``recv`` attributes [s] (image frames, IMU samples).
+- **order**: messages received within three periods of each other whose stamps are inverted,
+  and whose offsets agree within 3.5 periods, are put back in stamp order (a recorder or
+  transport that swapped them); one recorded twice (the same stamp and content) is read once;
+- **accepted**: a stamp that moves forward and agrees with the receive time (its step within
+  :data:`STAMP_TOLERANCE` of the receive time's step, or its offset within it of the recent
+  messages'), or steps like the stream's period (at most 2.5 periods) while the receive time
+  hiccups;
+- **flagged**: a stamp that goes backward, repeats, or jumps while the receive time does not,
+  or one out of line with the messages before and after it (the messages after continue from
+  the last good one). It gets a time between its accepted neighbours' and the caller makes its
+  row invalid;
+- **a new clock**: a flagged stamp that the next messages (five at least) continue from, where
+  the stream's base offset after it differs from the base before it: by more than twice the
+  spread of the recent delays for a stamp that went back, by more than the tolerance for one
+  that ran ahead of the receive time (a clock set back or forward that stays there). A
+  stamp that moved forward no further than the receive time (a drop-out while the recorder
+  stalled, or while its clock stepped), one that moved forward while the recorder wrote a burst
+  (receive steps far below the stamp steps: the receive time says nothing then) or a base that
+  comes back is no jump: the stamps are kept. After a jump the stamps are shifted by the change
+  of the base offsets, so the time line stays continuous;
+- the time line is the stamp clock in effect at the end of the stream (after a start-up clock
+  correction, the corrected one), so that streams on one clock (a camera and an IMU) share it
+  whatever each of them dropped;
+- stamps that do not move for most of the stream (a driver that never sets them) give way to the
+  receive times, with a warning.
 """
 
 from __future__ import annotations
 
-import heapq
 import logging
 import math
-import statistics
-from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,15 +49,13 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-#: Largest disagreement between a message's clock offset (receive time less stamp) and the
-#: recent messages' before the receive time stops vouching for its stamp [s]. Transport and
-#: recording delays stay well below it.
+#: Largest disagreement between a stamp step and the receive time's step, or between a
+#: message's clock offset (receive time less stamp) and the recent messages', for the receive
+#: time to vouch for the stamp [s]. Transport and recording delays stay well below it.
 STAMP_TOLERANCE = 0.5
-#: Largest stamp step accepted without the receive time's support before the message period is
-#: known (the first few messages) [s].
-MAX_BLIND_STEP = 5.0
-#: Messages whose offsets make the running median.
-_HISTORY = 15
+#: How far ahead the base offset after a suspected clock jump is looked for: messages, and
+#: seconds of receive time (a recorder stall's burst must drain within it).
+_JUMP_WINDOW = (100, 5.0)
 
 
 @dataclass(frozen=True)
@@ -49,11 +64,11 @@ class Placed:
 
     Attributes:
         item: The message (anything with ``stamp`` and ``recv`` [s]).
-        t: Its time on the log's time line [s]; for a flagged message an estimate from its receive
-            time that lies between its neighbours' times, or NaN where there is none.
+        t: Its time on the log's time line [s]; for a flagged message a time between its
+            accepted neighbours', or NaN where there is none (before the first accepted one).
         why: Why its stamp is flagged ("" if it is not).
-        anchor: The message starts a new clock segment: its time is an estimate (the pair
-            across the jump is unknown), and the messages after it are timed from it.
+        anchor: The message starts a new clock segment: the pair across the jump is unknown,
+            and the messages after it are timed from it.
     """
 
     item: Any
@@ -62,230 +77,265 @@ class Placed:
     anchor: bool = False
 
 
-class StampClock:
-    """Places messages on a time line from their header stamps, the receive times vouching.
-
-    Args:
-        tolerance: See :data:`STAMP_TOLERANCE` [s].
-        name: What the messages are (a topic), for the warnings.
-    """
-
-    def __init__(self, tolerance: float = STAMP_TOLERANCE, name: str = "") -> None:
-        if not (math.isfinite(tolerance) and tolerance > 0):
-            raise ValueError(f"tolerance: {tolerance!r} s; give a positive time")
-        self.tolerance = tolerance
-        self.name = name
-        self._last: tuple[float, float, float] | None = None  # stamp, receive, time of the last accepted
-        self._offsets: deque[float] = deque(maxlen=_HISTORY)  # receive less stamp, accepted messages
-        self._steps: deque[float] = deque(maxlen=_HISTORY)  # stamp steps between accepted messages
-        self.shift = 0.0  # added to the current segment's stamps [s]
-        self.jumps = 0
-        self.flagged = 0
-        self.receive_only = False  # the stamps never move: the receive times are used instead
-
-    # ------------------------------------------------------------------ rules
-    def _normal_step(self) -> float:
-        """The largest stamp step taken without the receive time's support [s]."""
-        if len(self._steps) < 3:
-            return MAX_BLIND_STEP
-        return 2.5 * statistics.median(self._steps) + 1e-3
-
-    def _vouched(self, stamp: float, recv: float) -> bool:
-        """The receive time agrees with the stamp (the offset is the recent messages')."""
-        return self._deviation(stamp, recv) <= self.tolerance
-
-    def _deviation(self, stamp: float, recv: float) -> float:
-        """How far a message's clock offset is from the recent messages' [s]."""
-        return abs((recv - stamp) - statistics.median(self._offsets)) if self._offsets else 0.0
-
-    def _continues(self, s0: float, r0: float, stamp: float, recv: float) -> bool:
-        """A message at (stamp, recv) follows one at (s0, r0) on the same clock."""
-        ds, dr = stamp - s0, recv - r0
-        if ds <= 0:
-            return False
-        return (dr > 0 and abs(ds - dr) <= self.tolerance) or ds <= self._normal_step()
-
-    def _accept(self, stamp: float, recv: float, t: float, step: bool = True) -> None:
-        if self._last is not None and step:
-            self._steps.append(stamp - self._last[0])
-        self._last = (stamp, recv, t)
-        self._offsets.append(recv - stamp)
-
-    # ------------------------------------------------------------------ placing
-    def run(self, items: Iterable[Any], lookahead: int = 2) -> Iterator[Placed]:
-        """Each of ``items`` (in the log's order) placed on the time line, in the same order.
-
-        Accepted messages have strictly increasing times. Flagged ones get a time between their
-        neighbours' where one can be estimated (NaN otherwise); the caller makes their rows
-        invalid.
-        """
-        it = iter(items)
-        ahead: deque[Any] = deque()
-
-        def fill() -> None:
-            while len(ahead) < lookahead + 1:
-                nxt = next(it, None)
-                if nxt is None:
-                    return
-                ahead.append(nxt)
-
-        fill()
-        self._check_constant(list(ahead))
-        while ahead:
-            item = ahead.popleft()
-            fill()
-            yield self._place(item, list(ahead))
-
-    def _check_constant(self, first: list) -> None:
-        """Stamps that do not move over the first messages while the receive times do: use the latter."""
-        if len(first) < 3:
-            return
-        stamps = {float(x.stamp) for x in first}
-        recvs = [float(x.recv) for x in first]
-        if len(stamps) == 1 and all(b > a for a, b in zip(recvs, recvs[1:])):
-            self.receive_only = True
-            log.warning(
-                "%s: the header stamps do not change (%.6f s); the receive times are used instead",
-                self.name or "log", stamps.pop(),
-            )  # fmt: skip
-
-    def _times(self, item) -> tuple[float, float]:
-        recv = float(item.recv)
-        return (recv if self.receive_only else float(item.stamp)), recv
-
-    def _place(self, item, ahead: list) -> Placed:
-        stamp, recv = self._times(item)
-        if not (math.isfinite(stamp) and math.isfinite(recv)):
-            self.flagged += 1
-            return Placed(
-                item, math.nan, f"stamp {stamp!r} s or receive time {recv!r} s is not a finite time"
-            )
-        nxt = [self._times(a) for a in ahead]
-        if self._last is None:  # the first message: the line starts there unless the next ones disown it
-            if (
-                len(nxt) >= 2
-                and not self._continues(stamp, recv, *nxt[0])
-                and self._continues(*nxt[0], *nxt[1])
-            ):
-                self.flagged += 1
-                return Placed(item, math.nan, f"header stamp {stamp:.6f} s disagrees with the next messages'")
-            self._accept(stamp, recv, stamp)
-            return Placed(item, stamp)
-        s0, r0, t0 = self._last
-        ds = stamp - s0
-        ok = ds > 0 and (self._vouched(stamp, recv) or ds <= self._normal_step())
-        if (
-            ok
-            and nxt
-            and self._continues(s0, r0, *nxt[0])
-            and not self._continues(stamp, recv, *nxt[0])
-            and self._deviation(stamp, recv) > self._deviation(*nxt[0])
-        ):
-            ok = False  # the next message follows the last good one, not this: a glitch within tolerance
-        if ok:
-            t = stamp + self.shift
-            self._accept(stamp, recv, t)
-            return Placed(item, t)
-        # the stamp is out of line: an isolated glitch, or the start of a new clock
-        self.flagged += 1
-        dr = recv - r0
-        if ds > 0 and ok is False and self._vouched(stamp, recv):
-            why = f"header stamp {stamp:.6f} s is out of line with the messages before and after it"
-        elif ds == 0:
-            why = f"header stamp {stamp:.6f} s repeats the last good message's"
-        elif ds < 0:
-            why = f"header stamp {stamp:.6f} s goes back {-ds:.3f} s from the last good message's"
-        else:
-            why = f"header stamp steps {ds:.3f} s where the receive time steps {dr:.3f} s"
-        if nxt and not self._continues(s0, r0, *nxt[0]) and self._continues(stamp, recv, *nxt[0]):
-            step = statistics.median(self._steps) if self._steps else 0.0
-            t = t0 + (dr if dr > 0 else max(step, 1e-6))
-            old, self.shift = self.shift, t - stamp
-            self.jumps += 1
-            self._accept(stamp, recv, t, step=False)
-            self._offsets.clear()
-            self._offsets.append(recv - stamp)
-            log.warning(
-                "%s: the header clock jumps at stamp %.6f s; the stamps from there on are shifted by %+.3f s "
-                "onto the log's time line (measured on the receive clock)",
-                self.name or "log", stamp, self.shift - old,
-            )  # fmt: skip
-            return Placed(item, t, f"{why}: the clock jumps here", anchor=True)
-        # an isolated glitch: a time between its neighbours', from the receive clock
-        t = t0 + dr if dr > 0 else math.nan
-        if nxt and self._continues(s0, r0, *nxt[0]):
-            t_next = nxt[0][0] + self.shift
-            if not t0 < t < t_next:
-                t = 0.5 * (t0 + t_next)
-        return Placed(item, t, why)
-
-
 def in_stamp_order(
-    items: Iterable[Any], tolerance: float = STAMP_TOLERANCE, same=None, max_held: int = 32
-) -> Iterator[Any]:
-    """``items`` (in the log's receive order) in header-stamp order, where the receive time vouches for it.
+    items: Sequence[Any], same: Callable[[Any, Any], bool] | None = None, tolerance: float = STAMP_TOLERANCE
+) -> list[Any]:
+    """``items`` (in the log's receive order) with close neighbours put back in stamp order.
 
-    An item whose clock offset (receive time less stamp) is within ``tolerance`` [s] of the
-    recent items' median is held for ``tolerance`` seconds of stamp time and released in stamp
-    order: items a recorder stored slightly out of order are put back in order. An item whose
-    offset is not (a glitched stamp, a clock that jumped) passes through where it was received,
-    for :class:`StampClock` to judge; three such items that agree with each other are a new
-    clock, whose items are then ordered like the first's.
+    Two messages swap when their stamps are inverted, they were received within three of the
+    stream's periods of each other and their clock offsets agree within 3.5 periods (and
+    ``tolerance`` [s]): a recorder or a transport that swapped them. Others keep their order,
+    for :func:`place` to judge (a clock set back by a fraction of a second is not shuffled into
+    the frames before it). A message recorded twice (the
+    same stamp, and ``same(a, b)`` true) is dropped, with one warning for all of them.
 
     Args:
         items: Objects with ``stamp`` and ``recv`` [s].
+        same: Whether two messages of one stamp are one message recorded twice.
         tolerance: See :data:`STAMP_TOLERANCE` [s].
-        same: ``same(a, b)`` says whether two items of the same stamp are one message recorded
-            twice; the second is then dropped (counted in one warning).
-        max_held: Most items held at once (a memory bound for large images at high rates).
     """
-    held: list[tuple[float, int, Any]] = []
-    offsets: deque[float] = deque(maxlen=_HISTORY)
-    odd: list[float] = []  # offsets of the items since the last one that agreed
-    last = None
-    dropped = 0
-
-    def release(item):
-        nonlocal last, dropped
-        if same is not None and last is not None and item.stamp == last.stamp and same(item, last):
+    out = list(items)
+    s = np.array([float(x.stamp) for x in out])
+    steps = np.diff(s)
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    period = float(np.median(steps)) if len(steps) else 0.0
+    window = 3.0 * period
+    for i in range(1, len(out)):  # insertion steps, each bounded by the receive window
+        j = i
+        while j > 0:
+            a, b = out[j - 1], out[j]
+            sa, sb, ra, rb = float(a.stamp), float(b.stamp), float(a.recv), float(b.recv)
+            close = 0 <= rb - ra < window and abs((rb - sb) - (ra - sa)) <= min(tolerance, 3.5 * period)
+            if not (sb < sa and close):
+                break
+            out[j - 1], out[j] = b, a
+            j -= 1
+    if same is None:
+        return out
+    kept, dropped = [], 0
+    for x in out:
+        if kept and x.stamp == kept[-1].stamp and same(x, kept[-1]):
             dropped += 1
-            return False
-        last = item
-        return True
-
-    for seq, item in enumerate(items):
-        off = float(item.recv) - float(item.stamp)
-        agrees = not offsets or abs(off - statistics.median(offsets)) <= tolerance
-        if math.isfinite(off) and not agrees:
-            odd.append(off)
-            if len(odd) >= 3 and max(odd[-3:]) - min(odd[-3:]) <= tolerance:
-                offsets.clear()
-                offsets.extend(odd[-3:])  # a new clock: its items from here on are ordered
-                agrees = True
-        if not (math.isfinite(off) and agrees):
-            while held:
-                x = heapq.heappop(held)[2]
-                if release(x):
-                    yield x
-            if release(item):
-                yield item
             continue
-        odd = []
-        offsets.append(off)
-        heapq.heappush(held, (float(item.stamp), seq, item))
-        while held and (held[0][0] <= float(item.stamp) - tolerance or len(held) > max_held):
-            x = heapq.heappop(held)[2]
-            if release(x):
-                yield x
-    while held:
-        x = heapq.heappop(held)[2]
-        if release(x):
-            yield x
+        kept.append(x)
     if dropped:
-        log.warning("%d messages recorded twice (the same stamp and content) were read once", dropped)
+        log.warning("%d messages recorded twice (the same stamp and content) are read once", dropped)
+    return kept
 
 
-def same_image(a, b) -> bool:
-    """Two frames hold the same image (for :func:`in_stamp_order`'s ``same``)."""
-    ia, ib = getattr(a, "image", None), getattr(b, "image", None)
-    return ia is not None and ib is not None and ia.shape == ib.shape and bool(np.array_equal(ia, ib))
+class _Line:
+    """The running state of :func:`place`: the last accepted message and the stream's base offset.
+
+    The base is the smallest clock offset (receive time less stamp) of the accepted messages
+    since the last clock jump: receive delays are never negative, so stalls and jitter never
+    lower it. Ten accepted messages in a row whose offsets agree within 0.1 s but sit above the
+    base by more than the tolerance are a receive clock that stepped forward: the base moves up
+    to them (a stall's burst, whose offsets fall message by message, is not one).
+    """
+
+    def __init__(self, s: np.ndarray, r: np.ndarray, tol: float) -> None:
+        self.s, self.r, self.tol = s, r, tol
+        steps = np.diff(s)
+        steps = steps[np.isfinite(steps) & (steps > 0)]
+        self.period = float(np.median(steps)) if len(steps) else math.inf
+        self.last: int | None = None  # the last accepted message
+        self.prev: int | None = None  # the one before it
+        self.steps: list[float] = []  # the last accepted stamp steps [s]
+        self.floor = math.inf  # the base offset [s]
+        self.high: list[float] = []  # offsets of the accepted messages above the base, in a row
+        self.spread: list[float] = []  # offsets of the last accepted messages
+        self.shift = 0.0  # added to the current segment's stamps [s]
+
+    def offset(self, i: int) -> float:
+        return float(self.r[i] - self.s[i])
+
+    def normal(self, ds: float) -> bool:
+        """A stamp step like the stream's own lately (a frame period, or a few dropped)."""
+        period = float(np.median(self.steps)) if len(self.steps) >= 3 else self.period
+        return 0 < ds <= 2.5 * period + 1e-3
+
+    def dev(self, i: int) -> float:
+        """How far message ``i``'s clock offset is from the base [s] (0 before there is one)."""
+        return abs(self.offset(i) - self.floor) if math.isfinite(self.floor) else 0.0
+
+    def follows(self, a: int, b: int) -> bool:
+        """Message ``b``'s stamp continues message ``a``'s clock."""
+        ds, dr = self.s[b] - self.s[a], self.r[b] - self.r[a]
+        return ds > 0 and (abs(ds - dr) <= self.tol or self.normal(ds))
+
+    def base(self, idx: list[int]) -> float:
+        """The base offset of messages ``idx``: their second smallest (robust to one odd one) [s]."""
+        o = sorted(self.offset(i) for i in idx)
+        return o[1] if len(o) > 2 else o[0]
+
+    def bursting(self) -> bool:
+        """The last accepted message came in a burst: its receive step far below its stamp step."""
+        if self.last is None or self.prev is None:
+            return False
+        ds = self.s[self.last] - self.s[self.prev]
+        dr = self.r[self.last] - self.r[self.prev]
+        return bool(ds > 0 and dr < 0.25 * ds)
+
+    def noise(self) -> float:
+        """How far above the base the recent accepted messages' offsets spread (90th percentile) [s]."""
+        if len(self.spread) < 5 or not math.isfinite(self.floor):
+            return self.tol
+        return float(np.percentile(np.asarray(self.spread) - self.floor, 90))
+
+    def accept(self, i: int, t: np.ndarray, ti: float, step: bool = True) -> None:
+        if self.last is not None and step:
+            self.steps = [*self.steps[-6:], float(self.s[i] - self.s[self.last])]
+        t[i] = ti
+        self.prev, self.last = self.last, i
+        o = self.offset(i)
+        self.spread = [*self.spread[-29:], o]
+        if o <= self.floor + self.tol:
+            self.floor = min(self.floor, o)
+            self.high.clear()
+            return
+        self.high.append(o)
+        if len(self.high) >= 10:
+            recent = self.high[-10:]
+            level = max(recent) - min(recent) <= min(self.tol, 0.1)
+            draining = all(b < a for a, b in zip(recent, recent[1:]))  # a burst: each later one lower
+            if level and not draining:  # the receive clock stepped forward
+                self.floor = min(recent)
+                self.high.clear()
+
+    def restart(self, base: float) -> None:
+        """A new clock segment with this base offset."""
+        self.floor = base
+        self.high.clear()
+        self.spread.clear()
+
+
+def place(items: Sequence[Any], tolerance: float = STAMP_TOLERANCE, name: str = "") -> list[Placed]:
+    """Every message of a stream placed on the log's time line (see the module's rules).
+
+    Args:
+        items: The stream's messages in order (:func:`in_stamp_order`), each with ``stamp`` and
+            ``recv`` [s].
+        tolerance: See :data:`STAMP_TOLERANCE` [s].
+        name: The stream (a topic), for the warnings.
+
+    Returns:
+        One :class:`Placed` per item, in the same order. Accepted messages have strictly
+        increasing times; flagged ones lie between their accepted neighbours'.
+    """
+    if not (math.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"tolerance: {tolerance!r} s; give a positive time")
+    n = len(items)
+    s = np.array([float(x.stamp) for x in items], dtype=np.float64)
+    r = np.array([float(x.recv) for x in items], dtype=np.float64)
+    if n >= 3:
+        ds = np.diff(s)
+        if np.mean(ds[np.isfinite(ds)] == 0) > 0.5 and np.all(np.diff(r) >= 0):
+            log.warning(
+                "%s: the header stamps do not change over most of the stream; the receive times are used",
+                name or "log",
+            )
+            s = r.copy()
+    line = _Line(s, r, tolerance)
+    t = np.full(n, math.nan)
+    why = [""] * n
+    anchor = [False] * n
+    ok = np.isfinite(s) & np.isfinite(r)
+    good = [i for i in range(n) if ok[i]]
+    for k, i in enumerate(good):
+        ahead = good[k + 1 : k + 3]
+        if line.last is None:
+            # the line starts at the first message the next ones do not disown
+            if len(ahead) >= 2 and not line.follows(i, ahead[0]) and line.follows(ahead[0], ahead[1]):
+                why[i] = f"header stamp {s[i]:.6f} s disagrees with the next messages'"
+                continue
+            line.accept(i, t, s[i])
+            continue
+        a = line.last
+        ds, dr = s[i] - s[a], r[i] - r[a]
+        accept = ds > 0 and (abs(ds - dr) <= tolerance or line.dev(i) <= tolerance or line.normal(ds))
+        if accept and ahead:
+            j = ahead[0]
+            if (
+                not line.normal(ds)
+                and line.follows(a, j)
+                and not line.follows(i, j)
+                and line.dev(i) > line.dev(j)
+            ):
+                accept = False  # an odd stamp step; the next message follows the last good one: a glitch
+        if accept:
+            line.accept(i, t, s[i] + line.shift)
+            continue
+        if ds > 0 and line.dev(i) <= tolerance:
+            why[i] = f"header stamp {s[i]:.6f} s is out of line with the messages before and after it"
+        elif ds == 0:
+            why[i] = f"header stamp {s[i]:.6f} s repeats the last good message's"
+        elif ds < 0:
+            why[i] = f"header stamp {s[i]:.6f} s goes back {-ds:.3f} s from the last good message's"
+        else:
+            why[i] = f"header stamp steps {ds:.3f} s where the receive time steps {dr:.3f} s"
+        if not ahead or line.follows(a, ahead[0]) or not line.follows(i, ahead[0]):
+            continue  # an isolated glitch: the next message follows the last good one (or none)
+        # the next messages continue from this stamp: a new clock, unless the base offset comes back
+        chain = [i]
+        for j in good[k + 1 :]:
+            if len(chain) >= _JUMP_WINDOW[0] or r[j] - r[i] > _JUMP_WINDOW[1]:
+                break
+            if line.follows(chain[-1], j):
+                chain.append(j)
+        if len(chain) < 5:
+            continue  # too few messages after it to tell a new clock from a glitch: flagged
+        base_after = line.base(chain)
+        jump = base_after - (line.floor if math.isfinite(line.floor) else line.offset(a))
+        if ds > 0 and (abs(jump) <= tolerance or ds - dr <= tolerance or line.bursting()):
+            # the stamps moved forward, no further than the receive time (a drop-out while the
+            # recorder stalled or its clock stepped), or while the recorder wrote a burst (its
+            # receive times say nothing), or the base came back: the stamps hold
+            why[i] = ""
+            line.accept(i, t, s[i] + line.shift)
+            if abs(jump) > tolerance:
+                line.restart(base_after)
+            continue
+        if ds <= 0 and jump <= max(2.0 * line.noise(), 0.01):
+            continue  # going back, the base moved less than the delays' spread: out of order, no new clock
+        old = line.shift
+        new = old + jump
+        if not s[i] + new > t[a]:  # keep the line moving forward
+            new = t[a] + max(dr, line.period if math.isfinite(line.period) else 1e-3) - s[i]
+        line.shift = new
+        line.restart(base_after)
+        line.accept(i, t, s[i] + new, step=False)
+        why[i] += ": the clock jumps here"
+        anchor[i] = True
+        log.warning(
+            "%s: the header clock jumps at stamp %.6f s; the stamps from there on are shifted by %+.3f s "
+            "(the change of the base receive delay)", name or "log", s[i], new - old,
+        )  # fmt: skip
+    t -= line.shift  # the time line is the clock in effect at the end of the stream
+    _fill_flagged(t, why, r, line.period)
+    for i in range(n):
+        if not ok[i]:
+            why[i] = f"stamp {items[i].stamp!r} s or receive time {items[i].recv!r} s is not a finite time"
+    return [Placed(items[i], float(t[i]), why[i], anchor[i]) for i in range(n)]
+
+
+def _fill_flagged(t: np.ndarray, why: list[str], r: np.ndarray, period: float) -> None:
+    """Times of the flagged messages: evenly between their accepted neighbours'.
+
+    After the last accepted message, on the receive clock while it moves forward.
+    """
+    acc = [i for i in range(len(t)) if not why[i] and math.isfinite(t[i])]
+    for a, b in zip([None, *acc], [*acc, None]):
+        lo = (a + 1) if a is not None else 0
+        hi = b if b is not None else len(t)
+        gap = [i for i in range(lo, hi) if why[i]]
+        if not gap or a is None:
+            continue  # before the first accepted message there is no time line yet
+        if b is None:  # after the last accepted one: on the receive clock, kept increasing
+            prev = t[a]
+            for i in gap:
+                ti = t[a] + (r[i] - r[a])
+                t[i] = ti if ti > prev else math.nan
+                prev = t[i] if math.isfinite(t[i]) else prev
+            continue
+        for m, i in enumerate(gap, start=1):  # evenly between the two accepted times
+            t[i] = t[a] + (t[b] - t[a]) * m / (len(gap) + 1)

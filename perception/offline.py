@@ -38,7 +38,7 @@ from perception.cameras import OmniCamera, PinholeCamera
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
 from perception.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
 from perception.kinematics import RoverKinematicModel
-from perception.log_time import Placed, StampClock, in_stamp_order, same_image
+from perception.log_time import Placed, in_stamp_order, place
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
 from perception.outputs import OutputFolder
@@ -221,7 +221,7 @@ class _Reasons:
 
 @dataclass
 class _Source:
-    """A run's frames placed on the time line (by a :class:`StampClock` for a log), and what is known."""
+    """A run's frames placed on the time line (by :func:`place` for a log), and what is known."""
 
     placed: Iterator[Placed]
     count: int | None
@@ -230,19 +230,41 @@ class _Source:
 
 
 def _log_source(src, images) -> _Source:
-    """The frames of a log's image topic in stamp order, placed on the time line by a :class:`StampClock`."""
-    frames = in_stamp_order(src.frames(), same=same_image)
-    first = list(itertools.islice(frames, 9))  # a look at the log's start: its time, its bit depth
-    if not first:
+    """The frames of a log's image topic in stamp order, placed on the time line (:func:`place`).
+
+    The stamps of the whole topic are read first (no image decoded), so that every frame's time
+    is judged with the frames before and after it; then the frames are read and given theirs.
+    """
+    order = in_stamp_order(src.stamps(), same=lambda a, b: a.digest == b.digest)
+    if not order:
         raise ValueError(f"{images}: no readable message on {src.topic}")
-    # the stamp clock at the first frame, robust to a glitched first stamp: the median over the
-    # first frames of each stamp less the receive time since the first frame
-    start = float(np.median([f.stamp - (f.recv - first[0].recv) for f in first]))
-    span = None if src.span is None else (start, start + src.span)
+    placed = place(order, name=f"{images}: {src.topic}")
+    times = [p.t for p in placed if not p.why and math.isfinite(p.t)]
+    span = (min(times), max(times)) if times else None
+    frames = src.frames()
+    first = list(itertools.islice(frames, 9))  # a look at the log's start: its bit depth
     deep = [bit_depth(f.image) for f in first if f.image is not None and f.image.dtype == np.uint16]
     depth = max(int(np.median(deep)), 10) if deep else None
-    clock = StampClock(name=f"{images}: {src.topic}")
-    return _Source(clock.run(itertools.chain(first, frames)), src.count, span, depth)
+    return _Source(_placed_frames(itertools.chain(first, frames), placed), len(placed), span, depth)
+
+
+def _placed_frames(frames: Iterator[LogFrame], placed: list[Placed]) -> Iterator[Placed]:
+    """``frames`` (in the log's order) given their placements, in the placements' order."""
+    at = {p.item.index: p for p in placed}
+    waiting: dict[int, LogFrame] = {}
+    nxt = 0
+    for frame in frames:
+        if frame.index not in at:
+            continue  # a second recording of a message
+        waiting[frame.index] = frame
+        while nxt < len(placed) and (placed[nxt].item.index in waiting or len(waiting) > 64):
+            p = placed[nxt]
+            nxt += 1
+            if p.item.index in waiting:  # (one that never came is passed over)
+                yield Placed(waiting.pop(p.item.index), p.t, p.why, p.anchor)
+    for p in placed[nxt:]:
+        if p.item.index in waiting:
+            yield Placed(waiting.pop(p.item.index), p.t, p.why, p.anchor)
 
 
 def _folder_source(images, fps, size: tuple[int, int], colour: bool = False) -> _Source:
@@ -328,7 +350,7 @@ def run_folder_odometry(
             say why).
 
     Unreadable images, images of another size and frames whose stamp is flagged
-    (:class:`perception.log_time.StampClock`) do not stop the run: each is an invalid row with
+    (:func:`perception.log_time.place`) do not stop the run: each is an invalid row with
     the reason, and the next good frame pairs with the last good one across it. Where the
     header clock jumps, the pair across the jump is the invalid row and the chain starts again.
     """

@@ -17,6 +17,7 @@ import contextlib
 import logging
 import os
 import tempfile
+import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
@@ -74,6 +75,10 @@ class OutputFolder:
                 raise ValueError(
                     f"--out {self.path}: holds the input {src}; choose an output folder outside the input"
                 )
+        if self.path.is_symlink() and not self.path.exists():
+            raise ValueError(
+                f"--out {self.path}: a symbolic link to {os.readlink(self.path)}, which does not exist"
+            )
         if self.path.exists() and not self.path.is_dir():
             raise ValueError(f"--out {self.path}: exists and is not a folder")
         self.earlier = [p for p in self.products if (self.path / p).exists()]
@@ -140,19 +145,41 @@ class OutputFolder:
 
     # ------------------------------------------------------------------ ending
     def commit(self) -> list[Path]:
-        """Rename every staged product into place; with ``overwrite``, drop stale earlier ones.
+        """Put every staged product in place, all or none; with ``overwrite``, drop stale earlier ones.
+
+        The earlier results this run replaces are first moved aside, then the new ones renamed
+        into place; if any step fails, the new ones are taken out and the earlier ones put back
+        (the error names the file), so the folder holds the earlier results or the new ones,
+        never a mix.
 
         Returns:
             The final paths of the products written.
         """
-        done = []
-        for name, tmp in self._staged.items():
-            final = self.path / name
-            try:
+        aside: list[tuple[Path, Path]] = []  # (final, the earlier result moved aside)
+        placed: list[Path] = []
+        try:
+            for name, tmp in self._staged.items():
+                final = self.path / name
+                if final.exists() or final.is_symlink():
+                    if final.is_dir() and not final.is_symlink():
+                        raise IsADirectoryError(21, "a folder is in the way", str(final))
+                    keep = self.path / f".{name}.{uuid.uuid4().hex[:8]}.earlier"
+                    os.replace(final, keep)
+                    aside.append((final, keep))
                 os.replace(tmp, final)
-            except OSError as exc:
-                raise OSError(f"{final}: cannot write ({exc.strerror or exc})") from None
-            done.append(final)
+                placed.append(final)
+        except OSError as exc:
+            for final in placed:  # roll back: the new ones out, the earlier ones in again
+                with contextlib.suppress(OSError):
+                    final.unlink()
+            for final, keep in aside:
+                with contextlib.suppress(OSError):
+                    os.replace(keep, final)
+            where = exc.filename or self.path
+            raise OSError(f"{where}: cannot write ({exc.strerror or exc}); the folder is as it was") from None
+        for _, keep in aside:
+            with contextlib.suppress(OSError):
+                keep.unlink()
         stale = [p for p in self.earlier if p not in self._staged]
         for name in stale:  # the earlier run's own product, which this run did not remake
             old = self.path / name
@@ -163,7 +190,7 @@ class OutputFolder:
                 )
         self._staged.clear()
         self.committed = True
-        return done
+        return placed
 
     def discard(self) -> None:
         """Remove what this run staged, and the folder if this run created it and it is empty."""
