@@ -14,9 +14,8 @@ images are decoded) and places every message on the log's time line:
   and whose offsets agree within 3.5 periods, are put back in stamp order (a recorder or
   transport that swapped them); one recorded twice (the same stamp and content) is read once;
 - **accepted**: a stamp that moves forward and agrees with the receive time (its step within
-  :data:`STAMP_TOLERANCE` of the receive time's step, or its offset within it of the recent
-  messages'), or steps like the stream's period (at most 2.5 periods) while the receive time
-  hiccups;
+  :data:`STAMP_TOLERANCE` of the receive time's step, or its offset within it of the base), or
+  steps like the recent stamps (at most 2.5 periods) while the receive time hiccups;
 - **flagged**: a stamp that goes backward, repeats, or jumps while the receive time does not,
   or one out of line with the messages before and after it (the messages after continue from
   the last good one). It gets a time between its accepted neighbours' and the caller makes its
