@@ -16,6 +16,8 @@ images are decoded) and places every message on the log's time line:
 - **accepted**: a stamp that moves forward and agrees with the receive time (its step within
   :data:`STAMP_TOLERANCE` of the receive time's step, or its offset within it of the base), or
   steps like the recent stamps (at most 2.5 periods) while the receive time hiccups;
+- **unsure**: an accepted stamp that steps over a gap (more than 2.5 periods) the receive time
+  does not show: the message keeps its time, the pair across the gap is not trusted;
 - **flagged**: a stamp that goes backward, repeats, or jumps while the receive time does not,
   or one out of line with the messages before and after it (the messages after continue from
   the last good one). It gets a time between its accepted neighbours' and the caller makes its
@@ -262,7 +264,11 @@ def place(items: Sequence[Any], tolerance: float = STAMP_TOLERANCE, name: str = 
             ):
                 accept = False  # an odd stamp step; the next message follows the last good one: a glitch
         if accept:
+            unsure = not line.normal(ds) and abs(ds - dr) > max(2.0 * line.noise(), 0.05)
             line.accept(i, t, s[i] + line.shift)
+            if unsure:  # a gap the receive time does not show: the frame stands, the pair across does not
+                why[i] = f"header stamp steps {ds:.3f} s where the receive time steps {dr:.3f} s: unsure pair"
+                anchor[i] = True
             continue
         if ds > 0 and line.dev(i) <= tolerance:
             why[i] = f"header stamp {s[i]:.6f} s is out of line with the messages before and after it"
@@ -310,23 +316,24 @@ def place(items: Sequence[Any], tolerance: float = STAMP_TOLERANCE, name: str = 
             "(the change of the base receive delay)", name or "log", s[i], new - old,
         )  # fmt: skip
     t -= line.shift  # the time line is the clock in effect at the end of the stream
-    _fill_flagged(t, why, r, line.period)
+    _fill_flagged(t, why, r, anchor)
     for i in range(n):
         if not ok[i]:
             why[i] = f"stamp {items[i].stamp!r} s or receive time {items[i].recv!r} s is not a finite time"
     return [Placed(items[i], float(t[i]), why[i], anchor[i]) for i in range(n)]
 
 
-def _fill_flagged(t: np.ndarray, why: list[str], r: np.ndarray, period: float) -> None:
-    """Times of the flagged messages: evenly between their accepted neighbours'.
+def _fill_flagged(t: np.ndarray, why: list[str], r: np.ndarray, anchor: list[bool]) -> None:
+    """Times of the flagged messages: evenly between their placed neighbours'.
 
-    After the last accepted message, on the receive clock while it moves forward.
+    After the last placed message, on the receive clock while it moves forward. Anchors keep the
+    times their stamps give.
     """
-    acc = [i for i in range(len(t)) if not why[i] and math.isfinite(t[i])]
+    acc = [i for i in range(len(t)) if (anchor[i] or not why[i]) and math.isfinite(t[i])]
     for a, b in zip([None, *acc], [*acc, None]):
         lo = (a + 1) if a is not None else 0
         hi = b if b is not None else len(t)
-        gap = [i for i in range(lo, hi) if why[i]]
+        gap = [i for i in range(lo, hi) if why[i] and not anchor[i]]
         if not gap or a is None:
             continue  # before the first accepted message there is no time line yet
         if b is None:  # after the last accepted one: on the receive clock, kept increasing

@@ -1000,3 +1000,13 @@ def test_a_failed_commit_leaves_the_earlier_results(tmp_path, frames, capsys):
     assert "the folder is as it was" in one_error_line(capsys)
     assert {p.name: p.read_bytes() for p in (tmp_path / "out").iterdir() if p.is_file()} == earlier
     assert not [p for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
+
+
+def test_a_forward_step_within_the_tolerance_makes_its_pair_unsure():
+    """The camera's clock steps 0.3 s ahead: the stamps keep the frames, the pair across is not trusted."""
+    base = _stream(60)
+    case = [(s + (0.3 if k >= 30 else 0.0), r) for k, (s, r) in enumerate(base)]
+    out = _placed(case)
+    odd = [k for k, x in enumerate(out) if x.why]
+    assert odd == [30] and out[30].anchor and "unsure pair" in out[30].why
+    assert np.all(np.diff([x.t for x in out]) > 0)
