@@ -10,9 +10,10 @@ the receive times vouch for them.
 :func:`place` looks at a whole stream (the stamps and receive times of a topic, read before its
 images are decoded) and places every message on the log's time line:
 
-- **order**: messages received within three periods of each other whose stamps are inverted,
-  and whose offsets agree within 3.5 periods, are put back in stamp order (a recorder or
-  transport that swapped them); one recorded twice (the same stamp and content) is read once;
+- **order**: messages received close together whose stamps are inverted, and whose offsets
+  agree, are put back in stamp order (a recorder or transport that swapped them, receive delays
+  that scattered them); close: within three periods, or the spread of the stream's receive
+  delays where that is wider. One recorded twice (the same stamp and content) is read once;
 - **accepted**: a stamp that moves forward and agrees with the receive time (its step within
   :data:`STAMP_TOLERANCE` of the receive time's step, or its offset within it of the base), or
   steps like the recent stamps (at most 2.5 periods) while the receive time hiccups;
@@ -83,12 +84,14 @@ def in_stamp_order(
 ) -> list[Any]:
     """``items`` (in the log's receive order) with close neighbours put back in stamp order.
 
-    Two messages swap when their stamps are inverted, they were received within three of the
-    stream's periods of each other and their clock offsets agree within 3.5 periods (and
-    ``tolerance`` [s]): a recorder or a transport that swapped them. Others keep their order,
-    for :func:`place` to judge (a clock set back by a fraction of a second is not shuffled into
-    the frames before it). A message recorded twice (the
-    same stamp, and ``same(a, b)`` true) is dropped, with one warning for all of them.
+    Two messages swap when their stamps are inverted, they were received within a window of
+    each other and their clock offsets agree: a recorder or a transport that swapped them, or
+    receive delays that scatter them. The window is three of the stream's periods, or the
+    spread of its receive delays where that is wider (:func:`_delay_spread`); the offsets must
+    agree within 3.5 periods (and ``tolerance`` [s]) or that spread. Others keep their order,
+    for :func:`place` to judge: on a stream with steady delays a clock set back by a fraction
+    of a second is not shuffled into the frames before it. A message recorded twice (the same
+    stamp, and ``same(a, b)`` true) is dropped, with one warning for all of them.
 
     Args:
         items: Objects with ``stamp`` and ``recv`` [s].
@@ -97,16 +100,20 @@ def in_stamp_order(
     """
     out = list(items)
     s = np.array([float(x.stamp) for x in out])
-    steps = np.diff(s)
-    steps = steps[np.isfinite(steps) & (steps > 0)]
+    r = np.array([float(x.recv) for x in out])
+    ok = np.isfinite(s) & np.isfinite(r)
+    steps = np.diff(np.sort(s[ok]))
+    steps = steps[steps > 0]
     period = float(np.median(steps)) if len(steps) else 0.0
-    window = 3.0 * period
+    spread = _delay_spread(r[ok] - s[ok])
+    window = max(3.0 * period, spread)
+    agree = max(min(tolerance, 3.5 * period), spread)
     for i in range(1, len(out)):  # insertion steps, each bounded by the receive window
         j = i
         while j > 0:
             a, b = out[j - 1], out[j]
             sa, sb, ra, rb = float(a.stamp), float(b.stamp), float(a.recv), float(b.recv)
-            close = 0 <= rb - ra < window and abs((rb - sb) - (ra - sa)) <= min(tolerance, 3.5 * period)
+            close = 0 <= rb - ra < window and abs((rb - sb) - (ra - sa)) <= agree
             if not (sb < sa and close):
                 break
             out[j - 1], out[j] = b, a
@@ -122,6 +129,21 @@ def in_stamp_order(
     if dropped:
         log.warning("%d messages recorded twice (the same stamp and content) are read once", dropped)
     return kept
+
+
+def _delay_spread(offsets: np.ndarray) -> float:
+    """How widely a stream's receive delays spread [s]: 3.5 times the median delay above the base.
+
+    The base is the 10th percentile of the offsets of the 21 messages around each (a glitched
+    stamp or two, or a clock jump, disturb only their neighbours); for delays spread evenly
+    over [0, J] this gives about 1.4 J. At most 5 s.
+    """
+    if len(offsets) < 5:
+        return 0.0
+    from scipy.ndimage import percentile_filter
+
+    delay = offsets - percentile_filter(offsets, 10, size=21, mode="nearest")
+    return min(3.5 * float(np.median(np.maximum(delay, 0.0))), 5.0)
 
 
 class _Line:
