@@ -510,7 +510,7 @@ class _McapLog(RobotLog):
         """Topics from the summary; where it is damaged or missing (a cut-off recording), from the data."""
         summary = self._summary(f)
         out: dict[str, tuple[str, int | None]] = {}
-        if summary is not None and summary.statistics is not None and _definitions_ok(summary):
+        if summary is not None and summary.statistics is not None and _definitions_ok(summary, f):
             counts = summary.statistics.channel_message_counts
             for cid, ch in summary.channels.items():
                 schema = summary.schemas.get(ch.schema_id)
@@ -548,7 +548,7 @@ class _McapLog(RobotLog):
         channels: dict[int, tuple[str, str, str]] = {}
         starts: list[int] = []
         if summary is not None:
-            if _definitions_ok(summary):
+            if _definitions_ok(summary, f):
                 schemas = {i: _ros2_name(sc.name) for i, sc in summary.schemas.items()}
                 for i, ch in summary.channels.items():
                     channels[i] = (ch.topic, schemas.get(ch.schema_id, "?"), ch.message_encoding)
@@ -655,15 +655,62 @@ class _McapLog(RobotLog):
                 )
 
 
-def _definitions_ok(summary) -> bool:
-    """Whether an MCAP summary's schema names and channel topics look like ROS names (not damaged)."""
+def _definitions_ok(summary, f: Path) -> bool:
+    """Whether an MCAP summary's schema names and channel topics are sound (not damaged).
+
+    Names must look like ROS names; a schema name that no ROS message type has is checked
+    against the data section's own record of that schema (in the first chunks).
+    """
     import re
 
     name = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/(msg/)?[A-Za-z][A-Za-z0-9_]*$")
     topic = re.compile(r"^/?[A-Za-z0-9_~/]+$")
-    return all(name.match(sc.name) for sc in summary.schemas.values()) and all(
-        topic.match(ch.topic) for ch in summary.channels.values()
-    )
+    if not all(name.match(sc.name) for sc in summary.schemas.values()):
+        return False
+    if not all(topic.match(ch.topic) for ch in summary.channels.values()):
+        return False
+    known = set(_typestore("ros2").types) | set(_typestore("ros1").types)
+    odd = {i: sc.name for i, sc in summary.schemas.items() if _ros2_name(sc.name) not in known}
+    if not odd:
+        return True
+    seen = _data_schemas(f, set(odd))
+    return all(seen.get(i, n) == n for i, n in odd.items())
+
+
+def _data_schemas(f: Path, ids: set[int], chunks: int = 3) -> dict[int, str]:
+    """{id: name} of the schema records ``ids`` in the data section's first ``chunks`` chunks."""
+    import io
+    import struct
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Chunk, Schema
+
+    found: dict[int, str] = {}
+    try:
+        with open(f, "rb") as fh:
+            fh.seek(8)
+            for _ in range(64):  # the header and the first chunks
+                head = fh.read(9)
+                if len(head) < 9:
+                    break
+                opcode, length = struct.unpack("<BQ", head)
+                if length > MAX_RECORD_BYTES:
+                    break
+                body = fh.read(length)
+                if opcode == Opcode.SCHEMA:
+                    sc = Schema.read(ReadDataStream(io.BytesIO(body)))
+                    found[sc.id] = sc.name
+                elif opcode == Opcode.CHUNK:
+                    for rec in _chunk_records(Chunk.read(ReadDataStream(io.BytesIO(body)))):
+                        if isinstance(rec, Schema):
+                            found.setdefault(rec.id, rec.name)
+                    chunks -= 1
+                if ids <= found.keys() or chunks <= 0:
+                    break
+    except Exception:  # noqa: BLE001 - a damaged data section: whatever was found
+        pass
+    return found
 
 
 def _chunk_records(chunk, partial: bool = False, on_damage=None) -> Iterator:

@@ -1010,3 +1010,15 @@ def test_a_forward_step_within_the_tolerance_makes_its_pair_unsure():
     odd = [k for k, x in enumerate(out) if x.why]
     assert odd == [30] and out[30].anchor and "unsure pair" in out[30].why
     assert np.all(np.diff([x.t for x in out]) > 0)
+
+
+def test_a_flipped_byte_in_the_mcap_summary_costs_nothing(tmp_path, frames, clean_rows):
+    """One bit of the summary's image schema name flipped: the data section's own record is used."""
+    path = write_log(tmp_path / "summary.mcap", "mcap", frames)
+    data = bytearray(path.read_bytes())
+    at = data.rindex(b"sensor_msgs/msg/Image")  # the summary's copy, at the end
+    data[at + 2] ^= 0x01
+    path.write_bytes(bytes(data))
+    rc, rows = odometry(tmp_path, path)
+    assert rc == 0 and len(rows) == N - 1 and rows["valid"].all()
+    same_as_clean(rows, clean_rows)
