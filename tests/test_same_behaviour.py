@@ -1,0 +1,120 @@
+"""The environments behave as they did when the baseline was recorded: bit-identical rollouts.
+
+For every registered id, in both observation sources, and with an IMU on the estimated one, a
+60-step rollout from a fixed seed and fixed actions gives the same observations, rewards,
+ground truth and estimates as the recorded baseline (``tests/data/rollouts_baseline.npz``).
+Refactoring the package must not move a bit of them. The cameras are drawn with PyBullet's
+TinyRenderer (compiled code, the same bits on any CPU; llvmpipe's JIT may differ between CPUs).
+
+Re-record (only when a behaviour change is intended and explained):
+
+    python tests/test_same_behaviour.py --record
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BASELINE = Path(__file__).parent / "data" / "rollouts_baseline.npz"
+STEPS = 60
+CASES = [
+    (env_id, source, imu)
+    for env_id in ("Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0", "RoverSlopeLoose-v0")
+    for source, imu in (("ground_truth", None), ("estimated", None), ("estimated", "bmi088"))
+]
+
+
+def _flat(prefix: str, value, out: dict) -> None:
+    """Numbers of a nested info dict as flat float arrays keyed by their path."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _flat(f"{prefix}/{k}", v, out)
+        return
+    if value is None or isinstance(value, str):
+        return
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return
+    out[prefix] = arr
+
+
+def rollout(env_id: str, source: str, imu: str | None) -> dict[str, np.ndarray]:
+    """A 60-step rollout's observations, rewards and info numbers, stacked over the steps."""
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401
+
+    kwargs = {"obs_source": source, "renderer": "tiny"}  # TinyRenderer: the same bits on any CPU
+    if imu:
+        kwargs["imu"] = imu
+    env = gym.make(env_id, **kwargs)
+    try:
+        rng = np.random.default_rng(7)
+        obs, info = env.reset(seed=11)
+        steps: dict[str, list] = {}
+
+        def add(key: str, value) -> None:
+            steps.setdefault(key, []).append(np.asarray(value, dtype=np.float64))
+
+        add("obs", obs)
+        flat: dict = {}
+        _flat("info", info, flat)
+        for k, v in flat.items():
+            add(f"reset/{k}", v)
+        for _ in range(STEPS):
+            action = rng.uniform(-1.0, 1.0, env.action_space.shape)
+            action[0] = 0.3 + 0.5 * abs(action[0])  # mostly forward, so the rover drives somewhere
+            obs, reward, terminated, truncated, info = env.step(action.astype(np.float32))
+            add("obs", obs)
+            add("reward", reward)
+            add("done", float(terminated or truncated))
+            flat = {}
+            _flat("info", info, flat)
+            for k, v in flat.items():
+                add(k, v)
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    return {k: np.stack(v) for k, v in steps.items() if len({a.shape for a in v}) == 1}
+
+
+def _key(env_id: str, source: str, imu: str | None) -> str:
+    return f"{env_id}|{source}|{imu or 'none'}"
+
+
+def record() -> None:
+    data = {}
+    for case in CASES:
+        for k, v in rollout(*case).items():
+            data[f"{_key(*case)}::{k}"] = v
+        print(f"recorded {_key(*case)}")
+    BASELINE.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(BASELINE, **data)
+    print(f"wrote {BASELINE} ({BASELINE.stat().st_size / 1e6:.1f} MB)")
+
+
+@pytest.mark.parametrize(("env_id", "source", "imu"), CASES)
+def test_a_fixed_rollout_is_bit_identical_to_the_baseline(env_id, source, imu):
+    if not BASELINE.exists():
+        pytest.fail(f"{BASELINE} is missing; record it with: python {Path(__file__).name} --record")
+    with np.load(BASELINE) as z:
+        prefix = f"{_key(env_id, source, imu)}::"
+        want = {k[len(prefix) :]: z[k] for k in z.files if k.startswith(prefix)}
+    got = rollout(env_id, source, imu)
+    assert want, f"no baseline for {prefix}"
+    assert sorted(got) == sorted(want), set(got) ^ set(want)
+    for k in sorted(want):
+        np.testing.assert_array_equal(got[k], want[k], err_msg=f"{env_id} {source} {imu}: {k}")
+
+
+if __name__ == "__main__":
+    if "--record" in sys.argv:
+        record()
+    else:
+        print(__doc__)
