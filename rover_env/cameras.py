@@ -306,7 +306,7 @@ class FisheyeCamera(_RoverCamera):
 
         Args:
             parts: (N, 3) body-frame points [m] that the frame must show, such as
-                :func:`rover_env.fisheye.joint_window_parts` about a tracker's last state: each
+                :func:`perception.rover_parts.joint_window_parts` about a tracker's last state: each
                 view then renders only the rectangle that holds their images (plus
                 :attr:`window_margin`), like a sensor's windowed readout, and the rest of the
                 image is black. None: the whole image (or region of interest).

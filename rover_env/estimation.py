@@ -33,10 +33,11 @@ from perception.odometry import (
     arc_step,
     ground_plane_from_wheels,
 )
+from perception.rover_parts import joint_window_parts
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
 from rover_env.config_io import ConfigError
-from rover_env.fisheye import FisheyeCameraConfig, joint_window_parts
+from rover_env.fisheye import FisheyeCameraConfig
 from rover_env.ground_truth import GROUND_TRUTH_KEYS
 from rover_env.imu import Imu, ImuConfig
 from rover_env.sim import RoverSim, SensorMessage
@@ -63,7 +64,7 @@ class PerceptionPreset:
         fisheye_window: (axle roll [rad/s], axle travel [m/s], wheel steering [rad/s]): while
             the kinematics estimator tracks every marker and joint, the fisheye renders only the
             windows that hold the wheels, arms and markers over the joint states these rates
-            reach in one frame from its last estimate (:func:`~rover_env.fisheye.joint_window_parts`),
+            reach in one frame from its last estimate (:func:`~perception.rover_parts.joint_window_parts`),
             as a sensor's tracker-driven windowed readout; otherwise, and with None, its whole
             image (or region of interest). The steering rate is raised to 1.25 times the
             rover's ``steer_max_rate`` if it is below (an inner wheel turns faster than its axle).

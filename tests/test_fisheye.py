@@ -8,15 +8,10 @@ import pytest
 from conftest import flat_scenario
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from perception.rover_parts import joint_window_parts, kinematic_parts
 from rover_env.cameras import FisheyeCamera
 from rover_env.config_io import ConfigError
-from rover_env.fisheye import (
-    CubemapRemap,
-    FisheyeCameraConfig,
-    joint_window_parts,
-    kinematic_parts,
-    render_fisheye,
-)
+from rover_env.fisheye import CubemapRemap, FisheyeCameraConfig, render_fisheye
 from rover_env.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.sim import RoverSim
 
