@@ -6,10 +6,13 @@ This package depends on numpy, OpenCV and SciPy only; it never needs the simulat
 from perception.calib_io import CalibrationError
 from perception.calibration import ExtrinsicFit, OmniFit, calibrate_ground_camera, fit_omni_camera
 from perception.cameras import OmniCamera, PinholeCamera
+from perception.estimator import ESTIMATE_FIELDS, Estimator, EstimatorError
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicState, KinematicStateEstimator
 from perception.kinematics import RoverKinematicModel
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, OdometryEstimate
+from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec
+from perception.rover_estimator import RoverEstimator
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator, slip_events
 from perception.wheel_kinematics import (
     SLIP_EPS,
@@ -20,6 +23,14 @@ from perception.wheel_kinematics import (
 
 __all__ = [
     "DOF_NAMES",
+    "ESTIMATE_FIELDS",
+    "Estimator",
+    "EstimatorError",
+    "ImuModel",
+    "Rig",
+    "RoverEstimator",
+    "SensorMessage",
+    "SensorSpec",
     "SLIP_EPS",
     "CalibrationError",
     "ExtrinsicFit",

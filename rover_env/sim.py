@@ -14,7 +14,6 @@ import functools
 import logging
 import math
 import time
-from dataclasses import dataclass
 from functools import partial
 from typing import Protocol
 
@@ -22,6 +21,7 @@ import numpy as np
 import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
+from perception.rig import SensorMessage
 from rover_env.geometry import RoverGeometry
 from rover_env.ground_truth import GroundTruth
 from rover_env.rendering import check_renderer
@@ -31,21 +31,6 @@ from rover_env.shadows import ShadowCaster
 from rover_env.terrain import Terrain
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class SensorMessage:
-    """One sample of an attached sensor.
-
-    Attributes:
-        sensor: Name the sensor was attached under.
-        t: Simulation time of the sample [s].
-        data: The sample (a camera: (H, W, 3) uint8 RGB image).
-    """
-
-    sensor: str
-    t: float
-    data: np.ndarray
 
 
 class Sensor(Protocol):

@@ -15,11 +15,13 @@ from gymnasium import spaces
 
 from perception import observation as obs_table
 from perception.cameras import PinholeCamera
+from perception.drive_geometry import WHEELS as WHEEL_NAMES
+from perception.estimator import qualities, state_arrays
 from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera, blackout_windows
-from rover_env.estimation import PERCEPTION_PRESETS, PerceptionPipeline, StepEstimate
+from rover_env.estimation import PERCEPTION_PRESETS, EstimatorFactory, PerceptionPipeline
 from rover_env.fisheye import FisheyeCameraConfig
 from rover_env.geometry import RoverGeometry
-from rover_env.ground_truth import GROUND_TRUTH_KEYS, GroundTruth
+from rover_env.ground_truth import GroundTruth
 from rover_env.imu import ImuConfig
 from rover_env.rendering import Lighting, look_at, render_pinhole
 from rover_env.scenario import ScenarioConfig, load_scenario
@@ -167,6 +169,7 @@ class RoverEnv(gym.Env):
         solver_iterations: int = 10,
         renderer: str = "auto",
         imu: str | dict | ImuConfig | None = None,
+        estimator: EstimatorFactory | None = None,
     ) -> None:
         super().__init__()
         try:
@@ -223,9 +226,13 @@ class RoverEnv(gym.Env):
             raise ValueError(f"imu={imu!r}: give a preset name, a mapping, an ImuConfig or None")
         if imu is not None and self.obs_source is not ObsSource.ESTIMATED:
             raise ValueError("imu: the IMU feeds the estimator; use it with obs_source='estimated'")
+        if estimator is not None and self.obs_source is not ObsSource.ESTIMATED:
+            raise ValueError(
+                "estimator: an estimator makes the observation; use it with obs_source='estimated'"
+            )
         if self.obs_source is ObsSource.ESTIMATED:
-            self.pipeline = PerceptionPipeline(self.sim, preset, imu=imu)
-        self._est: StepEstimate | None = None
+            self.pipeline = PerceptionPipeline(self.sim, preset, imu=imu, estimator=estimator)
+        self._est: dict[str, Any] | None = None  # the estimator's last (checked) estimate
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
         #: The observation's fields in order (name, unit, bounds, source): :mod:`perception.observation`.
@@ -281,7 +288,7 @@ class RoverEnv(gym.Env):
         messages = self.sim.take_messages()
         if self.pipeline is not None:
             self._start_fix = np.array([x, y, yaw]) + fix_noise
-            self._est = self.pipeline.reset(self._start_fix, messages, self.sim.t)
+            self._est = self.pipeline.start(self._start_fix, messages, self.sim.t)
             self._z0 = float(self._gt.pose[2])
         else:
             self._start_fix = np.array([x, y, yaw])
@@ -312,7 +319,7 @@ class RoverEnv(gym.Env):
         self.sim.step(self.control_dt)
         messages = self.sim.take_messages()
         if self.pipeline is not None:
-            self._est = self.pipeline.process(messages, self.sim.t)
+            self._est = self.pipeline.update(messages, self.sim.t)
         gt = self.sim.ground_truth()
         self._gt = gt
         self._prev_action = act
@@ -356,7 +363,7 @@ class RoverEnv(gym.Env):
     def _nav_pose(self) -> np.ndarray:
         """(x, y, yaw) the on-board tracker is fed: dead-reckoned, or the truth for ground truth."""
         if self._est is not None:
-            return np.asarray(self._est.values["odometry_pose"], dtype=np.float64).copy()
+            return np.asarray(self._est["pose"], dtype=np.float64).copy()
         gt = self._gt
         assert gt is not None
         return np.array([gt.pose[0], gt.pose[1], quat_to_yaw(gt.pose[3:])])
@@ -543,25 +550,20 @@ class RoverEnv(gym.Env):
             assert gt is not None
             state, quality = gt.as_dict(), (1.0, 1.0, 1.0)
         else:
-            state = self._est.values
-            est = self._est
-            quality = (est.odometry_quality, est.kinematics_quality, est.attitude_quality)
+            state, quality = state_arrays(self._est), qualities(self._est)
         values = obs_table.state_values(state, quality, task_values(feats))
         return obs_table.assemble(self.obs_fields, values, self._prev_action)
 
     def _estimate_info(self) -> dict[str, np.ndarray]:
-        """The estimate under the ground truth's keys (pose dead-reckoned)."""
+        """The estimate under the ground truth's keys (pose dead-reckoned; NaN where it gives none)."""
         assert self._est is not None
-        v = self._est.values
-        x, y, yaw = v["odometry_pose"]
-        est = self._est
-        roll, pitch = est.tilt if est.tilt is not None else (0.0, 0.0)  # from the IMU, if any
-        out = {"pose": np.array([x, y, self._z0 + est.height, *yaw_to_quat(roll, pitch, yaw)])}
-        out.update({k: np.array(v[k], dtype=np.float64) for k in GROUND_TRUTH_KEYS if k != "pose"})
-        out["odometry_pose"] = np.array(v["odometry_pose"], dtype=np.float64)
-        out["quality"] = np.array(
-            [est.odometry_quality, est.kinematics_quality, est.attitude_quality], dtype=np.float64
-        )
+        v = self._est
+        x, y, yaw = v["pose"]
+        roll, pitch = v.get("roll", 0.0), v.get("pitch", 0.0)  # unknown without an IMU: level
+        out = {"pose": np.array([x, y, self._z0 + v.get("height", 0.0), *yaw_to_quat(roll, pitch, yaw)])}
+        out.update(state_arrays(v))
+        out["odometry_pose"] = np.array(v["pose"], dtype=np.float64)
+        out["quality"] = np.array(qualities(v), dtype=np.float64)
         return out
 
     @staticmethod
@@ -615,17 +617,18 @@ class RoverEnv(gym.Env):
             "termination": reason,
         }
         if self._est is not None:
+            v = self._est
             out["estimate"] = self._estimate_info()
+            q_odo, q_kin, q_att = qualities(v)
             out["quality"] = {
-                "odometry": self._est.odometry_quality,
-                "kinematics": self._est.kinematics_quality,
-                "attitude": self._est.attitude_quality,
-                "slip": float(self._est.slip.quality),
+                "odometry": q_odo,
+                "kinematics": q_kin,
+                "attitude": q_att,
+                "slip": float(v.get("slip_quality", 0.0)),
             }
-            sl = self._est.slip
             out["slip"] = {
-                "valid": sl.valid.copy(),
-                "events": sl.events.copy(),
-                "slip_ratio_std": sl.slip_ratio_std.copy(),
+                "valid": np.array([v.get(f"slip_valid_{w}", 0.0) > 0.5 for w in WHEEL_NAMES]),
+                "events": np.array([v.get(f"slip_event_{w}", 0.0) > 0.5 for w in WHEEL_NAMES]),
+                "slip_ratio_std": np.array([v.get(f"slip_std_{w}", math.nan) for w in WHEEL_NAMES]),
             }
         return out

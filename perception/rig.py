@@ -1,0 +1,156 @@
+"""A rover's sensor rig as an estimator sees it: what each sensor is, where, how often, its model.
+
+The simulation samples the sensors a scenario declares; a robot's log holds the same sensors'
+messages. Either way an estimator is built from a :class:`Rig` (a mapping from sensor name to
+:class:`SensorSpec`, plus the rover's kinematic model) and fed :class:`SensorMessage` samples;
+nothing here needs the simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from perception.calib_io import check_rigid
+from perception.validation import ConfigError, real_number
+
+#: The kinds of sensor a rig may hold, and what ``SensorSpec.model`` is for each.
+SENSOR_KINDS: dict[str, str] = {
+    "pinhole": "perception.PinholeCamera (a downward camera: its calibration, mount and ground plane)",
+    "fisheye": "perception.OmniCamera (a downward fisheye: its calibration)",
+    "imu": "perception.rig.ImuModel (the data sheet's figures)",
+}
+
+
+@dataclass(frozen=True)
+class SensorMessage:
+    """One sample of a sensor.
+
+    Attributes:
+        sensor: The sensor's name in the rig.
+        t: Time of the sample [s] (simulation time, or a log's time line).
+        data: The sample: a camera's (H, W, 3) uint8 RGB image; an IMU's (7,) gyro xyz [rad/s],
+            accelerometer xyz [m/s^2] in its mount frame, and a saturation flag (> 0: a reading
+            was clipped at the range).
+    """
+
+    sensor: str
+    t: float
+    data: Any
+
+
+@dataclass(frozen=True)
+class TriadFigures:
+    """Data-sheet figures of three like axes (units: rad/s for a gyro, m/s^2 for an accelerometer).
+
+    Attributes:
+        noise_density: White noise [u/sqrt(Hz)].
+        bias_instability: Bias instability [u].
+        bias_random_walk: Bias random walk [u/s/sqrt(Hz)].
+        turn_on_bias: Spread of the bias at turn-on (1 sigma) [u].
+        range: Full scale [u] (inf: none).
+    """
+
+    noise_density: float = 0.0
+    bias_instability: float = 0.0
+    bias_random_walk: float = 0.0
+    turn_on_bias: float = 0.0
+    range: float = float("inf")
+
+
+@dataclass(frozen=True)
+class ImuModel:
+    """What an estimator knows of an IMU: its data sheet.
+
+    Attributes:
+        gyro: The gyro's figures [rad/s].
+        accel: The accelerometer's figures [m/s^2].
+    """
+
+    gyro: TriadFigures = field(default_factory=TriadFigures)
+    accel: TriadFigures = field(default_factory=TriadFigures)
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """One sensor of a rig.
+
+    Attributes:
+        name: Its name (the ``sensor`` of its messages).
+        kind: ``"pinhole"``, ``"fisheye"`` or ``"imu"`` (:data:`SENSOR_KINDS`).
+        rate_hz: Samples per second [Hz].
+        mount: (4, 4) pose of the sensor's frame in the body frame (body from sensor) [m].
+        model: The calibration an estimator uses (see :data:`SENSOR_KINDS`).
+        readout_window: The sensor can render only the windows an estimator asks for (a
+            tracker-driven windowed readout, see :meth:`perception.estimator.Estimator`).
+    """
+
+    name: str
+    kind: str
+    rate_hz: float
+    mount: np.ndarray
+    model: Any
+    readout_window: bool = False
+
+    def __post_init__(self) -> None:
+        if self.kind not in SENSOR_KINDS:
+            raise ConfigError(f"{self.name}.kind: {self.kind!r}; use one of {sorted(SENSOR_KINDS)}")
+        rate = real_number(f"{self.name}.rate_hz", self.rate_hz)
+        if not rate > 0:
+            raise ConfigError(f"{self.name}.rate_hz: {self.rate_hz!r}; give a rate above 0 [Hz]")
+        object.__setattr__(
+            self, "mount", check_rigid(np.asarray(self.mount, dtype=np.float64), f"{self.name}.mount")
+        )
+
+    @property
+    def period(self) -> float:
+        """Time between samples [s]."""
+        return 1.0 / self.rate_hz
+
+
+class Rig(Mapping[str, SensorSpec]):
+    """A rover's sensors by name, and the rover's kinematic model.
+
+    Args:
+        sensors: The sensors (their names must differ).
+        vehicle: The rover's :class:`perception.kinematics.RoverKinematicModel` (wheels,
+            suspension, markers; its ``T_body_cam`` is the fisheye's mount).
+        steer_max_rate: Fastest steering rate of the rover's axles [rad/s].
+    """
+
+    def __init__(self, sensors, vehicle=None, steer_max_rate: float = float("inf")) -> None:
+        self._sensors: dict[str, SensorSpec] = {}
+        for spec in sensors:
+            if spec.name in self._sensors:
+                raise ConfigError(f"rig: two sensors named {spec.name!r}")
+            self._sensors[spec.name] = spec
+        self.vehicle = vehicle
+        self.steer_max_rate = float(steer_max_rate)
+
+    def __getitem__(self, name: str) -> SensorSpec:
+        return self._sensors[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._sensors)
+
+    def __len__(self) -> int:
+        return len(self._sensors)
+
+    def of_kind(self, kind: str) -> list[SensorSpec]:
+        """The sensors of ``kind``, in the rig's order."""
+        return [s for s in self._sensors.values() if s.kind == kind]
+
+    def one(self, kind: str, who: str = "the estimator") -> SensorSpec | None:
+        """The rig's only sensor of ``kind``, or None; :class:`ConfigError` if there are several."""
+        found = self.of_kind(kind)
+        if len(found) > 1:
+            names = [s.name for s in found]
+            raise ConfigError(f"rig: {who} takes one {kind} sensor; this rig has {names}")
+        return found[0] if found else None
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{s.name}: {s.kind} at {s.rate_hz:g} Hz" for s in self._sensors.values())
+        return f"Rig({inner})"

@@ -1,0 +1,479 @@
+"""The built-in estimator: visual odometry, fisheye kinematics, slip filter, IMU fusion, dead reckoning.
+
+:class:`RoverEstimator` implements the estimator interface (:mod:`perception.estimator`) on a
+rig (:class:`perception.rig.Rig`) of one downward pinhole camera, one downward fisheye and,
+optionally, one IMU:
+
+- the downward camera (chained frame pairs) -> :class:`perception.FlowOdometry` -> body twist,
+  with the ground plane from the fisheye's latest axle roll, height and steering;
+- the fisheye -> :class:`perception.KinematicStateEstimator` -> psi, d, lambda, theta, theta_dot;
+- both (and the gyro and accelerometer) -> :class:`perception.SlipEstimator` -> fused twist and
+  wheel rates, slip ratio and angle; the IMU -> :class:`perception.inertial.AttitudeFilter`;
+- the fused twist integrated from the start fix -> the dead-reckoned pose.
+
+It sees sensor messages, the rig's calibrations and the start fix only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from perception.drive_geometry import AXLES, WHEELS
+from perception.fisheye_kinematics import KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.inertial import AttitudeFilter, G, tilted_step
+from perception.kinematics import MARKERS
+from perception.odometry import (
+    FlowOdometry,
+    FlowOdometryConfig,
+    OdometryEstimate,
+    arc_step,
+    ground_plane_from_wheels,
+)
+from perception.rig import Rig, SensorMessage
+from perception.rover_parts import joint_window_parts
+from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
+from perception.validation import ConfigError
+
+#: Keys of ``StepEstimate.values``: the ground truth's state keys, the dead-reckoned
+#: ``odometry_pose`` (x, y, yaw) and the estimates' quality.
+STEP_KEYS: tuple[str, ...] = (
+    "odometry_pose",
+    "twist",
+    "wheel_rate",
+    "wheel_angle",
+    "slip_ratio",
+    "slip_angle",
+    "axle_roll",
+    "axle_height",
+    "steering",
+    "tilt",
+    "quality",
+)
+#: The gyro's bias is calibrated on its samples over this long before the start [s]: the
+#: rover is then at rest on its wheels.
+IMU_CALIBRATION_S = 0.25
+#: The rate of the fused velocity that the attitude filter takes out of the specific force is a
+#: difference over at least this long [s] (shorter: the odometry's frame-to-frame noise).
+VELOCITY_RATE_S = 0.25
+
+
+@dataclass
+class StepEstimate:
+    """The built-in estimator's full state after one control period.
+
+    Attributes:
+        values: :data:`STEP_KEYS` -> float arrays (wheel order FL, FR, RL, RR; axles F, R).
+        odometry_quality: Quality of the last odometry estimate (0 when it was invalid).
+        kinematics_quality: Share of the fisheye's 10 degrees of freedom measured in its last frame.
+        attitude_quality: Share of the control period's IMU samples that were in range, once the
+            attitude was initialised at a standstill or has settled on gravity (three of its time
+            constants); 0 before that, and without an IMU (``values["tilt"]`` then reads 0: unknown,
+            not level).
+        slip: The slip filter's full output.
+        odometry: The last odometry estimate (None before the first pair).
+        kinematics: The last kinematic state.
+        imu_saturated: IMU samples since the last estimate that hit a range and were left out.
+        gyro_bias: The gyro's estimated yaw-rate bias and its standard deviation [rad/s]
+            (None without an IMU).
+        tilt: (roll, pitch) of the body from the IMU [rad] (None without one).
+        height: Dead-reckoned height change since the start [m] (0 without an IMU).
+    """
+
+    values: dict[str, np.ndarray]
+    odometry_quality: float
+    kinematics_quality: float
+    attitude_quality: float
+    slip: SlipEstimate
+    odometry: OdometryEstimate | None = field(default=None, repr=False)
+    kinematics: KinematicState | None = field(default=None, repr=False)
+    imu_saturated: int = 0
+    gyro_bias: tuple[float, float] | None = None
+    tilt: tuple[float, float] | None = None
+    height: float = 0.0
+
+    def fields(self) -> dict[str, object]:
+        """The estimate under the names of :data:`perception.estimator.ESTIMATE_FIELDS` (unknown: out)."""
+        v = self.values
+        out: dict[str, object] = {"pose": np.array(v["odometry_pose"], dtype=np.float64)}
+        out["v_x"], out["v_y"], out["omega"] = (float(x) for x in v["twist"])
+        for key, prefix, labels in (
+            ("wheel_rate", "wheel_rate_", WHEELS),
+            ("wheel_angle", "wheel_angle_", WHEELS),
+            ("slip_ratio", "slip_", WHEELS),
+            ("slip_angle", "slip_angle_", WHEELS),
+            ("axle_roll", "axle_roll_", AXLES),
+            ("axle_height", "axle_height_", AXLES),
+            ("steering", "steering_", AXLES),
+        ):
+            for label, x in zip(labels, v[key], strict=True):
+                out[prefix + label] = float(x)
+        out["roll"], out["pitch"] = (float(x) for x in v["tilt"])
+        out["odometry_quality"] = float(self.odometry_quality)
+        out["kinematics_quality"] = float(self.kinematics_quality)
+        out["attitude_quality"] = float(self.attitude_quality)
+        out["height"] = float(self.height)
+        sl = self.slip
+        for k, w in enumerate(WHEELS):
+            out[f"slip_std_{w}"] = float(sl.slip_ratio_std[k])
+            out[f"slip_valid_{w}"] = float(bool(sl.valid[k]))
+            out[f"slip_event_{w}"] = float(bool(sl.events[k]))
+        out["slip_quality"] = float(sl.quality)
+        return {k: v for k, v in out.items() if k == "pose" or not np.isnan(v)}  # unknown: left out
+
+
+class RoverEstimator:
+    """The built-in estimator of a rig with a downward camera, a fisheye and (optionally) an IMU.
+
+    Implements :class:`perception.estimator.Estimator`; :meth:`update` returns the names of
+    :data:`perception.estimator.ESTIMATE_FIELDS` and :meth:`step_estimate` the full state.
+
+    Args:
+        rig: The sensors (one ``"pinhole"``, one ``"fisheye"``, at most one ``"imu"``) and the
+            rover's kinematic model.
+        odometry: Odometry parameters (default: :meth:`FlowOdometryConfig.for_camera` of the
+            downward camera, with ``odometry_overrides``).
+        kinematics: Fisheye-kinematics parameters.
+        slip: Slip-filter parameters (with an IMU, its gyro-bias prior from the data sheet).
+        odometry_overrides: Odometry parameters that differ from ``for_camera``'s.
+        fisheye_window: (axle roll [rad/s], axle travel [m/s], wheel steering [rad/s]): while the
+            kinematics tracks every marker and joint, the fisheye is asked to render only the
+            windows that hold the parts over the joint states these rates reach in one frame
+            (:func:`perception.rover_parts.joint_window_parts`); None: never. The steering rate is
+            raised to 1.25 times the rover's ``steer_max_rate`` if below (an inner wheel turns
+            faster than its axle).
+        odometry_gyro: With an IMU, give the odometry's 3-D fit the gyro's mean roll and pitch
+            rates over each frame pair (default). False: vision only (the odometry paper's method).
+
+    Raises:
+        ConfigError: The rig lacks a downward camera or a fisheye, or has two of a kind.
+    """
+
+    def __init__(
+        self,
+        rig: Rig,
+        odometry: FlowOdometryConfig | None = None,
+        kinematics: KinematicsConfig | None = None,
+        slip: SlipConfig | None = None,
+        odometry_overrides: dict | None = None,
+        fisheye_window: tuple[float, float, float] | None = None,
+        odometry_gyro: bool = True,
+    ) -> None:
+        down, fish, imu = (
+            rig.one("pinhole", "RoverEstimator"),
+            rig.one("fisheye", "RoverEstimator"),
+            rig.one("imu", "RoverEstimator"),
+        )
+        if down is None or fish is None:
+            raise ConfigError(
+                f"rig: RoverEstimator needs a 'pinhole' and a 'fisheye' sensor; this rig has {rig!r}"
+            )
+        if rig.vehicle is None:
+            raise ConfigError("rig: RoverEstimator needs the rover's kinematic model (Rig.vehicle)")
+        self.rig = rig
+        self.down, self.fish, self.imu = down, fish, imu
+        self.model = rig.vehicle
+        self.fisheye_window = fisheye_window
+        self.odometry_gyro = bool(odometry_gyro)
+        self._steer_max_rate = rig.steer_max_rate
+        width = down.model.image_size[0]
+        self.odometry = FlowOdometry(
+            down.model,
+            odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {})),
+        )
+        self.kinematics = KinematicStateEstimator(fish.model, self.model, kinematics)
+        nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
+        slip = slip or SlipConfig()
+        if imu is not None:
+            R = imu.mount[:3, :3]
+            self.R_body_imu = R
+            self._imu_z = R[2]  # body-z component of a mount-frame rate
+            self._gyro_density = imu.model.gyro.noise_density
+            self.attitude = AttitudeFilter(R)
+            # the gyro's bias prior from its data sheet: the turn-on spread, and a drift of the
+            # bias instability over about 100 s on top of the random walk
+            slip = dataclasses.replace(
+                slip,
+                gyro_bias_std=max(imu.model.gyro.turn_on_bias, 1e-6),
+                gyro_bias_rw=imu.model.gyro.bias_random_walk + imu.model.gyro.bias_instability / 10.0,
+            )
+        self.slip = SlipEstimator(np.array([c[:2] for _, c in nominal]), self.model.wheel_radius, slip)
+        self._pose = np.zeros(3)
+        self._fix = np.zeros(3)
+        self._started = False
+        self._t_pose = 0.0
+        self._t = 0.0
+        self._request: tuple[float, np.ndarray | None] | None = None
+        #: Wall-clock seconds spent: estimating, and choosing readout windows.
+        self.timing = {"perception": 0.0, "readout": 0.0}
+        self._clear()
+
+    def _clear(self) -> None:
+        self._last_odom: OdometryEstimate | None = None
+        self._imu_batch: list[np.ndarray] = []
+        self._imu_t = 0.0
+        self._gyro_xy: list[np.ndarray] = []
+        self._imu_saturated = 0
+        self._imu_used = 0
+        self._attitude_s = 0.0
+        self._attitude_ready = False
+        self._attitude_q = 0.0
+        self._z = 0.0
+        self._twist = np.zeros(3)
+        self._twist_hist: list[tuple[float, float, float]] = []
+
+    # ------------------------------------------------------------------ the interface
+    def reset(self, start_fix: Sequence[float]) -> None:
+        """Start again from the start fix (x, y, yaw) [m, rad] (world frame).
+
+        The next :meth:`update` starts the time line: its messages before its ``t`` are the
+        settling before the start (an IMU's standstill, which calibrates the gyro).
+        """
+        fix = np.asarray(start_fix, dtype=np.float64)
+        if fix.shape != (3,) or not np.all(np.isfinite(fix)):
+            raise ValueError(f"start_fix={fix.tolist()}: give a finite (x, y, yaw) [m, rad]")
+        self.odometry.reset()
+        self.kinematics.reset()
+        self.slip.reset()
+        self._fix = fix.copy()
+        self._pose = fix.copy()
+        self._started = False
+        self._request = (0.0, None)  # the fisheye renders whole until the kinematics tracks it
+        self._clear()
+        if self.imu is not None:
+            self.attitude.reset()
+
+    def update(self, messages: Sequence[SensorMessage], t: float) -> dict[str, object]:
+        """Consume the messages since the last call, in time order; the estimate at ``t`` [s].
+
+        Returns the names of :data:`perception.estimator.ESTIMATE_FIELDS`.
+        """
+        if not self._started:
+            self._started = True
+            self._t_pose = self._t = float(t)
+            standstill = [m for m in messages if m.t < t - 1e-9]
+            if standstill and self.imu is not None:
+                self._calibrate_gyro(standstill, t)
+            messages = [m for m in messages if m.t >= t - 1e-9]
+        return self.process(messages, t).fields()
+
+    def readout_request(self, sensor: str) -> tuple[float, np.ndarray | None] | None:
+        """The fisheye's next readout window (once), as (t [s], body-frame points or None: whole)."""
+        if sensor != self.fish.name or self._request is None:
+            return None
+        req, self._request = self._request, None
+        return req
+
+    # ------------------------------------------------------------------ the work
+    def _calibrate_gyro(self, messages: Sequence[SensorMessage], t: float) -> None:
+        """The gyro's bias from its samples while the rover stood settled, the last ``IMU_CALIBRATION_S``."""
+        assert self.imu is not None
+        still = np.array(
+            [
+                m.data[:6]
+                for m in messages
+                if m.sensor == self.imu.name and m.t >= t - IMU_CALIBRATION_S - 1e-9 and m.data[6] == 0
+            ]
+        ).reshape(-1, 6)
+        if len(still):
+            mean = still.mean(axis=0)
+            window = len(still) * self.imu.period
+            self.slip.calibrate_gyro(float(self._imu_z @ mean[:3]), self._gyro_density / np.sqrt(window))
+            self.attitude.calibrate(mean[:3], mean[3:])
+            self._attitude_ready = True
+
+    def _window_parts(self) -> np.ndarray | None:
+        """What the fisheye's next frame must show (see ``fisheye_window``)."""
+        rates = self.fisheye_window
+        s = self.kinematics.state
+        if rates is None or s.markers_found < len(MARKERS):
+            return None
+        if not all(s.valid[f"{dof}_{a}"] for dof in ("psi", "d", "lam") for a in AXLES):
+            return None
+        roll, travel, steer = rates
+        steer = max(steer, 1.25 * self._steer_max_rate)
+        period = self.fish.period
+        return joint_window_parts(
+            self.model, s.psi, s.depth, s.delta, (roll * period, travel * period, steer * period)
+        )
+
+    def _on_fisheye(self, img: np.ndarray, t: float) -> None:
+        state = self.kinematics.update(img, t)
+        self.slip.add_wheels(
+            t,
+            state.theta_dot,
+            self.fish.period,
+            [state.valid[f"theta_{w}"] for w in ("FL", "FR", "RL", "RR")],
+            state.delta,
+        )
+        t0 = time.perf_counter()
+        self._request = (t + self.fish.period, self._window_parts())
+        self.timing["readout"] += time.perf_counter() - t0
+
+    def _on_downward(self, img: np.ndarray, t: float) -> None:
+        s = self.kinematics.state
+        centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
+        plane = ground_plane_from_wheels(centres, self.model.wheel_radius)
+        est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
+        if est is not None:
+            self._last_odom = est
+            if est.valid:
+                self.slip.add_odometry(t, est.twist, est.dt, est.quality, cov=est.twist_cov)
+
+    def _velocity_rate(self) -> tuple[float, float]:
+        """d(v_x, v_y)/dt of the fused twist over the last ``VELOCITY_RATE_S`` or more [m/s^2].
+
+        The fused velocity rests on the odometry at every frame, whatever the attitude's error
+        (the slip filter's accelerometer bias state takes up the gravity that leaks through it).
+        """
+        t, (vx, vy, _) = self._t_pose, self._twist
+        hist = self._twist_hist
+        if not hist or t > hist[-1][0]:
+            hist.append((t, vx, vy))
+        while len(hist) > 2 and t - hist[1][0] >= VELOCITY_RATE_S:
+            hist.pop(0)
+        t0, vx0, vy0 = hist[0]
+        if t - t0 < VELOCITY_RATE_S:
+            return 0.0, 0.0
+        return (vx - vx0) / (t - t0), (vy - vy0) / (t - t0)
+
+    def _frame_rate_xy(self) -> np.ndarray | None:
+        """The gyro's mean body roll and pitch rates since the last downward frame (None: no gyro)."""
+        if self.imu is None or not self.odometry_gyro or not self._gyro_xy:
+            self._gyro_xy = []
+            return None
+        w = self.R_body_imu[:2] @ np.mean(self._gyro_xy, axis=0) - self.attitude.bias[:2]
+        self._gyro_xy = []
+        return w
+
+    def _on_imu(self, data: np.ndarray, t: float) -> None:
+        if data[6] > 0 or not np.all(np.isfinite(data[:6])):
+            self._imu_saturated += 1  # a clipped rate is not a rate: left out, and counted
+            return
+        self._gyro_xy.append(data[:3])
+        self._imu_batch.append(data[:6])
+        self._imu_used += 1
+        self._imu_t = t
+
+    def _flush_imu(self) -> None:
+        """The IMU samples since the last flush: the attitude; the mean body-z rate to the slip filter."""
+        batch = self._imu_batch
+        if not batch:
+            return
+        assert self.imu is not None
+        n = len(batch)
+        mean = np.mean(batch, axis=0) if n > 1 else batch[0]
+        window = n * self.imu.period  # each sample integrates the period before it
+        vx, vy, w = self._twist
+        # neither the centripetal acceleration omega x v of a turn nor the rate of the body's
+        # velocity (a rover speeding up, or sliding down a slope) is gravity
+        dvx, dvy = self._velocity_rate()
+        self.attitude.update(mean[:3], mean[3:], window, (dvx - w * vy, dvy + w * vx, 0.0))
+        self._attitude_s += window
+        # without a standstill to start from, three time constants of gravity settle the tilt
+        self._attitude_ready |= self._attitude_s >= 3.0 * self.attitude.time_constant
+        std = self._gyro_density / np.sqrt(window)
+        rate = float(self._imu_z @ mean[:3])
+        self.slip.add_gyro(self._imu_t, rate, window, std)
+        # the body's acceleration: the specific force less gravity through the attitude, plus the
+        # transport terms of a turning frame, is the rate of the body-frame velocity (v_x, v_y)
+        a = self.R_body_imu @ mean[3:] - G * self.attitude.R[2]
+        wz = rate - self.slip.gyro_bias[0]
+        self.slip.add_accel(self._imu_t, (a[0] + wz * vy, a[1] - wz * vx), window)
+        self._imu_batch = []
+
+    def process(self, messages: Sequence[SensorMessage], t: float) -> StepEstimate:
+        """Consume the messages of one step, in time order, and estimate the state at ``t``.
+
+        Args:
+            messages: Messages of the rig's sensors (others are ignored), sampled at or before
+                ``t`` and after the previous call's time.
+            t: The time the step ended [s].
+        """
+        t0 = time.perf_counter()
+        handlers = {self.fish.name: self._on_fisheye, self.down.name: self._on_downward}
+        if self.imu is not None:
+            handlers[self.imu.name] = self._on_imu
+        for msg in messages:
+            handler = handlers.get(msg.sensor)
+            if handler is None:
+                continue
+            if msg.t < self._t_pose - 1e-9 or msg.t > t + 1e-9:
+                raise ValueError(
+                    f"{msg.sensor} message at t={msg.t} s is outside this step ({self._t_pose} to {t} s); "
+                    "pass each step's messages once, in time order"
+                )
+            if self.imu is not None and msg.sensor == self.imu.name:  # used at the next frame or the end
+                handler(msg.data, msg.t)
+                continue
+            if self.imu is not None:
+                self._flush_imu()
+            self._integrate(msg.t)
+            handler(msg.data, msg.t)
+        if self.imu is not None:
+            self._flush_imu()
+        self._integrate(t)
+        self._t = float(t)
+        n = self._imu_used + self._imu_saturated
+        self._attitude_q = self._imu_used / n if self._attitude_ready and n else 0.0
+        out = self.step_estimate()
+        self.last_step = out
+        self._imu_saturated = 0
+        self._imu_used = 0
+        self.timing["perception"] += time.perf_counter() - t0
+        return out
+
+    def _integrate(self, t1: float) -> None:
+        """Dead reckoning to ``t1``: the slip filter's twist after the last frame held as an arc.
+
+        That twist is the visual odometry fused with the wheels' rates where they grip (on rough
+        ground the odometry's planar model errs by 0.05-0.07 m/s); with no new measurement (a
+        blackout) it is the last one.
+        """
+        if t1 > self._t_pose:
+            twist = self.slip.twist_at(self._t_pose)
+            self._twist = twist
+            dt = t1 - self._t_pose
+            if self.imu is None:
+                self._pose = arc_step(self._pose, twist, dt)
+            else:  # on the tilted ground plane, turning at the world heading's rate
+                a = self.attitude
+                rate = a.heading_rate(float(twist[2]))
+                self._pose, self._z = tilted_step(self._pose, self._z, twist, a.roll, a.pitch, rate, dt)
+            self._t_pose = t1
+
+    def step_estimate(self) -> StepEstimate:
+        """The full estimate at the last processed time."""
+        t = self._t
+        sl = self.slip.estimate(t)
+        ks = self.kinematics.state
+        odo = self._last_odom
+        q_odo = float(odo.quality) if odo is not None and odo.valid else 0.0
+        q_kin = float(ks.quality)
+        values = {
+            "odometry_pose": self._pose.copy(),
+            "twist": sl.twist.copy(),
+            "wheel_rate": sl.wheel_rate.copy(),
+            "wheel_angle": ks.theta.copy(),
+            "slip_ratio": sl.slip_ratio.copy(),
+            "slip_angle": sl.slip_angle.copy(),
+            "axle_roll": ks.psi.copy(),
+            "axle_height": ks.depth.copy(),
+            "steering": ks.lam.copy(),
+            "tilt": np.zeros(2),  # unknown without an IMU: attitude quality 0 says so
+            "quality": np.array([q_odo, q_kin, 0.0]),
+        }
+        if self.imu is None:
+            return StepEstimate(values, q_odo, q_kin, 0.0, sl, odo, ks)
+        tilt = (self.attitude.roll, self.attitude.pitch)
+        q_att = self._attitude_q
+        values["tilt"] = np.array(tilt)
+        values["quality"][2] = q_att
+        bias = self.slip.gyro_bias
+        return StepEstimate(
+            values, q_odo, q_kin, q_att, sl, odo, ks, self._imu_saturated, bias, tilt, self._z
+        )
