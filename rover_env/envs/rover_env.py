@@ -378,6 +378,14 @@ class RoverEnv(gym.Env):
         return feats
 
     @property
+    def rig(self):
+        """The sensor rig an estimator is given, or None with ground-truth observations.
+
+        A :class:`perception.rig.Rig`: sensor name -> kind, rate, mount, model.
+        """
+        return self.pipeline.rig if self.pipeline is not None else None
+
+    @property
     def renderer(self) -> str:
         """What draws the cameras: ``"gl"`` or ``"tiny"`` (see the ``renderer`` argument)."""
         return self.sim.renderer
