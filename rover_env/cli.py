@@ -190,7 +190,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         from rover_env.rerun_log import _rerun
 
         _rerun()  # the SDK is there, before anything runs
-    jobs = jobs_for(args.controllers, args.missions, seeds, args.preset, args.out, args.videos, args.rerun)
+    jobs = jobs_for(
+        args.controllers, args.missions, seeds, args.preset, args.out, args.videos, args.rerun, args.estimator
+    )
     check_jobs(jobs)  # every input before the output folder is touched
     products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
     _prepare_out(args.out, products, args.overwrite, keep=args.resume)
@@ -447,6 +449,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--seeds", nargs="+", type=_seeds, default=[[0, 1, 2]], help="seeds: N or N-M (default: 0-2)"
     )
     e.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
+    e.add_argument(
+        "--estimator", metavar="MODULE:FACTORY",
+        help="the estimator on the estimated-observation runs: a factory called with the rig "
+        "(module:NAME or path/file.py:NAME; see docs/own_estimator.md); default: the built-in",
+    )  # fmt: skip
     e.add_argument("--executor", default="local", choices=("local", "ray"),
                    help="local processes, or a Ray cluster (RAY_ADDRESS, else a local one)")  # fmt: skip
     e.add_argument("--workers", type=_int_in(1, _max_workers()), default=None,

@@ -164,6 +164,8 @@ class EvalJob:
         out: Folder for this run's metrics, TUM trajectories and plots (None: none written).
         video: Also write ``video.mp4`` there (composite camera view).
         rerun: Also write ``mission.rrd`` there (Rerun; :mod:`rover_env.rerun_log`).
+        estimator: ``module:FACTORY`` (or ``path/file.py:FACTORY``) of the estimator on the
+            estimated-observation runs (:func:`load_estimator`); None: the built-in.
     """
 
     controller: str
@@ -173,6 +175,7 @@ class EvalJob:
     out: str | None = None
     video: bool = False
     rerun: bool = False
+    estimator: str | None = None
 
     @property
     def name(self) -> str:
@@ -211,13 +214,16 @@ def run_job(job: EvalJob) -> dict:
     spec, source = parse_controller(job.controller)
     render = "rgb_array" if (job.video and job.out) else None
     imu = controller_imu(job.controller)
+    extra = {"imu": imu} if imu else {}
+    if job.estimator and source == "estimated":
+        extra["estimator"] = load_estimator(job.estimator)
     env = make_mission_env(
         job.mission,
         obs_source=source,
         action_mode=spec.action_mode,
         preset=job.preset,
         render_mode=render,
-        **({"imu": imu} if imu else {}),
+        **extra,
     )
     start = time.perf_counter()
     try:
@@ -242,6 +248,7 @@ def run_job(job: EvalJob) -> dict:
         env.close()
     row = {"controller": job.controller, "mission": job.mission, "seed": job.seed, "preset": job.preset}
     row["obs_source"] = source
+    row["estimator"] = (job.estimator or "built-in") if source == "estimated" else "none"
     row.update(asdict(result.metrics))
     row["wall_time"] = time.perf_counter() - start
     for k, v in (result.estimator or {}).items():
@@ -266,6 +273,8 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
     from rover_env.scenario import load_scenario
 
     missions = {}
+    for spec in {job.estimator for job in jobs if job.estimator}:
+        load_estimator(spec)
     for job in jobs:
         parse_controller(job.controller)
         if job.preset not in PERCEPTION_PRESETS:
@@ -391,17 +400,60 @@ def jobs_for(
     out: str | Path | None = None,
     video: bool = False,
     rerun: bool = False,
+    estimator: str | None = None,
 ) -> list[EvalJob]:
     """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""
     jobs = []
     for c in controllers:
         for m in missions:
             for s in seeds:
-                job = EvalJob(c, m, int(s), preset)
+                job = EvalJob(c, m, int(s), preset, estimator=estimator)
                 if out is not None:
-                    job = EvalJob(c, m, int(s), preset, str(Path(out) / "runs" / job.name), video, rerun)
+                    where = str(Path(out) / "runs" / job.name)
+                    job = EvalJob(c, m, int(s), preset, where, video, rerun, estimator)
                 jobs.append(job)
     return jobs
+
+
+def load_estimator(spec: str):
+    """The estimator factory named by ``spec``: ``package.module:NAME`` or ``path/to/file.py:NAME``.
+
+    A module is imported with the current folder on the path (as ``python -m`` has it), so
+    ``examples.own_estimator:LucasKanadeEstimator`` works from the project's root.
+
+    Raises:
+        ValueError: Not ``module:NAME``, the module does not import, or it has no callable NAME.
+    """
+    import importlib
+    import importlib.util
+    import sys
+
+    where, sep, name = spec.rpartition(":")
+    if not sep or not where or not name:
+        raise ValueError(f"--estimator {spec!r}: give module:FACTORY or path/file.py:FACTORY")
+    try:
+        if where.endswith(".py"):
+            path = Path(where)
+            if not path.is_file():
+                raise ValueError(f"--estimator {spec!r}: no file {where}")
+            mod_spec = importlib.util.spec_from_file_location(path.stem, path)
+            module = importlib.util.module_from_spec(mod_spec)
+            sys.modules.setdefault(path.stem, module)
+            mod_spec.loader.exec_module(module)
+        else:
+            if "" not in sys.path and str(Path.cwd()) not in sys.path:
+                sys.path.insert(0, str(Path.cwd()))
+            module = importlib.import_module(where)
+    except ValueError:
+        raise
+    except Exception as exc:  # the user's module: any error it raises at import
+        raise ValueError(
+            f"--estimator {spec!r}: {where} does not import ({type(exc).__name__}: {exc})"
+        ) from None
+    factory = getattr(module, name, None)
+    if not callable(factory):
+        raise ValueError(f"--estimator {spec!r}: {where} has no callable {name!r}")
+    return factory
 
 
 #: Summary columns: (row key, heading, how the runs are combined).
@@ -495,6 +547,9 @@ def write_report(
         f"`{command}`\n" if command else "",
         f"{len(rows)} runs; seeds {seeds[0]}–{seeds[-1]} ({len(seeds)})." if seeds else "",
     ]
+    estimators = sorted({str(r.get("estimator")) for r in rows if r.get("estimator") not in (None, "none")})
+    if estimators:
+        lines.append(f"Estimator on the estimated-observation runs: {', '.join(estimators)}.")
     for mission in dict.fromkeys(s["mission"] for s in summary):
         lines += ["", f"## {mission}", ""]
         lines.append("| controller | runs | " + " | ".join(h for _, h, _ in SUMMARY) + " |")

@@ -68,9 +68,7 @@ def test_the_observation_is_what_the_estimator_returned_and_the_tracker_follows_
             assert obs[field_index(names, unknown)] == 0.0  # not returned: unknown, 0
         # the tracker's features come from the pose it returned
         feats = u.course.features(est.pose[:2], est.pose[2])
-        assert obs[field_index(names, "waypoint_distance")] == pytest.approx(
-            feats.distance, abs=1e-5
-        )
+        assert obs[field_index(names, "waypoint_distance")] == pytest.approx(feats.distance, abs=1e-5)
         assert obs[field_index(names, "cross_track")] == pytest.approx(feats.cross_track, abs=1e-5)
         np.testing.assert_allclose(info["estimate"]["odometry_pose"], est.pose)
         assert math.isnan(info["estimate"]["axle_roll"][0]) and info["estimate"]["twist"][0] == 0.5
@@ -170,3 +168,45 @@ def test_a_user_estimator_runs_in_vector_environments():
         assert np.allclose(obs[:, 0], 0.5)
     finally:
         sb3.close()
+
+
+def test_the_example_estimator_drives_a_mission_and_rover_eval_takes_it(
+    tiny_scenario, tmp_path, capsys, monkeypatch
+):
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)  # `examples.own_estimator` resolves from the project's root, as for a user
+    sys.path.insert(0, str(root))
+    try:
+        from examples.own_estimator import run
+    finally:
+        sys.path.remove(str(root))
+    res = run(steps=60)
+    assert res["mae_v_x"] < 0.05 and res["final_position_error"] < 0.1, res
+    from rover_env.cli import main
+
+    out = tmp_path / "eval"
+    argv = [
+        "eval",
+        "--controllers",
+        "pure_pursuit",
+        "--missions",
+        tiny_scenario,
+        "--seeds",
+        "0",
+        "--workers",
+        "1",
+    ]
+    argv += ["--estimator", "examples.own_estimator:LucasKanadeEstimator", "--out", str(out)]
+    assert main(argv) == 0
+    report = (out / "report.md").read_text()
+    assert (
+        "Estimator on the estimated-observation runs: examples.own_estimator:LucasKanadeEstimator" in report
+    )
+    assert "| pure_pursuit | 1 | 1 |" in report  # it reached the goal
+    bad = ["eval", "--missions", tiny_scenario, "--seeds", "0", "--out", str(tmp_path / "x")]
+    assert main([*bad, "--estimator", "examples.own_estimator:Nope"]) == 2
+    assert "has no callable 'Nope'" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

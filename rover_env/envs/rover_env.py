@@ -149,6 +149,11 @@ class RoverEnv(gym.Env):
             (``"bmi088"``, ``"tactical"``, ``"ideal"``), a mapping (``preset`` and overrides, as
             in a scenario) or an :class:`~rover_env.imu.ImuConfig`; its errors are drawn per
             episode from the reset's seed. None (default): the scenario's ``imu``, if any.
+        estimator: With ``obs_source="estimated"``, a factory (class or callable) called once
+            with the sensor rig (:attr:`rig`) that makes the estimator
+            (:mod:`perception.estimator`: ``reset(start_fix)``, ``update(messages, t)``); the
+            observation's state fields and ``info["estimate"]`` are what it returns. None: the
+            built-in :class:`perception.RoverEstimator`. See docs/own_estimator.md.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
