@@ -103,11 +103,3 @@ def fit_allan(taus: np.ndarray, adev: np.ndarray, duration: float | None = None)
     coef, _ = nnls(A, v * w)
     n2, b2, k2 = coef
     return AllanFit(math.sqrt(n2), math.sqrt(b2), math.sqrt(k2))
-
-
-def model_deviation(taus: np.ndarray, fit: AllanFit) -> np.ndarray:
-    """The Allan deviation [unit] of the three-term model ``fit`` at ``taus`` [s]."""
-    t = np.asarray(taus, dtype=np.float64)
-    return np.sqrt(
-        fit.random_walk**2 / t + FLICKER_AVAR * fit.bias_instability**2 + fit.bias_random_walk**2 * t / 3.0
-    )

@@ -174,13 +174,6 @@ class ImuLog:
         self.accel = np.asarray(accel, dtype=np.float64).reshape(-1, 3)
         self.dropped = int(dropped)
 
-    def mean_rate(self, t0: float, t1: float) -> tuple[np.ndarray, int]:
-        """Mean gyro rate [rad/s] of the samples in (t0, t1] and their count (NaN, 0 if none)."""
-        i0, i1 = np.searchsorted(self.t, [t0, t1], side="right")
-        if i1 <= i0:
-            return np.full(3, math.nan), 0
-        return self.gyro[i0:i1].mean(axis=0), int(i1 - i0)
-
 
 def read_imu_csv(path) -> ImuLog:
     """Read an IMU CSV with the header ``t, gyro_x, gyro_y, gyro_z, accel_x, accel_y, accel_z``.

@@ -22,7 +22,6 @@ from perception.drive_geometry import (
     AXLES,
     WHEELS,
     ackermann_arms,
-    axle_steering_angles,
     wheel_steering_angles,
 )
 from perception.validation import real_number
@@ -212,12 +211,6 @@ class RoverKinematicModel:
     def wheel_angles(self, lam_front: float, lam_rear: float) -> np.ndarray:
         """Per-wheel steering angles for axle commands (the tie rods' Ackermann mapping) [rad]."""
         return wheel_steering_angles(self.ackermann_arms(), lam_front, lam_rear)
-
-    def axle_steering(self, delta) -> np.ndarray:
-        """(lambda_F, lambda_R) from 4 wheel angles: the inverse Ackermann map, averaged per axle."""
-        if len(delta) != 4:
-            raise ValueError(f"delta has {len(delta)} angles; give 4 (FL, FR, RL, RR) [rad]")
-        return axle_steering_angles(self.ackermann_arms(), delta)
 
     # ------------------------------------------------------------------ YAML
     _KEYS = frozenset(

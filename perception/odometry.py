@@ -604,9 +604,6 @@ class FlowOdometry:
         self._rng = np.random.default_rng(0)
 
     # ------------------------------------------------------------------ Algorithm 1, lines 3-4
-    def feature_mask(self, gray: np.ndarray) -> tuple[np.ndarray, MaskDiagnostics]:
-        """Where features may be selected (full resolution, bool) and the intermediate images."""
-        return self._feature_mask(build_pyramid(gray, self.config.min_level_size))
 
     def _feature_mask(self, pyr: list[np.ndarray]) -> tuple[np.ndarray, MaskDiagnostics]:
         cfg = self.config

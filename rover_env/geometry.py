@@ -174,12 +174,6 @@ class RoverGeometry:
         return 2.0 * self.axle_x
 
     @property
-    def total_mass(self) -> float:
-        """Mass of the whole rover [kg]."""
-        per_axle = self.carriage_mass + self.axle_mass + 2 * (self.knuckle_mass + self.wheel_mass)
-        return self.body_mass + 2 * per_axle
-
-    @property
     def sprung_mass(self) -> float:
         """Mass carried by the two travel springs (body only) [kg]."""
         return self.body_mass

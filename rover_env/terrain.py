@@ -449,15 +449,6 @@ class Terrain:
         z_high = h11 + (1 - u) * (h01 - h11) + (1 - v) * (h10 - h11)
         return np.where(u + v <= 1.0, z_low, z_high)
 
-    def normal_at(self, x: float, y: float, eps: float = 0.02) -> np.ndarray:
-        """Unit ground normal at world (x, y), world frame (finite differences over ``eps`` m)."""
-        if self.heights is None:
-            return self._plane_normal.copy()
-        dzdx = (self.height_at(x + eps, y) - self.height_at(x - eps, y)) / (2 * eps)
-        dzdy = (self.height_at(x, y + eps) - self.height_at(x, y - eps)) / (2 * eps)
-        n = np.array([-float(dzdx), -float(dzdy), 1.0])
-        return n / np.linalg.norm(n)
-
     def contains(self, x: float, y: float, margin: float = 0.5) -> bool:
         """True if (x, y) lies on the terrain at least ``margin`` m from its edge."""
         return abs(x) <= self.cfg.size[0] / 2 - margin and abs(y) <= self.cfg.size[1] / 2 - margin
