@@ -31,6 +31,7 @@ import numpy as np
 
 from controllers.path_follower import PathFollower
 from controllers.traction import SlipAwareController
+from perception.slip import SLIP_EVENT
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +157,7 @@ class EpisodeStats(gym.Wrapper):
     Slip is the simulator's (``info["ground_truth"]``), whatever the observation source.
     """
 
-    SLIP = 0.2  # |slip ratio| above which a wheel slips
+    SLIP = SLIP_EVENT  # |slip ratio| above which a wheel slips
 
     def reset(self, **kwargs):
         """Reset the environment and the counters."""

@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from perception.bags import LogFrame
 from perception.cameras import OmniCamera, PinholeCamera
+from perception.drive_geometry import WHEELS
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
 from perception.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
 from perception.kinematics import RoverKinematicModel
@@ -748,7 +749,7 @@ def _kinematics(source, cam, est, progress, mcap, folder, name) -> FolderKinemat
 
     n_all = n_any = n_rows = 0
     reasons = _Reasons()
-    names = [*DOF_NAMES, *(f"wheel_{w}" for w in ("FL", "FR", "RL", "RR"))]
+    names = [*DOF_NAMES, *(f"wheel_{w}" for w in WHEELS)]
     with contextlib.ExitStack() as stack:
         fh = stack.enter_context(folder.open("kinematics.csv", "w", newline=""))
         mw = None

@@ -307,7 +307,7 @@ class RoverEstimator:
             t,
             state.theta_dot,
             self.fish.period,
-            [state.valid[f"theta_{w}"] for w in ("FL", "FR", "RL", "RR")],
+            [state.valid[f"theta_{w}"] for w in WHEELS],
             state.delta,
         )
         t0 = time.perf_counter()

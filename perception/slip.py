@@ -41,11 +41,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtr
 
+from perception.drive_geometry import WHEELS
 from perception.wheel_kinematics import slip_angle, slip_ratio, wheel_ground_velocity
 
 log = logging.getLogger(__name__)
 
 N_WHEELS = 4
+#: |slip ratio| at which a wheel slips: a true slip event is slip above it for two frames in a
+#: row (between 0.15 and it, neither an event nor a false alarm), and the filter's events switch on there.
+SLIP_EVENT = 0.2
 #: Readings beyond these magnitudes are no rover's: they are left out, counted and logged
 #: (speed [m/s], yaw rate [rad/s], wheel rate [rad/s], acceleration [m/s^2]).
 MAX_SPEED, MAX_YAW_RATE, MAX_WHEEL_RATE, MAX_ACCEL = 50.0, 50.0, 500.0, 1000.0
@@ -131,7 +135,7 @@ class SlipConfig:
     min_speed: float = 0.05
     max_slip_std: float = 0.1
     max_age: float = 0.05
-    event_on: float = 0.2
+    event_on: float = SLIP_EVENT
     event_hold: float = 0.03
     event_off: float = 0.1
     event_min_speed: float = 0.15
@@ -228,7 +232,7 @@ class SlipEstimate:
 
 def slip_events(
     slip: np.ndarray,
-    on: float = 0.2,
+    on: float = SLIP_EVENT,
     off: float = 0.1,
     min_frames: int = 1,
     speed: np.ndarray | None = None,
@@ -488,7 +492,7 @@ class SlipEstimator:
             t_o = t if odometry.t is None else odometry.t
             self.add_odometry(t_o, odometry.twist, odometry.dt, odometry.quality)
         if kinematics is not None:
-            valid = [kinematics.valid.get(f"theta_{w}", False) for w in ("FL", "FR", "RL", "RR")]
+            valid = [kinematics.valid.get(f"theta_{w}", False) for w in WHEELS]
             self.add_wheels(kinematics.t, kinematics.theta_dot, fisheye_dt or 0.0, valid, kinematics.delta)
         return self.estimate(t)
 

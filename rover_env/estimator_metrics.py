@@ -42,7 +42,7 @@ FIELDS: tuple[str, ...] = tuple(n for n in OBS_FIELDS if n in _TRUTH_OF)
 #: (ground-truth key, index) of each of :data:`FIELDS`.
 TRUTH: tuple[tuple[str, int], ...] = tuple(_TRUTH_OF[n] for n in FIELDS)
 _OBS_INDEX = np.array([field_index(OBS_FIELDS, n) for n in FIELDS])
-EVENT_FRAMES = 2  # frames in a row with |s| >= 0.2 that make a true event (SlipConfig.event_hold)
+EVENT_FRAMES = 2  # frames in a row with |s| >= SLIP_EVENT that make a true event (SlipConfig.event_hold)
 EVENT_SPEED = SlipConfig().event_min_speed  # [m/s] no event on a slower wheel
 START_UP = 1.0  # [s] left out at the start of an episode
 

@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rover_env.transforms import quat_to_matrix
+
 if TYPE_CHECKING:
     from rover_env.fisheye import CubemapRemap
     from rover_env.rendering import Lighting, RenderedView
@@ -364,17 +366,6 @@ def _sphere(radius, rings=16, segments=32):
     return radius * n, n, np.array(uv)
 
 
-def _quat_to_matrix(q) -> np.ndarray:
-    x, y, z, w = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 #: Index-buffer gaps shorter than this are drawn rather than skipped: a draw call costs more on
 #: llvmpipe (~60 us) than some hundred off-screen triangles.
 _MERGE_GAP = 600
@@ -402,7 +393,7 @@ def _index_runs(bounds: np.ndarray, items: np.ndarray) -> list[tuple[int, int]]:
 
 def _pose_matrix(pos, orn) -> np.ndarray:
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = _quat_to_matrix(orn), pos
+    T[:3, :3], T[:3, 3] = quat_to_matrix(orn), pos
     return T
 
 
@@ -723,7 +714,7 @@ class GLRenderer:
             else:
                 log.warning("GL renderer: body %d link %d: geometry type %d is not drawn", body, link, gtype)
                 continue
-            R = _quat_to_matrix(lorn)
+            R = quat_to_matrix(lorn)
             pos = pos @ R.T + np.asarray(lpos)
             nrm = nrm @ R.T
             radius[link + 1] = max(radius[link + 1], float(np.linalg.norm(pos, axis=1).max()))
@@ -903,7 +894,7 @@ class GLRenderer:
         if cached is not None and cached[0] == key:
             return cached[1]
         M = np.zeros((n + 1, 4, 4))
-        M[0, :3, :3], M[0, :3, 3], M[0, 3, 3] = _quat_to_matrix(orn), pos, 1.0
+        M[0, :3, :3], M[0, :3, 3], M[0, 3, 3] = quat_to_matrix(orn), pos, 1.0
         if n:
             for k, (parent, T_parent_joint, axis, kind, T_joint_inertial) in enumerate(joints):
                 motion = np.eye(4)

@@ -12,12 +12,12 @@ import numpy as np
 
 from controllers.base import Controller
 from perception import trajectory as tum
+from perception.drive_geometry import WHEELS
+from perception.slip import SLIP_EVENT
 from rover_env.envs.rover_env import RoverEnv
 from rover_env.estimator_metrics import EstimateLog, estimator_summary
 
 log = logging.getLogger(__name__)
-
-SLIP_EVENT = 0.2  # |slip ratio| above which a wheel counts as slipping
 
 
 @dataclass(frozen=True)
@@ -280,7 +280,7 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
     fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
     plt.close(fig)
 
-    names = ("FL", "FR", "RL", "RR")
+    names = WHEELS
     colours = ("C0", "C1", "C2", "C3")
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     for i, label in enumerate(("v_x [m/s]", "v_y [m/s]", "omega [rad/s]")):

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-WHEELS = ("FL", "FR", "RL", "RR")
+from perception.drive_geometry import WHEELS
+
 AXLES = ("F", "R")
 
 

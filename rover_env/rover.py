@@ -14,6 +14,7 @@ from perception.wheel_kinematics import slip_ratio
 from rover_env.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.ground_truth import GroundTruth
 from rover_env.textures import tread_texture, write_cached
+from rover_env.transforms import quat_to_matrix
 from rover_env.urdf import urdf_file
 
 if TYPE_CHECKING:
@@ -22,18 +23,6 @@ if TYPE_CHECKING:
     from rover_env.terrain import Terrain
 
 GRAVITY = 9.81  # [m/s^2]
-
-
-def quat_to_matrix(quat_xyzw) -> np.ndarray:
-    """Rotation matrix (3, 3) of a unit quaternion (x, y, z, w); columns are the frame's axes."""
-    x, y, z, w = (float(v) for v in quat_xyzw)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 class Rover:

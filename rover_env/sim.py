@@ -29,6 +29,7 @@ from rover_env.rover import Rover
 from rover_env.scenario import ScenarioConfig
 from rover_env.shadows import ShadowCaster
 from rover_env.terrain import Terrain
+from rover_env.transforms import quat_to_yaw, yaw_to_quat  # noqa: F401 (the simulation's names)
 
 log = logging.getLogger(__name__)
 
@@ -73,27 +74,6 @@ def resolve_renderer(name: str) -> str:
 @functools.lru_cache(maxsize=1)
 def _warn_fallback(why: str) -> None:
     log.warning("OpenGL rendering is not available, so TinyRenderer draws the cameras (slower): %s", why)
-
-
-def yaw_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Quaternion (x, y, z, w) of intrinsic Z-Y-X (yaw, pitch, roll) Euler angles [rad]."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return np.array(
-        [
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy,
-        ]
-    )
-
-
-def quat_to_yaw(quat_xyzw) -> float:
-    """Heading of the body x axis projected on the world x-y plane [rad]."""
-    x, y, z, w = quat_xyzw
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 #: Most constraint-solver iterations per physics step (a step's cost grows with them).

@@ -11,8 +11,8 @@ from conftest import flat_scenario
 from perception.allan import allan_deviation, fit_allan
 from rover_env.config_io import ConfigError
 from rover_env.imu import G, Imu, ImuConfig, ImuNoise, TriadNoise
-from rover_env.rover import quat_to_matrix
 from rover_env.sim import RoverSim
+from rover_env.transforms import quat_to_matrix
 
 
 def stationary_fit(cfg: ImuConfig, hours: float, seed: int, bin_samples: int = 12):
