@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from perception.cameras import PinholeCamera
-from rover_env.config_io import ConfigError, camera_preset, check_camera_config, check_range
+from rover_env.camera_config import CameraConfig
+from rover_env.config_io import ConfigError, check_range
 from rover_env.fisheye import (
     R_BODY_FISHEYE,
     CubemapRemap,
@@ -29,8 +30,6 @@ from rover_env.sim import RoverSim
 
 # image up = body forward, image right = body right, optical axis = body down
 R_BODY_DOWNCAM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-
-DOWNWARD_PRESETS: dict[str, tuple[int, int]] = {"full": (640, 480), "half": (320, 240), "train": (160, 120)}
 
 
 def blackout_windows(value, name: str = "blackout") -> list[tuple[float, float]]:
@@ -51,41 +50,24 @@ def blackout_windows(value, name: str = "blackout") -> list[tuple[float, float]]
 
 
 @dataclass(frozen=True)
-class DownwardCameraConfig:
-    """Downward pinhole camera on the mast.
+class DownwardCameraConfig(CameraConfig):
+    """Downward pinhole camera on the mast (the fields of :class:`CameraConfig`, and its view).
 
     Attributes:
-        width: Image width [px].
-        height: Image height [px].
         hfov_deg: Horizontal field of view (across the rover) [deg].
         vfov_deg: Vertical field of view (along the rover) [deg].
-        rate_hz: Frame rate; a frame pair is one period apart [Hz].
-        shadows: Render the sun's cast shadows.
-        ambient: Shadowed share of the sunlit brightness at normal incidence (see :class:`Lighting`).
-        ground_range: Draw only the ground within this distance of the rover [m] (at most the
-            terrain's exact-detail radius, 2 m), for speed: TinyRenderer spends time on every
-            triangle whose projection overlaps a view, even where nearer surfaces hide it. Ground
-            seen beyond it is left out (the background shows). None: all ground is drawn.
+
+    Its default rate is 60 Hz (a frame pair is one period apart).
     """
 
-    width: int = 640
-    height: int = 480
+    rate_hz: float = 60.0
     hfov_deg: float = 77.0
     vfov_deg: float = 57.0
-    rate_hz: float = 60.0
-    shadows: bool = True
-    ambient: float = 0.25
-    ground_range: float | None = None
 
     def __post_init__(self) -> None:
-        check_camera_config(self)
+        super().__post_init__()
         check_range("hfov_deg", self.hfov_deg, 1.0, 170.0)
         check_range("vfov_deg", self.vfov_deg, 1.0, 170.0)
-
-    @classmethod
-    def preset(cls, name: str, **overrides) -> DownwardCameraConfig:
-        """A resolution preset: ``full`` 640x480, ``half`` 320x240, ``train`` 160x120."""
-        return camera_preset(cls, name, DOWNWARD_PRESETS, overrides)
 
 
 @dataclass(frozen=True)

@@ -159,26 +159,3 @@ def load_yaml_dataclass(cls: type[T], path: str | Path) -> T:
 def replace(obj: T, **changes: Any) -> T:
     """``dataclasses.replace`` re-exported with a type-preserving signature."""
     return typing.cast(T, dataclasses.replace(obj, **changes))  # type: ignore[type-var]
-
-
-def check_camera_config(cfg) -> None:
-    """Common checks of a camera configuration: size [px], ``rate_hz``, ``ambient``, ``ground_range``."""
-    for key in ("width", "height"):
-        v = getattr(cfg, key)
-        if not isinstance(v, int) or not 16 <= v <= 4096:
-            raise ConfigError(f"{key}: {v!r} px is not a usable image size; use an integer in 16..4096")
-    check_range("rate_hz", cfg.rate_hz, 1.0, 1000.0)
-    check_range("ambient", cfg.ambient, 0.0, 1.0, lo_open=True)
-    r = getattr(cfg, "ground_range", None)
-    if r is not None:
-        from rover_env.terrain import FINE_RADIUS
-
-        check_range("ground_range", r, 0.0, FINE_RADIUS, lo_open=True)
-
-
-def camera_preset(cls, name: str, presets: dict[str, tuple[int, int]], overrides: dict):
-    """``cls`` at the resolution of preset ``name`` (a key of ``presets``), with ``overrides``."""
-    if name not in presets:
-        raise ConfigError(f"preset: unknown {name!r}; choose one of {sorted(presets)}")
-    w, h = presets[name]
-    return cls(width=w, height=h, **overrides)

@@ -23,7 +23,8 @@ import numpy as np
 
 from perception.cameras import OmniCamera
 from perception.rover_parts import kinematic_parts
-from rover_env.config_io import camera_preset, check_camera_config, check_range
+from rover_env.camera_config import CameraConfig
+from rover_env.config_io import check_range
 from rover_env.rendering import Lighting, render_K
 
 # image right = body forward, image down = body right, optical axis = body down
@@ -32,7 +33,6 @@ R_BODY_FISHEYE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 SHADOW_DETAIL_RANGE = 0.5  # [m] about the distance of wheels and markers from the fisheye
 MAX_VIEW_HALF_ANGLE = math.radians(55.0)  # widest ray of a ROI view from its axis
 
-FISHEYE_PRESETS: dict[str, tuple[int, int]] = {"full": (640, 480), "half": (320, 240), "train": (160, 120)}
 
 # cube faces in the camera optical frame: (name, face optical axis, face image "down" direction)
 _FACES = (
@@ -309,49 +309,31 @@ class CubemapRemap:
 
 
 @dataclass(frozen=True)
-class FisheyeCameraConfig:
-    """Downward fisheye under the body (kinematics paper).
+class FisheyeCameraConfig(CameraConfig):
+    """Downward fisheye under the body (kinematics paper): :class:`CameraConfig` and its optics.
 
     Attributes:
-        width: Image width [px] (along the body's x axis).
-        height: Image height [px] (across the body).
-        rate_hz: Frame rate [Hz].
         fov_deg: Full field of view of the image circle [deg] (>= 185).
         radius_frac: Radius of the image circle at fov_deg / 2, as a share of the image width
             (0.47: the circle spans the width and is cut by the top and bottom edges).
-        shadows: Render the sun's cast shadows.
-        ambient: Shadowed share of the sunlit brightness at normal incidence.
         oversample: Cube-face resolution relative to the fisheye's finest angular resolution.
         roi: Render only the region of interest of the kinematics estimator
             (:func:`kinematics_roi`: wheels, markers and steering arms over the joint range);
             the rest of the image is black. Faster in proportion to the pixels saved.
-        ground_range: Draw only the ground within this distance of the rover [m] (at most the
-            terrain's exact-detail radius, 2 m), for speed: TinyRenderer spends time on every
-            triangle whose projection overlaps a view, even where nearer surfaces hide it. Ground
-            seen beyond it is left out (the background shows). None: all ground is drawn.
+
+    Its width runs along the body's x axis, its height across the body.
     """
 
-    width: int = 640
-    height: int = 480
-    rate_hz: float = 30.0
     fov_deg: float = 190.0
     radius_frac: float = 0.47
-    shadows: bool = True
-    ambient: float = 0.25
     oversample: float = 1.0
     roi: bool = False
-    ground_range: float | None = None
 
     def __post_init__(self) -> None:
-        check_camera_config(self)
+        super().__post_init__()
         check_range("fov_deg", self.fov_deg, 185.0, 250.0)
         check_range("radius_frac", self.radius_frac, 0.1, 1.0)
         check_range("oversample", self.oversample, 0.25, 4.0)
-
-    @classmethod
-    def preset(cls, name: str, **overrides) -> FisheyeCameraConfig:
-        """A resolution preset: ``full`` 640x480, ``half`` 320x240, ``train`` 160x120."""
-        return camera_preset(cls, name, FISHEYE_PRESETS, overrides)
 
     def model(self, T_body_cam: np.ndarray) -> OmniCamera:
         """The ideal (equidistant, 4th-order polynomial) model of this configuration."""
