@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from perception.validation import ConfigError, not_a_number
+from perception.validation import ConfigError, not_a_number, read_yaml
 
 
 class CalibrationError(ConfigError):
@@ -28,14 +28,7 @@ def read_mapping(path: str | Path, required: set[str], optional: set[str]) -> di
             key or has an unknown one (the message names it and lists the accepted keys).
     """
     p = Path(path)
-    if not p.is_file():
-        raise CalibrationError(f"{p}: calibration file not found")
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise CalibrationError(f"{p}: not UTF-8 text (offset {exc.start}); save it as UTF-8") from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise CalibrationError(f"{p}: not readable as YAML ({exc})") from exc
+    data = read_yaml(p, CalibrationError, "calibration file")
     if not isinstance(data, dict):
         raise CalibrationError(f"{p}: expected a mapping of keys at the top level")
     missing = sorted(required - data.keys(), key=str)

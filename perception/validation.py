@@ -110,3 +110,34 @@ def image_file_size(path, max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]
             f"{path}: {w} x {h} px is beyond the {max_pixels:,}-pixel budget for one image; scale it down"
         )
     return int(w), int(h)
+
+
+def read_yaml(path, error: type[ConfigError] = ConfigError, what: str = "file"):
+    """The YAML document in ``path``: the one reader of every configuration and calibration file.
+
+    Args:
+        path: The file.
+        error: The :class:`ConfigError` (sub)class to raise.
+        what: What the file is, for the message (``"calibration file"``).
+
+    Raises:
+        error: The file is missing, unreadable, not UTF-8 (the byte and offset named) or not
+            YAML (the line named); every message starts with the file.
+    """
+    from pathlib import Path
+
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise error(f"{p}: {what} not found")
+    try:
+        return yaml.safe_load(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{p}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset {exc.start}); save it as UTF-8"
+        ) from None
+    except yaml.YAMLError as exc:
+        raise error(f"{p}: not valid YAML: {' '.join(str(exc).split())}") from None
+    except OSError as exc:
+        raise error(f"{p}: not readable ({exc.strerror or exc})") from None

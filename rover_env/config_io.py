@@ -12,9 +12,7 @@ import typing
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
 
-import yaml
-
-from perception.validation import ConfigError, check_range, real_number
+from perception.validation import ConfigError, check_range, read_yaml, real_number
 
 __all__ = ["ConfigError", "check_range", "from_dict", "to_dict", "load_yaml_dataclass", "replace"]
 
@@ -137,17 +135,7 @@ def load_yaml_dataclass(cls: type[T], path: str | Path) -> T:
         ConfigError: If the file is missing, is not valid YAML, or does not fit ``cls``.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: file not found")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"{path}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset {exc.start}); "
-            "save it as UTF-8"
-        ) from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    data = read_yaml(path)
     if data is None:
         data = {}
     try:
