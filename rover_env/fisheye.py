@@ -64,6 +64,22 @@ class CubeFace:
     size: tuple[int, int]
     atlas_row: int
 
+    def view(self, T_world_cam: np.ndarray, window=None):
+        """The view to render of this face: (K, (w, h), T_world_face, (u0, v0, u1, v1)), or None.
+
+        ``window`` (u0, v0, u1, v1) [face px] crops the face (its K shifted by the window's
+        corner); None: the whole face. An empty window gives None.
+        """
+        u0, v0, u1, v1 = (0, 0, *self.size) if window is None else window
+        if u1 <= u0 or v1 <= v0:
+            return None
+        K = self.K.copy()
+        K[0, 2] -= u0  # the window is a crop of the face
+        K[1, 2] -= v0
+        T_face = T_world_cam.copy()
+        T_face[:3, :3] = T_world_cam[:3, :3] @ self.R_cam_face
+        return K, (u1 - u0, v1 - v0), T_face, (u0, v0, u1, v1)
+
 
 def kinematics_roi(
     camera: OmniCamera,
@@ -408,20 +424,16 @@ def render_fisheye(
         shadow_map = caster.shadow_map(lighting.sun_direction, SHADOW_DETAIL_RANGE / remapper.focal)
     views = []
     for k, fc in enumerate(remapper.faces):
-        u0, v0, u1, v1 = (0, 0) + fc.size if windows is None else windows[k]
-        if u1 <= u0 or v1 <= v0:
+        view = fc.view(T_world_cam, None if windows is None else windows[k])
+        if view is None:
             views.append(None)
             continue
-        K = fc.K.copy()
-        K[0, 2] -= u0  # the window is a crop of the face
-        K[1, 2] -= v0
-        T_face = T_world_cam.copy()
-        T_face[:3, :3] = T_world_cam[:3, :3] @ fc.R_cam_face
+        K, size, T_face, _ = view
         views.append(
             render_K(
                 client,
                 K,
-                (u1 - u0, v1 - v0),
+                size,
                 T_face,
                 lighting,
                 near,

@@ -1160,17 +1160,13 @@ class GLRenderer:
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         drawn = False
         for k, fc in enumerate(remapper.faces):
-            u0, v0, u1, v1 = (0, 0) + tuple(fc.size) if windows is None else windows[k]
-            if u1 <= u0 or v1 <= v0:
+            view = fc.view(T_world_cam, None if windows is None else windows[k])
+            if view is None:
                 continue
             drawn = True
             fw, fh = fc.size
-            T_face = T_world_cam.copy()
-            T_face[:3, :3] = T_world_cam[:3, :3] @ fc.R_cam_face
-            K = fc.K.copy()
-            K[0, 2] -= u0
-            K[1, 2] -= v0
-            planes = view_planes(K, (u1 - u0, v1 - v0), T_face, near)
+            K, size, T_face, (u0, v0, u1, v1) = view
+            planes = view_planes(K, size, T_face, near)
             fbo.viewport = (0, fc.atlas_row, fw, fh)
             fbo.scissor = (u0, fc.atlas_row + v0, u1 - u0, v1 - v0)
             self._draw(
