@@ -39,8 +39,8 @@ from perception.rover_parts import joint_window_parts
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.validation import ConfigError
 
-#: Keys of ``StepEstimate.values``: the ground truth's state keys, the dead-reckoned
-#: ``odometry_pose`` (x, y, yaw) and the estimates' quality.
+#: Keys of ``StepEstimate.values``: the ground truth's state keys and the dead-reckoned
+#: ``odometry_pose`` (x, y, yaw); the qualities are the StepEstimate's own fields.
 STEP_KEYS: tuple[str, ...] = (
     "odometry_pose",
     "twist",
@@ -52,7 +52,6 @@ STEP_KEYS: tuple[str, ...] = (
     "axle_height",
     "steering",
     "tilt",
-    "quality",
 )
 #: The gyro's bias is calibrated on its samples over this long before the start [s]: the
 #: rover is then at rest on its wheels.
@@ -465,14 +464,12 @@ class RoverEstimator:
             "axle_height": ks.depth.copy(),
             "steering": ks.lam.copy(),
             "tilt": np.zeros(2),  # unknown without an IMU: attitude quality 0 says so
-            "quality": np.array([q_odo, q_kin, 0.0]),
         }
         if self.imu is None:
             return StepEstimate(values, q_odo, q_kin, 0.0, sl, odo, ks)
         tilt = (self.attitude.roll, self.attitude.pitch)
         q_att = self._attitude_q
         values["tilt"] = np.array(tilt)
-        values["quality"][2] = q_att
         bias = self.slip.gyro_bias
         return StepEstimate(
             values, q_odo, q_kin, q_att, sl, odo, ks, self._imu_saturated, bias, tilt, self._z
