@@ -200,7 +200,8 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         from rover_env.evaluation import ROW_FILE
 
         for job in jobs:
-            (Path(job.out) / ROW_FILE).unlink(missing_ok=True)
+            if job.out is not None:
+                (Path(job.out) / ROW_FILE).unlink(missing_ok=True)
     fails = []
     sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
     bar = _Progress("eval: runs", unit="runs", total=len(jobs))
@@ -334,7 +335,8 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     if args.imu and args.imu_topic:
         raise ValueError("--imu and --imu-topic: give one IMU source")
     bar = _Progress("odometry: frames")
-    rpy = tuple(math.radians(v) for v in args.imu_rpy)
+    roll, pitch, yaw = (math.radians(v) for v in args.imu_rpy)
+    rpy = (roll, pitch, yaw)
     try:
         res = run_folder_odometry(
             args.source,
@@ -409,8 +411,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = p.add_subparsers(dest="command", required=True)
-    fmt = {"formatter_class": _DefaultsFormatter}
-    d = sub.add_parser("demo", **fmt, help="headless demo mission: video, plots and metrics")
+    fmt = _DefaultsFormatter
+    d = sub.add_parser("demo", formatter_class=fmt, help="headless demo mission: video, plots and metrics")
     d.add_argument("--out", required=True, help="output folder (created if missing)")
     d.add_argument(
         "--scenario",
@@ -430,7 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser(
         "eval",
-        **fmt,
+        formatter_class=fmt,
         help="sweep controllers x missions x seeds; one merged report",
         description="Controllers: "
         + "; ".join(f"{k} ({v.description})" for k, v in CONTROLLERS.items())
@@ -470,7 +472,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     e.set_defaults(func=_cmd_eval)
     t = sub.add_parser(
-        "train", **fmt, help="train a PPO (or SAC) policy on the estimated-observation environments"
+        "train", formatter_class=fmt, help="train a PPO (or SAC) policy on the estimated-observation environments"
     )
     t.add_argument(
         "--out", required=True, help="output folder: policy, normalisation, checkpoints, TensorBoard"
@@ -500,7 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="training seed (0 to 2^32 - 1)")
     t.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     t.set_defaults(func=_cmd_train)
-    b = sub.add_parser("bench", **fmt, help="simulation speed benchmarks")
+    b = sub.add_parser("bench", formatter_class=fmt, help="simulation speed benchmarks")
     b.add_argument(
         "--scenarios", nargs="+", default=["flat_patches", "rough"], help="scenario presets or YAML paths"
     )
@@ -518,7 +520,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=_cmd_bench)
     o = sub.add_parser(
         "odometry",
-        **fmt,
+        formatter_class=fmt,
         help="optical-flow odometry on downward-camera images: a folder, a ROS 1 or 2 bag, or an MCAP file",
     )
     o.add_argument("source", help=SOURCE_HELP)
@@ -555,7 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     o.set_defaults(func=_cmd_odometry)
     k = sub.add_parser(
         "kinematics",
-        **fmt,
+        formatter_class=fmt,
         help="fisheye kinematic state estimation: a folder of images, a ROS 1 or 2 bag, or an MCAP file",
     )
     k.add_argument("source", help=SOURCE_HELP)
@@ -570,7 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", required=True, help="output folder (kinematics.csv, kinematics.mcap)")
     k.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     k.set_defaults(func=_cmd_kinematics)
-    s = sub.add_parser("scenarios", **fmt, help="list the shipped scenario presets")
+    s = sub.add_parser("scenarios", formatter_class=fmt, help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
     return p
 
