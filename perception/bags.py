@@ -34,6 +34,7 @@ import tempfile
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -402,7 +403,8 @@ def _scan_rows(db: sqlite3.Connection, want: set[int], f: Path) -> list[tuple[in
         rows += [(int(ts), int(rid), int(tid)) for rid, tid, ts in batch if tid in want]
         pos = int(batch[-1][0]) + 1
     if lost:
-        spans, start = [], lost[0]
+        spans: list[str] = []
+        start: int | None = lost[0]
         for a, b in zip(lost, lost[1:] + [None]):
             if b != a + 1:
                 spans.append(f"{start}" if start == a else f"{start} to {a}")
@@ -522,7 +524,7 @@ class _McapLog(RobotLog):
             out[topic] = (ty, n + 1)
         return out
 
-    def _records(self, f: Path, quiet: bool = False) -> Iterator[tuple[tuple[str, str, str], object]]:
+    def _records(self, f: Path, quiet: bool = False) -> Iterator[tuple[tuple[str, str, str], Any]]:
         """((topic, type, encoding), Message) of each readable message of ``f``, in file order."""
         import io
         import os
@@ -741,7 +743,7 @@ def _chunk_records(chunk, partial: bool = False, on_damage=None) -> Iterator:
         stream, length = ReadDataStream(io.BytesIO(data)), len(data)
     else:
         stream, length = get_chunk_data_stream(chunk, validate_crc=True)
-    readers = {Opcode.MESSAGE: None, Opcode.CHANNEL: Channel.read, Opcode.SCHEMA: Schema.read}
+    readers: dict[int, Any] = {Opcode.MESSAGE: None, Opcode.CHANNEL: Channel.read, Opcode.SCHEMA: Schema.read}
     while stream.count < length:
         at = stream.count
         opcode = stream.read1()

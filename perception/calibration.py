@@ -103,7 +103,7 @@ def fit_omni_camera(
     dirs = np.asarray(directions_cam, dtype=np.float64).reshape(-1, 3)
     if len(px) != len(dirs):
         raise CalibrationError(f"pixels ({len(px)}) and directions ({len(dirs)}) differ in number")
-    inliers = np.isfinite(px).all(axis=1) & np.isfinite(dirs).all(axis=1)
+    inliers = np.logical_and(np.isfinite(px).all(axis=1), np.isfinite(dirs).all(axis=1))
     args = (image_size, max_fov, degree, T_body_cam, fit_center, fit_affine)
     for _ in range(4):
         camera = _fit_once(px[inliers], dirs[inliers], *args)
@@ -268,7 +268,7 @@ def calibrate_ground_camera(
         coef, *_ = np.linalg.lstsq(A, Q[:, 2], rcond=None)
         if np.abs(A @ coef - Q[:, 2]).max() > 0.01:
             raise CalibrationError("points_body are not on one plane (> 1 cm off); pass fit_plane=False")
-        plane = tuple(float(v) for v in coef)
+        plane = (float(coef[0]), float(coef[1]), float(coef[2]))
     fitted = PinholeCamera(
         K=camera.K,
         distortion=camera.distortion,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -198,7 +199,9 @@ class KinematicStateEstimator:
         self._missed = np.full(4, 1 << 30)  # frames since each wheel's last measurement
         self._measured = np.zeros(4, dtype=bool)  # measured since the reset
         self._strips: list = [None] * 4  # the last frame's tread strips
-        self._geometry = None  # (state, (predicted marker pixels, centroid offsets))
+        self._geometry: tuple[np.ndarray, Any] | None = (
+            None  # (state, (predicted marker pixels, centroid offsets))
+        )
         self._markers_tracked = False  # all markers found in the last frame
         self._offset = np.full(4, math.nan)  # eq. 7: theta - marker phase, once confirmed
         self._pending = np.full(4, math.nan)  # the last unconfirmed sighting's offset

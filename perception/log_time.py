@@ -120,7 +120,8 @@ def in_stamp_order(
             j -= 1
     if same is None:
         return out
-    kept, dropped = [], 0
+    kept: list[Any] = []
+    dropped = 0
     for x in out:
         if kept and x.stamp == kept[-1].stamp and same(x, kept[-1]):
             dropped += 1

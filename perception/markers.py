@@ -258,7 +258,8 @@ class SteeringCalibration:
     @classmethod
     def fit(cls, ratios, lams) -> SteeringCalibration:
         """From swept (ratio, lambda) samples: ``ratios`` and ``lams`` are (2, n) arrays (F, R)."""
-        x_out, l_out = [], []
+        x_out: list[tuple[float, ...]] = []
+        l_out: list[tuple[float, ...]] = []
         for r, lam in zip(
             np.asarray(ratios, dtype=np.float64), np.asarray(lams, dtype=np.float64), strict=True
         ):
@@ -269,7 +270,11 @@ class SteeringCalibration:
                 raise CalibrationError("steering sweep: the ratio is not monotonic in lambda; sweep finer")
             x_out.append(tuple(lx.tolist()))
             l_out.append(tuple(lam.tolist()))
-        return cls(tuple(x_out), tuple(l_out))
+        if len(x_out) != 2:
+            raise CalibrationError(
+                f"steering sweep: {len(x_out)} rows; give (2, n) arrays (front, rear axle)"
+            )
+        return cls((x_out[0], x_out[1]), (l_out[0], l_out[1]))
 
     def steering(self, axle: str, ratio: float) -> float:
         """Lambda [rad] of ``axle`` for distance ratio ``ratio`` (NaN outside the swept range)."""

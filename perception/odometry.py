@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import Any, Literal, overload
 
 import cv2
 import numpy as np
@@ -220,6 +221,14 @@ def rigid_ransac(
     return inl[int(np.argmax(inl.sum(axis=1)))]
 
 
+@overload
+def velocity_from_points(
+    P: np.ndarray, C: np.ndarray, dt: float, return_cov: Literal[False] = False, rate_xy=None
+) -> tuple[np.ndarray, float]: ...
+@overload
+def velocity_from_points(
+    P: np.ndarray, C: np.ndarray, dt: float, return_cov: Literal[True], rate_xy=None
+) -> tuple[np.ndarray, float, np.ndarray]: ...
 def velocity_from_points(
     P: np.ndarray, C: np.ndarray, dt: float, return_cov: bool = False, rate_xy=None
 ) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray]:
@@ -269,7 +278,7 @@ def velocity_from_points(
     if rate_xy is None:
         sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     else:  # the known roll and pitch rates moved to the right-hand side
-        w = _rates(rate_xy)
+        w = np.asarray(_rates(rate_xy))
         part, *_ = np.linalg.lstsq(A[:, [0, 1, 2, 5]], b - A[:, 3:5] @ w, rcond=None)
         sol = np.array([part[0], part[1], part[2], w[0], w[1], part[3]])
     res = (A @ sol - b).reshape(n, 3)[:, :2].reshape(-1)
@@ -396,7 +405,7 @@ class FlowOdometryConfig:
         s = width / 640.0
         base = cls()
         window = max(9, int(round(base.window * s)) | 1)
-        scaled = dict(
+        scaled: dict[str, Any] = dict(
             max_disp=base.max_disp * s * 60.0 / rate_hz,
             window=window,
             min_distance=max(3.0, base.min_distance * s),
@@ -723,7 +732,9 @@ class FlowOdometry:
         n_feat = len(selection.features)
 
         def invalid(reason: str, **kw) -> OdometryEstimate:
-            base = dict(n_features=n_feat, n_tracked=0, n_inliers=0, inlier_ratio=0.0, residual=math.nan)
+            base: dict[str, Any] = dict(
+                n_features=n_feat, n_tracked=0, n_inliers=0, inlier_ratio=0.0, residual=math.nan
+            )
             base.update(kw)
             return OdometryEstimate(
                 math.nan, math.nan, math.nan, False, reason, 0.0, dt=dt, t=t, selection=selection, **base
@@ -734,12 +745,12 @@ class FlowOdometry:
         if cfg.repeated_frames == "invalid" and np.array_equal(selection.gray, gray):
             return invalid("no motion observable: the frame repeats the last one exactly (a frozen camera?)")
         p0 = selection.features.reshape(-1, 1, 2)
-        lk = dict(
+        lk: dict[str, Any] = dict(
             winSize=(cfg.window, cfg.window),
             maxLevel=cfg.lk_levels,
             criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
         )
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(selection.gray, gray, p0, None, **lk)
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(selection.gray, gray, p0, None, **lk)  # type: ignore[call-overload]
         # the backward track only checks the forward one: it starts at the feature, on fb_levels
         # levels, and a tenth of the threshold is precise enough
         lk["criteria"] = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.1 * cfg.fb_threshold)
@@ -776,7 +787,7 @@ class FlowOdometry:
             inl = np.ones(n_tr, dtype=bool)
         n_in = int(inl.sum())
         ratio = n_in / n_tr
-        common = dict(n_tracked=n_tr, n_inliers=n_in, inlier_ratio=ratio)
+        common: dict[str, Any] = dict(n_tracked=n_tr, n_inliers=n_in, inlier_ratio=ratio)
         if n_in < cfg.min_inliers:
             return invalid(f"too few inliers ({n_in} of {n_tr})", **common)
         rates = rate_xy if P.shape[1] == 3 else None
@@ -842,7 +853,7 @@ class FlowOdometry:
         rates = _rates(rate_xy)
         out = None
         if self._last is not None:
-            dt = t - self._last.t
+            dt = t - (math.nan if self._last.t is None else self._last.t)
             if not (dt > 0 and math.isfinite(dt)):
                 raise ValueError(f"t: {t!r} s is not after the last frame's {self._last.t!r} s")
             out = self._track(self._last, gray, dt, t, ground_plane, rates)

@@ -725,8 +725,9 @@ def run_folder_kinematics(
 
     cam = camera if isinstance(camera, OmniCamera) else OmniCamera.load(camera)
     model = rover if isinstance(rover, RoverKinematicModel) else RoverKinematicModel.load(rover)
-    cal = steering if steering is None or isinstance(steering, SteeringCalibration) else None
-    if steering is not None and cal is None:
+    if steering is None or isinstance(steering, SteeringCalibration):
+        cal = steering
+    else:
         cal = SteeringCalibration.load(steering)
     est = KinematicStateEstimator(cam, model, config, cal)
     bags.new_run()

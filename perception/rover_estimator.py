@@ -17,8 +17,9 @@ It sees sensor messages, the rig's calibrations and the start fix only.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -122,7 +123,9 @@ class StepEstimate:
             out[f"slip_valid_{w}"] = float(bool(sl.valid[k]))
             out[f"slip_event_{w}"] = float(bool(sl.events[k]))
         out["slip_quality"] = float(sl.quality)
-        return {k: v for k, v in out.items() if k == "pose" or not np.isnan(v)}  # unknown: left out
+        return {
+            k: v for k, v in out.items() if k == "pose" or not (isinstance(v, float) and math.isnan(v))
+        }  # unknown: left out
 
 
 class RoverEstimator:
@@ -394,7 +397,10 @@ class RoverEstimator:
             t: The time the step ended [s].
         """
         t0 = time.perf_counter()
-        handlers = {self.fish.name: self._on_fisheye, self.down.name: self._on_downward}
+        handlers: dict[str, Callable[[np.ndarray, float], None]] = {
+            self.fish.name: self._on_fisheye,
+            self.down.name: self._on_downward,
+        }
         if self.imu is not None:
             handlers[self.imu.name] = self._on_imu
         for msg in messages:

@@ -26,6 +26,8 @@ def _part_shapes(r: float, width: float, marker_size: float, outline: bool) -> t
     bounds the parts' images (the wheel's two rims at 24 points, whose chords sag 0.9 % of the
     radius, and the corners of the cube about the ball).
     """
+    wheel: np.ndarray
+    ball: np.ndarray
     if outline:
         phi = np.linspace(0.0, 2 * math.pi, 25)[:-1]
         P, Y = np.meshgrid(phi, np.array([-0.5, 0.5]) * width)
@@ -41,8 +43,8 @@ def _part_shapes(r: float, width: float, marker_size: float, outline: bool) -> t
     phi = np.linspace(0.0, 2 * math.pi, 97)[:-1]
     P, Y = np.meshgrid(phi, np.linspace(-0.5, 0.5, 5) * width)
     cyl = np.stack([r * np.cos(P), Y, r * np.sin(P)], -1).reshape(-1, 3)
-    P, Q, Y = np.meshgrid(phi[::2], np.linspace(0.25, 1.0, 4) * r, np.array([-0.5, 0.5]) * width)
-    disc = np.stack([Q * np.cos(P), Y, Q * np.sin(P)], -1).reshape(-1, 3)
+    Pd, Qd, Yd = np.meshgrid(phi[::2], np.linspace(0.25, 1.0, 4) * r, np.array([-0.5, 0.5]) * width)
+    disc = np.stack([Qd * np.cos(Pd), Yd, Qd * np.sin(Pd)], -1).reshape(-1, 3)
     ball = np.array([[i, j, k] for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], dtype=float)
     ball *= 0.75 * marker_size / np.maximum(np.linalg.norm(ball, axis=1, keepdims=True), 1.0)
     wheel = np.vstack([cyl, disc])
@@ -99,7 +101,8 @@ def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, flo
     out = []
     for i, axle in enumerate(AXLES):
         # axle-frame points at the two steering corners: (2, n, 3) with the marker centres last
-        local, centres = [], []
+        parts: list[np.ndarray] = []
+        centres: list[np.ndarray] = []
         for w in (axle + "L", axle + "R"):
             knuckle = knuckles[w]
             d = float(delta[WHEELS.index(w)]) + np.array([-ss, ss])
@@ -107,10 +110,10 @@ def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, flo
             x, y, z = knuckle[:, 0], knuckle[:, 1], knuckle[:, 2]
             rot = np.stack([c * x - s_ * y, s_ * x + c * y, np.broadcast_to(z, c.shape[:1] + z.shape)], -1)
             rot += model.kingpin_local(w)
-            local.append(rot[:, :-1])
+            parts.append(rot[:, :-1])
             centres.append(rot[:, -1:])  # the tie-rod marker
         plates = plate_sets[axle]
-        local = np.concatenate([*local, *centres, np.broadcast_to(plates, (2,) + plates.shape)], axis=1)
+        local = np.concatenate([*parts, *centres, np.broadcast_to(plates, (2,) + plates.shape)], axis=1)
         n_markers = 2 + len(plates)
         for roll in (psi[i] - sr, psi[i] + sr):
             cr, sn = math.cos(roll), math.sin(roll)

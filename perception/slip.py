@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.special import ndtr
@@ -313,7 +314,8 @@ class SlipEstimator:
         self._accel_used = False
         self._inputs: list[tuple[float, float, float, float]] = []  # (t0, t1, a_x, a_y) [s, m/s^2]
         self._t: float | None = None
-        self._pending: list[tuple[float, int, np.ndarray, np.ndarray, np.ndarray]] = []
+        # (time [s], sequence, state indices or None, z, R, H or None)
+        self._pending: list[tuple[float, int, Any, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._steer = np.zeros(N_WHEELS)
         self._t_odom = -math.inf
         self._t_rate = np.full(N_WHEELS, -math.inf)
@@ -509,8 +511,8 @@ class SlipEstimator:
         c = self.config
         dt = t1 - t0
         if not self._accel_used:  # random walk: the state is held, its variance grows
-            q = [c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS
-            q = np.array(q + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [0.0] * (2 + N_WHEELS))
+            rw = [c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS
+            q = np.array(rw + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [0.0] * (2 + N_WHEELS))
             return x, P + np.diag(q * dt)
         # the velocity integrates the measured acceleration less its bias; each wheel rate its
         # angular acceleration, an integrated random walk
@@ -520,9 +522,9 @@ class SlipEstimator:
         F[rates, accs] = dt
         x = F @ x
         x[:2] += self._velocity_change(t0, t1)
-        q = [c.accel_velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.accel_wheel_rate_rw**2] * N_WHEELS
-        q += [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [c.accel_bias_rw**2] * 2 + [0.0] * N_WHEELS
-        Q = np.diag(np.array(q) * dt)
+        rw = [c.accel_velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.accel_wheel_rate_rw**2] * N_WHEELS
+        rw += [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [c.accel_bias_rw**2] * 2 + [0.0] * N_WHEELS
+        Q = np.diag(np.array(rw) * dt)
         j = c.wheel_accel_rw**2
         Q[rates, rates] += j * dt**3 / 3.0
         Q[rates, accs] = Q[accs, rates] = j * dt**2 / 2.0

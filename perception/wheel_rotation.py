@@ -26,6 +26,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -466,7 +467,7 @@ def _occluded(model, camera, frames, wheels, dist2: np.ndarray, grid: np.ndarray
         cv2.circle(label, (u, v), rad, j + 1, -1, cv2.LINE_8, 4)
     # each point's nearest pixel's label (0 for the points at -1, outside the label image)
     flat = grid.reshape(-1, grid.shape[-2], 2)
-    lab = cv2.remap(label, flat, None, cv2.INTER_NEAREST, borderValue=0).reshape(dist2.shape)
+    lab = cv2.remap(label, flat, None, cv2.INTER_NEAREST, borderValue=0).reshape(dist2.shape)  # type: ignore[call-overload]
     near = np.concatenate([[np.inf], dist]) ** 2
     return dist2 > near[lab]
 
@@ -740,7 +741,7 @@ def track_pairs(
     p0, blk = pts[take].astype(np.float32), blk[take]
     prior_cols = np.array([priors[b[0]] / b[1].dphi for b in blocks], np.float32)
     guess = p0 + np.stack([prior_cols[blk], np.zeros(len(blk), np.float32)], 1)
-    lk = dict(
+    lk: dict[str, Any] = dict(
         winSize=(cfg.lk_window, cfg.lk_window),
         maxLevel=0,  # the search starts at the aligned rotation, within a cell or so
         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
@@ -815,8 +816,9 @@ def measure_pairs(
     """
     out = [RotationMeasurement(math.nan, 0, 0, 0, False) for _ in pairs]
     check = [int(cfg.check_strong)] * len(pairs) if check is None else [int(c) for c in check]
-    ok = [i for i, (p, c) in enumerate(pairs) if p is not None and c is not None]
-    als = align_pairs([pairs[i] for i in ok], cfg, [priors[i] for i in ok], [spans[i] for i in ok])
+    both = {i: (p, c) for i, (p, c) in enumerate(pairs) if p is not None and c is not None}
+    ok = list(both)
+    als = align_pairs([both[i] for i in ok], cfg, [priors[i] for i in ok], [spans[i] for i in ok])
     go = []
     for i, al in zip(ok, als, strict=True):
         if abs(al.alpha) < cfg.static_band and abs(al.alpha - priors[i]) > cfg.prior_tolerance:
@@ -831,7 +833,7 @@ def measure_pairs(
             out[i] = RotationMeasurement(al.alpha, 0, 0, 0, True, al.ncc)
         else:
             go.append((i, al))
-    feats = track_pairs([pairs[i] for i, _ in go], radius, cfg, [al.alpha for _, al in go])
+    feats = track_pairs([both[i] for i, _ in go], radius, cfg, [al.alpha for _, al in go])
     for (i, al), f in zip(go, feats, strict=True):
         agree = f.valid and abs(f.alpha - al.alpha) <= cfg.ransac_tolerance
         if agree or (al.ncc >= cfg.strong_ncc and not f.valid and check[i] < 2):
@@ -903,4 +905,4 @@ def measure_rotation(
         unwrap_tread(g, model, camera, *f, dphi, cfg, wheel, shadow_robust)
         for g, f in ((prev_gray, prev_frame), (curr_gray, curr_frame))
     ]
-    return measure_strips(*strips, model.wheel_radius, cfg, alpha_prior, span)
+    return measure_strips(strips[0], strips[1], model.wheel_radius, cfg, alpha_prior, span)
