@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 import rover_env  # noqa: F401  (registers the missions)
-from rover_env.sim import quat_to_yaw
+from rover_env.sim.simulation import quat_to_yaw
 
 ACTION = np.array([0.25, 0.5, -0.5], dtype=np.float32)
 

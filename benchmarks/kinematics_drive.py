@@ -28,11 +28,11 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from perception.fisheye_kinematics import KinematicStateEstimator  # noqa: E402
-from rover_env.cameras import FisheyeCamera  # noqa: E402
-from rover_env.fisheye import FisheyeCameraConfig  # noqa: E402
-from rover_env.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig  # noqa: E402
-from rover_env.sim import RoverSim  # noqa: E402
-from rover_env.task import CourseConfig  # noqa: E402
+from rover_env.config.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig  # noqa: E402
+from rover_env.rendering.fisheye import FisheyeCameraConfig  # noqa: E402
+from rover_env.sensors.cameras import FisheyeCamera  # noqa: E402
+from rover_env.sim.simulation import RoverSim  # noqa: E402
+from rover_env.task.course import CourseConfig  # noqa: E402
 
 
 def drive(speed: float, seconds: float, preset: str, steer: float, sun_elevation: float) -> dict:

@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from perception.fisheye_kinematics import DOF_NAMES, KinematicStateEstimator
-from rover_env.cameras import FisheyeCamera
-from rover_env.fisheye import FisheyeCameraConfig
-from rover_env.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig
-from rover_env.sim import RoverSim, quat_to_yaw
-from rover_env.task import CourseConfig
+from rover_env.config.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig
+from rover_env.rendering.fisheye import FisheyeCameraConfig
+from rover_env.sensors.cameras import FisheyeCamera
+from rover_env.sim.simulation import RoverSim, quat_to_yaw
+from rover_env.task.course import CourseConfig
 
 # name: (duration [s], terrain seed, sun azimuth [deg], sun elevation [deg])
 DATASETS = {1: (82.0, 3, 150.0, 35.0), 2: (170.0, 5, 230.0, 30.0), 3: (257.0, 9, 60.0, 40.0)}

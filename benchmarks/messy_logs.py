@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_bags import LogWriter  # noqa: E402
 from test_odometry import START, make_ground, mast_camera, pose_after, render  # noqa: E402
 
-from rover_env.cli import main  # noqa: E402
+from rover_env.tools.cli import main  # noqa: E402
 
 T0, FPS, N, TWIST, TOPIC = 1_700_000_000.25, 60.0, 60, (0.8, 0.05, 0.2), "/down/image_raw"
 

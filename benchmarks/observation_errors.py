@@ -26,7 +26,7 @@ import gymnasium as gym
 import rover_env
 from controllers.pure_pursuit import PurePursuit
 from rover_env.envs import OBS_FIELDS
-from rover_env.estimator_metrics import EstimateLog, field_errors, slip_metrics
+from rover_env.tools.estimator_metrics import EstimateLog, field_errors, slip_metrics
 
 
 def run(env_id: str, seed: int, preset: str, seconds: float, renderer: str = "gl") -> dict:

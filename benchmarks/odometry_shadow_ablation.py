@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from perception.odometry import FlowOdometry, FlowOdometryConfig, ground_plane_from_wheels, integrate_twist
-from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-from rover_env.scenario import ScenarioConfig, SunConfig, TerrainConfig
-from rover_env.sim import RoverSim, quat_to_yaw
-from rover_env.task import CourseConfig
+from rover_env.config.scenario import ScenarioConfig, SunConfig, TerrainConfig
+from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+from rover_env.sim.simulation import RoverSim, quat_to_yaw
+from rover_env.task.course import CourseConfig
 
 RADIUS = 5.0  # [m]
 SPEED = 2.0  # [m/s]

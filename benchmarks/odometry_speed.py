@@ -25,9 +25,9 @@ import numpy as np
 
 def render_frames(n: int, width: int, renderer: str = "auto") -> tuple[list[np.ndarray], object, float]:
     """``n`` downward frames while driving, the camera model and the frame period [s]."""
-    from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-    from rover_env.scenario import load_scenario
-    from rover_env.sim import RoverSim
+    from rover_env.config.scenario import load_scenario
+    from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+    from rover_env.sim.simulation import RoverSim
 
     sim = RoverSim(load_scenario("flat_patches"), renderer=renderer)
     try:

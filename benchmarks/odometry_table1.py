@@ -3,7 +3,7 @@
 On each terrain the rover drives laps of a circle (``--radius``, ``--speed``) until ``--distance``
 metres, with the eval preset's cameras (640x480 downward at 60 Hz, fisheye at 30 Hz) and an IMU
 (``--imu``, BMI088 by default) attached to the simulation; the estimator runs on their messages
-alone (``rover_env.estimation.PerceptionPipeline``), the truth is read for scoring only.
+alone (``rover_env.sensors.rig.PerceptionPipeline``), the truth is read for scoring only.
 
 Two dead-reckoned paths are scored against the truth by the paper's method
 (``perception.trajectory.path_segment_errors``, 20, 50, 100 and 150 m segments, 1 m stride):
@@ -32,10 +32,10 @@ import numpy as np
 
 from perception.odometry import integrate_twist
 from perception.trajectory import path_segment_errors
-from rover_env.estimation import PerceptionPipeline
-from rover_env.imu import ImuConfig
-from rover_env.scenario import load_scenario
-from rover_env.sim import RoverSim, quat_to_yaw
+from rover_env.config.imu import ImuConfig
+from rover_env.config.scenario import load_scenario
+from rover_env.sensors.rig import PerceptionPipeline
+from rover_env.sim.simulation import RoverSim, quat_to_yaw
 
 TERRAINS = {"flat": "flat_patches", "rough": "rough", "shadow-heavy": "shadow_heavy"}
 LENGTHS = (20.0, 50.0, 100.0, 150.0)

@@ -2,7 +2,7 @@
 
 A drive with ``obs_source="estimated"`` is recorded once (every sensor message of every step, a
 steady turn with a speed ramp, so the wheels turn and the ground moves); the environment's own
-:class:`rover_env.estimation.PerceptionPipeline` is then reset and fed the recorded messages step
+:class:`rover_env.sensors.rig.PerceptionPipeline` is then reset and fed the recorded messages step
 by step, ``--repeat`` times, with ``cv2.setNumThreads(1)``. Each step's time is split into the
 odometry (downward frames), the fisheye kinematics and the rest (slip filter, dead reckoning,
 the fisheye window request). The figures are medians over steps of the fastest repeat (a shared

@@ -13,8 +13,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from conftest import flat_scenario, rough_scenario  # noqa: E402
 from test_physics import drive, drive_slalom_integrating_twist, fit_circle  # noqa: E402
 
-from rover_env.scenario import FrictionPatch  # noqa: E402
-from rover_env.sim import RoverSim  # noqa: E402
+from rover_env.config.scenario import FrictionPatch  # noqa: E402
+from rover_env.sim.simulation import RoverSim  # noqa: E402
 
 sim = RoverSim(flat_scenario(mu=1.0))
 sim.reset(0.0, 0.0, 0.0)

@@ -5,7 +5,7 @@ mission has one on its first leg); on the patch the speed command cycles through
 (the wheels spin: s > 0), a reversed command (they skid and turn backwards: s < 0) and a slow
 roll, so that every wheel goes through several slip events. The
 environment runs with ``obs_source="estimated"``; the estimate is compared with the simulator's
-slip every step (:func:`rover_env.estimator_metrics.slip_metrics`: MAE while |s_true| > 0.1 and
+slip every step (:func:`rover_env.tools.estimator_metrics.slip_metrics`: MAE while |s_true| > 0.1 and
 otherwise, F1 and onset latency in fisheye frames of the filter's slip-event detection,
 ``info["slip"]["events"]``). An event is |s| >= 0.2 for two frames in a row, ending below 0.1, on
 a wheel whose tread or ground speed is at least 0.15 m/s (``SlipConfig.event_min_speed``): the
@@ -25,8 +25,8 @@ import gymnasium as gym
 import numpy as np
 
 import rover_env
-from rover_env.estimator_metrics import EstimateLog, slip_metrics
-from rover_env.imu import IMU_PRESETS
+from rover_env.config.imu import IMU_PRESETS
+from rover_env.tools.estimator_metrics import EstimateLog, slip_metrics
 
 
 def patch_span(env_id: str, margin: float = 0.05) -> tuple[float, float]:

@@ -8,7 +8,7 @@ inputs is the live run; it reproduces the live events exactly with the same sett
 
 ``record`` runs ``slip_accuracy.drive`` (train preset) on every mission and writes one pickle per
 mission and seed set (local files of your own: ``score`` unpickles them). ``score`` prints the
-slip metrics of ``rover_env.estimator_metrics.slip_metrics`` per mission and in all.
+slip metrics of ``rover_env.tools.estimator_metrics.slip_metrics`` per mission and in all.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 
 import perception.slip as ps  # noqa: E402
-from rover_env.estimator_metrics import slip_metrics  # noqa: E402
+from rover_env.tools.estimator_metrics import slip_metrics  # noqa: E402
 
 METHODS = (
     "add_odometry", "add_wheels", "add_gyro", "add_accel", "calibrate_gyro", "estimate", "twist_at", "reset",
@@ -63,7 +63,7 @@ def record(args) -> None:
 
 def replay(rec: dict, config, perfect_odometry: bool = False) -> dict:
     """The run of ``rec`` with its slip estimates and events from a fresh filter of ``config``."""
-    from rover_env.geometry import RoverGeometry
+    from rover_env.sim.geometry import RoverGeometry
 
     g = RoverGeometry()  # the rover's wheel positions (FL, FR, RL, RR) and radius
     xy = np.array([[s * g.wheelbase / 2, side * g.track / 2] for s in (1, -1) for side in (1, -1)])

@@ -249,14 +249,14 @@ def make_env(
         preset: Camera preset.
         residual: Residual scale (None: the policy's action is the action).
         seed: Seed of the action space (episodes are seeded by ``reset``).
-        reward: Weights of the reward terms that differ from :class:`~rover_env.task.RewardConfig`'s.
+        reward: Weights of the reward terms that differ from :class:`~rover_env.task.course.RewardConfig`'s.
         base: The residual's base, a key of :data:`BASES` (sets the action mode).
     """
     _check_base(base)
     from stable_baselines3.common.monitor import Monitor
 
-    from rover_env.evaluation import make_mission_env
-    from rover_env.task import RewardConfig
+    from rover_env.task.course import RewardConfig
+    from rover_env.tools.evaluation import make_mission_env
 
     weights = RewardConfig(**(reward or {}))
 
@@ -298,7 +298,7 @@ class TrainConfig:
         eval_episodes: Episodes per evaluation.
         checkpoint_every: Save a checkpoint every this many steps.
         hyper: Algorithm keyword arguments (override the defaults).
-        reward: Reward weights that differ from the environment's (:class:`~rover_env.task.RewardConfig`).
+        reward: Reward weights that differ from the environment's (:class:`~rover_env.task.course.RewardConfig`).
     """
 
     algo: str = "ppo"

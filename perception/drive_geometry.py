@@ -102,7 +102,7 @@ def ackermann_wheel_speeds(
 class DriveGeometry:
     """What a controller needs of the rover: wheel layout, radius and steering limits.
 
-    Defaults are the simulated rover's (``rover_env.geometry.RoverGeometry.drive`` returns the
+    Defaults are the simulated rover's (``rover_env.sim.geometry.RoverGeometry.drive`` returns the
     configured rover's).
 
     Attributes:

@@ -12,7 +12,7 @@ def _import_pybullet_quietly() -> None:
 
     if "pybullet" in sys.modules:
         return
-    from rover_env._quiet import quiet_c_output
+    from rover_env.sim._quiet import quiet_c_output
 
     with quiet_c_output():
         import pybullet  # noqa: F401
@@ -20,9 +20,9 @@ def _import_pybullet_quietly() -> None:
 
 _import_pybullet_quietly()
 
-from rover_env.config_io import ConfigError  # noqa: E402
-from rover_env.geometry import WHEELS, RoverGeometry  # noqa: E402
-from rover_env.scenario import ScenarioConfig, list_scenarios, load_scenario  # noqa: E402
+from rover_env.config.io import ConfigError  # noqa: E402
+from rover_env.config.scenario import ScenarioConfig, list_scenarios, load_scenario  # noqa: E402
+from rover_env.sim.geometry import WHEELS, RoverGeometry  # noqa: E402
 
 __version__ = "0.1.0"
 

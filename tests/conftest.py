@@ -6,7 +6,7 @@ import pytest
 # Generated assets (textures, meshes, URDFs) go to a per-session cache, not the user's home.
 os.environ.setdefault("ROVER_CACHE_DIR", os.path.join(tempfile.gettempdir(), "rover_env_test"))
 
-from rover_env.scenario import (  # noqa: E402
+from rover_env.config.scenario import (  # noqa: E402
     CourseConfig,
     FrictionMapConfig,
     ScenarioConfig,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from rover_env import ConfigError, RoverGeometry, list_scenarios, load_scenario
-from rover_env.rover import axle_steering_from_wheels
-from rover_env.task import WaypointCourse
+from rover_env.sim.rover import axle_steering_from_wheels
+from rover_env.task.course import WaypointCourse
 
 
 def test_presets_load_and_cover_the_required_cases():
@@ -18,7 +18,7 @@ def test_presets_load_and_cover_the_required_cases():
     low = [c for c in cfgs if any(p.mu <= 0.3 for p in c.friction.patches)]
     assert low, "no preset with low-friction patches"
     # the patch lies on the course of at least one preset
-    from rover_env.terrain import FrictionMap
+    from rover_env.sim.terrain import FrictionMap
 
     def on_course(c):
         pts = np.vstack([c.start.position, c.course.waypoints])
@@ -131,7 +131,7 @@ def test_fiducials_are_complete_and_symmetric():
 
 
 def test_course_features_and_progress():
-    from rover_env.scenario import CourseConfig
+    from rover_env.config.scenario import CourseConfig
 
     course = WaypointCourse(CourseConfig(waypoints=((10.0, 0.0), (10.0, 10.0)), tolerance=0.5))
     course.reset(np.array([0.0, 0.0]))

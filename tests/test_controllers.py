@@ -9,9 +9,9 @@ import pytest
 from conftest import flat_scenario
 
 from controllers import Controller, PathFollower, PathFollowerConfig, SlipAwareController, TractionConfig
-from rover_env.config_io import ConfigError
+from rover_env.config.io import ConfigError
+from rover_env.config.scenario import CourseConfig, StartConfig
 from rover_env.envs import OBS_FIELDS
-from rover_env.scenario import CourseConfig, StartConfig
 
 
 def drive(env, ctrl, seconds, seed=0):

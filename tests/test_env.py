@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env
 
 import rover_env
 from rover_env.envs import OBS_FIELDS, RoverEnv
-from rover_env.ground_truth import GROUND_TRUTH_KEYS
+from rover_env.sim.ground_truth import GROUND_TRUTH_KEYS
 
 
 def rollout(env, seed, actions):
@@ -165,7 +165,7 @@ def test_bad_constructor_arguments_are_explained():
 @pytest.mark.parametrize("obs_source", ["estimated", "ground_truth"])
 def test_make_vec_sync_and_async_give_the_same_rollouts(env_id, obs_source):
     """In worker processes (the estimator in the loop or not): the same seeds give the same observations."""
-    from rover_env.gl_render import gl_status
+    from rover_env.rendering.gl import gl_status
 
     out = {}
     for mode in ("sync", "async"):
@@ -320,7 +320,7 @@ def test_ground_truth_tilt_is_the_z_y_x_roll_and_pitch_of_the_pose():
 
     from scipy.spatial.transform import Rotation
 
-    from rover_env.ground_truth import GroundTruth
+    from rover_env.sim.ground_truth import GroundTruth
 
     fields = {f.name: np.zeros(4) for f in dataclasses.fields(GroundTruth)}
     for roll, pitch, yaw in ((0.2, -0.3, 1.0), (-0.05, 0.4, -2.5), (0.0, 0.0, 3.0)):

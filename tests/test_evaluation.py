@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from rover_env.cli import main
-from rover_env.evaluation import (
+from rover_env.tools.cli import main
+from rover_env.tools.evaluation import (
     EvalJob,
     controller_imu,
     jobs_for,
@@ -126,7 +126,7 @@ def test_ray_executor_gives_the_local_executor_s_metrics(tiny_scenario):
 
 
 def test_slip_detection_scores_are_undefined_without_events_not_zero():
-    from rover_env.estimator_metrics import slip_metrics
+    from rover_env.tools.estimator_metrics import slip_metrics
 
     t = np.arange(60) / 30.0 + 1.5
     calm = np.zeros((60, 19))

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rover_env.cli import main
+from rover_env.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,7 +58,7 @@ def test_rover_demo_writes_video_plots_metrics_and_tum(tmp_path):
         assert sub["estimator"]["slip_f1"] is None and sub["estimator"]["slip_precision"] is None
     import av
 
-    from rover_env.video import overlay_box
+    from rover_env.tools.video import overlay_box
 
     with av.open(str(out / "demo.mp4")) as container:  # H.264, as browsers play it
         stream = container.streams.video[0]
@@ -81,7 +81,7 @@ def test_cli_reports_bad_scenario(capsys):
 
 
 def test_camera_bench_rows_and_table():
-    from rover_env.bench import bench_cameras, format_camera_table
+    from rover_env.tools.bench import bench_cameras, format_camera_table
 
     rows = bench_cameras("flat_patches", presets=("train",), frames=1, renderers=("tiny",))
     assert [(r.camera, r.shadows) for r in rows] == [
@@ -178,7 +178,7 @@ def test_every_option_has_help_without_markup_and_pybullet_prints_no_banner():
     import subprocess
     import sys
 
-    from rover_env.cli import build_parser
+    from rover_env.tools.cli import build_parser
 
     parser = build_parser()
     for name, sub in parser._subparsers._group_actions[0].choices.items():

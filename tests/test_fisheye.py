@@ -9,11 +9,11 @@ from conftest import flat_scenario
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from perception.rover_parts import joint_window_parts, kinematic_parts
-from rover_env.cameras import FisheyeCamera
-from rover_env.config_io import ConfigError
-from rover_env.fisheye import CubemapRemap, FisheyeCameraConfig, render_fisheye
-from rover_env.geometry import AXLES, WHEELS, RoverGeometry
-from rover_env.sim import RoverSim
+from rover_env.config.io import ConfigError
+from rover_env.rendering.fisheye import CubemapRemap, FisheyeCameraConfig, render_fisheye
+from rover_env.sensors.cameras import FisheyeCamera
+from rover_env.sim.geometry import AXLES, WHEELS, RoverGeometry
+from rover_env.sim.simulation import RoverSim
 
 RENDERERS = ["gl", pytest.param("tiny", marks=pytest.mark.slow)]
 
@@ -119,8 +119,8 @@ def test_fisheye_has_no_seams(lifted_sim):
 def test_no_step_across_cube_face_borders_on_a_smooth_texture(tmp_path, renderer):
     """Along every face border, the step between the two sides is no larger than the image's
     own gradient next to it (a seam would show as a step where the texture has none)."""
-    from rover_env.scenario import ScenarioConfig, TerrainConfig
-    from rover_env.task import CourseConfig
+    from rover_env.config.scenario import ScenarioConfig, TerrainConfig
+    from rover_env.task.course import CourseConfig
 
     yy, xx = np.mgrid[0:512, 0:512] / 512.0
     smooth = 128 + 50 * np.sin(2 * np.pi * (2 * xx + yy)) * np.cos(2 * np.pi * 3 * yy)
@@ -367,7 +367,7 @@ def checkerboard_corners(cam, view, square, reach=1.5, min_square_px=16.0):
 @pytest.mark.parametrize("renderer", RENDERERS)
 def test_omni_model_refits_from_rendered_checkerboard_corners(renderer):
     from perception.calibration import fit_omni_camera
-    from rover_env.scenario import load_scenario
+    from rover_env.config.scenario import load_scenario
 
     scenario = load_scenario("calibration")
     square = scenario.terrain.checker_square
@@ -410,8 +410,8 @@ def test_renderer_choice_errors_and_fallback(monkeypatch, caplog):
     'auto' falls back to TinyRenderer with one warning."""
     import logging
 
-    import rover_env.gl_render as gl_render
-    import rover_env.sim as sim_module
+    import rover_env.rendering.gl as gl_render
+    import rover_env.sim.simulation as sim_module
 
     with pytest.raises(ValueError, match="'gl'.*'tiny'.*'auto'"):
         RoverSim(flat_scenario(mu=1.0), renderer="vulkan")
@@ -419,7 +419,7 @@ def test_renderer_choice_errors_and_fallback(monkeypatch, caplog):
     sim_module._warn_fallback.cache_clear()
     with pytest.raises(gl_render.GLUnavailableError, match="libEGL.so is not installed"):
         RoverSim(flat_scenario(mu=1.0), renderer="gl")
-    with caplog.at_level(logging.WARNING, logger="rover_env.sim"):
+    with caplog.at_level(logging.WARNING, logger="rover_env.sim.simulation"):
         sims = [RoverSim(flat_scenario(mu=1.0)) for _ in range(2)]
     try:
         assert [s.renderer for s in sims] == ["tiny", "tiny"]

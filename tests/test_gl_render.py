@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import flat_scenario, rough_scenario
 
-from rover_env.gl_render import GLRenderer, gl_status, load_obj, projection_from_K
-from rover_env.sim import RoverSim
+from rover_env.rendering.gl import GLRenderer, gl_status, load_obj, projection_from_K
+from rover_env.sim.simulation import RoverSim
 
 pytestmark = pytest.mark.skipif(not gl_status()[0], reason=f"no OpenGL context here: {gl_status()[1]}")
 
@@ -73,7 +73,7 @@ def test_gl_and_tiny_see_the_same_ground_and_rover(scenario):
     rover have the same mean brightness (TinyRenderer samples textures by nearest neighbour, GL
     filters them: pixels differ, the scene does not)."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering import Lighting, look_at, render_pinhole
+    from rover_env.rendering.base import Lighting, look_at, render_pinhole
 
     cam = PinholeCamera.from_fov((320, 240), math.radians(60.0), math.radians(46.0))
     out = {}

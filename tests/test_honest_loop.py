@@ -10,12 +10,12 @@ import pytest
 
 import rover_env
 from perception import observation as obs_table
-from rover_env.config_io import ConfigError
+from rover_env.config.io import ConfigError
+from rover_env.config.scenario import load_scenario
 from rover_env.envs import RoverEnv
 from rover_env.envs.rover_env import task_values
-from rover_env.scenario import load_scenario
-from rover_env.sim import RoverSim
-from rover_env.task import WaypointCourse
+from rover_env.sim.simulation import RoverSim
+from rover_env.task.course import WaypointCourse
 
 SCENARIOS = ("flat_patches", "rough_slippery", "slope_loose")
 GT_KEYS = ("pose", "twist", "wheel_rate", "wheel_angle", "slip_ratio", "axle_roll", "axle_height", "steering")
@@ -293,7 +293,7 @@ def test_bench_physics_row_is_a_ground_truth_environment_ten_times_faster_than_t
     """``rover bench``'s physics-only row: no camera attached, and >= 10x the estimated steps/s."""
     import cv2
 
-    from rover_env.bench import bench_env, bench_physics
+    from rover_env.tools.bench import bench_env, bench_physics
 
     cv2.setNumThreads(1)
     physics = bench_physics("flat_patches", steps=150)

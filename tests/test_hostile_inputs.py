@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from rover_env.cli import build_parser
+from rover_env.tools.cli import build_parser
 
 
 def _cli_error(capsys, argv: list[str]) -> str:
@@ -215,8 +215,8 @@ def test_a_bad_reset_option_is_refused_before_anything_moves_and_the_episode_goe
     ("size", "cell", "points"), [((80.0, 80.0), 0.02, "16,008,001"), ((500.0, 500.0), 0.1, "25,010,001")]
 )
 def test_a_heightfield_beyond_the_memory_budget_is_refused_with_the_numbers(size, cell, points):
-    from rover_env.config_io import ConfigError
-    from rover_env.scenario import MAX_HEIGHTFIELD_POINTS, TerrainConfig
+    from rover_env.config.io import ConfigError
+    from rover_env.config.scenario import MAX_HEIGHTFIELD_POINTS, TerrainConfig
 
     with pytest.raises(ConfigError, match=points) as exc:
         TerrainConfig(kind="rough", size=size, cell=cell, roughness=0.03, wavelength=1.0)
@@ -227,8 +227,8 @@ def test_a_heightfield_beyond_the_memory_budget_is_refused_with_the_numbers(size
 
 def test_yaml_that_is_not_utf8_or_mixes_key_types_names_the_file(tmp_path):
     from perception.calib_io import CalibrationError, read_mapping
-    from rover_env.config_io import ConfigError
-    from rover_env.scenario import load_scenario
+    from rover_env.config.io import ConfigError
+    from rover_env.config.scenario import load_scenario
 
     latin = tmp_path / "latin1.yaml"
     latin.write_bytes("name: caf\xe9\ncourse: {waypoints: [[5, 0]]}\n".encode("latin-1"))
@@ -256,7 +256,7 @@ def test_a_control_rate_that_is_not_a_positive_rate_is_refused(hz):
 def test_solver_iterations_out_of_range_are_refused_before_a_simulation_is_built(n):
     from conftest import flat_scenario
 
-    from rover_env.sim import RoverSim
+    from rover_env.sim.simulation import RoverSim
 
     with pytest.raises(ValueError, match="solver_iterations"):
         RoverSim(flat_scenario(), solver_iterations=n)
@@ -412,8 +412,8 @@ def _fake_run_job(calls, stop_after=None):
 def test_rover_eval_checks_every_input_first_reports_what_finished_and_resumes(tmp_path, monkeypatch, capsys):
     import json
 
-    import rover_env.evaluation as ev
-    from rover_env.cli import main
+    import rover_env.tools.evaluation as ev
+    from rover_env.tools.cli import main
 
     out = tmp_path / "eval"
     base = ["eval", "--controllers", "slip_aware@ground_truth", "--workers", "1", "--out", str(out)]
@@ -440,7 +440,7 @@ def test_rover_eval_checks_every_input_first_reports_what_finished_and_resumes(t
 
 
 def test_output_folders_are_checked_before_work_and_never_silently_replaced(tmp_path, capsys):
-    from rover_env.cli import main
+    from rover_env.tools.cli import main
 
     blocker = tmp_path / "file"
     blocker.write_text("x")
@@ -472,8 +472,8 @@ def test_an_image_bomb_is_refused_from_its_header_before_decoding(tmp_path):
     import zlib
 
     from perception.validation import MAX_IMAGE_PIXELS, image_file_size
-    from rover_env.config_io import ConfigError
-    from rover_env.textures import read_texture
+    from rover_env.config.io import ConfigError
+    from rover_env.sim.textures import read_texture
 
     def png_header(w, h):  # a valid PNG signature and IHDR claiming w x h, no pixel data
         ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
@@ -505,8 +505,8 @@ def test_a_texture_file_that_is_not_an_image_is_a_config_error(tmp_path):
 
     from conftest import flat_scenario
 
-    from rover_env.config_io import ConfigError
-    from rover_env.sim import RoverSim
+    from rover_env.config.io import ConfigError
+    from rover_env.sim.simulation import RoverSim
 
     bad = tmp_path / "ground.png"
     bad.write_text("not an image")
@@ -519,7 +519,7 @@ def test_a_texture_file_that_is_not_an_image_is_a_config_error(tmp_path):
 def test_a_corrupt_cached_texture_is_rebuilt(tmp_path, monkeypatch, caplog):
     import logging
 
-    from rover_env.textures import read_texture, texture_file
+    from rover_env.sim.textures import read_texture, texture_file
 
     monkeypatch.setenv("ROVER_CACHE_DIR", str(tmp_path))
     path = texture_file("regolith", 64, 5)
@@ -533,8 +533,8 @@ def test_a_corrupt_cached_texture_is_rebuilt(tmp_path, monkeypatch, caplog):
 
 @pytest.mark.parametrize("key", ["wheel_radius", "track", "body_mass"])
 def test_non_finite_rover_geometry_names_the_key(key):
-    from rover_env.config_io import ConfigError
-    from rover_env.geometry import RoverGeometry
+    from rover_env.config.io import ConfigError
+    from rover_env.sim.geometry import RoverGeometry
 
     for bad in (math.nan, math.inf):
         with pytest.raises(ConfigError, match=key):
@@ -554,8 +554,8 @@ def test_non_finite_rover_geometry_names_the_key(key):
     ],
 )
 def test_a_scenario_number_given_as_text_or_a_bool_is_refused_where_it_is_read(tmp_path, imu, names):
-    from rover_env.config_io import ConfigError
-    from rover_env.scenario import load_scenario
+    from rover_env.config.io import ConfigError
+    from rover_env.config.scenario import load_scenario
 
     path = tmp_path / "s.yaml"
     path.write_text(f"name: s\ncourse: {{waypoints: [[5, 0]]}}\nimu: {imu}\n")
@@ -569,7 +569,7 @@ def test_a_scenario_number_given_as_text_or_a_bool_is_refused_where_it_is_read(t
 
 
 def test_rover_eval_on_a_scenario_with_a_text_number_is_one_line_not_a_traceback(tmp_path, capsys):
-    from rover_env.cli import main
+    from rover_env.tools.cli import main
 
     path = tmp_path / "s.yaml"
     path.write_text("name: s\ncourse: {waypoints: [[5, 0]]}\nimu: {gyro: {range: inf}}\n")

@@ -9,10 +9,11 @@ import pytest
 from conftest import flat_scenario
 
 from perception.allan import allan_deviation, fit_allan
-from rover_env.config_io import ConfigError
-from rover_env.imu import G, Imu, ImuConfig, ImuNoise, TriadNoise
-from rover_env.sim import RoverSim
-from rover_env.transforms import quat_to_matrix
+from rover_env.config.imu import G, ImuConfig, TriadNoise
+from rover_env.config.io import ConfigError
+from rover_env.sensors.imu import Imu, ImuNoise
+from rover_env.sim.simulation import RoverSim
+from rover_env.sim.transforms import quat_to_matrix
 
 
 def stationary_fit(cfg: ImuConfig, hours: float, seed: int, bin_samples: int = 12):
@@ -205,7 +206,7 @@ def drive_circle(imu, seconds: float, env_id: str = "RoverRoughSlippery-v0", see
     import gymnasium as gym
 
     import rover_env  # noqa: F401
-    from rover_env.sim import quat_to_yaw
+    from rover_env.sim.simulation import quat_to_yaw
 
     env = gym.make(env_id, obs_source="estimated", preset="train", imu=imu)
     try:
@@ -272,7 +273,7 @@ def test_an_imu_in_the_scenario_file(tmp_path):
     import yaml
 
     import rover_env  # noqa: F401
-    from rover_env.scenario import load_scenario
+    from rover_env.config.scenario import load_scenario
 
     base = yaml.safe_load((Path(rover_env.__file__).parent / "scenarios" / "flat_patches.yaml").read_text())
     base["imu"] = {"preset": "tactical", "rate_hz": 120}

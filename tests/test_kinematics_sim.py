@@ -7,7 +7,7 @@ import numpy as np
 from test_fisheye import feasible_states, lifted_sim, set_joints  # noqa: F401  (fixture)
 
 from perception.markers import MarkerConfig, assign_markers, measure_axles, segment_magenta
-from rover_env.cameras import FisheyeCamera
+from rover_env.sensors.cameras import FisheyeCamera
 
 
 def test_markers_in_rendered_images_give_roll_height_and_steering(lifted_sim):  # noqa: F811
@@ -48,8 +48,8 @@ def test_steering_sweep_calibration_in_the_simulator(tmp_path):
     from test_fisheye import set_joints
 
     from perception.markers import SteeringCalibration
-    from rover_env.calibrate import write_steering_calibration
-    from rover_env.sim import RoverSim
+    from rover_env.sim.simulation import RoverSim
+    from rover_env.tools.calibrate import write_steering_calibration
 
     sim = RoverSim(flat_scenario(mu=1.0))
     try:
@@ -89,8 +89,8 @@ def test_wheel_rates_from_rendered_treads_within_3_percent_rms_at_half_and_two_m
     from conftest import flat_scenario
 
     from perception.fisheye_kinematics import KinematicStateEstimator
-    from rover_env.scenario import SunConfig
-    from rover_env.sim import RoverSim
+    from rover_env.config.scenario import SunConfig
+    from rover_env.sim.simulation import RoverSim
 
     scenario = dataclasses.replace(flat_scenario(), sun=SunConfig(azimuth_deg=200.0, elevation_deg=35.0))
     for speed in (0.5, 2.0):

@@ -25,7 +25,7 @@ from test_bags import LogWriter  # noqa: E402
 from test_odometry import START, make_ground, mast_camera, pose_after, render  # noqa: E402
 
 from perception import bags  # noqa: E402
-from rover_env.cli import main  # noqa: E402
+from rover_env.tools.cli import main  # noqa: E402
 
 T0 = 1_700_000_000.25
 FPS, N = 60.0, 60

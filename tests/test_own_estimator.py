@@ -185,7 +185,7 @@ def test_the_example_estimator_drives_a_mission_and_rover_eval_takes_it(
         sys.path.remove(str(root))
     res = run(steps=60)
     assert res["mae_v_x"] < 0.05 and res["final_position_error"] < 0.1, res
-    from rover_env.cli import main
+    from rover_env.tools.cli import main
 
     out = tmp_path / "eval"
     argv = [

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from conftest import flat_scenario, rough_scenario
 
-from rover_env.scenario import FrictionPatch
-from rover_env.sim import RoverSim, quat_to_yaw
+from rover_env.config.scenario import FrictionPatch
+from rover_env.sim.simulation import RoverSim, quat_to_yaw
 
 
 def drive(sim: RoverSim, speed: float, lam_f: float, lam_r: float) -> None:

@@ -10,9 +10,9 @@ from pybullet_utils.bullet_client import BulletClient
 from scipy.ndimage import minimum_filter
 
 from perception.cameras import PinholeCamera
-from rover_env.cameras import DownwardCamera, DownwardCameraConfig
-from rover_env.rendering import Lighting, look_at, render_pinhole, view_planes
-from rover_env.sim import RoverSim, quat_to_yaw
+from rover_env.rendering.base import Lighting, look_at, render_pinhole, view_planes
+from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+from rover_env.sim.simulation import RoverSim, quat_to_yaw
 
 
 def mast_camera(sim: RoverSim) -> PinholeCamera:
@@ -225,7 +225,7 @@ def test_frame_pairs_are_one_period_apart_with_the_hook_in_between(parked_sim):
 
 
 def test_impossible_camera_configurations_fail_clearly(parked_sim):
-    from rover_env.config_io import ConfigError
+    from rover_env.config.io import ConfigError
 
     with pytest.raises(ConfigError, match="width"):
         DownwardCameraConfig(width=0)
@@ -239,7 +239,7 @@ def test_impossible_camera_configurations_fail_clearly(parked_sim):
 
 @pytest.mark.parametrize("renderer", ["tiny", "gl"])
 def test_both_renderers_put_boxes_where_the_pinhole_model_projects_them(renderer):
-    from rover_env.gl_render import GLRenderer
+    from rover_env.rendering.gl import GLRenderer
 
     c = BulletClient(connection_mode=pb.DIRECT)
     gl = GLRenderer(c) if renderer == "gl" else None
@@ -277,8 +277,8 @@ def test_cameras_ground_range_leaves_the_pixels_they_need_unchanged(preset):
 
     from conftest import rough_scenario
 
-    from rover_env.cameras import FisheyeCamera
-    from rover_env.estimation import PERCEPTION_PRESETS
+    from rover_env.sensors.cameras import FisheyeCamera
+    from rover_env.sensors.rig import PERCEPTION_PRESETS
 
     p = PERCEPTION_PRESETS[preset]
     assert p.downward.ground_range is not None

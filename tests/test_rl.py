@@ -19,7 +19,7 @@ from controllers.rl import (  # noqa: E402
     policy_action_mode,
     train,
 )
-from rover_env.evaluation import EvalJob, run_sweep  # noqa: E402
+from rover_env.tools.evaluation import EvalJob, run_sweep  # noqa: E402
 
 
 def test_residual_drive_adds_the_scaled_residual_to_the_follower():

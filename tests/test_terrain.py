@@ -8,9 +8,9 @@ import pytest
 from conftest import rough_scenario
 from pybullet_utils.bullet_client import BulletClient
 
-from rover_env.scenario import FrictionMapConfig, FrictionPatch, TerrainConfig
-from rover_env.terrain import FrictionMap, Terrain
-from rover_env.textures import ground_texture, tread_texture
+from rover_env.config.scenario import FrictionMapConfig, FrictionPatch, TerrainConfig
+from rover_env.sim.terrain import FrictionMap, Terrain
+from rover_env.sim.textures import ground_texture, tread_texture
 
 
 @contextlib.contextmanager
@@ -61,7 +61,7 @@ def test_height_at_matches_bullet_ray_casts(cfg):
 
 
 def test_rough_terrain_relief_statistics():
-    from rover_env.terrain import make_heights
+    from rover_env.sim.terrain import make_heights
 
     cfg = rough_scenario(roughness=0.04).terrain
     _, _, h = make_heights(cfg)
@@ -114,8 +114,8 @@ SMALL_ROUGH = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness
 def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhere():
     """Level of detail: the collision triangles near the rover, a lower 1 m mesh farther away."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering import Lighting, look_at, render_pinhole
-    from rover_env.terrain import FINE_RADIUS
+    from rover_env.rendering.base import Lighting, look_at, render_pinhole
+    from rover_env.sim.terrain import FINE_RADIUS
 
     cfg = SMALL_ROUGH
     with terrain_client(cfg) as (client, terrain):
@@ -175,8 +175,8 @@ def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhe
 def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
     """focus(near=r): only ground within r is drawn, and it is the ground the full scene draws there."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering import Lighting, look_at, render_pinhole
-    from rover_env.terrain import FINE_CHUNK
+    from rover_env.rendering.base import Lighting, look_at, render_pinhole
+    from rover_env.sim.terrain import FINE_CHUNK
 
     with terrain_client(cfg) as (client, terrain):
         # an oblique view from near the focus that sees the ground far beyond the range
@@ -210,7 +210,7 @@ def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
 def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
     """Terrain.cull hides the exact chunks a view cannot see; the image stays the same, pixel for pixel."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering import Lighting, look_at, render_pinhole
+    from rover_env.rendering.base import Lighting, look_at, render_pinhole
 
     cfg = SMALL_ROUGH
     with terrain_client(cfg) as (client, terrain):

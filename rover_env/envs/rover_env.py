@@ -17,16 +17,16 @@ from perception import observation as obs_table
 from perception.cameras import PinholeCamera
 from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
-from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera, blackout_windows
-from rover_env.estimation import PERCEPTION_PRESETS, EstimatorFactory, PerceptionPipeline
-from rover_env.fisheye import FisheyeCameraConfig
-from rover_env.geometry import RoverGeometry
-from rover_env.ground_truth import GroundTruth
-from rover_env.imu import ImuConfig
-from rover_env.rendering import Lighting, look_at, render_pinhole
-from rover_env.scenario import ScenarioConfig, load_scenario
-from rover_env.sim import RoverSim, quat_to_yaw, yaw_to_quat
-from rover_env.task import RewardConfig, WaypointCourse
+from rover_env.config.imu import ImuConfig
+from rover_env.config.scenario import ScenarioConfig, load_scenario
+from rover_env.rendering.base import Lighting, look_at, render_pinhole
+from rover_env.rendering.fisheye import FisheyeCameraConfig
+from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera, blackout_windows
+from rover_env.sensors.rig import PERCEPTION_PRESETS, EstimatorFactory, PerceptionPipeline
+from rover_env.sim.geometry import RoverGeometry
+from rover_env.sim.ground_truth import GroundTruth
+from rover_env.sim.simulation import RoverSim, quat_to_yaw, yaw_to_quat
+from rover_env.task.course import RewardConfig, WaypointCourse
 
 
 class ActionMode(str, enum.Enum):
@@ -44,7 +44,7 @@ class ObsSource(str, enum.Enum):
 
 
 def task_values(feats) -> dict[str, float]:
-    """The task fields of the observation from :class:`~rover_env.task.CourseFeatures`."""
+    """The task fields of the observation from :class:`~rover_env.task.course.CourseFeatures`."""
     return {
         "waypoint_distance": feats.distance,
         "waypoint_bearing": feats.bearing,
@@ -118,7 +118,7 @@ class RoverEnv(gym.Env):
     Args:
         scenario: Preset name, YAML path or :class:`ScenarioConfig`.
         obs_source: ``"estimated"`` (default): the state fields come from perception on the
-            rendered camera images (:class:`~rover_env.estimation.PerceptionPipeline`: odometry
+            rendered camera images (:class:`~rover_env.sensors.rig.PerceptionPipeline`: odometry
             twist, fisheye kinematics, the slip filter) and the task features from the on-board
             tracker on the dead-reckoned pose; ``info["estimate"]`` then holds the estimate
             under the keys of ``info["ground_truth"]`` (its ``pose`` dead-reckoned: x, y, the
@@ -131,7 +131,7 @@ class RoverEnv(gym.Env):
             ``"ground_truth"``: the same layout from the simulator (for ablations).
         preset: Cameras of the estimator in the loop: ``"train"`` (low resolution, fast) or
             ``"eval"`` (the papers' 640x480 at 60 and 30 Hz); see
-            :data:`~rover_env.estimation.PERCEPTION_PRESETS`. Unused with ground truth.
+            :data:`~rover_env.sensors.rig.PERCEPTION_PRESETS`. Unused with ground truth.
         action_mode: ``"drive"`` or ``"wheels"``.
         render_mode: None or ``"rgb_array"`` (a composite of a third-person chase view, the
             downward camera and the fisheye; see :meth:`render`).
@@ -143,11 +143,11 @@ class RoverEnv(gym.Env):
         render_size: (width, height) of the rendered frame [px].
         solver_iterations: Physics constraint-solver iterations per step.
         renderer: ``"auto"`` (OpenGL where a headless EGL context can be created, else
-            TinyRenderer with a warning), ``"gl"`` or ``"tiny"``; see :class:`rover_env.sim.RoverSim`.
+            TinyRenderer with a warning), ``"gl"`` or ``"tiny"``; see :class:`rover_env.sim.simulation.RoverSim`.
             The physics is the same whatever renders.
         imu: An IMU for the estimator (with ``obs_source="estimated"``): a preset name
             (``"bmi088"``, ``"tactical"``, ``"ideal"``), a mapping (``preset`` and overrides, as
-            in a scenario) or an :class:`~rover_env.imu.ImuConfig`; its errors are drawn per
+            in a scenario) or an :class:`~rover_env.sensors.imu.ImuConfig`; its errors are drawn per
             episode from the reset's seed. None (default): the scenario's ``imu``, if any.
         estimator: With ``obs_source="estimated"``, a factory (class or callable) called once
             with the sensor rig (:attr:`rig`) that makes the estimator

@@ -4,8 +4,8 @@ A run is named by an :class:`EvalJob`: a controller name (:data:`CONTROLLERS`, o
 ``@ground_truth`` to drive on the simulator's state instead of perception's estimates), a
 mission (a registered environment id or a scenario), a seed and a camera preset. Each run is a
 fresh environment in its own process (:func:`run_job`); it returns one flat row of metrics
-(:class:`~rover_env.mission.MissionMetrics`) and, on estimated observations, the estimator's
-errors (:func:`~rover_env.estimator_metrics.estimator_summary`). :func:`run_sweep` runs the jobs
+(:class:`~rover_env.tools.mission.MissionMetrics`) and, on estimated observations, the estimator's
+errors (:func:`~rover_env.tools.estimator_metrics.estimator_summary`). :func:`run_sweep` runs the jobs
 with the ``local`` executor (a process pool; one worker runs them in this process) or the
 ``ray`` executor (``ray.init()`` joins the cluster named by ``RAY_ADDRESS`` or starts a local
 one); the rows are the same either way. :func:`write_report` writes ``results.csv``,
@@ -110,7 +110,7 @@ def controller_imu(name: str) -> str | None:
     source = name.rpartition("@")[2] if "@" in name else ""
     if source != "imu" and not source.startswith("imu:"):
         return None
-    from rover_env.imu import IMU_PRESETS
+    from rover_env.config.imu import IMU_PRESETS
 
     preset = source.partition(":")[2] or "bmi088"
     if preset not in IMU_PRESETS:
@@ -163,7 +163,7 @@ class EvalJob:
         preset: Camera preset of the estimator (``train`` or ``eval``).
         out: Folder for this run's metrics, TUM trajectories and plots (None: none written).
         video: Also write ``video.mp4`` there (composite camera view).
-        rerun: Also write ``mission.rrd`` there (Rerun; :mod:`rover_env.rerun_log`).
+        rerun: Also write ``mission.rrd`` there (Rerun; :mod:`rover_env.tools.rerun_log`).
         estimator: ``module:FACTORY`` (or ``path/file.py:FACTORY``) of the estimator on the
             estimated-observation runs (:func:`load_estimator`); None: the built-in.
     """
@@ -209,7 +209,7 @@ def run_job(job: EvalJob) -> dict:
     """
     import time
 
-    from rover_env.mission import run_mission, write_outputs
+    from rover_env.tools.mission import run_mission, write_outputs
 
     spec, source = parse_controller(job.controller)
     render = "rgb_array" if (job.video and job.out) else None
@@ -234,7 +234,7 @@ def run_job(job: EvalJob) -> dict:
             out.mkdir(parents=True, exist_ok=True)
         log_rr = None
         if job.rerun and out is not None:
-            from rover_env.rerun_log import RerunLog
+            from rover_env.tools.rerun_log import RerunLog
 
             log_rr = RerunLog(out / "mission.rrd")
             log_rr.start_run(job.name, env.unwrapped.course.points)
@@ -269,8 +269,8 @@ ROW_FILE = "row.json"
 def check_jobs(jobs: Sequence[EvalJob]) -> None:
     """Check every job's controller, mission and preset before anything runs (ValueError naming it)."""
     import rover_env
-    from rover_env.estimation import PERCEPTION_PRESETS
-    from rover_env.scenario import load_scenario
+    from rover_env.config.scenario import load_scenario
+    from rover_env.sensors.rig import PERCEPTION_PRESETS
 
     missions = {}
     for spec in {job.estimator for job in jobs if job.estimator}:
@@ -532,7 +532,7 @@ def write_report(
         w = csv.DictWriter(fh, fieldnames=keys)
         w.writeheader()
         w.writerows(rows)
-    from rover_env.mission import json_safe
+    from rover_env.tools.mission import json_safe
 
     (out / "results.json").write_text(json.dumps(json_safe(list(rows)), indent=1) + "\n")
     summary = summarize(rows)

@@ -1,13 +1,13 @@
 """Pinhole rendering: exact views and sun shadows with real contrast, on TinyRenderer or OpenGL.
 
 :func:`render_K` draws with PyBullet's TinyRenderer, or hands the view to a
-:class:`rover_env.gl_render.GLRenderer` (which draws the same lighting and shadows on the GPU side).
+:class:`rover_env.rendering.gl.GLRenderer` (which draws the same lighting and shadows on the GPU side).
 
 TinyRenderer's built-in shadow only scales the diffuse term by 0.8 and its shadow map is aimed at
 the world origin, so a rover 10 m away casts no shadow and a shadowed patch is at most 1.25x
 darker. Real sunlight gives 2.5x and more. So shadows are computed here: every camera pixel's 3-D
 point (from the depth buffer) is tested against the rover's convex shapes along the sun direction
-(:class:`rover_env.shadows.ShadowCaster`), and shadowed pixels keep only the ambient share of their
+(:class:`rover_env.rendering.shadows.ShadowCaster`), and shadowed pixels keep only the ambient share of their
 lit brightness.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 import pybullet as pb
 
 from perception.cameras import PinholeCamera
-from rover_env.shadows import ShadowCaster, ShadowMap
+from rover_env.rendering.shadows import ShadowCaster, ShadowMap
 
 # camera optical frame (x right, y down, z forward) -> OpenGL eye frame (x right, y up, z back)
 _OPTICAL_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -72,7 +72,7 @@ def gl_projection_from_K(K: np.ndarray, size: tuple[int, int], near: float, far:
 
     Pixel centres are at integer coordinates. TinyRenderer samples pixel (i, j) at viewport point
     (i, H - j) (measured with boxes at known points), so the frustum spans [0, W] across and
-    [-1, H - 1] down. (The GL renderer's matrix is :func:`rover_env.gl_render.projection_from_K`.)
+    [-1, H - 1] down. (The GL renderer's matrix is :func:`rover_env.rendering.gl.projection_from_K`.)
     """
     w, h = size
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -148,7 +148,7 @@ class RenderedView:
         return self._points
 
 
-#: Renderer names: ``"gl"`` (OpenGL on headless EGL, :mod:`rover_env.gl_render`) and ``"tiny"``
+#: Renderer names: ``"gl"`` (OpenGL on headless EGL, :mod:`rover_env.rendering.gl`) and ``"tiny"``
 #: (PyBullet's TinyRenderer, on the CPU).
 RENDERERS: tuple[str, ...] = ("gl", "tiny")
 
@@ -230,12 +230,12 @@ def render_K(
         far: Far clipping distance [m].
         caster: The shadow-casting body; with ``lighting.shadows`` on, this or ``shadow_map``.
         shadow_map: A shadow map already built for this instant (several views of one frame).
-        renderer: ``"tiny"`` (TinyRenderer) or a :class:`rover_env.gl_render.GLRenderer` of
+        renderer: ``"tiny"`` (TinyRenderer) or a :class:`rover_env.rendering.gl.GLRenderer` of
             ``client`` (which draws its own shadow map: ``caster``, ``shadow_map`` and ``cull``
             are not used, and ``depth`` is None without ``segmentation``).
         segmentation: Also return the segmentation labels (and, with GL, the depth).
         cull: Called with the view's :func:`view_planes` before it is rendered (for example
-            :meth:`rover_env.terrain.Terrain.cull`, which leaves out ground the view cannot see).
+            :meth:`rover_env.sim.terrain.Terrain.cull`, which leaves out ground the view cannot see).
     """
     if not isinstance(renderer, str):
         return renderer.render_K(K, size, T_world_cam, lighting, near, far, segmentation)

@@ -5,8 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TypeVar
 
-from rover_env.config_io import ConfigError, check_range
-from rover_env.terrain import FINE_RADIUS
+from rover_env.config.io import ConfigError, check_range
+
+#: The renderers draw the exact ground within this distance of the rover [m]; a camera's
+#: ``ground_range`` is at most this.
+FINE_RADIUS = 2.0
 
 #: Image sizes by preset name: (width, height) [px].
 CAMERA_PRESETS: dict[str, tuple[int, int]] = {"full": (640, 480), "half": (320, 240), "train": (160, 120)}
@@ -24,7 +27,7 @@ class CameraConfig:
         rate_hz: Frame rate [Hz].
         shadows: Render the sun's cast shadows.
         ambient: Shadowed share of the sunlit brightness at normal incidence (see
-            :class:`rover_env.rendering.Lighting`).
+            :class:`rover_env.rendering.base.Lighting`).
         ground_range: Draw only the ground within this distance of the rover [m] (at most the
             terrain's exact-detail radius, 2 m), for speed: TinyRenderer spends time on every
             triangle whose projection overlaps a view, even where nearer surfaces hide it. Ground

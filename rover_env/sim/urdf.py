@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rover_env.geometry import AXLES, MARKER_THICKNESS, RoverGeometry
-from rover_env.textures import cache_dir
+from rover_env.sim.geometry import AXLES, MARKER_THICKNESS, RoverGeometry
+from rover_env.sim.textures import cache_dir
 
 BODY_RGBA = (0.78, 0.64, 0.32, 1.0)
 MAST_RGBA = (0.25, 0.25, 0.27, 1.0)

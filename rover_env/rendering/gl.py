@@ -10,7 +10,7 @@ and draws:
   centres at integer coordinates, row 0 at the top), diffuse sun and ambient sky light, and the
   shadow of every body but the ground, from a shadow map rendered from the sun (orthographic,
   fitted to the casters' bounding sphere, normal-offset);
-* fisheye images: the :class:`rover_env.fisheye.CubemapRemap` views rendered into one atlas,
+* fisheye images: the :class:`rover_env.rendering.fisheye.CubemapRemap` views rendered into one atlas,
   read back and remapped on the CPU through the exact :class:`perception.OmniCamera` map (one
   fixed-point ``cv2.remap``: cheaper than a remap pass on llvmpipe);
 * per-pixel labels for tests and evaluation: segmentation (body + ((link + 1) << 24)), depth
@@ -34,12 +34,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rover_env.transforms import quat_to_matrix
+from rover_env.sim.transforms import quat_to_matrix
 
 if TYPE_CHECKING:
-    from rover_env.fisheye import CubemapRemap
-    from rover_env.rendering import Lighting, RenderedView
-    from rover_env.terrain import Terrain
+    from rover_env.rendering.base import Lighting, RenderedView
+    from rover_env.rendering.fisheye import CubemapRemap
+    from rover_env.sim.terrain import Terrain
 
 log = logging.getLogger(__name__)
 
@@ -653,7 +653,7 @@ class GLRenderer:
         """The mipmapped, repeating texture of an image file (loaded once)."""
         tex = self._textures.get(path)
         if tex is None:
-            from rover_env.textures import read_texture
+            from rover_env.sim.textures import read_texture
 
             img = np.ascontiguousarray(read_texture(path)[::-1])  # v = 0 at the image's bottom row
             h, w = img.shape[:2]
@@ -757,7 +757,7 @@ class GLRenderer:
         The exact grid, and on rough ground the coarse far-ground grid (``Terrain._coarse_grid``,
         which lies just below the exact one).
         """
-        from rover_env.terrain import FINE_RADIUS
+        from rover_env.config.cameras import FINE_RADIUS
 
         levels = [terrain.render_grid()]
         if terrain.heights is not None:
@@ -923,7 +923,7 @@ class GLRenderer:
         Maps come in power-of-two sizes from 256 to :attr:`shadow_px` texels, the smallest whose
         texels are at most ``texel``; each is rendered once per pose and sun.
         """
-        from rover_env.shadows import sun_frame
+        from rover_env.rendering.shadows import sun_frame
 
         key = (sun.tobytes(), tuple((b, m.tobytes()) for b, m in poses.items()))
         if key != self._shadow_key:
@@ -1076,11 +1076,11 @@ class GLRenderer:
     ) -> RenderedView:
         """Render the pinhole view ``K`` [px], ``size`` = (W, H) [px] from ``T_world_cam`` (optical frame).
 
-        Returns a :class:`rover_env.rendering.RenderedView` with ``shadow`` always, and ``depth`` and
+        Returns a :class:`rover_env.rendering.base.RenderedView` with ``shadow`` always, and ``depth`` and
         ``segmentation`` only with ``segmentation`` (None without: they cost read-back time).
         ``near``, ``far``: clip distances [m].
         """
-        from rover_env.rendering import RenderedView, view_planes
+        from rover_env.rendering.base import RenderedView, view_planes
 
         w, h = int(size[0]), int(size[1])
         poses = self._sync_bodies()
@@ -1147,8 +1147,8 @@ class GLRenderer:
         windows=None,
     ):
         """Render the fisheye of ``remapper``'s model at ``T_world_cam`` (see ``fisheye.render_fisheye``)."""
-        from rover_env.fisheye import FisheyeView
-        from rover_env.rendering import view_planes
+        from rover_env.rendering.base import view_planes
+        from rover_env.rendering.fisheye import FisheyeView
 
         _, (aw, ah), fbo_color, fbo_labels = self._fisheye_targets(remapper)
         poses = self._sync_bodies()

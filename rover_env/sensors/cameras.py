@@ -14,9 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from perception.cameras import PinholeCamera
-from rover_env.camera_config import CameraConfig
-from rover_env.config_io import ConfigError, check_range
-from rover_env.fisheye import (
+from rover_env.config.cameras import CameraConfig
+from rover_env.config.io import ConfigError, check_range
+from rover_env.rendering.base import Lighting, RenderedView, render_pinhole
+from rover_env.rendering.fisheye import (
     R_BODY_FISHEYE,
     CubemapRemap,
     FisheyeCameraConfig,
@@ -24,9 +25,8 @@ from rover_env.fisheye import (
     kinematics_roi,
     render_fisheye,
 )
-from rover_env.geometry import RoverGeometry
-from rover_env.rendering import Lighting, RenderedView, render_pinhole
-from rover_env.sim import RoverSim
+from rover_env.sim.geometry import RoverGeometry
+from rover_env.sim.simulation import RoverSim
 
 # image up = body forward, image right = body right, optical axis = body down
 R_BODY_DOWNCAM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rover_env.config_io import check_range
-from rover_env.scenario import CourseConfig
+from rover_env.config.io import check_range
+from rover_env.config.scenario import CourseConfig
 
 
 def wrap_angle(a: float) -> float:

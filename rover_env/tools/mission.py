@@ -15,7 +15,7 @@ from perception import trajectory as tum
 from perception.drive_geometry import WHEELS
 from perception.slip import SLIP_EVENT
 from rover_env.envs.rover_env import RoverEnv
-from rover_env.estimator_metrics import EstimateLog, estimator_summary
+from rover_env.tools.estimator_metrics import EstimateLog, estimator_summary
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +83,7 @@ class MissionResult:
         metrics: The mission's summary.
         log: Per-step ground truth (and estimates, with ``obs_source="estimated"``).
         estimator: The estimator's errors against the truth
-            (:func:`~rover_env.estimator_metrics.estimator_summary`), or None without estimates.
+            (:func:`~rover_env.tools.estimator_metrics.estimator_summary`), or None without estimates.
         estimate_arrays: The estimates' rows (:meth:`EstimateLog.arrays`), or None.
     """
 
@@ -111,7 +111,7 @@ def run_mission(
         video_path: Where to write an MP4 of the rendered frames, or None.
         video_every: Render every n-th control step into the video.
         progress: Called every 30 steps with the simulated time driven [s].
-        rerun: A :class:`rover_env.rerun_log.RerunLog` to log every step to (its run started).
+        rerun: A :class:`rover_env.tools.rerun_log.RerunLog` to log every step to (its run started).
     """
     obs, info = env.reset(seed=seed)
     controller.reset()
@@ -120,7 +120,7 @@ def run_mission(
         rec.estimates = EstimateLog(env.geometry.wheel_radius)
     writer = None
     if video_path is not None:
-        from rover_env.video import VideoWriter, draw_overlay, overlay_lines
+        from rover_env.tools.video import VideoWriter, draw_overlay, overlay_lines
 
         writer = VideoWriter(video_path, env.control_hz / video_every, env.render_size)
     energy = 0.0
@@ -334,7 +334,7 @@ def metric_units(result: MissionResult) -> dict[str, dict[str, str]]:
     """Units of the keys of ``metrics.json``: the mission's metrics and the estimator's errors."""
     out = {"metrics": dict(METRIC_UNITS)}
     if result.estimator is not None:
-        from rover_env.estimator_metrics import estimator_unit
+        from rover_env.tools.estimator_metrics import estimator_unit
 
         out["estimator"] = {k: estimator_unit(k) for k in result.estimator}
     return out
@@ -360,7 +360,7 @@ def write_outputs(out: Path, env: RoverEnv, result: MissionResult, plots: bool =
     return paths
 
 
-#: The demo's two drivers: (controller name in :data:`rover_env.evaluation.CONTROLLERS`, label).
+#: The demo's two drivers: (controller name in :data:`rover_env.tools.evaluation.CONTROLLERS`, label).
 DEMO_RUNS = (
     ("slip_unaware", "path follower, slip-unaware"),
     ("slip_aware", "path follower + traction control"),
@@ -395,12 +395,12 @@ def run_demo(
         seed: The episode seed of both runs.
         video: Write ``demo.mp4`` (rendering costs most of the demo's time).
         progress: Called with the simulated time driven so far, both runs together [s].
-        rerun: Also log both runs to this Rerun file (``.rrd``; :mod:`rover_env.rerun_log`).
+        rerun: Also log both runs to this Rerun file (``.rrd``; :mod:`rover_env.tools.rerun_log`).
 
     Returns:
         {driver: its result}.
     """
-    from rover_env.evaluation import CONTROLLERS
+    from rover_env.tools.evaluation import CONTROLLERS
 
     out.mkdir(parents=True, exist_ok=True)
     results: dict[str, MissionResult] = {}
@@ -408,7 +408,7 @@ def run_demo(
     done_t = 0.0
     log_rr = None
     if rerun is not None:
-        from rover_env.rerun_log import RerunLog
+        from rover_env.tools.rerun_log import RerunLog
 
         log_rr = RerunLog(rerun)
     for name, _ in DEMO_RUNS:
@@ -445,7 +445,7 @@ def run_demo(
     if log_rr is not None:
         log_rr.close()
     if videos:
-        from rover_env.video import stack_videos
+        from rover_env.tools.video import stack_videos
 
         stack_videos(videos, [label for _, label in DEMO_RUNS], out / "demo.mp4")
         for clip in videos:

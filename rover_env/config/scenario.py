@@ -16,8 +16,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from rover_env.config_io import ConfigError, check_range, load_yaml_dataclass, replace
-from rover_env.textures import CHECKER_SQUARES_PER_TILE
+from rover_env.config.io import ConfigError, check_range, load_yaml_dataclass, replace
 
 TEXTURE_PRESETS: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete", "checkerboard")
 
@@ -28,6 +27,10 @@ TEXTURE_PRESETS: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete", "c
 #: (measured, peak RSS with the GL renderer); PyBullet's heightfield crashes the process
 #: (SIGSEGV) between 9 and 16 million points.
 MAX_HEIGHTFIELD_POINTS = 1001 * 1001
+
+
+#: Squares along one edge of the checkerboard texture tile.
+CHECKER_SQUARES_PER_TILE = 8
 
 
 @dataclass(frozen=True)
@@ -278,7 +281,7 @@ class ScenarioConfig:
         start: Start pose.
         duration: Episode time limit [s].
         imu: The rover's IMU for estimated observations: a preset name or a mapping (``preset``
-            and overrides; see :meth:`rover_env.imu.ImuConfig.from_dict`), or None (no IMU). The environment's
+            and overrides; see :meth:`rover_env.sensors.imu.ImuConfig.from_dict`), or None (no IMU). The environment's
             ``imu`` keyword, when given, takes its place.
     """
 
@@ -295,7 +298,7 @@ class ScenarioConfig:
     def __post_init__(self) -> None:
         check_range("duration", self.duration, 0.1, 36000.0)
         if self.imu is not None:
-            from rover_env.imu import ImuConfig
+            from rover_env.config.imu import ImuConfig
 
             # validated here (ConfigError naming the key): a preset name or a mapping
             ImuConfig.from_dict({"preset": self.imu} if isinstance(self.imu, str) else self.imu)
@@ -312,7 +315,7 @@ class ScenarioConfig:
 
 
 def _preset_dir() -> resources.abc.Traversable:
-    return resources.files("rover_env") / "scenarios"
+    return resources.files("rover_env.config") / "scenarios"
 
 
 def list_scenarios() -> list[str]:

@@ -17,6 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from rover_env.config.scenario import CHECKER_SQUARES_PER_TILE
+
 log = logging.getLogger(__name__)
 
 
@@ -108,7 +110,6 @@ def _to_rgb(gray: np.ndarray, tint: tuple[float, float, float]) -> np.ndarray:
     return rgb.astype(np.uint8)
 
 
-CHECKER_SQUARES_PER_TILE = 8  # squares along one edge of the checkerboard texture tile
 
 
 def ground_texture(name: str, px: int = 1024, seed: int = 0) -> np.ndarray:

@@ -21,10 +21,10 @@ from perception.markers import (
     segment_magenta,
     steering_ratio,
 )
-from rover_env.cameras import FisheyeCamera
-from rover_env.fisheye import FisheyeCameraConfig
-from rover_env.geometry import AXLES, WHEELS
-from rover_env.sim import RoverSim
+from rover_env.rendering.fisheye import FisheyeCameraConfig
+from rover_env.sensors.cameras import FisheyeCamera
+from rover_env.sim.geometry import AXLES, WHEELS
+from rover_env.sim.simulation import RoverSim
 
 log = logging.getLogger(__name__)
 

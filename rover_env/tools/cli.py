@@ -44,7 +44,7 @@ class _Progress:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from rover_env.mission import DEMO_RUNS, json_safe, run_demo
+    from rover_env.tools.mission import DEMO_RUNS, json_safe, run_demo
 
     products = ("metrics.json", "demo.mp4", "slip.png", *(name for name, _ in DEMO_RUNS))
     out = _prepare_out(args.out, products, args.overwrite)
@@ -52,7 +52,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         if args.rerun:
-            from rover_env.rerun_log import _rerun
+            from rover_env.tools.rerun_log import _rerun
 
             _rerun()  # the SDK is there, before anything runs
         results = run_demo(
@@ -135,7 +135,7 @@ def _max_workers() -> int:
 
 def _weight(text: str) -> tuple[str, float]:
     """``"slip=5"`` -> ("slip", 5.0); the term must be one of RewardConfig's, the weight in [0, 1e6]."""
-    from rover_env.task import RewardConfig
+    from rover_env.task.course import RewardConfig
 
     key, sep, value = text.partition("=")
     terms = tuple(RewardConfig.__dataclass_fields__)
@@ -183,11 +183,11 @@ def _prepare_out(out: str, products: tuple[str, ...], overwrite: bool, keep: boo
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from rover_env.evaluation import check_jobs, finished_row, jobs_for, run_sweep, write_report
+    from rover_env.tools.evaluation import check_jobs, finished_row, jobs_for, run_sweep, write_report
 
     seeds = sorted({s for part in args.seeds for s in part})
     if args.rerun:
-        from rover_env.rerun_log import _rerun
+        from rover_env.tools.rerun_log import _rerun
 
         _rerun()  # the SDK is there, before anything runs
     jobs = jobs_for(
@@ -197,7 +197,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
     _prepare_out(args.out, products, args.overwrite, keep=args.resume)
     if args.overwrite and not args.resume:  # the earlier sweep's finished-run marks, nothing else
-        from rover_env.evaluation import ROW_FILE
+        from rover_env.tools.evaluation import ROW_FILE
 
         for job in jobs:
             if job.out is not None:
@@ -264,7 +264,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from rover_env.bench import (
+    from rover_env.tools.bench import (
         bench_cameras,
         bench_env,
         bench_physics,
@@ -375,7 +375,7 @@ def _need_fps(args: argparse.Namespace) -> None:
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
-    from rover_env.scenario import list_scenarios, load_scenario
+    from rover_env.config.scenario import list_scenarios, load_scenario
 
     for name in list_scenarios():
         print(f"{name:16s} {load_scenario(name).description}")
@@ -428,7 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     d.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     d.set_defaults(func=_cmd_demo)
-    from rover_env.evaluation import CONTROLLERS
+    from rover_env.tools.evaluation import CONTROLLERS
 
     e = sub.add_parser(
         "eval",

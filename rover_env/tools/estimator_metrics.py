@@ -23,7 +23,7 @@ from perception.drive_geometry import AXLES, WHEELS
 from perception.observation import OBS_FIELDS, field_index
 from perception.slip import SlipConfig, slip_events
 from perception.trajectory import path_segment_errors
-from rover_env.sim import quat_to_yaw
+from rover_env.sim.simulation import quat_to_yaw
 
 #: Observation fields with a ground truth, and the (ground-truth key, index) of each.
 _TRUTH_OF: dict[str, tuple[str, int]] = {

@@ -167,7 +167,7 @@ class CameraBenchResult:
     Attributes:
         camera: ``downward`` or ``fisheye``.
         preset: Resolution preset (``full`` 640x480, ``half`` 320x240, ``train`` 160x120).
-        renderer: ``tiny`` (TinyRenderer) or ``gl`` (OpenGL, :mod:`rover_env.gl_render`).
+        renderer: ``tiny`` (TinyRenderer) or ``gl`` (OpenGL, :mod:`rover_env.rendering.gl`).
         shadows: Sun shadows on.
         ms_per_frame: Wall-clock milliseconds per captured frame.
         ms_remap: Fisheye only: the atlas-to-image remap alone [ms] (NaN for the pinhole).
@@ -197,10 +197,10 @@ def bench_cameras(
     import logging
     import math
 
-    from rover_env.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
-    from rover_env.fisheye import FisheyeCameraConfig
-    from rover_env.scenario import load_scenario
-    from rover_env.sim import RoverSim
+    from rover_env.config.scenario import load_scenario
+    from rover_env.rendering.fisheye import FisheyeCameraConfig
+    from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
+    from rover_env.sim.simulation import RoverSim
 
     rows: list[CameraBenchResult] = []
     for renderer in renderers:

@@ -11,16 +11,16 @@ import pybullet as pb
 
 from perception.drive_geometry import ackermann_arms, axle_steering_angles
 from perception.wheel_kinematics import slip_ratio
-from rover_env.geometry import AXLES, WHEELS, RoverGeometry
-from rover_env.ground_truth import GroundTruth
-from rover_env.textures import tread_texture, write_cached
-from rover_env.transforms import quat_to_matrix
-from rover_env.urdf import urdf_file
+from rover_env.sim.geometry import AXLES, WHEELS, RoverGeometry
+from rover_env.sim.ground_truth import GroundTruth
+from rover_env.sim.textures import tread_texture, write_cached
+from rover_env.sim.transforms import quat_to_matrix
+from rover_env.sim.urdf import urdf_file
 
 if TYPE_CHECKING:
     from pybullet_utils.bullet_client import BulletClient
 
-    from rover_env.terrain import Terrain
+    from rover_env.sim.terrain import Terrain
 
 GRAVITY = 9.81  # [m/s^2]
 

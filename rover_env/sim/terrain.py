@@ -21,8 +21,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rover_env.scenario import TEXTURE_PRESETS, FrictionMapConfig, TerrainConfig
-from rover_env.textures import cache_dir, periodic_noise, read_texture, texture_file
+from rover_env.config.cameras import FINE_RADIUS
+from rover_env.config.scenario import TEXTURE_PRESETS, FrictionMapConfig, TerrainConfig
+from rover_env.sim.textures import cache_dir, periodic_noise, read_texture, texture_file
 
 if TYPE_CHECKING:
     from pybullet_utils.bullet_client import BulletClient
@@ -30,7 +31,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 FINE_CHUNK = 1.0  # [m] edge of a near-ground chunk
-FINE_RADIUS = 2.0  # [m] chunks within this distance of the focus are drawn exactly
 COARSE_CELL = 1.0  # [m] grid of the far ground
 
 
@@ -289,7 +289,7 @@ class Terrain:
 
         Args:
             planes: (k, 4) half-spaces n . x + d >= 0 (world frame [m]) whose intersection holds
-                the view (:func:`rover_env.rendering.view_planes`).
+                the view (:func:`rover_env.rendering.base.view_planes`).
         """
         bodies, boxes = self._focused
         if self.heights is None or not bodies:

@@ -23,9 +23,9 @@ import numpy as np
 
 from perception.cameras import OmniCamera
 from perception.rover_parts import kinematic_parts
-from rover_env.camera_config import CameraConfig
-from rover_env.config_io import check_range
-from rover_env.rendering import Lighting, render_K
+from rover_env.config.cameras import CameraConfig
+from rover_env.config.io import check_range
+from rover_env.rendering.base import Lighting, render_K
 
 # image right = body forward, image down = body right, optical axis = body down
 R_BODY_FISHEYE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
@@ -406,11 +406,11 @@ def render_fisheye(
         labels: Also remap segmentation, shadow and 3-D points (for tests and evaluation).
         near: Near clipping distance [m].
         far: Far clipping distance [m].
-        renderer: ``"tiny"`` or a :class:`rover_env.gl_render.GLRenderer` of ``client`` (which
+        renderer: ``"tiny"`` or a :class:`rover_env.rendering.gl.GLRenderer` of ``client`` (which
             renders the views into one atlas and remaps it on the GL side; ``caster`` and
             ``cull`` are not used).
         cull: Called with each face's view planes before it is rendered (see
-            :func:`rover_env.rendering.render_K`).
+            :func:`rover_env.rendering.base.render_K`).
         windows: Render only these rectangles of the faces (:meth:`CubemapRemap.windows`); the
             rest of the image is black (no labels, no points). None: whole faces.
     """

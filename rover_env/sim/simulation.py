@@ -22,14 +22,14 @@ import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
 from perception.rig import SensorMessage
-from rover_env.geometry import RoverGeometry
-from rover_env.ground_truth import GroundTruth
-from rover_env.rendering import check_renderer
-from rover_env.rover import Rover
-from rover_env.scenario import ScenarioConfig
-from rover_env.shadows import ShadowCaster
-from rover_env.terrain import Terrain
-from rover_env.transforms import quat_to_yaw, yaw_to_quat  # noqa: F401 (the simulation's names)
+from rover_env.config.scenario import ScenarioConfig
+from rover_env.rendering.base import check_renderer
+from rover_env.rendering.shadows import ShadowCaster
+from rover_env.sim.geometry import RoverGeometry
+from rover_env.sim.ground_truth import GroundTruth
+from rover_env.sim.rover import Rover
+from rover_env.sim.terrain import Terrain
+from rover_env.sim.transforms import quat_to_yaw, yaw_to_quat  # noqa: F401 (the simulation's names)
 
 log = logging.getLogger(__name__)
 
@@ -55,12 +55,12 @@ def resolve_renderer(name: str) -> str:
 
     Raises:
         ValueError: Unknown name.
-        rover_env.gl_render.GLUnavailableError: ``"gl"`` where it cannot start.
+        rover_env.rendering.gl.GLUnavailableError: ``"gl"`` where it cannot start.
     """
     check_renderer(name)
     if name == "tiny":
         return name
-    from rover_env.gl_render import GLUnavailableError, usable_here
+    from rover_env.rendering.gl import GLUnavailableError, usable_here
 
     ok, why = usable_here()
     if ok:
@@ -93,14 +93,14 @@ class RoverSim:
             braked rover on an 8 deg slope creeps 19 mm in 5 s at 10, 4 mm at 20 (see the tests).
         renderer: ``"auto"`` (the default: ``"gl"`` where a headless EGL OpenGL 3.3 context can
             be created, else ``"tiny"`` with one warning saying what is missing), ``"gl"``
-            (:class:`rover_env.gl_render.GLRenderer`: 10-20x faster on a CPU, and runs on a GPU)
+            (:class:`rover_env.rendering.gl.GLRenderer`: 10-20x faster on a CPU, and runs on a GPU)
             or ``"tiny"`` (PyBullet's TinyRenderer). Both draw the same sun, sky light and shadows.
             The GL context is created at the first render (so a simulation made before a
             fork renders in the child) and released by :meth:`close`.
 
     Raises:
         ValueError: Unknown renderer name.
-        rover_env.gl_render.GLUnavailableError: ``renderer="gl"`` where no context can be created.
+        rover_env.rendering.gl.GLUnavailableError: ``renderer="gl"`` where no context can be created.
     """
 
     def __init__(
@@ -130,7 +130,7 @@ class RoverSim:
         #: The renderer in use: ``"gl"`` or ``"tiny"``.
         self.renderer = resolve_renderer(renderer)
         self._gl = None
-        from rover_env._quiet import quiet_c_output
+        from rover_env.sim._quiet import quiet_c_output
 
         with quiet_c_output():  # PyBullet prints "argv[0]=" on connecting
             self.client = BulletClient(connection_mode=pb.DIRECT)
@@ -278,7 +278,7 @@ class RoverSim:
         (:meth:`attach_sensor`) instead.
 
         Args:
-            camera: A camera of this simulation (``rover_env.cameras``).
+            camera: A camera of this simulation (``rover_env.sensors.cameras``).
             on_prev: Called with I_prev before I_curr is rendered (feature selection goes here).
             chained: Reuse the camera's last frame as I_prev if it was taken now (the previous
                 pair's I_curr), which halves the rendering cost.
@@ -323,7 +323,7 @@ class RoverSim:
         if self._gl is None:
             if self._closed:
                 raise RuntimeError("this RoverSim is closed; create a new one")
-            from rover_env.gl_render import GLRenderer
+            from rover_env.rendering.gl import GLRenderer
 
             rv = self.rover
             self._gl = GLRenderer(
