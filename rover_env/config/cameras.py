@@ -1,11 +1,38 @@
-"""What every simulated camera's configuration has: image size, rate, shadows, ground range, presets."""
+"""The simulated cameras' configurations and the renderer choices.
+
+One base (:class:`CameraConfig`: image size, rate, shadows, ground range, presets) for the
+downward camera and the fisheye.
+"""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Literal, TypeVar, get_args
 
+import numpy as np
+
+from perception.cameras import OmniCamera
 from rover_env.config.io import ConfigError, check_range
+
+#: What draws the cameras' images: ``"gl"`` (OpenGL on headless EGL), ``"tiny"`` (PyBullet's
+#: TinyRenderer, on the CPU), or ``"auto"`` (gl where an EGL context can be created, else tiny).
+RendererName = Literal["auto", "gl", "tiny"]
+RENDERER_NAMES: tuple[str, ...] = get_args(RendererName)
+
+
+def check_renderer(name) -> str:
+    """``name`` if it is a renderer choice (:data:`RendererName`).
+
+    Raises:
+        ValueError: Unknown name; the message lists the choices.
+    """
+    if name not in RENDERER_NAMES:
+        raise ValueError(
+            f"renderer={name!r}: use 'gl' (OpenGL on headless EGL), 'tiny' (PyBullet's TinyRenderer) "
+            "or 'auto' (gl where an EGL context can be created, else tiny)"
+        )
+    return name
 
 #: The renderers draw the exact ground within this distance of the rover [m]; a camera's
 #: ``ground_range`` is at most this.
@@ -61,3 +88,63 @@ class CameraConfig:
             raise ConfigError(f"preset: unknown {name!r}; choose one of {sorted(CAMERA_PRESETS)}")
         w, h = CAMERA_PRESETS[name]
         return cls(width=w, height=h, **overrides)
+
+
+@dataclass(frozen=True)
+class DownwardCameraConfig(CameraConfig):
+    """Downward pinhole camera on the mast (the fields of :class:`CameraConfig`, and its view).
+
+    Attributes:
+        hfov_deg: Horizontal field of view (across the rover) [deg].
+        vfov_deg: Vertical field of view (along the rover) [deg].
+
+    Its default rate is 60 Hz (a frame pair is one period apart).
+    """
+
+    rate_hz: float = 60.0
+    hfov_deg: float = 77.0
+    vfov_deg: float = 57.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_range("hfov_deg", self.hfov_deg, 1.0, 170.0)
+        check_range("vfov_deg", self.vfov_deg, 1.0, 170.0)
+
+
+@dataclass(frozen=True)
+class FisheyeCameraConfig(CameraConfig):
+    """Downward fisheye under the body (kinematics paper): :class:`CameraConfig` and its optics.
+
+    Attributes:
+        fov_deg: Full field of view of the image circle [deg] (>= 185).
+        radius_frac: Radius of the image circle at fov_deg / 2, as a share of the image width
+            (0.47: the circle spans the width and is cut by the top and bottom edges).
+        oversample: Cube-face resolution relative to the fisheye's finest angular resolution.
+        roi: Render only the region of interest of the kinematics estimator
+            (:func:`rover_env.sensors.cameras.kinematics_roi`: wheels, markers and steering arms
+            over the joint range);
+            the rest of the image is black. Faster in proportion to the pixels saved.
+
+    Its width runs along the body's x axis, its height across the body.
+    """
+
+    fov_deg: float = 190.0
+    radius_frac: float = 0.47
+    oversample: float = 1.0
+    roi: bool = False
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_range("fov_deg", self.fov_deg, 185.0, 250.0)
+        check_range("radius_frac", self.radius_frac, 0.1, 1.0)
+        check_range("oversample", self.oversample, 0.25, 4.0)
+
+    def model(self, T_body_cam: np.ndarray) -> OmniCamera:
+        """The ideal (equidistant, 4th-order polynomial) model of this configuration."""
+        return OmniCamera.equidistant(
+            (self.width, self.height),
+            math.radians(self.fov_deg),
+            self.radius_frac * self.width,
+            degree=4,
+            T_body_cam=T_body_cam,
+        )

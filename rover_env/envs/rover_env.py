@@ -8,20 +8,18 @@ import math
 from pathlib import Path
 from typing import Any
 
-import cv2
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from perception import observation as obs_table
-from perception.cameras import PinholeCamera
 from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
 from rover_env.config.imu import ImuConfig
 from rover_env.config.scenario import ScenarioConfig, load_scenario
-from rover_env.rendering.base import Lighting, look_at, render_pinhole
-from rover_env.rendering.fisheye import FisheyeCameraConfig
-from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera, blackout_windows
+from rover_env.envs.chase_view import ChaseView
+from rover_env.rendering import resolve_renderer
+from rover_env.sensors.cameras import blackout_windows
 from rover_env.sensors.rig import PERCEPTION_PRESETS, EstimatorFactory, PerceptionPipeline
 from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.ground_truth import GroundTruth
@@ -143,8 +141,8 @@ class RoverEnv(gym.Env):
         render_size: (width, height) of the rendered frame [px].
         solver_iterations: Physics constraint-solver iterations per step.
         renderer: ``"auto"`` (OpenGL where a headless EGL context can be created, else
-            TinyRenderer with a warning), ``"gl"`` or ``"tiny"``; see :class:`rover_env.sim.simulation.RoverSim`.
-            The physics is the same whatever renders.
+            TinyRenderer with a warning), ``"gl"`` or ``"tiny"``; resolved here
+            (:func:`rover_env.rendering.resolve_renderer`). The physics is the same whatever renders.
         imu: An IMU for the estimator (with ``obs_source="estimated"``): a preset name
             (``"bmi088"``, ``"tactical"``, ``"ideal"``), a mapping (``preset`` and overrides, as
             in a scenario) or an :class:`~rover_env.sensors.imu.ImuConfig`; its errors are drawn per
@@ -217,7 +215,7 @@ class RoverEnv(gym.Env):
             self.geometry,
             physics_hz=physics_hz,
             solver_iterations=solver_iterations,
-            renderer=renderer,
+            renderer=resolve_renderer(renderer),  # type: ignore[arg-type]
         )
         self.course = WaypointCourse(self.scenario.course)
         self.pipeline: PerceptionPipeline | None = None
@@ -250,8 +248,7 @@ class RoverEnv(gym.Env):
         self._start_fix = np.zeros(3)
         self._progress = 0.0
         self._closed = False
-        self._views: dict | None = None
-        self._outlines: list | None = None  # the friction patches drawn in the chase view
+        self._chase: ChaseView | None = None
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -396,123 +393,17 @@ class RoverEnv(gym.Env):
         return self.sim.renderer
 
     def render(self) -> np.ndarray | None:
-        """Composite frame, RGB uint8 (H, W, 3) of ``render_size``.
+        """Composite frame, RGB uint8 (H, W, 3) of ``render_size`` (see :class:`ChaseView`).
 
         A third-person chase view on the left, the downward camera's image top right and the
-        fisheye image bottom right. The insets show the simulated cameras at the inset's
-        resolution, with the sun's shadows; everything is rendered now, at the current
-        simulation time.
+        fisheye image bottom right, all rendered now, at the current simulation time.
         """
         self._check_open("render")
         if self.render_mode != "rgb_array":
             return None
-        w, h = self.render_size
-        side = w // 3
-        left = w - side
-        c = self.sim.client
-        pos, quat = c.getBasePositionAndOrientation(self.sim.rover.body_id)
-        yaw = quat_to_yaw(quat)
-        eye = [
-            pos[0] - 2.6 * math.cos(yaw) + 0.8 * math.sin(yaw),
-            pos[1] - 2.6 * math.sin(yaw) - 0.8 * math.cos(yaw),
-            pos[2] + 1.6,
-        ]
-        views = self._render_views(left, h, side, h // 2)
-        self.sim.prepare_render()
-        T_world_chase = look_at(eye, [pos[0], pos[1], pos[2] - 0.1])
-        chase = render_pinhole(
-            c,
-            views["chase"],
-            T_world_chase,
-            views["lighting"],
-            far=60.0,
-            caster=self.sim.shadow_caster if views["lighting"].shadows else None,
-            renderer=self.sim.backend,
-        )
-        frame = np.zeros((h, w, 3), dtype=np.uint8)
-        frame[:, :left] = chase.rgb
-        if chase.segmentation is not None:  # past the terrain's edge: a dark sky, not the clear colour
-            void = chase.segmentation < 0
-            frame[:, :left][void] = views["sky"][void]
-        # the friction patches, outlined and labelled in the chase view only (no camera sees them)
-        self._draw_patches(frame[:, :left], views["chase"], T_world_chase)
-        for row, cam, label in ((0, views["downward"], "downward camera"), (1, views["fisheye"], "fisheye")):
-            img = cv2.resize(cam.capture().image, (side, h // 2), interpolation=cv2.INTER_AREA)
-            cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1, cv2.LINE_AA)
-            frame[row * (h // 2) : (row + 1) * (h // 2), left:] = img
-        return frame
-
-    def _draw_patches(self, img: np.ndarray, camera: PinholeCamera, T_world_cam: np.ndarray) -> None:
-        """Outline each low-friction patch on the ground of a rendered view and label it with its mu."""
-        T_cam_world = np.linalg.inv(T_world_cam)
-
-        def project(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            q = T_cam_world[:3, :3] @ p.T + T_cam_world[:3, 3:4]
-            front = q[2] > 0.2
-            return ((camera.K @ q)[:2] / np.where(front, q[2], 1.0)).T, front
-
-        for outline, centre, label, colour in self._patch_outlines():
-            uv, front = project(outline)
-            for i in range(len(uv) - 1):
-                if front[i] and front[i + 1]:
-                    p0, p1 = (tuple(int(round(v)) for v in uv[j]) for j in (i, i + 1))
-                    cv2.line(img, p0, p1, colour, 2, cv2.LINE_AA)
-            (c_uv,), (c_front,) = project(centre[None])
-            if c_front and 0 <= c_uv[0] < img.shape[1] and 0 <= c_uv[1] < img.shape[0]:
-                org = (int(c_uv[0]) - 24, int(c_uv[1]))
-                cv2.putText(img, label, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-                cv2.putText(img, label, org, cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
-
-    def _patch_outlines(self) -> list[tuple[np.ndarray, np.ndarray, str, tuple[int, int, int]]]:
-        """Per friction patch, once: its outline on the ground (N, 3) and centre [m, world], label, colour."""
-        if self._outlines is None:
-            terrain = self.sim.terrain
-            self._outlines = []
-            for patch in self.scenario.friction.patches:
-                cx, cy = patch.center
-                if patch.shape == "circle":
-                    a = np.linspace(0.0, 2 * math.pi, 73)
-                    xy = np.column_stack([cx + patch.radius * np.cos(a), cy + patch.radius * np.sin(a)])
-                else:
-                    hx, hy = patch.size[0] / 2, patch.size[1] / 2
-                    s = np.linspace(-1.0, 1.0, 17)
-                    one = np.ones_like(s)
-                    local = np.concatenate([
-                        np.column_stack([hx * s, -hy * one]), np.column_stack([hx * one, hy * s]),
-                        np.column_stack([-hx * s, hy * one]), np.column_stack([-hx * one, -hy * s]),
-                    ])  # fmt: skip
-                    c, sn = math.cos(math.radians(patch.yaw_deg)), math.sin(math.radians(patch.yaw_deg))
-                    xy = local @ np.array([[c, sn], [-sn, c]]) + (cx, cy)
-                xy = np.vstack([xy, [cx, cy]])
-                z = np.asarray(terrain.height_at(xy[:, 0], xy[:, 1]), dtype=np.float64).reshape(-1) + 0.01
-                pts = np.column_stack([xy, z])
-                label = f"mu {patch.mu:g}" + (" loose" if patch.slip_loss > 0 else "")
-                colour = (255, 170, 0) if patch.mu < 0.5 else (120, 200, 255)
-                self._outlines.append((pts[:-1], pts[-1], label, colour))
-        return self._outlines
-
-    def _render_views(self, left: int, h: int, inset_w: int, inset_h: int) -> dict:
-        """Cameras of the composite frame, built on first use (the fisheye precomputes its remap)."""
-        if self._views is None:
-            shadows = True
-            sun = tuple(float(v) for v in self.scenario.sun.direction())
-            # insets at about their display size (even sizes, the camera's 4:3 aspect)
-            iw = max(16, 2 * (inset_w // 2))
-            ih = max(16, 2 * (iw * 3 // 8))
-            self._views = {
-                "chase": PinholeCamera.from_fov((left, h), math.radians(55.0 * left / h), math.radians(55.0)),
-                "lighting": Lighting(sun, ambient=0.35, shadows=shadows),
-                "downward": DownwardCamera(
-                    self.sim, DownwardCameraConfig(width=iw, height=ih, shadows=shadows)
-                ),
-                "fisheye": FisheyeCamera(self.sim, FisheyeCameraConfig(width=iw, height=ih, shadows=shadows)),
-                # what the chase view shows past the terrain: a dark sky, lighter at the top
-                "sky": np.broadcast_to(
-                    (np.linspace(70, 20, h)[:, None, None] * np.array([0.8, 0.9, 1.2])).astype(np.uint8),
-                    (h, left, 3),
-                ),
-            }
-        return self._views
+        if self._chase is None:
+            self._chase = ChaseView(self.sim, self.scenario, self.render_size)
+        return self._chase.frame()
 
     def close(self) -> None:
         """Release the physics client; safe to call more than once."""

@@ -10,7 +10,7 @@ and draws:
   centres at integer coordinates, row 0 at the top), diffuse sun and ambient sky light, and the
   shadow of every body but the ground, from a shadow map rendered from the sun (orthographic,
   fitted to the casters' bounding sphere, normal-offset);
-* fisheye images: the :class:`rover_env.rendering.fisheye.CubemapRemap` views rendered into one atlas,
+* fisheye images: the :class:`rover_env.rendering.cubemap.CubemapRemap` views rendered into one atlas,
   read back and remapped on the CPU through the exact :class:`perception.OmniCamera` map (one
   fixed-point ``cv2.remap``: cheaper than a remap pass on llvmpipe);
 * per-pixel labels for tests and evaluation: segmentation (body + ((link + 1) << 24)), depth
@@ -34,12 +34,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rover_env.config.cameras import FINE_RADIUS
+from rover_env.rendering.base import FisheyeView, Lighting, RenderedView, Renderer, view_planes
+from rover_env.sim.terrain import Terrain
 from rover_env.sim.transforms import quat_to_matrix
 
 if TYPE_CHECKING:
-    from rover_env.rendering.base import Lighting, RenderedView
-    from rover_env.rendering.fisheye import CubemapRemap
-    from rover_env.sim.terrain import Terrain
+    from rover_env.rendering.cubemap import CubemapRemap
 
 log = logging.getLogger(__name__)
 
@@ -548,7 +549,7 @@ class _Group:
         self.vbo.write(W.tobytes())
 
 
-class GLRenderer:
+class GLRenderer(Renderer):
     """Draws one PyBullet client's scene with OpenGL; see the module docstring.
 
     Args:
@@ -564,6 +565,8 @@ class GLRenderer:
     Raises:
         GLUnavailableError: No OpenGL 3.3 context can be created.
     """
+
+    name = "gl"
 
     def __init__(
         self,
@@ -754,14 +757,12 @@ class GLRenderer:
     def _build_terrain(self, terrain: Terrain):
         """The ground as chunks in one vertex array.
 
-        The exact grid, and on rough ground the coarse far-ground grid (``Terrain._coarse_grid``,
+        The exact grid, and on rough ground the coarse far-ground grid (``Terrain.coarse_grid``,
         which lies just below the exact one).
         """
-        from rover_env.config.cameras import FINE_RADIUS
-
         levels = [terrain.render_grid()]
         if terrain.heights is not None:
-            levels.append(terrain._coarse_grid())
+            levels.append(terrain.coarse_grid())
         tile = terrain.cfg.texture_tile
         verts, tris, starts, boxes, rects, level_of = [], [], [], [], [], []
         count = nverts = 0
@@ -817,8 +818,13 @@ class GLRenderer:
             "body": terrain.body_id,
         }
 
+    @property
+    def ground_ids(self) -> tuple[int, ...]:
+        """The terrain's body (the label of ground pixels; empty without a terrain)."""
+        return () if self.terrain is None else (self.terrain.body_id,)
+
     def focus(self, x: float, y: float, near: float | None = None) -> None:
-        """Draw the ground for views taken from near world (x, y) [m] (as :meth:`Terrain.focus`).
+        """Draw the ground for views taken from near world (x, y) [m] (see :meth:`Renderer.focus`).
 
         On rough ground the exact grid is drawn within the terrain's ``FINE_RADIUS`` of (x, y)
         and the coarse far-ground mesh beyond; with ``near`` [m] only the exact ground within
@@ -852,7 +858,7 @@ class GLRenderer:
     def _sync_bodies(self) -> dict[int, np.ndarray]:
         """Mirror new bodies, drop removed ones; the link -> world matrices of each body now."""
         c = self.client
-        skip = set(self.terrain.ground_ids) if self.terrain is not None else set()
+        skip = set(self.ground_ids)
         alive = [c.getBodyUniqueId(i) for i in range(c.getNumBodies())]
         for body in list(self._bodies):
             if body not in alive:
@@ -1050,19 +1056,37 @@ class GLRenderer:
                     if count:
                         g.vaos[labels].render(mgl.TRIANGLES, vertices=count, first=first)
 
-    def render_K(self, *args, **kwargs) -> RenderedView:
-        """Render a pinhole view; see :meth:`_render_K` (this context is made current for it)."""
+    def render_K(
+        self,
+        K: np.ndarray,
+        size: tuple[int, int],
+        T_world_cam: np.ndarray,
+        lighting: Lighting,
+        near: float = 0.05,
+        far: float = 20.0,
+        segmentation: bool = True,
+    ) -> RenderedView:
+        """See :meth:`Renderer.render_K` (this context is made current for it)."""
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
         with self.ctx:
-            return self._render_K(*args, **kwargs)
+            return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation)
 
-    def render_fisheye(self, *args, **kwargs):
-        """Render a fisheye image; see :meth:`_render_fisheye` (this context is made current for it)."""
+    def render_fisheye(
+        self,
+        remapper: CubemapRemap,
+        T_world_cam: np.ndarray,
+        lighting: Lighting,
+        labels: bool = False,
+        near: float = 0.01,
+        far: float = 20.0,
+        windows=None,
+    ) -> FisheyeView:
+        """See :meth:`Renderer.render_fisheye` (this context is made current for it)."""
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
         with self.ctx:
-            return self._render_fisheye(*args, **kwargs)
+            return self._render_fisheye(remapper, T_world_cam, lighting, labels, near, far, windows)
 
     def _render_K(
         self,
@@ -1080,8 +1104,6 @@ class GLRenderer:
         ``segmentation`` only with ``segmentation`` (None without: they cost read-back time).
         ``near``, ``far``: clip distances [m].
         """
-        from rover_env.rendering.base import RenderedView, view_planes
-
         w, h = int(size[0]), int(size[1])
         poses = self._sync_bodies()
         fbo, color = self._fbo((w, h), segmentation)
@@ -1146,10 +1168,7 @@ class GLRenderer:
         far: float = 20.0,
         windows=None,
     ):
-        """Render the fisheye of ``remapper``'s model at ``T_world_cam`` (see ``fisheye.render_fisheye``)."""
-        from rover_env.rendering.base import view_planes
-        from rover_env.rendering.fisheye import FisheyeView
-
+        """Render the fisheye of ``remapper``'s model at ``T_world_cam`` (see :meth:`render_fisheye`)."""
         _, (aw, ah), fbo_color, fbo_labels = self._fisheye_targets(remapper)
         poses = self._sync_bodies()
         smap = self._shadow_for(lighting, poses, T_world_cam, float(remapper.focal))

@@ -11,23 +11,21 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
-from perception.cameras import PinholeCamera
-from rover_env.config.cameras import CameraConfig
-from rover_env.config.io import ConfigError, check_range
-from rover_env.rendering.base import Lighting, RenderedView, render_pinhole
-from rover_env.rendering.fisheye import (
-    R_BODY_FISHEYE,
-    CubemapRemap,
-    FisheyeCameraConfig,
-    FisheyeView,
-    kinematics_roi,
-    render_fisheye,
-)
+from perception.cameras import OmniCamera, PinholeCamera
+from perception.rover_parts import kinematic_parts
+from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
+from rover_env.config.io import ConfigError
+from rover_env.rendering import focus_on_rover, renderer_for
+from rover_env.rendering.base import FisheyeView, Lighting, RenderedView
+from rover_env.rendering.cubemap import CubemapRemap
 from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.simulation import RoverSim
 
+# image right = body forward, image down = body right, optical axis = body down
+R_BODY_FISHEYE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 # image up = body forward, image right = body right, optical axis = body down
 R_BODY_DOWNCAM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
@@ -47,27 +45,6 @@ def blackout_windows(value, name: str = "blackout") -> list[tuple[float, float]]
             raise ValueError(f"{name}: window {w!r}: {how}")
         out.append((t0, t1))
     return out
-
-
-@dataclass(frozen=True)
-class DownwardCameraConfig(CameraConfig):
-    """Downward pinhole camera on the mast (the fields of :class:`CameraConfig`, and its view).
-
-    Attributes:
-        hfov_deg: Horizontal field of view (across the rover) [deg].
-        vfov_deg: Vertical field of view (along the rover) [deg].
-
-    Its default rate is 60 Hz (a frame pair is one period apart).
-    """
-
-    rate_hz: float = 60.0
-    hfov_deg: float = 77.0
-    vfov_deg: float = 57.0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_range("hfov_deg", self.hfov_deg, 1.0, 170.0)
-        check_range("vfov_deg", self.vfov_deg, 1.0, 170.0)
 
 
 @dataclass(frozen=True)
@@ -119,16 +96,11 @@ class _RoverCamera(ABC):
 
     def T_world_cam(self) -> np.ndarray:
         """Pose of the camera optical frame in the world now [m]."""
-        c = self.sim.client
-        pos, quat = c.getBasePositionAndOrientation(self.sim.rover.body_id)
-        T = np.eye(4)
-        T[:3, :3] = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
-        T[:3, 3] = pos
-        return T @ self.T_body_cam
+        return self.sim.base_matrix() @ self.T_body_cam
 
     def render_view(self):
         """Render now, with per-pixel ground truth (for tests and evaluation)."""
-        self.sim.prepare_render(self.config.ground_range)
+        focus_on_rover(self.sim, self.config.ground_range)
         return self._render(labels=True)
 
     @abstractmethod
@@ -137,7 +109,7 @@ class _RoverCamera(ABC):
 
     def capture(self) -> Frame:
         """Render one frame at the current simulation time."""
-        self.sim.prepare_render(self.config.ground_range)
+        focus_on_rover(self.sim, self.config.ground_range)
         return self._keep(self._render(labels=False))
 
     def set_blackout(self, windows) -> None:
@@ -174,8 +146,6 @@ class _RoverCamera(ABC):
         self._last = frame
         return frame
 
-    def _caster(self, lighting: Lighting):
-        return self.sim.shadow_caster if lighting.shadows else None
 
 
 class DownwardCamera(_RoverCamera):
@@ -208,16 +178,55 @@ class DownwardCamera(_RoverCamera):
 
     def _render(self, labels: bool) -> RenderedView:
         lighting = self.lighting
-        return render_pinhole(
-            self.sim.client,
-            self.model,
-            self.T_world_cam(),
-            lighting,
-            caster=self._caster(lighting),
-            renderer=self.sim.backend,
-            segmentation=labels,
-            cull=self.sim.terrain.view_cull,
-        )
+        renderer = renderer_for(self.sim)
+        return renderer.render_pinhole(self.model, self.T_world_cam(), lighting, segmentation=labels)
+
+
+def kinematics_roi(
+    camera: OmniCamera,
+    model,
+    roll_limit: float,
+    travel_limit: float,
+    steer_limit: float,
+    margin: float = 0.04,
+) -> np.ndarray:
+    """Fisheye pixels in which the kinematics estimator can find a wheel, marker or steering arm.
+
+    The wheels' treads and side discs, the eight markers and the steering arms
+    (:func:`kinematic_parts`) are projected over the whole joint range (axle roll, travel and
+    steering at their limits and between); the convex hull of each part's image is filled, and
+    the union is grown by ``margin``: nothing the estimator reads lies outside it.
+
+    Args:
+        camera: The fisheye model (its ``T_body_cam`` is the mount).
+        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
+        roll_limit: Axle roll range +- [rad].
+        travel_limit: Axle travel range +- about ``model.nominal_depth`` [m].
+        steer_limit: Axle steering range +- [rad].
+        margin: Growth of the region, as a share of the image width.
+
+    Returns:
+        (H, W) bool mask.
+    """
+    w, h = camera.image_size
+    T_cam_body = np.linalg.inv(camera.T_body_cam)
+    mask = np.zeros((h, w), np.uint8)
+    for psi in np.linspace(-roll_limit, roll_limit, 9):
+        for d in model.nominal_depth + np.linspace(-travel_limit, travel_limit, 5):
+            for lam in np.linspace(-steer_limit, steer_limit, 13):
+                delta = model.wheel_angles(lam, -lam)  # both axles through their range
+                parts = kinematic_parts(model, (psi, -psi), (d, d), delta)
+                sizes = np.cumsum([len(q) for q in parts])[:-1]
+                body = np.vstack(parts)
+                pix = camera.world2cam(body @ T_cam_body[:3, :3].T + T_cam_body[:3, 3])
+                for q in np.split(pix, sizes):
+                    q = q[np.all(np.isfinite(q), axis=1)]
+                    if len(q):
+                        hull = cv2.convexHull(np.rint(q * 16).astype(np.int32))
+                        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
+    k = max(2, int(round(margin * w)))
+    mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
+    return mask.astype(bool)
 
 
 def _fisheye_mount(g: RoverGeometry) -> np.ndarray:
@@ -280,7 +289,7 @@ class FisheyeCamera(_RoverCamera):
 
         ``parts``: as in :meth:`capture`.
         """
-        self.sim.prepare_render(self.config.ground_range)
+        focus_on_rover(self.sim, self.config.ground_range)
         return self._render(labels=True, parts=parts)
 
     def capture(self, parts: np.ndarray | None = None) -> Frame:
@@ -293,7 +302,7 @@ class FisheyeCamera(_RoverCamera):
                 :attr:`window_margin`), like a sensor's windowed readout, and the rest of the
                 image is black. None: the whole image (or region of interest).
         """
-        self.sim.prepare_render(self.config.ground_range)
+        focus_on_rover(self.sim, self.config.ground_range)
         return self._keep(self._render(labels=False, parts=parts))
 
     @property
@@ -316,14 +325,10 @@ class FisheyeCamera(_RoverCamera):
 
     def _render(self, labels: bool, parts: np.ndarray | None = None) -> FisheyeView:
         lighting = self.lighting
-        return render_fisheye(
-            self.sim.client,
+        return renderer_for(self.sim).render_fisheye(
             self.remapper,
             self.T_world_cam(),
             lighting,
-            self._caster(lighting),
             labels=labels,
-            cull=self.sim.terrain.view_cull,
             windows=None if parts is None else self.windows(parts),
-            renderer=self.sim.backend,
         )

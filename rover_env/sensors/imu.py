@@ -191,17 +191,14 @@ class Imu:
     def truth(self) -> tuple[np.ndarray, np.ndarray]:
         """(angular rate [rad/s], specific force [m/s^2]) at the mount now, mount frame, no errors."""
         sim = self.sim
-        c = sim.client
-        body = sim.rover.body_id
-        pos, quat = c.getBasePositionAndOrientation(body)
-        lin, ang = c.getBaseVelocity(body)
-        R_wb = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        lin, ang = sim.base_velocity()
+        R_wb = sim.base_matrix()[:3, :3]
         R_wi = R_wb @ self.R_body_imu
         w = np.asarray(ang, dtype=np.float64)
         r = R_wb @ self.r_body
         wx, wy, wz = ang
         v = np.array(lin) + (wy * r[2] - wz * r[1], wz * r[0] - wx * r[2], wx * r[1] - wy * r[0])
-        step = sim._steps
+        step = sim.steps
         last = self._last
         gravity = np.array([0.0, 0.0, -G])
         if last is None or step <= last[0]:

@@ -10,21 +10,20 @@ sample, and hand out timestamped :class:`SensorMessage` objects (no simulator st
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 import time
+from collections.abc import Callable
 from functools import partial
-from typing import Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
 from perception.rig import SensorMessage
+from rover_env.config.cameras import RendererName, check_renderer
 from rover_env.config.scenario import ScenarioConfig
-from rover_env.rendering.base import check_renderer
-from rover_env.rendering.shadows import ShadowCaster
 from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.ground_truth import GroundTruth
 from rover_env.sim.rover import Rover
@@ -32,6 +31,8 @@ from rover_env.sim.terrain import Terrain
 from rover_env.sim.transforms import quat_to_yaw, yaw_to_quat  # noqa: F401 (the simulation's names)
 
 log = logging.getLogger(__name__)
+
+A = TypeVar("A")
 
 
 class Sensor(Protocol):
@@ -45,35 +46,6 @@ class Sensor(Protocol):
     def sample(self) -> np.ndarray:
         """The sensor's output now (at the simulation's current time)."""
         ...
-
-
-def resolve_renderer(name: str) -> str:
-    """The renderer that ``name`` (``"auto"``, ``"gl"`` or ``"tiny"``) selects on this machine.
-
-    ``"auto"`` is ``"gl"`` where a headless EGL OpenGL context can be created, else ``"tiny"``
-    (with one warning per process naming what is missing).
-
-    Raises:
-        ValueError: Unknown name.
-        rover_env.rendering.gl.GLUnavailableError: ``"gl"`` where it cannot start.
-    """
-    check_renderer(name)
-    if name == "tiny":
-        return name
-    from rover_env.rendering.gl import GLUnavailableError, usable_here
-
-    ok, why = usable_here()
-    if ok:
-        return "gl"
-    if name == "gl":
-        raise GLUnavailableError(f"renderer='gl': {why}; or use renderer='tiny'")
-    _warn_fallback(why)
-    return "tiny"
-
-
-@functools.lru_cache(maxsize=1)
-def _warn_fallback(why: str) -> None:
-    log.warning("OpenGL rendering is not available, so TinyRenderer draws the cameras (slower): %s", why)
 
 
 #: Most constraint-solver iterations per physics step (a step's cost grows with them).
@@ -91,16 +63,14 @@ class RoverSim:
         solver_iterations: Constraint-solver iterations per physics step. Cost grows with it
             (contacts dominate a step); motor accuracy under load improves as its square: a
             braked rover on an 8 deg slope creeps 19 mm in 5 s at 10, 4 mm at 20 (see the tests).
-        renderer: ``"auto"`` (the default: ``"gl"`` where a headless EGL OpenGL 3.3 context can
-            be created, else ``"tiny"`` with one warning saying what is missing), ``"gl"``
-            (:class:`rover_env.rendering.gl.GLRenderer`: 10-20x faster on a CPU, and runs on a GPU)
-            or ``"tiny"`` (PyBullet's TinyRenderer). Both draw the same sun, sky light and shadows.
-            The GL context is created at the first render (so a simulation made before a
-            fork renders in the child) and released by :meth:`close`.
+        renderer: What draws this simulation's camera views (:data:`RendererName`): ``"auto"``
+            (the default), ``"gl"`` or ``"tiny"``. The simulation only keeps the choice: the
+            rendering layer (:func:`rover_env.rendering.renderer_for`) resolves it and makes the
+            renderer at the first render (so a simulation made before a fork renders in the
+            child), and :meth:`close` releases it.
 
     Raises:
-        ValueError: Unknown renderer name.
-        rover_env.rendering.gl.GLUnavailableError: ``renderer="gl"`` where no context can be created.
+        ValueError: Unknown renderer name, or a physics rate or solver iteration count out of range.
     """
 
     def __init__(
@@ -110,7 +80,7 @@ class RoverSim:
         physics_hz: float = 240.0,
         settle_time: float = 0.5,
         solver_iterations: int = 10,
-        renderer: str = "auto",
+        renderer: RendererName = "auto",
     ) -> None:
         if not (60.0 <= physics_hz <= 2000.0):
             raise ValueError(f"physics_hz={physics_hz}: use 60 to 2000 Hz (240 recommended)")
@@ -127,9 +97,10 @@ class RoverSim:
         self.geometry = geometry or RoverGeometry()
         self.dt = 1.0 / physics_hz
         self.settle_time = settle_time
-        #: The renderer in use: ``"gl"`` or ``"tiny"``.
-        self.renderer = resolve_renderer(renderer)
-        self._gl = None
+        #: The renderer chosen for this simulation's views (see ``renderer`` above).
+        self.renderer: RendererName = check_renderer(renderer)  # type: ignore[assignment]
+        # what other layers attach (a renderer): key -> object, told of restores and of close
+        self._attached: dict[str, Any] = {}
         from rover_env.sim._quiet import quiet_c_output
 
         with quiet_c_output():  # PyBullet prints "argv[0]=" on connecting
@@ -208,7 +179,10 @@ class RoverSim:
             Ground truth after settling.
         """
         c = self.client
-        self.terrain.drop_detail()  # the saved state has no near-ground chunks
+        for obj in self._attached.values():  # the saved state has none of what they added
+            before = getattr(obj, "before_restore", None)
+            if before is not None:
+                before()
         c.restoreState(self._state_id)
         g = self.geometry
         cy, sy = math.cos(yaw), math.sin(yaw)
@@ -293,45 +267,68 @@ class RoverSim:
         self.step(camera.period)
         return prev, camera.capture()
 
-    def prepare_render(self, ground_range: float | None = None) -> None:
-        """Draw the ground around the rover; call before rendering views near it.
-
-        Args:
-            ground_range: Horizontal distance from the rover [m] beyond which the views to be
-                rendered see no ground (only the ground within it is drawn); None: all of it.
-        """
-        x, y, _ = self.client.getBasePositionAndOrientation(self.rover.body_id)[0]
-        if self.renderer == "gl":
-            self.backend.focus(x, y, ground_range)
-        else:
-            self.terrain.focus(x, y, ground_range)
-
-    @functools.cached_property
-    def shadow_caster(self) -> ShadowCaster:
-        """The rover's sun-shadow caster (built on first use)."""
-        return ShadowCaster(self.client, self.rover.body_id)
-
     def ground_truth(self) -> GroundTruth:
         """Exact state of the rover now."""
         return self.rover.ground_truth(self.t, self.terrain.body_id)
 
     @property
-    def backend(self):
-        """What the cameras render with: ``"tiny"`` or this simulation's GLRenderer (created on first use)."""
-        if self.renderer == "tiny":
-            return "tiny"
-        if self._gl is None:
+    def steps(self) -> int:
+        """Physics steps since the clock last read 0 (negative while the rover settles) [-]."""
+        return self._steps
+
+    def base_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """The rover body's pose now: position (x, y, z) [m] and quaternion (x, y, z, w), world frame."""
+        pos, quat = self.client.getBasePositionAndOrientation(self.rover.body_id)
+        return pos, quat
+
+    def base_matrix(self) -> np.ndarray:
+        """The rover body's pose now as a 4x4 transform, world from body [m]."""
+        pos, quat = self.base_pose()
+        T = np.eye(4)
+        T[:3, :3] = np.array(self.client.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        T[:3, 3] = pos
+        return T
+
+    def base_velocity(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """The rover body's linear [m/s] and angular [rad/s] velocity now, world frame."""
+        lin, ang = self.client.getBaseVelocity(self.rover.body_id)
+        return lin, ang
+
+    def hold_on_stand(self, lift: float, joints: dict[str, float]) -> None:
+        """Raise the rover ``lift`` [m] and set its named joints [rad or m] directly, at rest.
+
+        What a calibration stand does: no physics runs; :meth:`reset` afterwards. Joint names are
+        the URDF's (``roll_F``, ``travel_R``, ``steer_FL``, ...).
+
+        Raises:
+            ValueError: A joint name the rover does not have, or a value that is not finite.
+        """
+        rv = self.rover
+        unknown = sorted(set(joints) - set(rv.joint))
+        if unknown:
+            raise ValueError(f"joints {unknown}: the rover's joints are {sorted(rv.joint)}")
+        if not all(math.isfinite(v) for v in [lift, *joints.values()]):
+            raise ValueError(f"lift={lift!r}, joints={joints!r}: give finite values")
+        c = self.client
+        if lift:
+            pos, quat = self.base_pose()
+            c.resetBasePositionAndOrientation(rv.body_id, [pos[0], pos[1], pos[2] + lift], quat)
+        for name, value in joints.items():
+            c.resetJointState(rv.body_id, rv.joint[name], value)
+
+    def attachment(self, key: str, make: Callable[[], A]) -> A:
+        """The object attached to this simulation under ``key``, made by ``make()`` on first use.
+
+        For what a higher layer keeps per simulation (its renderer): an attached object with a
+        ``before_restore()`` method is told before each :meth:`reset` restores the saved state
+        (it removes any bodies it added), and one with ``release()`` is released by :meth:`close`.
+        """
+        obj = self._attached.get(key)
+        if obj is None:
             if self._closed:
                 raise RuntimeError("this RoverSim is closed; create a new one")
-            from rover_env.rendering.gl import GLRenderer
-
-            rv = self.rover
-            self._gl = GLRenderer(
-                self.client,
-                self.terrain,
-                link_textures={(rv.body_id, link): path for link, path in rv.link_textures.items()},
-            )
-        return self._gl
+            obj = self._attached[key] = make()
+        return obj
 
     def __deepcopy__(self, memo):
         raise TypeError("a RoverSim cannot be copied: it owns a PyBullet client; make a second RoverSim")
@@ -340,10 +337,12 @@ class RoverSim:
         raise TypeError("a RoverSim cannot be pickled: it owns a PyBullet client; make one where it is used")
 
     def close(self) -> None:
-        """Disconnect this simulation's client and release its GL context; safe to call more than once."""
-        if self._gl is not None:
-            self._gl.release()
-            self._gl = None
+        """Release what is attached (a renderer) and disconnect the client; safe to call more than once."""
+        attached, self._attached = self._attached, {}
+        for obj in attached.values():
+            release = getattr(obj, "release", None)
+            if release is not None:
+                release()
         if not self._closed:
             self._closed = True
             try:

@@ -3,17 +3,13 @@
 World frame: z up, the terrain centred on the origin. Heights are exact: for the plane the
 analytic plane, for the heightfield the same triangles Bullet collides with.
 
-Rough terrain is drawn at two levels of detail, because TinyRenderer transforms every triangle of
-the scene for every view it renders (a 30 m x 30 m heightfield at 0.1 m is 180,000 triangles,
-about 30 ms per view whatever the view's size). Near the rover (:meth:`Terrain.focus`) the ground
-is drawn with the collision triangles themselves, in 1 m chunks that are added and removed as the
-rover moves; everywhere else a 1 m mesh lies just below them, so that it never shows through
-the exact ground.
+The rough ground's body is drawn with a 1 m mesh lying just below the collision triangles
+(:meth:`Terrain.coarse_grid`), so that it never shows through the exact ground that a renderer
+draws near the rover (:mod:`rover_env.rendering.ground_detail`, :mod:`rover_env.rendering.gl`).
 """
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 from pathlib import Path
@@ -21,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rover_env.config.cameras import FINE_RADIUS
 from rover_env.config.scenario import TEXTURE_PRESETS, FrictionMapConfig, TerrainConfig
 from rover_env.sim.textures import cache_dir, periodic_noise, read_texture, texture_file
 
@@ -110,7 +105,7 @@ def make_heights(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
     xs = (np.arange(nx) - (nx - 1) / 2) * cfg.cell
     ys = (np.arange(ny) - (ny - 1) / 2) * cfg.cell
     gx, gy = np.meshgrid(xs, ys)
-    h = _slope_height(cfg, gx, gy)
+    h = slope_height(cfg, gx, gy)
     if cfg.roughness > 0:
         n = int(2 ** math.ceil(math.log2(max(nx, ny))))
         rng = np.random.default_rng(cfg.seed)
@@ -126,7 +121,8 @@ def make_heights(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return xs, ys, h
 
 
-def _slope_height(cfg: TerrainConfig, x, y):
+def slope_height(cfg: TerrainConfig, x, y):
+    """Height of the terrain's slope plane at world (x, y) [m] (no relief)."""
     t = math.tan(cfg.slope)
     return t * (math.cos(cfg.slope_azimuth) * x + math.sin(cfg.slope_azimuth) * y)
 
@@ -146,19 +142,11 @@ class Terrain:
         self.cfg = cfg
         self.friction = FrictionMap(friction)
         self._client = client
-        self._chunks: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual body
-        self._chunk_shapes: dict[tuple[int, int], int] = {}  # chunk (i, j) -> its visual shape
-        self._shown: dict[int, bool] = {}  # body -> drawn (alpha 1) or hidden (alpha 0)
-        # bodies of the rough-ground chunks that the last focus() draws, and their (n, 8, 3) world
-        # bounding-box corners
-        self._focused: tuple[list[int], np.ndarray] = ([], np.zeros((0, 8, 3)))
-        self._focus_key: tuple | None = None  # (x, y, near) of the last focus()
-        self._boxes: dict[tuple[int, int], np.ndarray] = {}  # chunk -> (8, 3) world bounding-box corners
         if cfg.kind == "rough":
             self.xs, self.ys, self.heights = make_heights(cfg)
             gz = np.gradient(self.heights, self.ys, self.xs)
             nrm = np.stack([-gz[1], -gz[0], np.ones_like(self.heights)], axis=-1)
-            self._normals = nrm / np.linalg.norm(nrm, axis=-1, keepdims=True)
+            self.normals = nrm / np.linalg.norm(nrm, axis=-1, keepdims=True)
             nx, ny = len(self.xs), len(self.ys)
             hmin, hmax = float(self.heights.min()), float(self.heights.max())
             shape = client.createCollisionShape(
@@ -175,15 +163,15 @@ class Terrain:
             t = math.tan(cfg.slope)
             n = np.array([-t * math.cos(cfg.slope_azimuth), -t * math.sin(cfg.slope_azimuth), 1.0])
             n /= np.linalg.norm(n)
-            self._plane_normal = n
+            self.plane_normal = n
             shape = client.createCollisionShape(pb.GEOM_PLANE, planeNormal=n.tolist())
             base_z = 0.0
         if self.heights is None:
             visual = client.createVisualShape(pb.GEOM_MESH, fileName=str(self._visual_mesh()))
         else:
-            visual = self._mesh_shape(*self._coarse_grid(), base_z)
+            visual = self.mesh_shape(*self.coarse_grid(), base_z)
         self.body_id = client.createMultiBody(0, shape, visual, basePosition=[0, 0, base_z])
-        self._base_z = base_z
+        self.base_z = base_z
         client.changeDynamics(
             self.body_id, -1, lateralFriction=1.0, restitution=0.0, rollingFriction=0.0, spinningFriction=0.0
         )
@@ -202,169 +190,7 @@ class Terrain:
             self.body_id, -1, textureUniqueId=self.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
         )
 
-    # ------------------------------------------------------------------ level of detail
-    @property
-    def ground_ids(self) -> tuple[int, ...]:
-        """Body ids that draw the ground (segmentation labels of ground pixels)."""
-        return (self.body_id, *self._chunks.values())
-
-    def focus(self, x: float, y: float, near: float | None = None) -> None:
-        """Draw the ground for views taken from near world (x, y) [m]; call before rendering them.
-
-        On rough terrain the exact triangles are drawn within ``FINE_RADIUS`` of (x, y) and a
-        coarser mesh beyond. With ``near`` [m] (at most ``FINE_RADIUS``), only the exact chunks that
-        reach within ``near`` of (x, y) are drawn (ground beyond ``near`` + a chunk's diagonal
-        never is), for views that need no farther ground: TinyRenderer walks every triangle whose
-        projection overlaps a view, so far ground costs time even where nearer surfaces hide it.
-        ``None``: the views may see the horizon; all is drawn.
-        """
-        if near is not None and not 0.0 < near <= FINE_RADIUS:
-            raise ValueError(f"near: {near!r} m; use 0 < near <= FINE_RADIUS ({FINE_RADIUS} m) or None")
-        if (x, y, near) == self._focus_key:  # the same views' place: undo only their culling
-            for body in self._focused[0]:
-                self._show(body, True)
-            return
-        self._focus_key = (x, y, near)
-        flat = self.heights is None
-        if flat and near is None:  # the far body alone draws flat ground exactly
-            self._show(self.body_id, True)
-            for body in self._chunks.values():
-                self._show(body, False)
-            return
-        x0, y0, cell, nx, ny, n = self._chunk_grid
-        size = n * cell
-        keep = FINE_RADIUS if not flat else near
-        i_lo = max(0, int((x - keep - x0) // size))
-        i_hi = min((nx - 1) // n, int((x + keep - x0) // size))
-        j_lo = max(0, int((y - keep - y0) // size))
-        j_hi = min((ny - 1) // n, int((y + keep - y0) // size))
-        dist = {}
-        for i in range(i_lo, i_hi + 1):
-            for j in range(j_lo, j_hi + 1):
-                d = self._chunk_distance((i, j), x, y)
-                if d <= keep:
-                    dist[(i, j)] = d
-        c = self._client
-        # flat chunks outside ``near`` stay (hidden) until they are beyond FINE_RADIUS
-        gone = [
-            k
-            for k in self._chunks
-            if k not in dist and (not flat or self._chunk_distance(k, x, y) > FINE_RADIUS)
-        ]
-        for key in gone:
-            body = self._chunks.pop(key)
-            self._shown.pop(body, None)
-            c.removeBody(body)
-        for key in sorted(dist.keys() - self._chunks.keys()):
-            if key not in self._chunk_shapes:
-                self._chunk_shapes[key] = self._chunk_shape(key)
-            body = c.createMultiBody(0, -1, self._chunk_shapes[key], basePosition=[0, 0, self._base_z])
-            c.changeVisualShape(
-                body, -1, textureUniqueId=self.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
-            )
-            self._shown[body] = True
-            self._chunks[key] = body
-        self._show(self.body_id, near is None)
-        focused = [k for k in self._chunks if near is None or dist.get(k, math.inf) <= near]
-        for key, body in self._chunks.items():
-            self._show(body, key in focused)
-        self._focused = ([], np.zeros((0, 8, 3)))
-        if not flat and focused:
-            for key in focused:
-                if key not in self._boxes:
-                    self._boxes[key] = self._chunk_box(key)
-            self._focused = ([self._chunks[k] for k in focused], np.array([self._boxes[k] for k in focused]))
-
-    @property
-    def view_cull(self):
-        """:meth:`cull` where it has work (rough ground), else None: flat chunks are two triangles each."""
-        return self.cull if self.heights is not None else None
-
-    def cull(self, planes: np.ndarray) -> None:
-        """Of the chunks that :meth:`focus` draws, draw only those that may be inside a view.
-
-        TinyRenderer transforms every drawn triangle for every view, so on rough ground each view
-        draws only the chunks whose bounding box is not wholly outside one of its planes. Call it
-        after :meth:`focus`, before each view (flat ground has two triangles a chunk: no-op).
-
-        Args:
-            planes: (k, 4) half-spaces n . x + d >= 0 (world frame [m]) whose intersection holds
-                the view (:func:`rover_env.rendering.base.view_planes`).
-        """
-        bodies, boxes = self._focused
-        if self.heights is None or not bodies:
-            return
-        inside = boxes @ planes[:, :3].T + planes[:, 3] >= 0.0  # (chunks, 8 corners, k planes)
-        for body, on in zip(bodies, inside.any(axis=1).all(axis=1).tolist(), strict=True):
-            self._show(body, on)
-
-    def _chunk_slices(self, key: tuple[int, int]) -> tuple[slice, slice]:
-        """Grid-point slices (along x, along y) of rough-ground chunk ``key``."""
-        i, j = key
-        _, _, _, nx, ny, n = self._chunk_grid
-        return slice(i * n, min((i + 1) * n, nx) + 1), slice(j * n, min((j + 1) * n, ny) + 1)
-
-    def _chunk_box(self, key: tuple[int, int]) -> np.ndarray:
-        """(8, 3) corners of chunk ``key``'s axis-aligned bounding box in the world [m]."""
-        sx, sy = self._chunk_slices(key)
-        h = self.heights[sy, sx]
-        xs, ys = self.xs[sx], self.ys[sy]
-        return np.array(
-            [[x, y, z] for x in (xs[0], xs[-1]) for y in (ys[0], ys[-1]) for z in (h.min(), h.max())]
-        )
-
-    @functools.cached_property
-    def _chunk_grid(self) -> tuple[float, float, float, int, int, int]:
-        """(x0, y0, cell, cells along x, cells along y, cells per chunk edge) of the chunks' grid."""
-        if self.heights is not None:
-            cell, nx, ny = self.cfg.cell, len(self.xs) - 1, len(self.ys) - 1
-            x0, y0 = float(self.xs[0]), float(self.ys[0])
-        else:
-            cell = FINE_CHUNK  # flat ground: one quad per chunk
-            nx, ny = (max(1, int(math.ceil(s / cell))) for s in self.cfg.size)
-            x0, y0 = -nx * cell / 2, -ny * cell / 2
-        return x0, y0, cell, nx, ny, max(1, int(round(FINE_CHUNK / cell)))
-
-    def _chunk_distance(self, key: tuple[int, int], x: float, y: float) -> float:
-        """Distance from world (x, y) to chunk ``key``'s rectangle [m] (0 inside it)."""
-        x0, y0, cell, _, _, n = self._chunk_grid
-        size = n * cell
-        i, j = key
-        dx = max(x0 + i * size - x, 0.0, x - x0 - (i + 1) * size)
-        dy = max(y0 + j * size - y, 0.0, y - y0 - (j + 1) * size)
-        return math.hypot(dx, dy)
-
-    def _chunk_shape(self, key: tuple[int, int]) -> int:
-        """The visual shape of chunk ``key``."""
-        i, j = key
-        x0, y0, cell, nx, ny, n = self._chunk_grid
-        if self.heights is not None:
-            sx, sy = self._chunk_slices(key)
-            return self._mesh_shape(
-                self.xs[sx], self.ys[sy], self.heights[sy, sx], self._normals[sy, sx], self._base_z
-            )
-        xs = x0 + cell * np.array([i, i + 1], dtype=np.float64)
-        ys = y0 + cell * np.array([j, j + 1], dtype=np.float64)
-        gx, gy = np.meshgrid(xs, ys)
-        h = _slope_height(self.cfg, gx, gy)
-        return self._mesh_shape(xs, ys, h, np.broadcast_to(self._plane_normal, h.shape + (3,)), self._base_z)
-
-    def _show(self, body: int, on: bool) -> None:
-        if self._shown.get(body, True) != on:
-            self._client.changeVisualShape(body, -1, rgbaColor=[1, 1, 1, 1.0 if on else 0.0])
-            self._shown[body] = on
-
-    def drop_detail(self) -> None:
-        """Remove the near-ground chunks (before restoring a state saved without them)."""
-        for body in self._chunks.values():
-            self._client.removeBody(body)
-        self._chunks.clear()
-        self._focused = ([], np.zeros((0, 8, 3)))
-        self._focus_key = None
-        self._shown = {b: v for b, v in self._shown.items() if b == self.body_id}
-        self._show(self.body_id, True)
-
-    def _coarse_grid(self):
+    def coarse_grid(self):
         """The far-ground grid, about ``COARSE_CELL`` apart, as (xs, ys, heights, normals).
 
         The grid's triangles follow the exact ones' split, so their edges run along exact edges
@@ -389,9 +215,9 @@ class Terrain:
                 high = h11 + (1 - u) * (h01 - h11) + (1 - v) * (h10 - h11)
                 above = float(np.max(np.where(u + v <= 1.0, low, high) - block))
                 drop[cj : cj + 2, ci : ci + 2] = np.maximum(drop[cj : cj + 2, ci : ci + 2], above)
-        return self.xs[ix], self.ys[iy], hc - drop - 0.002, self._normals[np.ix_(iy, ix)]
+        return self.xs[ix], self.ys[iy], hc - drop - 0.002, self.normals[np.ix_(iy, ix)]
 
-    def _mesh_shape(self, xs, ys, h, normals, base_z: float) -> int:
+    def mesh_shape(self, xs, ys, h, normals, base_z: float) -> int:
         """A visual shape of the height grid ``h`` (rows along y) in the body frame at ``base_z``."""
         import pybullet as pb
 
@@ -421,14 +247,14 @@ class Terrain:
         planar ground: a 2 m grid over the terrain (exact, since the plane is flat).
         """
         if self.heights is not None:
-            return self.xs, self.ys, self.heights, self._normals
+            return self.xs, self.ys, self.heights, self.normals
         nx = max(1, int(math.ceil(self.cfg.size[0] / (2 * FINE_CHUNK)))) + 1
         ny = max(1, int(math.ceil(self.cfg.size[1] / (2 * FINE_CHUNK)))) + 1
         xs = np.linspace(-self.cfg.size[0] / 2, self.cfg.size[0] / 2, nx)
         ys = np.linspace(-self.cfg.size[1] / 2, self.cfg.size[1] / 2, ny)
         gx, gy = np.meshgrid(xs, ys)
-        h = _slope_height(self.cfg, gx, gy)
-        return xs, ys, h, np.broadcast_to(self._plane_normal, h.shape + (3,)).copy()
+        h = slope_height(self.cfg, gx, gy)
+        return xs, ys, h, np.broadcast_to(self.plane_normal, h.shape + (3,)).copy()
 
     # ------------------------------------------------------------------ geometry queries
     def height_at(self, x: float | np.ndarray, y: float | np.ndarray) -> np.ndarray:
@@ -436,7 +262,7 @@ class Terrain:
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
         if self.heights is None:
-            return _slope_height(self.cfg, x, y)
+            return slope_height(self.cfg, x, y)
         cell = self.cfg.cell
         fx = np.clip((x - self.xs[0]) / cell, 0, len(self.xs) - 1 - 1e-9)
         fy = np.clip((y - self.ys[0]) / cell, 0, len(self.ys) - 1 - 1e-9)
@@ -469,7 +295,7 @@ class Terrain:
         xs = np.linspace(-cfg.size[0] / 2, cfg.size[0] / 2, nx)
         ys = np.linspace(-cfg.size[1] / 2, cfg.size[1] / 2, ny)
         gx, gy = np.meshgrid(xs, ys)
-        h = _slope_height(cfg, gx, gy)
+        h = slope_height(cfg, gx, gy)
         write_grid_obj(path, xs, ys, h, cfg.texture_tile)
         log.debug("wrote terrain mesh %s (%d x %d vertices)", path, len(xs), len(ys))
         return path

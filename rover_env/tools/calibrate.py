@@ -21,7 +21,7 @@ from perception.markers import (
     segment_magenta,
     steering_ratio,
 )
-from rover_env.rendering.fisheye import FisheyeCameraConfig
+from rover_env.config.cameras import FisheyeCameraConfig
 from rover_env.sensors.cameras import FisheyeCamera
 from rover_env.sim.geometry import AXLES, WHEELS
 from rover_env.sim.simulation import RoverSim
@@ -57,20 +57,14 @@ def sweep_steering(
     cfg = markers or MarkerConfig()
     g = sim.geometry
     model = g.kinematic_model(cam.T_body_cam)
-    c, rv = sim.client, sim.rover
-    pos, quat = c.getBasePositionAndOrientation(rv.body_id)
-    c.resetBasePositionAndOrientation(rv.body_id, [pos[0], pos[1], pos[2] + 0.1], quat)
-    for a in AXLES:
-        c.resetJointState(rv.body_id, rv.joint[f"roll_{a}"], 0.0)
-        c.resetJointState(rv.body_id, rv.joint[f"travel_{a}"], 0.0)
+    sim.hold_on_stand(0.1, {f"{j}_{a}": 0.0 for a in AXLES for j in ("roll", "travel")})
     depth = np.full(2, -g.axle_z)
     T_cb = np.linalg.inv(model.T_body_cam)
     lams = np.radians(np.linspace(-limit_deg, limit_deg, steps))
     ratios = np.zeros((2, steps))
     for n, lam in enumerate(lams):
         delta = g.ackermann_angles(lam, lam)
-        for k, w in enumerate(WHEELS):
-            c.resetJointState(rv.body_id, rv.joint[f"steer_{w}"], delta[k])
+        sim.hold_on_stand(0.0, {f"steer_{w}": delta[k] for k, w in enumerate(WHEELS)})
         cent, _, _ = segment_magenta(cam.capture().image, cfg)
         pred = model.marker_positions((0.0, 0.0), depth, delta)
         pix = {m: cam.model.world2cam(T_cb[:3, :3] @ p + T_cb[:3, 3]) for m, p in pred.items()}

@@ -1,4 +1,4 @@
-"""The fisheye under the body (kinematics paper): cubemap faces rendered as pinhole views, one remap.
+"""A fisheye image from cubemap faces rendered as pinhole views, and one remap.
 
 Renderers draw pinhole views, so a >180 deg fisheye is assembled from cube faces: the face
 along the optical axis and the four side faces, each rendered only over the part of it that the
@@ -7,9 +7,9 @@ edge; that is what keeps the image free of seams). The faces are packed into one
 every fisheye pixel is looked up through one precomputed fixed-point ``cv2.remap``, using the
 exact :class:`perception.OmniCamera` model that the estimators receive.
 
-A region of interest renders less: only the fisheye pixels in which the kinematics estimator can
-ever find a wheel, a marker or a steering arm (:func:`kinematics_roi`), like a sensor's ROI
-readout; the rest of the image is black. Rendering time is proportional to the rendered pixels.
+A region of interest renders less (a mask of the fisheye pixels to draw, such as
+:func:`rover_env.sensors.cameras.kinematics_roi`), like a sensor's ROI readout; the rest of the
+image is black. Rendering time is proportional to the rendered pixels.
 """
 
 from __future__ import annotations
@@ -22,13 +22,6 @@ import cv2
 import numpy as np
 
 from perception.cameras import OmniCamera
-from perception.rover_parts import kinematic_parts
-from rover_env.config.cameras import CameraConfig
-from rover_env.config.io import check_range
-from rover_env.rendering.base import Lighting, render_K
-
-# image right = body forward, image down = body right, optical axis = body down
-R_BODY_FISHEYE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 
 SHADOW_DETAIL_RANGE = 0.5  # [m] about the distance of wheels and markers from the fisheye
 MAX_VIEW_HALF_ANGLE = math.radians(55.0)  # widest ray of a ROI view from its axis
@@ -79,53 +72,6 @@ class CubeFace:
         T_face = T_world_cam.copy()
         T_face[:3, :3] = T_world_cam[:3, :3] @ self.R_cam_face
         return K, (u1 - u0, v1 - v0), T_face, (u0, v0, u1, v1)
-
-
-def kinematics_roi(
-    camera: OmniCamera,
-    model,
-    roll_limit: float,
-    travel_limit: float,
-    steer_limit: float,
-    margin: float = 0.04,
-) -> np.ndarray:
-    """Fisheye pixels in which the kinematics estimator can find a wheel, marker or steering arm.
-
-    The wheels' treads and side discs, the eight markers and the steering arms
-    (:func:`kinematic_parts`) are projected over the whole joint range (axle roll, travel and
-    steering at their limits and between); the convex hull of each part's image is filled, and
-    the union is grown by ``margin``: nothing the estimator reads lies outside it.
-
-    Args:
-        camera: The fisheye model (its ``T_body_cam`` is the mount).
-        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
-        roll_limit: Axle roll range +- [rad].
-        travel_limit: Axle travel range +- about ``model.nominal_depth`` [m].
-        steer_limit: Axle steering range +- [rad].
-        margin: Growth of the region, as a share of the image width.
-
-    Returns:
-        (H, W) bool mask.
-    """
-    w, h = camera.image_size
-    T_cam_body = np.linalg.inv(camera.T_body_cam)
-    mask = np.zeros((h, w), np.uint8)
-    for psi in np.linspace(-roll_limit, roll_limit, 9):
-        for d in model.nominal_depth + np.linspace(-travel_limit, travel_limit, 5):
-            for lam in np.linspace(-steer_limit, steer_limit, 13):
-                delta = model.wheel_angles(lam, -lam)  # both axles through their range
-                parts = kinematic_parts(model, (psi, -psi), (d, d), delta)
-                sizes = np.cumsum([len(q) for q in parts])[:-1]
-                body = np.vstack(parts)
-                pix = camera.world2cam(body @ T_cam_body[:3, :3].T + T_cam_body[:3, 3])
-                for q in np.split(pix, sizes):
-                    q = q[np.all(np.isfinite(q), axis=1)]
-                    if len(q):
-                        hull = cv2.convexHull(np.rint(q * 16).astype(np.int32))
-                        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
-    k = max(2, int(round(margin * w)))
-    mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
-    return mask.astype(bool)
 
 
 class CubemapRemap:
@@ -322,144 +268,3 @@ class CubemapRemap:
         out = flat[np.maximum(self._nearest, 0)]
         out[self._nearest < 0] = outside
         return out
-
-
-@dataclass(frozen=True)
-class FisheyeCameraConfig(CameraConfig):
-    """Downward fisheye under the body (kinematics paper): :class:`CameraConfig` and its optics.
-
-    Attributes:
-        fov_deg: Full field of view of the image circle [deg] (>= 185).
-        radius_frac: Radius of the image circle at fov_deg / 2, as a share of the image width
-            (0.47: the circle spans the width and is cut by the top and bottom edges).
-        oversample: Cube-face resolution relative to the fisheye's finest angular resolution.
-        roi: Render only the region of interest of the kinematics estimator
-            (:func:`kinematics_roi`: wheels, markers and steering arms over the joint range);
-            the rest of the image is black. Faster in proportion to the pixels saved.
-
-    Its width runs along the body's x axis, its height across the body.
-    """
-
-    fov_deg: float = 190.0
-    radius_frac: float = 0.47
-    oversample: float = 1.0
-    roi: bool = False
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_range("fov_deg", self.fov_deg, 185.0, 250.0)
-        check_range("radius_frac", self.radius_frac, 0.1, 1.0)
-        check_range("oversample", self.oversample, 0.25, 4.0)
-
-    def model(self, T_body_cam: np.ndarray) -> OmniCamera:
-        """The ideal (equidistant, 4th-order polynomial) model of this configuration."""
-        return OmniCamera.equidistant(
-            (self.width, self.height),
-            math.radians(self.fov_deg),
-            self.radius_frac * self.width,
-            degree=4,
-            T_body_cam=T_body_cam,
-        )
-
-
-@dataclass
-class FisheyeView:
-    """One rendered fisheye frame with per-pixel ground truth.
-
-    Attributes:
-        rgb: (H, W, 3) uint8, black outside the field of view.
-        segmentation: (H, W) int: body id + ((link + 1) << 24), -1 for background or outside.
-        shadow: (H, W) bool, True where the sun is blocked.
-        points_world: (H, W, 3) float32 world position of each pixel's surface point [m] (NaN
-            outside the field of view).
-
-    The last three are None unless rendered with ``labels=True``.
-    """
-
-    rgb: np.ndarray
-    segmentation: np.ndarray | None = None
-    shadow: np.ndarray | None = None
-    points_world: np.ndarray | None = None
-
-
-def render_fisheye(
-    client,
-    remapper: CubemapRemap,
-    T_world_cam: np.ndarray,
-    lighting: Lighting,
-    caster=None,
-    labels: bool = False,
-    near: float = 0.01,
-    far: float = 20.0,
-    renderer="tiny",
-    cull=None,
-    windows=None,
-) -> FisheyeView:
-    """Render the fisheye image of the camera at ``T_world_cam`` (optical frame, world) [m].
-
-    Args:
-        client: The environment's BulletClient.
-        remapper: Face layout and remap of the fisheye model.
-        T_world_cam: Pose of the fisheye optical frame in the world.
-        lighting: Sun and shadow settings.
-        caster: The shadow-casting body (required when ``lighting.shadows`` is on).
-        labels: Also remap segmentation, shadow and 3-D points (for tests and evaluation).
-        near: Near clipping distance [m].
-        far: Far clipping distance [m].
-        renderer: ``"tiny"`` or a :class:`rover_env.rendering.gl.GLRenderer` of ``client`` (which
-            renders the views into one atlas and remaps it on the GL side; ``caster`` and
-            ``cull`` are not used).
-        cull: Called with each face's view planes before it is rendered (see
-            :func:`rover_env.rendering.base.render_K`).
-        windows: Render only these rectangles of the faces (:meth:`CubemapRemap.windows`); the
-            rest of the image is black (no labels, no points). None: whole faces.
-    """
-    if not isinstance(renderer, str):
-        return renderer.render_fisheye(remapper, T_world_cam, lighting, labels, near, far, windows)
-    shadow_map = None
-    if lighting.shadows:
-        if caster is None:
-            raise ValueError("lighting.shadows is on: pass the rover's ShadowCaster")
-        # one map for all faces, resolved like the image at the distance of the wheels
-        shadow_map = caster.shadow_map(lighting.sun_direction, SHADOW_DETAIL_RANGE / remapper.focal)
-    views = []
-    for k, fc in enumerate(remapper.faces):
-        view = fc.view(T_world_cam, None if windows is None else windows[k])
-        if view is None:
-            views.append(None)
-            continue
-        K, size, T_face, _ = view
-        views.append(
-            render_K(
-                client,
-                K,
-                size,
-                T_face,
-                lighting,
-                near,
-                far,
-                shadow_map=shadow_map,
-                renderer=renderer,
-                segmentation=labels,
-                cull=cull,
-            )  # fmt: skip
-        )
-    w, h = remapper.model.image_size
-    if all(v is None for v in views):  # every window empty: a black frame
-        if not labels:
-            return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8))
-        return FisheyeView(
-            np.zeros((h, w, 3), np.uint8), np.full((h, w), -1, np.int32), np.zeros((h, w), bool),
-            np.full((h, w, 3), np.nan, np.float32),
-        )  # fmt: skip
-
-    def atlas(name, fill):
-        return remapper.atlas([None if v is None else getattr(v, name) for v in views], fill, windows)
-
-    rgb = remapper.remap(atlas("rgb", 0))
-    if not labels:
-        return FisheyeView(rgb=rgb)
-    seg = remapper.lookup(atlas("segmentation", -1), outside=-1)
-    shadow = remapper.lookup(atlas("shadow", False), outside=False)
-    pts = remapper.lookup(atlas("points_world", np.nan), outside=np.nan)
-    return FisheyeView(rgb=rgb, segmentation=seg, shadow=shadow, points_world=pts)
