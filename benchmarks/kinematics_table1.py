@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from perception.fisheye_kinematics import DOF_NAMES, KinematicStateEstimator
-from rover_env.config.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.config.cameras import FisheyeCameraConfig
+from rover_env.config.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.sensors.cameras import FisheyeCamera
 from rover_env.sim.simulation import RoverSim, quat_to_yaw
 from rover_env.task.course import CourseConfig

@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from perception.odometry import FlowOdometry, FlowOdometryConfig, ground_plane_from_wheels, integrate_twist
+from rover_env.config.cameras import DownwardCameraConfig
 from rover_env.config.scenario import ScenarioConfig, SunConfig, TerrainConfig
-from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+from rover_env.sensors.cameras import DownwardCamera
 from rover_env.sim.simulation import RoverSim, quat_to_yaw
 from rover_env.task.course import CourseConfig
 

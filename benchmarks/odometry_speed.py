@@ -25,8 +25,9 @@ import numpy as np
 
 def render_frames(n: int, width: int, renderer: str = "auto") -> tuple[list[np.ndarray], object, float]:
     """``n`` downward frames while driving, the camera model and the frame period [s]."""
+    from rover_env.config.cameras import DownwardCameraConfig
     from rover_env.config.scenario import load_scenario
-    from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+    from rover_env.sensors.cameras import DownwardCamera
     from rover_env.sim.simulation import RoverSim
 
     sim = RoverSim(load_scenario("flat_patches"), renderer=renderer)

@@ -30,7 +30,8 @@ import moderngl
 import numpy as np
 
 import rover_env  # noqa: F401  (registers the missions)
-from rover_env import cameras
+from rover_env.rendering import renderer_for
+from rover_env.sensors import cameras
 
 ACTION = np.array([0.5, 0.1, -0.1], dtype=np.float32)
 
@@ -94,7 +95,7 @@ def main(argv=None) -> int:
     render = moderngl.VertexArray.render
     try:
         env.reset(seed=0)
-        backend = env.unwrapped.sim.backend
+        backend = renderer_for(env.unwrapped.sim)
         if backend.__class__.__name__ != "GLRenderer":
             raise SystemExit("GL is not available here; this benchmark measures the GL renderer")
         for _ in range(10):

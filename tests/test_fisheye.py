@@ -3,14 +3,17 @@
 import math
 
 import cv2
+import gymnasium as gym
 import numpy as np
 import pytest
 from conftest import flat_scenario
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from perception.rover_parts import joint_window_parts, kinematic_parts
+from rover_env.config.cameras import FisheyeCameraConfig
 from rover_env.config.io import ConfigError
-from rover_env.rendering.fisheye import CubemapRemap, FisheyeCameraConfig, render_fisheye
+from rover_env.rendering import renderer_for
+from rover_env.rendering.cubemap import CubemapRemap
 from rover_env.sensors.cameras import FisheyeCamera
 from rover_env.sim.geometry import AXLES, WHEELS, RoverGeometry
 from rover_env.sim.simulation import RoverSim
@@ -96,9 +99,7 @@ def test_fisheye_has_no_seams(lifted_sim):
     cam = FisheyeCamera(sim)
     other = CubemapRemap(cam.model, cube_roll=math.pi / 4)
     a = cam.capture().image.astype(np.float32)
-    b = render_fisheye(
-        sim.client, other, cam.T_world_cam(), cam.lighting, sim.shadow_caster, renderer=sim.backend
-    ).rgb
+    b = renderer_for(sim).render_fisheye(other, cam.T_world_cam(), cam.lighting).rgb
     diff = np.abs(a - b.astype(np.float32)).mean(axis=2)
 
     def seam_band(face_index, r=2):
@@ -410,22 +411,25 @@ def test_renderer_choice_errors_and_fallback(monkeypatch, caplog):
     'auto' falls back to TinyRenderer with one warning."""
     import logging
 
+    import rover_env.rendering as rendering
     import rover_env.rendering.gl as gl_render
-    import rover_env.sim.simulation as sim_module
 
     with pytest.raises(ValueError, match="'gl'.*'tiny'.*'auto'"):
         RoverSim(flat_scenario(mu=1.0), renderer="vulkan")
     monkeypatch.setattr(gl_render, "gl_status", lambda: (False, "libEGL.so is not installed"))
-    sim_module._warn_fallback.cache_clear()
+    rendering._warn_fallback.cache_clear()
     with pytest.raises(gl_render.GLUnavailableError, match="libEGL.so is not installed"):
-        RoverSim(flat_scenario(mu=1.0), renderer="gl")
-    with caplog.at_level(logging.WARNING, logger="rover_env.sim.simulation"):
+        renderer_for(RoverSim(flat_scenario(mu=1.0), renderer="gl"))
+    with pytest.raises(gl_render.GLUnavailableError, match="libEGL.so is not installed"):
+        gym.make("Rover-v0", renderer="gl")  # an environment says so when it is made
+    with caplog.at_level(logging.WARNING, logger="rover_env.rendering"):
         sims = [RoverSim(flat_scenario(mu=1.0)) for _ in range(2)]
+        names = [renderer_for(s).name for s in sims]
     try:
-        assert [s.renderer for s in sims] == ["tiny", "tiny"]
+        assert names == ["tiny", "tiny"]
         warned = [r for r in caplog.records if "TinyRenderer" in r.getMessage()]
         assert len(warned) == 1 and "libEGL.so" in warned[0].getMessage()
     finally:
         for s in sims:
             s.close()
-        sim_module._warn_fallback.cache_clear()
+        rendering._warn_fallback.cache_clear()

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from conftest import flat_scenario, rough_scenario
 
+from rover_env.rendering import renderer_for
 from rover_env.rendering.gl import GLRenderer, gl_status, load_obj, projection_from_K
 from rover_env.sim.simulation import RoverSim
 
@@ -54,7 +55,7 @@ def test_no_gl_objects_leak_across_resets_and_close_releases_the_context():
         env.reset(seed=0)
         for _ in range(5):
             env.step(np.array([0.5, 0.1, 0.0], dtype=np.float32))
-        gl = env.unwrapped.sim.backend
+        gl = renderer_for(env.unwrapped.sim)
         assert isinstance(gl, GLRenderer)
         count = gl.object_count
         for seed in range(1, 6):
@@ -64,7 +65,7 @@ def test_no_gl_objects_leak_across_resets_and_close_releases_the_context():
         assert gl.object_count == count
     finally:
         env.close()
-    assert gl.released and env.unwrapped.sim._gl is None
+    assert gl.released and not env.unwrapped.sim._attached
 
 
 @pytest.mark.parametrize("scenario", [flat_scenario, rough_scenario])
@@ -73,7 +74,8 @@ def test_gl_and_tiny_see_the_same_ground_and_rover(scenario):
     rover have the same mean brightness (TinyRenderer samples textures by nearest neighbour, GL
     filters them: pixels differ, the scene does not)."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering.base import Lighting, look_at, render_pinhole
+    from rover_env.rendering import focus_on_rover
+    from rover_env.rendering.base import Lighting, look_at
 
     cam = PinholeCamera.from_fov((320, 240), math.radians(60.0), math.radians(46.0))
     out = {}
@@ -81,20 +83,13 @@ def test_gl_and_tiny_see_the_same_ground_and_rover(scenario):
         sim = RoverSim(scenario(), renderer=renderer)
         try:
             sim.reset(1.0, -0.5, math.radians(20.0))
-            pos = np.array(sim.client.getBasePositionAndOrientation(sim.rover.body_id)[0])
+            pos = np.array(sim.base_pose()[0])
             sun = (-0.5, 0.3, 0.8)
-            sim.prepare_render()
-            v = render_pinhole(
-                sim.client,
-                cam,
-                look_at(pos + [-1.6, -0.9, 1.1], pos),
-                Lighting(sun, shadows=True),
-                far=30.0,
-                caster=sim.shadow_caster,
-                renderer=sim.backend,
-            )
+            r = focus_on_rover(sim)
+            T = look_at(pos + [-1.6, -0.9, 1.1], pos)
+            v = r.render_pinhole(cam, T, Lighting(sun, shadows=True), far=30.0)
             label = np.full(v.segmentation.shape, -1)
-            label[np.isin(v.segmentation, sim.terrain.ground_ids)] = 0
+            label[np.isin(v.segmentation, r.ground_ids)] = 0
             label[(v.segmentation >= 0) & ((v.segmentation & 0xFFFFFF) == sim.rover.body_id)] = 1
             out[renderer] = (label, v.rgb.astype(float).mean(axis=2), v.shadow)
         finally:
@@ -120,7 +115,7 @@ def test_link_poses_are_pybullets_forward_kinematics_and_rendering_leaves_the_ph
         sim.reset(0.0, 0.0, 0.3)
         sim.rover.command(np.full(4, 10.0), 0.2, -0.1)
         sim.step(0.7)
-        gl = sim.backend
+        gl = renderer_for(sim)
         c, body = sim.client, sim.rover.body_id
         M = gl._link_poses(body)
         states = c.getLinkStates(body, list(range(c.getNumJoints(body))), computeForwardKinematics=1)

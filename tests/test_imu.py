@@ -275,7 +275,8 @@ def test_an_imu_in_the_scenario_file(tmp_path):
     import rover_env  # noqa: F401
     from rover_env.config.scenario import load_scenario
 
-    base = yaml.safe_load((Path(rover_env.__file__).parent / "scenarios" / "flat_patches.yaml").read_text())
+    shipped = Path(rover_env.__file__).parent / "config" / "scenarios" / "flat_patches.yaml"
+    base = yaml.safe_load(shipped.read_text())
     base["imu"] = {"preset": "tactical", "rate_hz": 120}
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(base))
     env = gym.make("Rover-v0", scenario=str(tmp_path / "s.yaml"))

@@ -124,7 +124,7 @@ def test_rover_env_subpackages_import_downward_only():
 
 def test_rover_env_top_level_holds_only_entry_modules():
     top = {p.name for p in (ROOT / "rover_env").glob("*.py")}
-    assert top <= TOP_LEVEL, f"modules at rover_env's top level: {sorted(top - TOP_LEVEL)}; put them in a layer"
+    assert top <= TOP_LEVEL, f"modules at rover_env's top level: {sorted(top - TOP_LEVEL)}; give each a layer"
     subpackages = {p.parent.name for p in (ROOT / "rover_env").glob("*/__init__.py")}
     assert subpackages == set(LAYERS), f"subpackages {sorted(subpackages)}, layers {LAYERS}"
 

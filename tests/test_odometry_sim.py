@@ -37,8 +37,9 @@ def test_downward_camera_pose_calibrated_on_the_checkerboard_scenario():
 
     from perception.calibration import calibrate_ground_camera
     from perception.cameras import PinholeCamera
+    from rover_env.config.cameras import DownwardCameraConfig
     from rover_env.config.scenario import load_scenario
-    from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+    from rover_env.sensors.cameras import DownwardCamera
     from rover_env.sim.simulation import RoverSim
 
     scenario = load_scenario("calibration")
@@ -97,7 +98,8 @@ def test_pair_mode_selects_on_the_first_frame_before_the_second_exists():
     from conftest import flat_scenario
 
     from perception.odometry import FlowOdometry
-    from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+    from rover_env.config.cameras import DownwardCameraConfig
+    from rover_env.sensors.cameras import DownwardCamera
     from rover_env.sim.simulation import RoverSim
 
     sim = RoverSim(flat_scenario(mu=1.0))

@@ -10,8 +10,11 @@ from pybullet_utils.bullet_client import BulletClient
 from scipy.ndimage import minimum_filter
 
 from perception.cameras import PinholeCamera
-from rover_env.rendering.base import Lighting, look_at, render_pinhole, view_planes
-from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig
+from rover_env.config.cameras import DownwardCameraConfig
+from rover_env.rendering import renderer_for
+from rover_env.rendering.base import Lighting, look_at, view_planes
+from rover_env.rendering.shadows import ShadowCaster
+from rover_env.sensors.cameras import DownwardCamera
 from rover_env.sim.simulation import RoverSim, quat_to_yaw
 
 
@@ -76,9 +79,7 @@ def test_downward_camera_sees_known_ground_points_where_the_model_says(parked_si
     sim = parked_sim
     cam = mast_camera(sim)
     T_wc = body_pose(sim) @ cam.T_body_cam
-    view = render_pinhole(
-        sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False), renderer=sim.backend
-    )
+    view = renderer_for(sim).render_pinhole(cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False))
     ground = view.segmentation == sim.terrain.body_id
     # depth buffer points lie on the ground plane z = 0 ...
     assert np.abs(view.points_world[ground][:, 2]).max() < 2e-3
@@ -108,9 +109,7 @@ def test_small_squares_on_the_ground_appear_where_the_model_projects_them(parked
         centres.append(p + [0.0, 0.0, 0.001])  # top face of the 1 mm plate
     ids = [c.createMultiBody(0, -1, shape, p.tolist()) for p in centres]
     try:
-        view = render_pinhole(
-            sim.client, cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False), renderer=sim.backend
-        )
+        view = renderer_for(sim).render_pinhole(cam, T_wc, Lighting((0.0, 0.0, 1.0), shadows=False))
     finally:
         for b in ids:
             c.removeBody(b)
@@ -122,7 +121,8 @@ def test_small_squares_on_the_ground_appear_where_the_model_projects_them(parked
         err.append([cols.mean(), rows.mean()] - cam.project(T_cw[:3, :3] @ p + T_cw[:3, 3]))
     err = np.asarray(err)
     print(
-        f"{sim.renderer} ground squares: bias {err.mean(axis=0).round(3)} px, max {np.abs(err).max():.2f} px"
+        f"{renderer_for(sim).name} ground squares: bias {err.mean(axis=0).round(3)} px, "
+        f"max {np.abs(err).max():.2f} px"
     )
     assert np.abs(err).max() < 0.25
     assert np.abs(err.mean(axis=0)).max() < 0.05  # no half-pixel convention error
@@ -133,10 +133,8 @@ def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
     cam = mast_camera(sim)
     T_wc = body_pose(sim) @ cam.T_body_cam
     sun = sun_behind(sim, 30.0)
-    on = render_pinhole(
-        sim.client, cam, T_wc, Lighting(sun, shadows=True), caster=sim.shadow_caster, renderer=sim.backend
-    )
-    off = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False), renderer=sim.backend)
+    on = renderer_for(sim).render_pinhole(cam, T_wc, Lighting(sun, shadows=True))
+    off = renderer_for(sim).render_pinhole(cam, T_wc, Lighting(sun, shadows=False))
     ground = on.segmentation == sim.terrain.body_id
     # geometric prediction: ray from each ground point toward the sun hits the rover
     oc = caster_world(sim)
@@ -160,7 +158,7 @@ def test_self_shadow_contrast_geometry_and_no_acne(parked_sim):
     iou = (rendered & pred).sum() / (rendered | pred).sum()
     acne = np.abs(g_on[~pred] - g_off[~pred]).mean()
     print(
-        f"{sim.renderer} shadow: lit/shadow ratio {ratio:.2f}, IoU {iou:.3f}, "
+        f"{renderer_for(sim).name} shadow: lit/shadow ratio {ratio:.2f}, IoU {iou:.3f}, "
         f"lit-ground change {acne:.3f} grey levels"
     )
     assert ratio >= 2.5
@@ -173,8 +171,8 @@ def test_shadow_lookup_from_depth_matches_the_lookup_of_3d_points(parked_sim):
     cam = mast_camera(sim)
     T_wc = body_pose(sim) @ cam.T_body_cam
     sun = sun_behind(sim, 30.0)
-    view = render_pinhole(sim.client, cam, T_wc, Lighting(sun, shadows=False), renderer=sim.backend)
-    smap = sim.shadow_caster.shadow_map(sun, 0.005)
+    view = renderer_for(sim).render_pinhole(cam, T_wc, Lighting(sun, shadows=False))
+    smap = ShadowCaster(sim.client, sim.rover.body_id).shadow_map(sun, 0.005)
     from_points = smap.lookup(view.points_world)
     from_depth = smap.lookup_view(view.depth, cam.K, T_wc)
     print(f"shadowed {from_points.mean():.3f}; paths differ on {(from_points != from_depth).sum()} pixels")
@@ -240,9 +238,10 @@ def test_impossible_camera_configurations_fail_clearly(parked_sim):
 @pytest.mark.parametrize("renderer", ["tiny", "gl"])
 def test_both_renderers_put_boxes_where_the_pinhole_model_projects_them(renderer):
     from rover_env.rendering.gl import GLRenderer
+    from rover_env.rendering.tiny import TinyRenderer
 
     c = BulletClient(connection_mode=pb.DIRECT)
-    gl = GLRenderer(c) if renderer == "gl" else None
+    r = GLRenderer(c) if renderer == "gl" else TinyRenderer(c)
     try:
         cam = PinholeCamera(
             K=np.array([[300.0, 0, 160.3], [0, 300.0, 118.8], [0, 0, 1]]),
@@ -255,15 +254,12 @@ def test_both_renderers_put_boxes_where_the_pinhole_model_projects_them(renderer
         for _ in range(60):
             p = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3), 1.0])
             body = c.createMultiBody(0, -1, shape, p.tolist())
-            view = render_pinhole(
-                c, cam, np.eye(4), Lighting((0, 0, -1.0), shadows=False), renderer=gl or renderer
-            )
+            view = r.render_pinhole(cam, np.eye(4), Lighting((0, 0, -1.0), shadows=False))
             rows, cols = np.nonzero(view.segmentation == body)
             err.append([cols.mean(), rows.mean()] - cam.project(p))
             c.removeBody(body)
     finally:
-        if gl is not None:
-            gl.release()
+        r.release()
         c.disconnect()
     bias = np.mean(err, axis=0)
     print(f"{renderer}: box centroid bias {bias.round(3)} px")

@@ -10,16 +10,9 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 from controllers import PathFollower, SlipAwareController  # noqa: E402
-from controllers.rl import (  # noqa: E402
-    MissionCycle,
-    PolicyController,
-    ResidualDrive,
-    TrainConfig,
-    make_env,
-    policy_action_mode,
-    train,
-)
+from controllers.rl import PolicyController, policy_action_mode  # noqa: E402
 from rover_env.tools.evaluation import EvalJob, run_sweep  # noqa: E402
+from rover_env.tools.training import MissionCycle, ResidualDrive, TrainConfig, make_env, train  # noqa: E402
 
 
 def test_residual_drive_adds_the_scaled_residual_to_the_follower():

@@ -114,39 +114,42 @@ SMALL_ROUGH = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness
 def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhere():
     """Level of detail: the collision triangles near the rover, a lower 1 m mesh farther away."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering.base import Lighting, look_at, render_pinhole
-    from rover_env.sim.terrain import FINE_RADIUS
+    from rover_env.config.cameras import FINE_RADIUS
+    from rover_env.rendering.base import Lighting, look_at
+    from rover_env.rendering.tiny import TinyRenderer
 
     cfg = SMALL_ROUGH
     with terrain_client(cfg) as (client, terrain):
+        renderer = TinyRenderer(client, terrain)
+        detail = renderer.detail
         cam = PinholeCamera.from_fov((200, 200), np.radians(110.0), np.radians(110.0))
         T = look_at([1.3, -0.7, 2.5], [1.3, -0.7, 0.0], up=(1.0, 0.0, 0.0))
         light = Lighting((0.0, 0.0, 1.0), shadows=False)
 
         def ground_points():
-            view = render_pinhole(client, cam, T, light)
-            p = view.points_world[np.isin(view.segmentation, terrain.ground_ids)].astype(np.float64)
+            view = renderer.render_pinhole(cam, T, light, cull=False)
+            p = view.points_world[np.isin(view.segmentation, detail.ground_ids)].astype(np.float64)
             return p, p[:, 2] - terrain.height_at(p[:, 0], p[:, 1])
 
         p, dz = ground_points()  # no focus yet: only the far mesh, which stays below the ground
-        assert terrain.ground_ids == (terrain.body_id,)
+        assert detail.ground_ids == (terrain.body_id,)
         assert dz.max() < 1e-3 and dz.min() > -0.2
         coarse_gap = np.median(dz)
         assert -0.06 < coarse_gap < -2e-3
-        terrain.focus(1.3, -0.7)
-        n_near = len(terrain.ground_ids) - 1
+        detail.focus(1.3, -0.7)
+        n_near = len(detail.ground_ids) - 1
         assert 12 <= n_near <= (2 * FINE_RADIUS + 2) ** 2
         p, dz = ground_points()
         near = np.hypot(p[:, 0] - 1.3, p[:, 1] + 0.7) < FINE_RADIUS - 0.05
         assert near.sum() > 5000
         assert np.abs(dz[near]).max() < 2e-3  # the exact triangles (float32 depth)
         assert dz[~near].max() < 1e-3
-        terrain.focus(4.0, 4.0)  # moved: chunks near the old focus go, chunks near the new come
-        assert len(terrain.ground_ids) - 1 <= (2 * FINE_RADIUS + 2) ** 2
+        detail.focus(4.0, 4.0)  # moved: chunks near the old focus go, chunks near the new come
+        assert len(detail.ground_ids) - 1 <= (2 * FINE_RADIUS + 2) ** 2
         _, dz = ground_points()
         assert np.median(dz) < -2e-3  # the view at (1.3, -0.7) sees the far mesh again
-        terrain.drop_detail()
-        assert terrain.ground_ids == (terrain.body_id,)
+        detail.drop_detail()
+        assert detail.ground_ids == (terrain.body_id,)
 
 
 @pytest.mark.parametrize(
@@ -175,20 +178,23 @@ def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhe
 def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
     """focus(near=r): only ground within r is drawn, and it is the ground the full scene draws there."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering.base import Lighting, look_at, render_pinhole
+    from rover_env.rendering.base import Lighting, look_at
+    from rover_env.rendering.tiny import TinyRenderer
     from rover_env.sim.terrain import FINE_CHUNK
 
     with terrain_client(cfg) as (client, terrain):
+        renderer = TinyRenderer(client, terrain)
+        detail = renderer.detail
         # an oblique view from near the focus that sees the ground far beyond the range
         cam = PinholeCamera.from_fov((160, 120), np.radians(90.0), np.radians(70.0))
         x, y, r = 1.3, -0.7, 1.0
         z = float(terrain.height_at(x, y)) + 0.4
         T = look_at([x, y, z], [x + 3.0, y + 1.0, z - 1.2])
         light = Lighting((0.3, 0.2, 1.0), shadows=False)
-        terrain.focus(x, y)
-        full = render_pinhole(client, cam, T, light)
-        terrain.focus(x, y, near=r)
-        near = render_pinhole(client, cam, T, light)
+        detail.focus(x, y)
+        full = renderer.render_pinhole(cam, T, light, cull=False)
+        detail.focus(x, y, near=r)
+        near = renderer.render_pinhole(cam, T, light, cull=False)
         p = full.points_world.astype(np.float64)
         hit = full.segmentation >= 0
         dist = np.hypot(p[..., 0] - x, p[..., 1] - y)
@@ -198,38 +204,41 @@ def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
         same = np.all(near.rgb == full.rgb, axis=-1)
         assert same[inside].mean() > 0.99  # chunk seams may rasterise a pixel differently
         assert np.all(near.segmentation[beyond] < 0)  # not drawn: the background shows
-        terrain.focus(x, y)  # full again: everything is back, exactly
-        again = render_pinhole(client, cam, T, light)
+        detail.focus(x, y)  # full again: everything is back, exactly
+        again = renderer.render_pinhole(cam, T, light, cull=False)
         assert np.array_equal(again.rgb, full.rgb)
         with pytest.raises(ValueError, match="near"):
-            terrain.focus(x, y, near=5.0)
-        terrain.drop_detail()
-        assert terrain.ground_ids == (terrain.body_id,)
+            detail.focus(x, y, near=5.0)
+        detail.drop_detail()
+        assert detail.ground_ids == (terrain.body_id,)
 
 
 def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
-    """Terrain.cull hides the exact chunks a view cannot see; the image stays the same, pixel for pixel."""
+    """GroundDetail.cull hides the exact chunks a view cannot see; the image stays the same, to the pixel."""
     from perception.cameras import PinholeCamera
-    from rover_env.rendering.base import Lighting, look_at, render_pinhole
+    from rover_env.rendering.base import Lighting, look_at
+    from rover_env.rendering.tiny import TinyRenderer
 
     cfg = SMALL_ROUGH
     with terrain_client(cfg) as (client, terrain):
+        renderer = TinyRenderer(client, terrain)
+        detail = renderer.detail
         cam = PinholeCamera.from_fov((160, 120), np.radians(77.0), np.radians(57.0))
         light = Lighting((0.3, 0.2, 1.0), shadows=False)
         x, y = 0.4, -0.3
         eye = [x, y, float(terrain.height_at(x, y)) + 0.8]
 
         def drawn() -> int:
-            return sum(terrain._shown[b] for b in terrain._chunks.values())
+            return sum(detail._shown[b] for b in detail._chunks.values())
 
         # ahead, oblique, straight down
         for target, up in (([x + 1.0, y, 0.0], (0, 0, 1)), ([x + 1.5, y + 1.2, 0.2], (0, 0, 1)),
                            ([x, y, 0.0], (1, 0, 0))):  # fmt: skip
             T = look_at(eye, target, up=up)
-            terrain.focus(x, y, near=2.0)
+            detail.focus(x, y, near=2.0)
             before = drawn()
-            full = render_pinhole(client, cam, T, light)
-            culled = render_pinhole(client, cam, T, light, cull=terrain.cull)
+            full = renderer.render_pinhole(cam, T, light, cull=False)
+            culled = renderer.render_pinhole(cam, T, light, cull=True)
             kept = drawn()
             assert np.array_equal(culled.rgb, full.rgb) and np.array_equal(culled.depth, full.depth)
             assert kept < before / 2, (kept, before)

@@ -1,6 +1,6 @@
 """Scenarios: terrain, friction map, sun, course, start pose and duration, loaded from YAML.
 
-A scenario is a frozen :class:`ScenarioConfig`. Shipped presets live in ``rover_env/scenarios``
+A scenario is a frozen :class:`ScenarioConfig`. Shipped presets live in ``rover_env/config/scenarios``
 as YAML files; :func:`load_scenario` takes a preset name or a path. Angles that people write by
 hand (sun, start yaw, slope) are given in degrees under keys that end in ``_deg``; properties
 without the suffix return radians, which is what the code uses.
@@ -281,7 +281,8 @@ class ScenarioConfig:
         start: Start pose.
         duration: Episode time limit [s].
         imu: The rover's IMU for estimated observations: a preset name or a mapping (``preset``
-            and overrides; see :meth:`rover_env.sensors.imu.ImuConfig.from_dict`), or None (no IMU). The environment's
+            and overrides; see :meth:`rover_env.config.imu.ImuConfig.from_dict`), or None (no
+            IMU). The environment's
             ``imu`` keyword, when given, takes its place.
     """
 

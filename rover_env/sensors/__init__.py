@@ -1,1 +1,1 @@
-"""X."""
+"""The sensors the simulation samples (cameras, fisheye, IMU) and the rig that feeds an estimator."""

@@ -25,10 +25,10 @@ from perception.odometry import FlowOdometryConfig
 from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, TriadFigures
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
 from perception.slip import SlipConfig
-from rover_env.config.cameras import FisheyeCameraConfig
+from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError
-from rover_env.sensors.cameras import DownwardCamera, DownwardCameraConfig, FisheyeCamera
+from rover_env.sensors.cameras import DownwardCamera, FisheyeCamera
 from rover_env.sensors.imu import Imu
 from rover_env.sim.simulation import RoverSim
 

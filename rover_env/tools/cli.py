@@ -235,7 +235,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from controllers.rl import TrainConfig, train
+    from rover_env.tools.training import TrainConfig, train
 
     residual = None if args.no_residual else tuple(args.residual)
     cfg = TrainConfig(
@@ -472,7 +472,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     e.set_defaults(func=_cmd_eval)
     t = sub.add_parser(
-        "train", formatter_class=fmt, help="train a PPO (or SAC) policy on the estimated-observation environments"
+        "train",
+        formatter_class=fmt,
+        help="train a PPO (or SAC) policy on the estimated-observation environments",
     )
     t.add_argument(
         "--out", required=True, help="output folder: policy, normalisation, checkpoints, TensorBoard"

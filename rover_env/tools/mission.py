@@ -400,7 +400,7 @@ def run_demo(
     Returns:
         {driver: its result}.
     """
-    from rover_env.tools.evaluation import CONTROLLERS
+    from rover_env.tools.registry import CONTROLLERS
 
     out.mkdir(parents=True, exist_ok=True)
     results: dict[str, MissionResult] = {}
