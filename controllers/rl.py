@@ -23,6 +23,7 @@ import logging
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -80,7 +81,8 @@ class Residual:
     @classmethod
     def for_env(cls, env: gym.Env, scale: Sequence[float]) -> Residual:
         """The residual for ``env``'s action mode: traction base for ``wheels``, follower for ``drive``."""
-        mode = env.unwrapped.action_mode.value
+        base: Any = env.unwrapped  # a RoverEnv (controllers do not import the environment)
+        mode = base.action_mode.value
         if mode == "wheels":
             return cls(SlipAwareController.for_env(env), scale)
         if mode == "drive":
@@ -137,7 +139,8 @@ class ObsStats:
         self.var = np.asarray(var, dtype=np.float64)
         self.count, self.clip_obs, self.epsilon = float(count), float(clip_obs), float(epsilon)
         ok = self.mean.ndim == 1 and self.var.shape == self.mean.shape
-        ok = ok and np.all(np.isfinite(self.mean)) and np.all(np.isfinite(self.var)) and np.all(self.var >= 0)
+        finite = np.all(np.isfinite(self.mean)) and np.all(np.isfinite(self.var))
+        ok = ok and bool(finite and np.all(self.var >= 0))
         if not (ok and self.count > 0 and self.clip_obs > 0 and self.epsilon > 0):
             raise ValueError(
                 "observation statistics: need finite 1-D mean and var >= 0, count, clip_obs, epsilon > 0"
@@ -309,10 +312,11 @@ class PolicyController:
                 "how the rover drives: use folders you made or trust", path,
             )  # fmt: skip
         self.meta = _read_meta(path)
-        if env.unwrapped.action_mode.value != self.meta["action_mode"]:
+        base: Any = env.unwrapped
+        if base.action_mode.value != self.meta["action_mode"]:
             raise ValueError(f"the policy acts in action_mode={self.meta['action_mode']!r}; make the env so")
         # the policy's inputs by name: a policy trained before fields were added still reads its own
-        names = [f.name for f in env.unwrapped.obs_fields]
+        names = [f.name for f in base.obs_fields]
         trained = list(self.meta["obs_fields"])
         missing = [n for n in trained if n not in names]
         if missing:

@@ -172,7 +172,7 @@ def bounds(fields: Sequence[ObsField]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def state_values(
-    state: Mapping[str, Sequence[float]],
+    state: Mapping[str, Sequence[float] | np.ndarray],
     quality: Sequence[float],
     task: Mapping[str, float],
 ) -> dict[str, float]:
@@ -205,7 +205,7 @@ def state_values(
 
 
 def assemble(
-    fields: Sequence[ObsField], values: Mapping[str, float], prev_action: Sequence[float]
+    fields: Sequence[ObsField], values: Mapping[str, float], prev_action: Sequence[float] | np.ndarray
 ) -> np.ndarray:
     """The float32 observation: ``values`` by field name then ``prev_action``, NaN as 0, clipped.
 

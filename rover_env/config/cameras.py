@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, TypeVar, get_args
+from typing import Literal, TypeVar, cast, get_args
 
 import numpy as np
 
@@ -21,7 +21,7 @@ RendererName = Literal["auto", "gl", "tiny"]
 RENDERER_NAMES: tuple[str, ...] = get_args(RendererName)
 
 
-def check_renderer(name) -> str:
+def check_renderer(name: object) -> RendererName:
     """``name`` if it is a renderer choice (:data:`RendererName`).
 
     Raises:
@@ -32,7 +32,7 @@ def check_renderer(name) -> str:
             f"renderer={name!r}: use 'gl' (OpenGL on headless EGL), 'tiny' (PyBullet's TinyRenderer) "
             "or 'auto' (gl where an EGL context can be created, else tiny)"
         )
-    return name
+    return cast(RendererName, name)
 
 #: The renderers draw the exact ground within this distance of the rover [m]; a camera's
 #: ``ground_range`` is at most this.

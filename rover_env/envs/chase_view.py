@@ -120,13 +120,13 @@ class ChaseView:
         """Cameras of the composite frame, built on first use (the fisheye precomputes its remap)."""
         if self._views is None:
             shadows = True
-            sun = tuple(float(v) for v in self.scenario.sun.direction())
+            sx, sy, sz = (float(v) for v in self.scenario.sun.direction())
             # insets at about their display size (even sizes, the camera's 4:3 aspect)
             iw = max(16, 2 * (inset_w // 2))
             ih = max(16, 2 * (iw * 3 // 8))
             self._views = {
                 "chase": PinholeCamera.from_fov((left, h), math.radians(55.0 * left / h), math.radians(55.0)),
-                "lighting": Lighting(sun, ambient=0.35, shadows=shadows),
+                "lighting": Lighting((sx, sy, sz), ambient=0.35, shadows=shadows),
                 "downward": DownwardCamera(
                     self.sim, DownwardCameraConfig(width=iw, height=ih, shadows=shadows)
                 ),

@@ -16,7 +16,7 @@ from rover_env.sim.simulation import RoverSim
 log = logging.getLogger(__name__)
 
 
-def resolve_renderer(name: RendererName) -> str:
+def resolve_renderer(name: RendererName) -> RendererName:
     """The renderer that ``name`` (``"auto"``, ``"gl"`` or ``"tiny"``) selects on this machine.
 
     ``"auto"`` is ``"gl"`` where a headless EGL OpenGL context can be created, else ``"tiny"``

@@ -97,6 +97,8 @@ class RenderedView:
     def points_world(self) -> np.ndarray:
         """(H, W, 3) float32 world position of each pixel's surface point [m] (computed on first use)."""
         if self._points is None:
+            if self.depth is None:
+                raise ValueError("points_world needs the view's depth; render it with depth")
             h, w = self.depth.shape
             K, T = self.K, self.T_world_cam
             R = T[:3, :3].astype(np.float32)

@@ -30,7 +30,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -276,8 +276,8 @@ def load_obj(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 vn.append([float(x) for x in tok[1:4]])
             elif tok[0] == "f":
                 idx = []
-                for c in tok[1:]:
-                    parts = (c.split("/") + ["", ""])[:3]
+                for corner in tok[1:]:
+                    parts = (corner.split("/") + ["", ""])[:3]
                     idx.append([int(p) if p else 0 for p in parts])
                 for k in range(1, len(idx) - 1):
                     corners += [idx[0], idx[k], idx[k + 1]]
@@ -675,7 +675,7 @@ class GLRenderer(Renderer):
         vbo = self._own(
             self.ctx.buffer(np.ascontiguousarray(data, dtype=np.float32).tobytes(), dynamic=dynamic)
         )
-        out = {}
+        out: dict[bool | str, Any] = {}
         for labels in (False, True):
             prog = self._progs[(ground, labels)]
             out[labels] = self._own(self.ctx.vertex_array(prog, [_layout(prog, vbo)], ibo))
@@ -835,6 +835,8 @@ class GLRenderer(Renderer):
     def _ground_chunks(self, planes: np.ndarray) -> np.ndarray:
         """Indices of the ground chunks to draw in the view bounded by ``planes`` (world frame)."""
         t = self._terrain
+        if t is None:
+            return np.zeros(0, dtype=np.int64)
         if self._focus != self._focus_key:  # the chunks the focus draws, then each view culls them
             self._focus_key = self._focus
             if self._focus is None:
@@ -953,8 +955,7 @@ class GLRenderer(Renderer):
             px *= 2
         # a finer map already drawn for this instant serves too (one shadow pass per instant)
         px = max([px] + [k for k, m in self._shadow_maps.items() if m["fresh"]])
-        smap = self._shadow_maps.get(px)
-        if smap is None:
+        if px not in self._shadow_maps:
             tex = self._own(self.ctx.depth_texture((px, px)))
             tex.compare_func = "<="
             # one comparison per pixel: hard edges, as the exact shadow test draws them. A 2 x 2
@@ -963,7 +964,8 @@ class GLRenderer(Renderer):
             tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
             tex.repeat_x = tex.repeat_y = False
             fbo = self._own(self.ctx.framebuffer(depth_attachment=tex))
-            smap = self._shadow_maps[px] = {"texture": tex, "fbo": fbo, "fresh": False}
+            self._shadow_maps[px] = {"texture": tex, "fbo": fbo, "fresh": False}
+        smap = self._shadow_maps[px]
         if not smap["fresh"]:
             smap["fresh"] = True
             smap["light"] = self._light

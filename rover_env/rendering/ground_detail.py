@@ -73,7 +73,7 @@ class GroundDetail:
             return
         x0, y0, cell, nx, ny, n = self._chunk_grid
         size = n * cell
-        keep = FINE_RADIUS if not flat else near
+        keep = FINE_RADIUS if not flat or near is None else near
         i_lo = max(0, int((x - keep - x0) // size))
         i_hi = min((nx - 1) // n, int((x + keep - x0) // size))
         j_lo = max(0, int((y - keep - y0) // size))
@@ -150,8 +150,9 @@ class GroundDetail:
         """(8, 3) corners of chunk ``key``'s axis-aligned bounding box in the world [m]."""
         t = self.terrain
         sx, sy = self._chunk_slices(key)
-        h = t.heights[sy, sx]
-        xs, ys = t.xs[sx], t.ys[sy]
+        gx, gy, gh = t.grid()
+        h = gh[sy, sx]
+        xs, ys = gx[sx], gy[sy]
         return np.array(
             [[x, y, z] for x in (xs[0], xs[-1]) for y in (ys[0], ys[-1]) for z in (h.min(), h.max())]
         )
@@ -161,8 +162,9 @@ class GroundDetail:
         """(x0, y0, cell, cells along x, cells along y, cells per chunk edge) of the chunks' grid."""
         t = self.terrain
         if t.heights is not None:
-            cell, nx, ny = t.cfg.cell, len(t.xs) - 1, len(t.ys) - 1
-            x0, y0 = float(t.xs[0]), float(t.ys[0])
+            xs, ys, _ = t.grid()
+            cell, nx, ny = t.cfg.cell, len(xs) - 1, len(ys) - 1
+            x0, y0 = float(xs[0]), float(ys[0])
         else:
             cell = FINE_CHUNK  # flat ground: one quad per chunk
             nx, ny = (max(1, int(math.ceil(s / cell))) for s in t.cfg.size)
@@ -185,7 +187,8 @@ class GroundDetail:
         x0, y0, cell, nx, ny, n = self._chunk_grid
         if t.heights is not None:
             sx, sy = self._chunk_slices(key)
-            return t.mesh_shape(t.xs[sx], t.ys[sy], t.heights[sy, sx], t.normals[sy, sx], t.base_z)
+            gx, gy, gh = t.grid()
+            return t.mesh_shape(gx[sx], gy[sy], gh[sy, sx], t.normals[sy, sx], t.base_z)
         xs = x0 + cell * np.array([i, i + 1], dtype=np.float64)
         ys = y0 + cell * np.array([j, j + 1], dtype=np.float64)
         gx, gy = np.meshgrid(xs, ys)

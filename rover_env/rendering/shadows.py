@@ -333,8 +333,10 @@ class ShadowMap:
             cols = 1024
             grid = np.concatenate([flat, np.zeros((-len(flat) % cols, 3), np.float32)]).reshape(-1, cols, 3)
         uv = cv2.transform(grid, self.M[:2])
-        caster_w = cv2.remap(self.front, uv, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                             borderValue=-np.inf)  # fmt: skip
+        # cv2's stubs do not allow map2=None (one two-channel map), which remap takes
+        caster_w = cv2.remap(  # type: ignore[call-overload]
+            self.front, uv, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-np.inf
+        )
         M = self.M[2].astype(np.float32)
         hit = caster_w > grid @ M[:3] + np.float32(M[3] + self.bias)
         return hit.reshape(-1)[: math.prod(out_shape)].reshape(out_shape)

@@ -89,10 +89,8 @@ class _RoverCamera(ABC):
     @property
     def lighting(self) -> Lighting:
         """Sun lighting from the scenario."""
-        sun = self.sim.scenario.sun.direction()
-        return Lighting(
-            tuple(float(v) for v in sun), ambient=self.config.ambient, shadows=self.config.shadows
-        )
+        sx, sy, sz = (float(v) for v in self.sim.scenario.sun.direction())
+        return Lighting((sx, sy, sz), ambient=self.config.ambient, shadows=self.config.shadows)
 
     def T_world_cam(self) -> np.ndarray:
         """Pose of the camera optical frame in the world now [m]."""
@@ -225,8 +223,8 @@ def kinematics_roi(
                         hull = cv2.convexHull(np.rint(q * 16).astype(np.int32))
                         cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
     k = max(2, int(round(margin * w)))
-    mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
-    return mask.astype(bool)
+    grown = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
+    return np.asarray(grown).astype(bool)
 
 
 def _fisheye_mount(g: RoverGeometry) -> np.ndarray:

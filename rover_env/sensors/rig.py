@@ -188,7 +188,10 @@ class PerceptionPipeline:
             self.imu = Imu(sim, imu)
             sim.attach_sensor("imu", self.imu)
         self.rig = rig_of(sim, self.downward, self.fisheye, self.imu)
-        self._sensors = {"fisheye": self.fisheye, "downward": self.downward}
+        self._sensors: dict[str, DownwardCamera | FisheyeCamera | Imu] = {
+            "fisheye": self.fisheye,
+            "downward": self.downward,
+        }
         if self.imu is not None:
             self._sensors["imu"] = self.imu
         if estimator is None:
@@ -283,8 +286,9 @@ class PerceptionPipeline:
                 if not self.rig[name].readout_window:
                     continue
                 req = request(name)
-                if req is not None:
-                    sensor.request_window(float(req[0]), req[1])
+                accept = getattr(sensor, "request_window", None)
+                if req is not None and accept is not None:
+                    accept(float(req[0]), req[1])
         self.frames["fisheye_windowed"] = self.fisheye.sampled["windowed"]
         self._step += 1
         self._perception_s += time.perf_counter() - t0

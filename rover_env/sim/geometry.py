@@ -308,7 +308,7 @@ class RoverGeometry:
             wheel_width=self.wheel_width,
             plate_offset=float(-a1[0]),
             plate_marker_y=float(a1[1]),
-            arm_tip=tuple(float(v) for v in b1),
+            arm_tip=(float(b1[0]), float(b1[1]), float(b1[2])),
             marker_size=self.fiducial_size,
             correction_marker_arc=self.correction_marker_arc,
             ackermann_center_x=self.ackermann_center_x,

@@ -121,7 +121,7 @@ class RoverSim:
         self.terrain = Terrain(c, scenario.terrain, scenario.friction)
         self.rover = Rover(c, self.geometry)
         self._steps = 0
-        self._step_physics = partial(pb.stepSimulation, physicsClientId=c._client)
+        self._step_physics: Callable[[], None] = partial(pb.stepSimulation, physicsClientId=c._client)
         self._state_id = c.saveState()
         self._sensors: list[tuple[str, Sensor, int]] = []
         self._inbox: list[SensorMessage] = []

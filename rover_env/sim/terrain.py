@@ -142,6 +142,10 @@ class Terrain:
         self.cfg = cfg
         self.friction = FrictionMap(friction)
         self._client = client
+        # the height grid (rough ground only): x and y samples [m], heights (rows along y) [m]
+        self.xs: np.ndarray | None
+        self.ys: np.ndarray | None
+        self.heights: np.ndarray | None
         if cfg.kind == "rough":
             self.xs, self.ys, self.heights = make_heights(cfg)
             gz = np.gradient(self.heights, self.ys, self.xs)
@@ -190,7 +194,17 @@ class Terrain:
             self.body_id, -1, textureUniqueId=self.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
         )
 
-    def coarse_grid(self):
+    def grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rough ground's collision grid: xs (nx,), ys (ny,) [m] and heights (ny, nx) [m] world z.
+
+        Raises:
+            ValueError: on planar ground, which has no height grid.
+        """
+        if self.xs is None or self.ys is None or self.heights is None:
+            raise ValueError(f"{self.cfg.kind!r} ground has no height grid (only 'rough' ground has one)")
+        return self.xs, self.ys, self.heights
+
+    def coarse_grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The far-ground grid, about ``COARSE_CELL`` apart, as (xs, ys, heights, normals).
 
         The grid's triangles follow the exact ones' split, so their edges run along exact edges
@@ -199,10 +213,10 @@ class Terrain:
         the mesh stays below the exact ground everywhere (on the rough missions by 1-4 cm at the
         median: a low step at ``FINE_RADIUS`` that only distant views show).
         """
-        h = self.heights
+        xs, ys, h = self.grid()
         step = max(1, int(round(COARSE_CELL / self.cfg.cell)))
-        ix = np.unique(np.r_[np.arange(0, len(self.xs), step), len(self.xs) - 1])
-        iy = np.unique(np.r_[np.arange(0, len(self.ys), step), len(self.ys) - 1])
+        ix = np.unique(np.r_[np.arange(0, len(xs), step), len(xs) - 1])
+        iy = np.unique(np.r_[np.arange(0, len(ys), step), len(ys) - 1])
         hc = h[np.ix_(iy, ix)]
         drop = np.zeros_like(hc)
         for cj in range(len(iy) - 1):
@@ -215,7 +229,7 @@ class Terrain:
                 high = h11 + (1 - u) * (h01 - h11) + (1 - v) * (h10 - h11)
                 above = float(np.max(np.where(u + v <= 1.0, low, high) - block))
                 drop[cj : cj + 2, ci : ci + 2] = np.maximum(drop[cj : cj + 2, ci : ci + 2], above)
-        return self.xs[ix], self.ys[iy], hc - drop - 0.002, self.normals[np.ix_(iy, ix)]
+        return xs[ix], ys[iy], hc - drop - 0.002, self.normals[np.ix_(iy, ix)]
 
     def mesh_shape(self, xs, ys, h, normals, base_z: float) -> int:
         """A visual shape of the height grid ``h`` (rows along y) in the body frame at ``base_z``."""
@@ -247,7 +261,7 @@ class Terrain:
         planar ground: a 2 m grid over the terrain (exact, since the plane is flat).
         """
         if self.heights is not None:
-            return self.xs, self.ys, self.heights, self.normals
+            return *self.grid(), self.normals
         nx = max(1, int(math.ceil(self.cfg.size[0] / (2 * FINE_CHUNK)))) + 1
         ny = max(1, int(math.ceil(self.cfg.size[1] / (2 * FINE_CHUNK)))) + 1
         xs = np.linspace(-self.cfg.size[0] / 2, self.cfg.size[0] / 2, nx)
@@ -264,11 +278,11 @@ class Terrain:
         if self.heights is None:
             return slope_height(self.cfg, x, y)
         cell = self.cfg.cell
-        fx = np.clip((x - self.xs[0]) / cell, 0, len(self.xs) - 1 - 1e-9)
-        fy = np.clip((y - self.ys[0]) / cell, 0, len(self.ys) - 1 - 1e-9)
+        xs, ys, h = self.grid()
+        fx = np.clip((x - xs[0]) / cell, 0, len(xs) - 1 - 1e-9)
+        fy = np.clip((y - ys[0]) / cell, 0, len(ys) - 1 - 1e-9)
         i, j = np.floor(fx).astype(int), np.floor(fy).astype(int)
         u, v = fx - i, fy - j
-        h = self.heights
         h00, h10, h01, h11 = h[j, i], h[j, i + 1], h[j + 1, i], h[j + 1, i + 1]
         # Bullet splits each cell along the (i+1, j)-(i, j+1) diagonal.
         z_low = h00 + u * (h10 - h00) + v * (h01 - h00)

@@ -12,6 +12,7 @@ import hashlib
 import logging
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -204,7 +205,7 @@ def cache_dir() -> Path:
     return path
 
 
-def write_cached(key: str, make: callable, suffix: str = ".png") -> Path:  # type: ignore[valid-type]
+def write_cached(key: str, make: Callable[[], np.ndarray], suffix: str = ".png") -> Path:
     """Write ``make()`` (an RGB image) to the cache under a hash of ``key`` once; return the path.
 
     The write is atomic (temporary file + rename), so parallel workers never see a partial file.

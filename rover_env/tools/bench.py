@@ -197,7 +197,7 @@ def bench_cameras(
     import logging
     import math
 
-    from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
+    from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig, check_renderer
     from rover_env.config.scenario import load_scenario
     from rover_env.rendering import resolve_renderer
     from rover_env.sensors.cameras import DownwardCamera, FisheyeCamera
@@ -206,7 +206,7 @@ def bench_cameras(
     rows: list[CameraBenchResult] = []
     for renderer in renderers:
         try:
-            sim = RoverSim(load_scenario(scenario), renderer=resolve_renderer(renderer))
+            sim = RoverSim(load_scenario(scenario), renderer=resolve_renderer(check_renderer(renderer)))
         except RuntimeError as exc:
             logging.getLogger(__name__).warning("no %s rows: %s", renderer, exc)
             continue

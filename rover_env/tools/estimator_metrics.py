@@ -56,8 +56,14 @@ class EstimateLog:
 
     def __init__(self, radius: float) -> None:
         self.radius = radius
-        self.est, self.events, self.tru, self.speed, self.t = [], [], [], [], []
-        self.est_pose, self.true_pose, self.est_z = [], [], []
+        self.est: list[np.ndarray] = []  # estimated fields (_OBS_INDEX)
+        self.events: list[list[bool]] = []  # per-wheel slip events flagged by the estimator
+        self.tru: list[list[float]] = []  # true values of the same fields (TRUTH)
+        self.speed: list[np.ndarray] = []  # per-wheel tread or body speed [m/s]
+        self.t: list[float] = []  # time [s]
+        self.est_pose: list[tuple[float, float, float]] = []  # (x, y, yaw) [m, m, rad]
+        self.true_pose: list[tuple[float, float, float]] = []
+        self.est_z: list[float] = []  # the body origin's height [m]
 
     def add(self, obs: np.ndarray, info: dict) -> None:
         """Record one step from the observation and ``info`` of ``env.step`` (estimated source)."""

@@ -231,9 +231,10 @@ def run_sweep(
 
     def done(i: int, row: dict) -> None:
         rows[i] = row
-        if jobs[i].out is not None:
-            Path(jobs[i].out).mkdir(parents=True, exist_ok=True)
-            (Path(jobs[i].out) / ROW_FILE).write_text(json.dumps(row, default=float) + "\n")
+        out = jobs[i].out
+        if out is not None:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            (Path(out) / ROW_FILE).write_text(json.dumps(row, default=float) + "\n")
         if progress is not None:
             progress(sum(r is not None for r in rows), len(jobs), row)
 
@@ -333,6 +334,8 @@ def load_estimator(spec: str):
             if not path.is_file():
                 raise ValueError(f"--estimator {spec!r}: no file {where}")
             mod_spec = importlib.util.spec_from_file_location(path.stem, path)
+            if mod_spec is None or mod_spec.loader is None:
+                raise ValueError(f"--estimator {spec!r}: {where} cannot be imported as a module")
             module = importlib.util.module_from_spec(mod_spec)
             sys.modules.setdefault(path.stem, module)
             mod_spec.loader.exec_module(module)

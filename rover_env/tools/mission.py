@@ -162,7 +162,10 @@ def run_mission(
             else:
                 stuck_time = 0.0
             if writer is not None and step % video_every == 0:
-                writer.write(draw_overlay(env.render(), overlay_lines(info["t"], info)))
+                frame = env.render()
+                if frame is None:
+                    raise RuntimeError("the environment drew no frame; make it with render_mode='rgb_array'")
+                writer.write(draw_overlay(frame, overlay_lines(info["t"], info)))
             step += 1
             if progress is not None and step % 30 == 0:
                 progress(float(info["t"]))
@@ -195,7 +198,7 @@ def run_mission(
         total_reward=float(total_reward),
         goal_error=float(np.hypot(*(xy[-1] - np.asarray(env.scenario.course.waypoints[-1], dtype=float)))),
     )
-    if rec.estimates is None:
+    if rec.estimates is None or env.pipeline is None:
         return MissionResult(metrics, rec)
     est = rec.estimates.arrays(env.pipeline.fisheye.period)
     return MissionResult(metrics, rec, estimator_summary(est), est)

@@ -123,9 +123,10 @@ class MissionCycle(gym.Env):
         self.metadata = first.metadata
 
     def _env(self, k: int) -> gym.Env:
-        if self._envs[k] is None:
-            self._envs[k] = self._makers[k]()
-        return self._envs[k]
+        env = self._envs[k]
+        if env is None:
+            env = self._envs[k] = self._makers[k]()
+        return env
 
     @property
     def current(self) -> gym.Env:
@@ -315,7 +316,8 @@ def _progress_callback(total: int):
         """A one-line progress display on stderr."""
 
         def _on_training_start(self) -> None:
-            self._start, self._last, self._success = time.perf_counter(), 0.0, []
+            self._start, self._last = time.perf_counter(), 0.0
+            self._success: list[float] = []
 
         def _on_step(self) -> bool:
             for info in self.locals.get("infos", []):
@@ -373,9 +375,9 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
         factory(missions[i % len(missions) :] + missions[: i % len(missions)], cfg.seed + i)
         for i in range(cfg.n_envs)
     ]
-    venv = SubprocVecEnv(fns, start_method="spawn") if cfg.n_envs > 1 else DummyVecEnv(fns)
-    venv.seed(cfg.seed)
-    venv = VecNormalize(venv, norm_obs=True, norm_reward=True, clip_obs=10.0)
+    raw = SubprocVecEnv(fns, start_method="spawn") if cfg.n_envs > 1 else DummyVecEnv(fns)
+    raw.seed(cfg.seed)
+    venv = VecNormalize(raw, norm_obs=True, norm_reward=True, clip_obs=10.0)
     # evaluated on the last mission (the hardest of the defaults), with the training statistics
     eval_env = VecNormalize(
         DummyVecEnv([factory(missions[-1], cfg.seed + 1000)]),

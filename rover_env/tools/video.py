@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -46,7 +47,7 @@ class VideoWriter:
         self.path = Path(path)
         self.width, self.height = (int(v) // 2 * 2 for v in size)
         try:
-            self._container = av.open(str(self.path), mode="w", options={"movflags": "+faststart"})
+            self._container: Any = av.open(str(self.path), mode="w", options={"movflags": "+faststart"})
             rate = int(round(fps)) if abs(fps - round(fps)) < 1e-9 else round(fps * 1000) / 1000
             from fractions import Fraction
 
@@ -146,7 +147,7 @@ def stack_videos(clips: list[Path], labels: list[str], path: str | Path, fps: fl
         if any(s.codec_context.width != width for s in streams):
             raise ValueError(f"stack_videos: clips of widths {[s.codec_context.width for s in streams]}")
         decoders = [c.decode(s) for c, s in zip(containers, streams, strict=True)]
-        last = [np.zeros((h, width, 3), np.uint8) for h in heights]
+        last: list[np.ndarray] = [np.zeros((h, width, 3), np.uint8) for h in heights]
         ended = [False] * len(clips)
         with VideoWriter(path, rate, (width, sum(heights) + bar * len(clips))) as out:
             while True:
