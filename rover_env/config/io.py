@@ -42,7 +42,9 @@ def _coerce(value: Any, tp: Any, key: str, allow_inf: bool = False) -> Any:
             try:
                 return _coerce(value, arg, key, allow_inf)
             except ConfigError as exc:
-                errors.append(str(exc))
+                errors.append(exc)
+        if len(errors) == 1:  # X | None: X's own error names the key inside
+            raise errors[0]
         raise ConfigError(f"{key}: {value!r} does not match {_type_name(tp)}")
     if origin is Literal:
         allowed = get_args(tp)
@@ -116,7 +118,14 @@ def from_dict(cls: type[T], data: dict[str, Any], prefix: str = "") -> T:
         return cls(**kwargs)
     except ConfigError as exc:
         msg = str(exc)
-        raise ConfigError(f"{dot}{msg}" if prefix and not msg.startswith(prefix) else msg) from None
+        if prefix and not msg.startswith(prefix):
+            for lead in ("unknown key '", "missing required key '"):  # the key path inside the quotes
+                if msg.startswith(lead):
+                    msg = f"{lead}{dot}{msg[len(lead) :]}"
+                    break
+            else:
+                msg = f"{dot}{msg}"
+        raise ConfigError(msg) from None
 
 
 def to_dict(obj: Any) -> Any:

@@ -17,6 +17,7 @@ from typing import Any, Literal
 import numpy as np
 
 from rover_env.config.io import ConfigError, check_range, load_yaml_dataclass, replace
+from rover_env.config.rig import SensorConfig, check_rig, imu_config, standard_rig
 
 TEXTURE_PRESETS: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete", "checkerboard")
 
@@ -282,8 +283,11 @@ class ScenarioConfig:
         duration: Episode time limit [s].
         imu: The rover's IMU for estimated observations: a preset name or a mapping (``preset``
             and overrides; see :meth:`rover_env.config.imu.ImuConfig.from_dict`), or None (no
-            IMU). The environment's
-            ``imu`` keyword, when given, takes its place.
+            IMU). The environment's ``imu`` keyword, when given, takes its place. With a ``rig``,
+            the IMU is declared in the rig instead.
+        rig: The rover's sensors in sampling order (:class:`~rover_env.config.rig.SensorConfig`);
+            None: the standard rig (:func:`~rover_env.config.rig.standard_rig`: the fisheye,
+            the downward camera and the ``imu`` if any).
     """
 
     name: str
@@ -295,14 +299,17 @@ class ScenarioConfig:
     start: StartConfig = field(default_factory=StartConfig)
     duration: float = 60.0
     imu: Any = None
+    rig: tuple[SensorConfig, ...] | None = None
 
     def __post_init__(self) -> None:
         check_range("duration", self.duration, 0.1, 36000.0)
         if self.imu is not None:
-            from rover_env.config.imu import ImuConfig
-
             # validated here (ConfigError naming the key): a preset name or a mapping
-            ImuConfig.from_dict({"preset": self.imu} if isinstance(self.imu, str) else self.imu)
+            imu_config(self.imu)
+        if self.rig is not None:
+            if self.imu is not None:
+                raise ConfigError("imu: this scenario declares a rig; declare its IMU there (kind: imu)")
+            check_rig(self.rig)
         hx, hy = self.terrain.size[0] / 2 - 1.0, self.terrain.size[1] / 2 - 1.0
         points = [("start.position", self.start.position)] + [
             (f"course.waypoints[{i}]", w) for i, w in enumerate(self.course.waypoints)
@@ -313,6 +320,11 @@ class ScenarioConfig:
                     f"{key}: ({x:g}, {y:g}) is outside the terrain (|x| <= {hx:g}, |y| <= {hy:g}"
                     " m, 1 m from the edge); enlarge terrain.size or move the point"
                 )
+
+
+def scenario_rig(scenario: ScenarioConfig) -> tuple[SensorConfig, ...]:
+    """The sensors ``scenario``'s rover carries: its ``rig``, or the standard rig."""
+    return scenario.rig if scenario.rig is not None else standard_rig(scenario.imu)
 
 
 def _preset_dir() -> resources.abc.Traversable:

@@ -16,7 +16,8 @@ from perception import observation as obs_table
 from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
 from rover_env.config.imu import ImuConfig
-from rover_env.config.scenario import ScenarioConfig, load_scenario
+from rover_env.config.rig import imu_config, with_imu
+from rover_env.config.scenario import ScenarioConfig, load_scenario, scenario_rig
 from rover_env.envs.chase_view import ChaseView
 from rover_env.rendering import resolve_renderer
 from rover_env.sensors.cameras import blackout_windows
@@ -219,13 +220,7 @@ class RoverEnv(gym.Env):
         )
         self.course = WaypointCourse(self.scenario.course)
         self.pipeline: PerceptionPipeline | None = None
-        if imu is None and self.scenario.imu is not None and obs_source == "estimated":
-            imu = self.scenario.imu  # the scenario's IMU, unless the keyword gives one
-        if isinstance(imu, str):
-            imu = ImuConfig.preset(imu)
-        elif isinstance(imu, dict):
-            imu = ImuConfig.from_dict(imu)
-        elif imu is not None and not isinstance(imu, ImuConfig):
+        if not (imu is None or isinstance(imu, str | dict | ImuConfig)):
             raise ValueError(f"imu={imu!r}: give a preset name, a mapping, an ImuConfig or None")
         if imu is not None and self.obs_source is not ObsSource.ESTIMATED:
             raise ValueError("imu: the IMU feeds the estimator; use it with obs_source='estimated'")
@@ -234,7 +229,10 @@ class RoverEnv(gym.Env):
                 "estimator: an estimator makes the observation; use it with obs_source='estimated'"
             )
         if self.obs_source is ObsSource.ESTIMATED:
-            self.pipeline = PerceptionPipeline(self.sim, preset, imu=imu, estimator=estimator)
+            rig = scenario_rig(self.scenario)
+            if imu is not None:  # the keyword's IMU takes the place of the scenario's
+                rig = with_imu(rig, imu_config(imu))
+            self.pipeline = PerceptionPipeline(self.sim, preset, estimator=estimator, rig=rig)
         self._est: dict[str, Any] | None = None  # the estimator's last (checked) estimate
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
@@ -282,10 +280,10 @@ class RoverEnv(gym.Env):
         yaw = st.yaw + math.radians(st.jitter_yaw_deg) * rng.uniform(-1.0, 1.0)
         fix_noise = rng.normal(size=3) * np.array([st.fix_std[0], st.fix_std[0], math.radians(st.fix_std[1])])
         if self.pipeline is not None:
-            for cam in (self.pipeline.downward, self.pipeline.fisheye):
+            for cam in self.pipeline.cameras:
                 cam.set_blackout(blackout)
-            if self.pipeline.imu is not None:  # this episode's turn-on bias, scale factors, noise
-                self.pipeline.imu.reset(int(rng.integers(2**63 - 1)))
+            for imu in self.pipeline.imus:  # this episode's turn-on bias, scale factors, noise
+                imu.reset(int(rng.integers(2**63 - 1)))
         self._gt = self.sim.reset(x, y, yaw)
         messages = self.sim.take_messages()
         if self.pipeline is not None:

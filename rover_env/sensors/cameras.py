@@ -145,21 +145,30 @@ class _RoverCamera(ABC):
         return frame
 
 
-
 class DownwardCamera(_RoverCamera):
     """The mast camera of ``sim``'s rover: renders frames and frame pairs.
 
     Args:
         sim: The simulation (its rover and sun).
         config: Camera configuration.
+        T_body_cam: (4, 4) pose of its optical frame in the body frame [m]; None: on the mast
+            (:meth:`standard_mount`).
     """
 
-    def __init__(self, sim: RoverSim, config: DownwardCameraConfig | None = None) -> None:
-        cfg = config or DownwardCameraConfig()
-        g = sim.geometry
+    @staticmethod
+    def standard_mount(g: RoverGeometry) -> np.ndarray:
+        """(4, 4) body-from-camera pose on the mast, looking straight down, image up = forward."""
         T = np.eye(4)
         T[:3, :3] = R_BODY_DOWNCAM
         T[:3, 3] = g.mast_camera_position
+        return T
+
+    def __init__(
+        self, sim: RoverSim, config: DownwardCameraConfig | None = None, T_body_cam: np.ndarray | None = None
+    ) -> None:
+        cfg = config or DownwardCameraConfig()
+        g = sim.geometry
+        T = self.standard_mount(g) if T_body_cam is None else np.asarray(T_body_cam, dtype=np.float64)
         super().__init__(sim, cfg, T)
         nominal_height = g.wheel_radius - g.axle_z  # body origin above flat ground at rest [m]
         self.model = PinholeCamera.from_fov(
@@ -227,18 +236,10 @@ def kinematics_roi(
     return np.asarray(grown).astype(bool)
 
 
-def _fisheye_mount(g: RoverGeometry) -> np.ndarray:
-    """Pose of the fisheye's optical frame in the body frame."""
-    T = np.eye(4)
-    T[:3, :3] = R_BODY_FISHEYE
-    T[:3, 3] = g.fisheye_origin
-    return T
-
-
 @functools.lru_cache(maxsize=8)
-def _kinematics_roi(cfg: FisheyeCameraConfig, g: RoverGeometry) -> np.ndarray:
+def _kinematics_roi(cfg: FisheyeCameraConfig, g: RoverGeometry, mount: tuple[float, ...]) -> np.ndarray:
     """:func:`kinematics_roi` of this fisheye on this rover (0.6 s to build, so built once)."""
-    T = _fisheye_mount(g)
+    T = np.array(mount, dtype=np.float64).reshape(4, 4)
     roi = kinematics_roi(cfg.model(T), g.kinematic_model(T), g.roll_limit, g.travel_limit, g.steer_limit)
     roi.setflags(write=False)
     return roi
@@ -252,12 +253,23 @@ class FisheyeCamera(_RoverCamera):
         config: Camera configuration.
     """
 
-    def __init__(self, sim: RoverSim, config: FisheyeCameraConfig | None = None) -> None:
+    @staticmethod
+    def standard_mount(g: RoverGeometry) -> np.ndarray:
+        """(4, 4) body-from-camera pose under the body, looking down, image x = body forward."""
+        T = np.eye(4)
+        T[:3, :3] = R_BODY_FISHEYE
+        T[:3, 3] = g.fisheye_origin
+        return T
+
+    def __init__(
+        self, sim: RoverSim, config: FisheyeCameraConfig | None = None, T_body_cam: np.ndarray | None = None
+    ) -> None:
         cfg = config or FisheyeCameraConfig()
-        T = _fisheye_mount(sim.geometry)
+        g = sim.geometry
+        T = self.standard_mount(g) if T_body_cam is None else np.asarray(T_body_cam, dtype=np.float64)
         super().__init__(sim, cfg, T)
         self.model = cfg.model(T)
-        roi = _kinematics_roi(cfg, sim.geometry) if cfg.roi else None
+        roi = _kinematics_roi(cfg, g, tuple(T.ravel().tolist())) if cfg.roi else None
         self.remapper = CubemapRemap(self.model, oversample=cfg.oversample, roi=roi)
         self._window: tuple[float, np.ndarray] | None = None
         #: Frames sampled so far: all, and those rendered in windows.

@@ -11,13 +11,14 @@ from it (the fisheye's windowed readout) gets them through :meth:`PerceptionPipe
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from perception.estimator import EstimatorError, check_estimate, estimator_name
 from perception.fisheye_kinematics import KinematicsConfig
@@ -25,9 +26,17 @@ from perception.odometry import FlowOdometryConfig
 from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, TriadFigures
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
 from perception.slip import SlipConfig
-from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError
+from rover_env.config.rig import (
+    PERCEPTION_PRESETS,
+    PerceptionPreset,
+    SensorConfig,
+    check_rig,
+    imu_config,
+    mount_matrix,
+    standard_rig,
+)
 from rover_env.sensors.cameras import DownwardCamera, FisheyeCamera
 from rover_env.sensors.imu import Imu
 from rover_env.sim.simulation import RoverSim
@@ -45,70 +54,6 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class PerceptionPreset:
-    """Camera configurations of the estimator in the loop.
-
-    Attributes:
-        name: Preset name.
-        downward: The downward camera (its rate is the odometry's).
-        fisheye: The fisheye (its rate is the kinematics').
-        odometry: Odometry parameters that differ from
-            :meth:`FlowOdometryConfig.for_camera` of the downward camera.
-        fisheye_window: (axle roll [rad/s], axle travel [m/s], wheel steering [rad/s]): while
-            the kinematics estimator tracks every marker and joint, the fisheye renders only the
-            windows that hold the wheels, arms and markers over the joint states these rates
-            reach in one frame from its last estimate (:func:`~perception.rover_parts.joint_window_parts`),
-            as a sensor's tracker-driven windowed readout; otherwise, and with None, its whole
-            image (or region of interest). The steering rate is raised to 1.25 times the
-            rover's ``steer_max_rate`` if it is below (an inner wheel turns faster than its axle).
-    """
-
-    name: str
-    downward: DownwardCameraConfig
-    fisheye: FisheyeCameraConfig
-    odometry: dict = field(default_factory=dict, hash=False)
-    fisheye_window: tuple[float, float, float] | None = None
-
-
-def _presets() -> dict[str, PerceptionPreset]:
-    return {
-        # the papers' resolutions and rates. The downward camera sees no ground beyond 2 m, so only
-        # that is drawn for it. The fisheye reads out what the kinematics estimator can use, as
-        # the train preset does: its region of interest, and while it tracks every joint only
-        # the windows about them (pixels the estimator reads are unchanged, see the tests); this
-        # halves its rendering time at 640 x 480 (benchmarks/env_speed.py)
-        "eval": PerceptionPreset(
-            "eval",
-            DownwardCameraConfig.preset("full", rate_hz=60.0, ground_range=2.0),
-            FisheyeCameraConfig.preset("full", roi=True, ground_range=2.0),
-            fisheye_window=(1.8, 0.3, 0.0),
-        ),
-        # the lowest resolutions at which the estimators hold up: below 320x240 the fisheye's
-        # tread texture is too coarse for the wheel rates, and below 30 Hz the wheels turn too
-        # far between frames at 2 m/s; the fisheye renders only its region of interest, and
-        # both cameras draw only the exact ground within 2 m. At 160 px a feature's track is
-        # noisy, and the yaw rate rests on how far apart the features lie: twice the paper's
-        # 40-50 features, out to 8 px from the border (a 2 m/s frame step), halve its error.
-        # The downward camera stays at 30 Hz too: at 15 Hz (half its rendering and odometry time)
-        # slip while slipping was 0.44 MAE against 0.025 over the four missions, 0.62 against
-        # 0.021 on loose slope, and slip-event F1 0.90 against 0.99 (benchmarks/slip_accuracy.py
-        # --preset train, seeds 201-203, GL)
-        "train": PerceptionPreset(
-            "train",
-            DownwardCameraConfig.preset("train", rate_hz=30.0, ground_range=2.0),
-            FisheyeCameraConfig.preset("half", rate_hz=30.0, roi=True, ground_range=2.0),
-            odometry={"roi_margin": 0.05, "max_features": 100},
-            # windows: roll and travel at 1.8 rad/s and 0.3 m/s (the 99th percentiles of their
-            # frame-to-frame changes on rough ground are half that), steering at the rover's limit
-            fisheye_window=(1.8, 0.3, 0.0),
-        ),
-    }
-
-
-PERCEPTION_PRESETS: dict[str, PerceptionPreset] = _presets()
-
-
 def _figures(triad) -> TriadFigures:
     return TriadFigures(
         noise_density=triad.noise_density,
@@ -119,24 +64,78 @@ def _figures(triad) -> TriadFigures:
     )
 
 
-def rig_of(sim: RoverSim, downward: DownwardCamera, fisheye: FisheyeCamera, imu: Imu | None = None) -> Rig:
+#: A simulated sensor: a camera or an IMU that the simulation samples.
+SimSensor = DownwardCamera | FisheyeCamera | Imu
+
+
+def build_sensor(sim: RoverSim, config: SensorConfig, preset: PerceptionPreset, key: str) -> SimSensor:
+    """The simulated sensor ``config`` declares, on ``sim``'s rover (not yet attached).
+
+    Args:
+        sim: The simulation (its rover, sun and physics rate).
+        config: The sensor's declaration.
+        preset: The cameras' settings where ``config`` gives none.
+        key: Its key in the scenario (``"rig[2]"``), for error messages.
+
+    Raises:
+        ConfigError: Its rate does not divide the physics rate.
+    """
+    if config.kind == "imu":
+        imu = imu_config(config.imu if config.imu is not None else "bmi088")
+        changes: dict[str, Any] = {}
+        if config.rate_hz is not None:
+            changes["rate_hz"] = config.rate_hz
+        if config.mount is not None:
+            T = config.mount_or(mount_matrix(imu.position, imu.rpy))
+            changes["position"] = tuple(float(v) for v in T[:3, 3])
+            changes["rpy"] = tuple(float(v) for v in Rotation.from_matrix(T[:3, :3]).as_euler("xyz"))
+        imu = dataclasses.replace(imu, **changes) if changes else imu
+        rate = imu.rate_hz
+    else:
+        base = preset.downward if config.kind == "pinhole" else preset.fisheye
+        cam_cfg = config.camera_config(base)
+        rate = cam_cfg.rate_hz
+    steps = (1.0 / sim.dt) / rate
+    if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+        raise ConfigError(
+            f"{key}.rate_hz: {rate:g} Hz (sensor {config.name!r}) does not divide the physics rate "
+            f"{1 / sim.dt:g} Hz; use a whole fraction of it (240, 120, 80, 60, 48, 40, 30 ... at 240 Hz)"
+        )
+    if config.kind == "imu":
+        return Imu(sim, imu)
+    if config.kind == "pinhole":
+        standard = DownwardCamera.standard_mount(sim.geometry)
+        return DownwardCamera(sim, cam_cfg, config.mount_or(standard))  # type: ignore[arg-type]
+    standard = FisheyeCamera.standard_mount(sim.geometry)
+    return FisheyeCamera(sim, cam_cfg, config.mount_or(standard))  # type: ignore[arg-type]
+
+
+def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
     """The :class:`perception.rig.Rig` of a simulated rover's sensors: what an estimator is given.
 
     The cameras' calibrations are their exact models (the simulation renders through them); the
-    IMU's is its data sheet (its errors are drawn per episode, and not given away).
+    IMU's is its data sheet (its errors are drawn per episode, and not given away). The rover's
+    kinematic model sees the markers through the rig's first fisheye (or where the standard
+    fisheye would be).
     """
     g = sim.geometry
-    specs = [
-        SensorSpec("fisheye", "fisheye", fisheye.config.rate_hz, fisheye.T_body_cam, fisheye.model, True),
-        SensorSpec("downward", "pinhole", downward.config.rate_hz, downward.T_body_cam, downward.model),
-    ]
-    if imu is not None:
-        T = np.eye(4)
-        T[:3, :3] = imu.R_body_imu
-        T[:3, 3] = imu.r_body
-        model = ImuModel(gyro=_figures(imu.config.gyro), accel=_figures(imu.config.accel))
-        specs.append(SensorSpec("imu", "imu", imu.config.rate_hz, T, model))
-    return Rig(specs, vehicle=g.kinematic_model(fisheye.T_body_cam), steer_max_rate=g.steer_max_rate)
+    specs = []
+    for name, sensor in sensors.items():
+        if isinstance(sensor, Imu):
+            T = np.eye(4)
+            T[:3, :3] = sensor.R_body_imu
+            T[:3, 3] = sensor.r_body
+            model = ImuModel(gyro=_figures(sensor.config.gyro), accel=_figures(sensor.config.accel))
+            specs.append(SensorSpec(name, "imu", sensor.config.rate_hz, T, model))
+        elif isinstance(sensor, FisheyeCamera):
+            specs.append(
+                SensorSpec(name, "fisheye", sensor.config.rate_hz, sensor.T_body_cam, sensor.model, True)
+            )
+        else:
+            specs.append(SensorSpec(name, "pinhole", sensor.config.rate_hz, sensor.T_body_cam, sensor.model))
+    fisheyes = [s for s in sensors.values() if isinstance(s, FisheyeCamera)]
+    T_fish = fisheyes[0].T_body_cam if fisheyes else FisheyeCamera.standard_mount(g)
+    return Rig(specs, vehicle=g.kinematic_model(T_fish), steer_max_rate=g.steer_max_rate)
 
 
 #: A factory of estimators: called once per environment with its rig.
@@ -146,8 +145,9 @@ EstimatorFactory = Callable[[Rig], Any]
 class PerceptionPipeline:
     """The simulated sensors of one rover and the estimator that consumes their messages.
 
-    The cameras are attached to the simulation as sensors (``"fisheye"`` then ``"downward"``,
-    then ``"imu"`` if fitted); the simulation samples them while it steps. The pipeline never
+    The rig's sensors are attached to the simulation in the rig's order (by default
+    ``"fisheye"``, ``"downward"``, then ``"imu"`` if fitted); the simulation samples them while
+    it steps. The pipeline never
     steps the physics; its estimator reads no simulator state.
 
     Args:
@@ -156,11 +156,14 @@ class PerceptionPipeline:
         odometry: Odometry parameters of the built-in estimator.
         kinematics: Fisheye-kinematics parameters of the built-in estimator.
         slip: Slip-filter parameters of the built-in estimator.
-        imu: An IMU on the body (attached as the sensor ``"imu"``). None (default): no IMU.
+        imu: With the standard rig, an IMU on the body (the sensor ``"imu"``). None: no IMU.
         odometry_gyro: The built-in estimator gives the odometry's 3-D fit the gyro's roll and
             pitch rates (with an IMU; default).
         estimator: A factory (a class or callable) called once with the :class:`Rig`; None: the
             built-in :class:`perception.RoverEstimator` with the preset's parameters.
+        rig: The sensors to build and attach, in sampling order (a scenario's ``rig``, see
+            :mod:`rover_env.config.rig`); None: the standard rig (fisheye, downward camera,
+            ``imu``). Cameras take the preset's settings where their declaration gives none.
     """
 
     def __init__(
@@ -173,27 +176,31 @@ class PerceptionPipeline:
         imu: ImuConfig | None = None,
         odometry_gyro: bool = True,
         estimator: EstimatorFactory | None = None,
+        rig: tuple[SensorConfig, ...] | None = None,
     ) -> None:
         if isinstance(preset, str):
             if preset not in PERCEPTION_PRESETS:
                 raise ConfigError(f"preset: {preset!r}; use one of {sorted(PERCEPTION_PRESETS)}")
             preset = PERCEPTION_PRESETS[preset]
         self.preset = preset
-        self.downward = DownwardCamera(sim, preset.downward)
-        self.fisheye = FisheyeCamera(sim, preset.fisheye)
-        sim.attach_sensor("fisheye", self.fisheye)
-        sim.attach_sensor("downward", self.downward)
-        self.imu: Imu | None = None
-        if imu is not None:
-            self.imu = Imu(sim, imu)
-            sim.attach_sensor("imu", self.imu)
-        self.rig = rig_of(sim, self.downward, self.fisheye, self.imu)
-        self._sensors: dict[str, DownwardCamera | FisheyeCamera | Imu] = {
-            "fisheye": self.fisheye,
-            "downward": self.downward,
-        }
-        if self.imu is not None:
-            self._sensors["imu"] = self.imu
+        if rig is None:
+            rig = standard_rig(imu)
+        elif imu is not None:
+            raise ValueError("imu: this pipeline is given a rig; declare the IMU in it (kind: imu)")
+        check_rig(rig)
+        #: The simulated sensors by name, in the order the simulation samples them.
+        self.sensors: dict[str, SimSensor] = {}
+        for i, config in enumerate(rig):
+            sensor = build_sensor(sim, config, preset, f"rig[{i}]")
+            sim.attach_sensor(config.name, sensor)
+            self.sensors[config.name] = sensor
+        self.cameras = [s for s in self.sensors.values() if not isinstance(s, Imu)]
+        self.imus = [s for s in self.sensors.values() if isinstance(s, Imu)]
+        # the first of each kind, as a user reaches them (None if the rig has none)
+        self.downward = next((s for s in self.cameras if isinstance(s, DownwardCamera)), None)
+        self.fisheye = next((s for s in self.cameras if isinstance(s, FisheyeCamera)), None)
+        self.imu = self.imus[0] if self.imus else None
+        self.rig = rig_of(sim, self.sensors)
         if estimator is None:
             # the simulated camera is noise-free and renders each frame anew: a repeat is a standstill
             overrides = {"repeated_frames": "still"} | preset.odometry
@@ -210,12 +217,14 @@ class PerceptionPipeline:
                     )
         self.name = estimator_name(self.estimator)
         self.builtin = isinstance(self.estimator, RoverEstimator)
-        self.last_images: dict[str, np.ndarray | None] = {"downward": None, "fisheye": None}
+        camera_names = [n for n, s in self.sensors.items() if not isinstance(s, Imu)]
+        #: Each camera's latest image given to the estimator (None before the first).
+        self.last_images: dict[str, np.ndarray | None] = dict.fromkeys(camera_names)
         self._sim_timing = sim.timing
         self._perception_s = 0.0
         self._step = 0
         #: Frames given to the estimator so far: downward, fisheye, and fisheye frames rendered in windows.
-        self.frames = {"downward": 0, "fisheye": 0, "fisheye_windowed": 0}
+        self.frames = dict.fromkeys(camera_names, 0) | {"fisheye_windowed": 0}
 
     @property
     def timing(self) -> dict[str, float]:
@@ -258,8 +267,10 @@ class PerceptionPipeline:
         if fix.shape != (3,) or not np.all(np.isfinite(fix)):
             raise ValueError(f"start_fix={fix.tolist()}: give a finite (x, y, yaw) [m, rad]")
         self._step = 0
-        self.last_images = {"downward": None, "fisheye": None}
-        self.fisheye.request_window(0.0, None)
+        self.last_images = dict.fromkeys(self.last_images)
+        for cam in self.cameras:
+            if isinstance(cam, FisheyeCamera):
+                cam.request_window(0.0, None)
         try:
             self.estimator.reset(fix.copy())
         except Exception as exc:
@@ -282,14 +293,16 @@ class PerceptionPipeline:
         out = check_estimate(values, self.name, self._step)
         request = getattr(self.estimator, "readout_request", None)
         if request is not None:
-            for name, sensor in self._sensors.items():
+            for name, sensor in self.sensors.items():
                 if not self.rig[name].readout_window:
                     continue
                 req = request(name)
                 accept = getattr(sensor, "request_window", None)
                 if req is not None and accept is not None:
                     accept(float(req[0]), req[1])
-        self.frames["fisheye_windowed"] = self.fisheye.sampled["windowed"]
+        self.frames["fisheye_windowed"] = sum(
+            c.sampled["windowed"] for c in self.cameras if isinstance(c, FisheyeCamera)
+        )
         self._step += 1
         self._perception_s += time.perf_counter() - t0
         return out

@@ -200,7 +200,8 @@ def run_mission(
     )
     if rec.estimates is None or env.pipeline is None:
         return MissionResult(metrics, rec)
-    est = rec.estimates.arrays(env.pipeline.fisheye.period)
+    fisheye = env.pipeline.fisheye  # the slip events' time scale: its frames, else control steps
+    est = rec.estimates.arrays(fisheye.period if fisheye is not None else env.control_dt)
     return MissionResult(metrics, rec, estimator_summary(est), est)
 
 

@@ -1,0 +1,281 @@
+"""The sensor rig a scenario declares, and the camera presets of the estimator in the loop.
+
+A scenario's ``rig`` lists the rover's sensors in the order the simulation samples them; each
+has a name (the ``sensor`` of its messages), a kind, and optionally a rate, a mount and the
+settings of its kind. Without a ``rig`` a rover carries the standard one
+(:func:`standard_rig`): the fisheye, the downward camera and, if the scenario names an IMU,
+the IMU. Example (a second downward camera further forward, and the IMU at 100 Hz)::
+
+    rig:
+      - {name: fisheye, kind: fisheye}
+      - {name: downward, kind: pinhole}
+      - {name: front, kind: pinhole, rate_hz: 30, mount: {position: [0.45, 0.0, 0.5]}}
+      - {name: imu, kind: imu, rate_hz: 120, imu: bmi088}
+
+Frames: a mount is the sensor's frame in the body frame (x forward, y left, z up), "body from
+sensor", as a 4 x 4 matrix or as ``position`` [m] and ``rpy`` [rad] (roll, pitch, yaw about the
+body's fixed x, y, z axes, applied in that order). A camera's frame is its optical frame (z along
+the optical axis, x along image rows, y down the image).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal, get_args
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from perception.calib_io import check_rigid
+from rover_env.config.cameras import CameraConfig, DownwardCameraConfig, FisheyeCameraConfig
+from rover_env.config.imu import ImuConfig
+from rover_env.config.io import ConfigError, check_range, from_dict
+
+#: The kinds of sensor a rig may hold: a downward pinhole camera, a downward fisheye, an IMU.
+SensorKind = Literal["pinhole", "fisheye", "imu"]
+SENSOR_KIND_NAMES: tuple[str, ...] = get_args(SensorKind)
+
+#: The estimator-in-the-loop presets (:data:`PERCEPTION_PRESETS`).
+PresetName = Literal["eval", "train"]
+
+#: Standard orientations (body from sensor, ``rpy`` [rad]) of the kinds' sensors: the downward
+#: camera's image up is body forward; the fisheye's image x is body forward; both look down.
+STANDARD_RPY: dict[str, tuple[float, float, float]] = {
+    "pinhole": (math.pi, 0.0, -math.pi / 2),
+    "fisheye": (math.pi, 0.0, 0.0),
+    "imu": (0.0, 0.0, 0.0),
+}
+
+
+def mount_matrix(position, rpy) -> np.ndarray:
+    """The (4, 4) body-from-sensor pose of a sensor at ``position`` [m] turned by ``rpy`` [rad]."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+    T[:3, 3] = position
+    return T
+
+
+def _mount(value: Any, kind: str) -> tuple[tuple[float, ...], ...] | None:
+    """A mount from a scenario (None, a 4 x 4 list, or ``position`` and ``rpy``) as 4 x 4 rows."""
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        unknown = sorted(set(value) - {"position", "rpy"}, key=str)
+        if unknown:
+            raise ConfigError(f"mount: unknown key {unknown[0]!r}; give position [m] and/or rpy [rad]")
+        pose = from_dict(_MountPose, value, "mount")
+        T = mount_matrix(
+            pose.position if pose.position is not None else (0.0, 0.0, 0.0),
+            pose.rpy if pose.rpy is not None else STANDARD_RPY[kind],
+        )
+        if pose.position is None:  # only turned: the standard place is filled in when built
+            T[:3, 3] = np.nan
+    else:
+        try:
+            T = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ConfigError(f"mount: {value!r}; give a 4 x 4 matrix or position and rpy") from None
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ConfigError(f"mount: {value!r}; give a 4 x 4 matrix of finite numbers (body from sensor)")
+        try:
+            check_rigid(T, "mount")
+        except ConfigError as exc:
+            raise ConfigError(f"{exc}; a mount is a rigid transform (rotation and translation)") from None
+    return tuple(tuple(float(v) for v in row) for row in T)
+
+
+@dataclass(frozen=True)
+class _MountPose:
+    position: tuple[float, float, float] | None = None
+    rpy: tuple[float, float, float] | None = None
+
+
+_CAMERA_CONFIGS: dict[str, type[CameraConfig]] = {
+    "pinhole": DownwardCameraConfig,
+    "fisheye": FisheyeCameraConfig,
+}
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """One sensor of a scenario's rig.
+
+    Attributes:
+        name: Its name: the ``sensor`` of its messages, the key in ``env.unwrapped.rig``.
+        kind: ``"pinhole"``, ``"fisheye"`` or ``"imu"``.
+        rate_hz: Samples per second [Hz]; must divide the physics rate (240 Hz: 240, 120, 80,
+            60, 48, 40, 30, ...). None: the preset's (cameras) or the IMU's own.
+        mount: Body from sensor: a 4 x 4 rigid transform, or ``{position: [x, y, z], rpy: [r,
+            p, y]}`` [m, rad] (either may be left out: the kind's standard place or
+            orientation, :data:`STANDARD_RPY`). None: the kind's standard mount (the downward
+            camera on the mast, the fisheye under the body, the IMU where its settings say).
+            Stored as 4 x 4 rows; a row of NaN translation means "the standard place".
+        camera: A camera's settings that differ from the preset's: fields of
+            :class:`~rover_env.config.cameras.DownwardCameraConfig` (pinhole) or
+            :class:`~rover_env.config.cameras.FisheyeCameraConfig` (fisheye), except ``rate_hz``.
+        imu: An IMU's settings: a preset name or a mapping (``preset`` and overrides, see
+            :meth:`rover_env.config.imu.ImuConfig.from_dict`); None: ``bmi088``. Its
+            ``rate_hz`` and mount above, when given, take the place of the settings'.
+    """
+
+    name: str
+    kind: SensorKind
+    rate_hz: float | None = None
+    mount: Any = None
+    camera: Any = None
+    imu: Any = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ConfigError(f"name: {self.name!r}; give each sensor a non-empty name")
+        if self.kind not in SENSOR_KIND_NAMES:
+            raise ConfigError(
+                f"kind: {self.kind!r} (sensor {self.name!r}); use one of {list(SENSOR_KIND_NAMES)}"
+            )
+        if self.rate_hz is not None:
+            check_range("rate_hz", self.rate_hz, 0.0, 10000.0, lo_open=True)
+        object.__setattr__(self, "mount", _mount(self.mount, self.kind))
+        if self.camera is not None:
+            if self.kind == "imu":
+                raise ConfigError(f"camera: sensor {self.name!r} is an IMU; give its settings as imu")
+            if not isinstance(self.camera, dict):
+                raise ConfigError(f"camera: {self.camera!r}; give a mapping of camera settings")
+            if "rate_hz" in self.camera:
+                raise ConfigError(f"camera.rate_hz: give sensor {self.name!r}'s rate as its rate_hz")
+            from_dict(_CAMERA_CONFIGS[self.kind], self.camera, "camera")  # validated here
+        if self.imu is not None:
+            if self.kind != "imu":
+                raise ConfigError(
+                    f"imu: sensor {self.name!r} is a {self.kind} camera; give its settings as camera"
+                )
+            imu_config(self.imu)  # validated here
+
+    def mount_or(self, standard: np.ndarray) -> np.ndarray:
+        """The (4, 4) mount, with ``standard`` (the kind's standard mount) where none is given."""
+        if self.mount is None:
+            return np.array(standard, dtype=np.float64)
+        T = np.array(self.mount, dtype=np.float64)
+        if np.isnan(T[:3, 3]).any():
+            T[:3, 3] = np.asarray(standard)[:3, 3]
+        return T
+
+    def camera_config(self, preset: CameraConfig) -> CameraConfig:
+        """This camera's configuration: ``preset`` with this sensor's rate and settings."""
+        changes = dict(self.camera or {})
+        if self.rate_hz is not None:
+            changes["rate_hz"] = self.rate_hz
+        return dataclasses.replace(preset, **changes) if changes else preset
+
+
+def imu_config(imu: Any) -> ImuConfig:
+    """An :class:`~rover_env.config.imu.ImuConfig` from a preset name, a mapping or itself."""
+    if isinstance(imu, ImuConfig):
+        return imu
+    return ImuConfig.from_dict({"preset": imu} if isinstance(imu, str) else imu)
+
+
+def check_rig(rig: tuple[SensorConfig, ...]) -> None:
+    """Reject a rig with two sensors of one name (:class:`ConfigError` naming the key)."""
+    seen: dict[str, int] = {}
+    for i, s in enumerate(rig):
+        if s.name in seen:
+            raise ConfigError(
+                f"rig[{i}].name: {s.name!r} is also rig[{seen[s.name]}]'s; give each sensor its own name"
+            )
+        seen[s.name] = i
+
+
+def with_imu(rig: tuple[SensorConfig, ...], imu: Any) -> tuple[SensorConfig, ...]:
+    """``rig`` with ``imu`` (settings, as in :attr:`SensorConfig.imu`) as its IMU.
+
+    The rig's IMU is replaced in its place (keeping its name, rate and mount); a rig without
+    one gets the sensor ``"imu"`` last.
+
+    Raises:
+        ConfigError: The rig has several IMUs (say which one in the scenario instead).
+    """
+    found = [i for i, s in enumerate(rig) if s.kind == "imu"]
+    if len(found) > 1:
+        names = [rig[i].name for i in found]
+        raise ConfigError(f"imu: the rig has IMUs {names}; give each one's settings in the scenario's rig")
+    if not found:
+        return rig + (SensorConfig("imu", "imu", imu=imu),)
+    i = found[0]
+    return rig[:i] + (dataclasses.replace(rig[i], imu=imu),) + rig[i + 1 :]
+
+
+def standard_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
+    """The rig of a scenario that declares none: the fisheye, the downward camera, and ``imu``.
+
+    Args:
+        imu: The scenario's IMU (a preset name or a mapping), or None for no IMU.
+    """
+    rig = (SensorConfig("fisheye", "fisheye"), SensorConfig("downward", "pinhole"))
+    return rig + ((SensorConfig("imu", "imu", imu=imu),) if imu is not None else ())
+
+
+@dataclass(frozen=True)
+class PerceptionPreset:
+    """Camera configurations of the estimator in the loop.
+
+    Attributes:
+        name: Preset name.
+        downward: The downward camera (its rate is the odometry's).
+        fisheye: The fisheye (its rate is the kinematics').
+        odometry: Odometry parameters that differ from
+            :meth:`FlowOdometryConfig.for_camera` of the downward camera.
+        fisheye_window: (axle roll [rad/s], axle travel [m/s], wheel steering [rad/s]): while
+            the kinematics estimator tracks every marker and joint, the fisheye renders only the
+            windows that hold the wheels, arms and markers over the joint states these rates
+            reach in one frame from its last estimate (:func:`~perception.rover_parts.joint_window_parts`),
+            as a sensor's tracker-driven windowed readout; otherwise, and with None, its whole
+            image (or region of interest). The steering rate is raised to 1.25 times the
+            rover's ``steer_max_rate`` if it is below (an inner wheel turns faster than its axle).
+    """
+
+    name: str
+    downward: DownwardCameraConfig
+    fisheye: FisheyeCameraConfig
+    odometry: dict = field(default_factory=dict, hash=False)
+    fisheye_window: tuple[float, float, float] | None = None
+
+
+def _presets() -> dict[str, PerceptionPreset]:
+    return {
+        # the papers' resolutions and rates. The downward camera sees no ground beyond 2 m, so only
+        # that is drawn for it. The fisheye reads out what the kinematics estimator can use, as
+        # the train preset does: its region of interest, and while it tracks every joint only
+        # the windows about them (pixels the estimator reads are unchanged, see the tests); this
+        # halves its rendering time at 640 x 480 (benchmarks/env_speed.py)
+        "eval": PerceptionPreset(
+            "eval",
+            DownwardCameraConfig.preset("full", rate_hz=60.0, ground_range=2.0),
+            FisheyeCameraConfig.preset("full", roi=True, ground_range=2.0),
+            fisheye_window=(1.8, 0.3, 0.0),
+        ),
+        # the lowest resolutions at which the estimators hold up: below 320x240 the fisheye's
+        # tread texture is too coarse for the wheel rates, and below 30 Hz the wheels turn too
+        # far between frames at 2 m/s; the fisheye renders only its region of interest, and
+        # both cameras draw only the exact ground within 2 m. At 160 px a feature's track is
+        # noisy, and the yaw rate rests on how far apart the features lie: twice the paper's
+        # 40-50 features, out to 8 px from the border (a 2 m/s frame step), halve its error.
+        # The downward camera stays at 30 Hz too: at 15 Hz (half its rendering and odometry time)
+        # slip while slipping was 0.44 MAE against 0.025 over the four missions, 0.62 against
+        # 0.021 on loose slope, and slip-event F1 0.90 against 0.99 (benchmarks/slip_accuracy.py
+        # --preset train, seeds 201-203, GL)
+        "train": PerceptionPreset(
+            "train",
+            DownwardCameraConfig.preset("train", rate_hz=30.0, ground_range=2.0),
+            FisheyeCameraConfig.preset("half", rate_hz=30.0, roi=True, ground_range=2.0),
+            odometry={"roi_margin": 0.05, "max_features": 100},
+            # windows: roll and travel at 1.8 rad/s and 0.3 m/s (the 99th percentiles of their
+            # frame-to-frame changes on rough ground are half that), steering at the rover's limit
+            fisheye_window=(1.8, 0.3, 0.0),
+        ),
+    }
+
+
+#: The presets by name (:data:`PresetName`).
+PERCEPTION_PRESETS: dict[str, PerceptionPreset] = _presets()
