@@ -6,7 +6,7 @@ import dataclasses
 import enum
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -16,7 +16,7 @@ from perception import observation as obs_table
 from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
 from rover_env.config.imu import ImuConfig
-from rover_env.config.rig import imu_config, with_imu
+from rover_env.config.rig import PresetName, imu_config, with_imu
 from rover_env.config.scenario import ScenarioConfig, load_scenario, scenario_rig
 from rover_env.envs.chase_view import ChaseView
 from rover_env.rendering import resolve_renderer
@@ -40,6 +40,12 @@ class ObsSource(str, enum.Enum):
 
     GROUND_TRUTH = "ground_truth"
     ESTIMATED = "estimated"
+
+
+#: The ``action_mode`` keyword's values (:class:`ActionMode`).
+ActionModeName = Literal["drive", "wheels"]
+#: The ``obs_source`` keyword's values (:class:`ObsSource`).
+ObsSourceName = Literal["estimated", "ground_truth"]
 
 
 def task_values(feats) -> dict[str, float]:
@@ -160,9 +166,9 @@ class RoverEnv(gym.Env):
     def __init__(
         self,
         scenario: str | Path | ScenarioConfig = "flat_patches",
-        obs_source: str = "estimated",
-        action_mode: str = "drive",
-        preset: str = "train",
+        obs_source: ObsSourceName = "estimated",
+        action_mode: ActionModeName = "drive",
+        preset: PresetName = "train",
         render_mode: str | None = None,
         control_hz: float = 30.0,
         physics_hz: float = 240.0,

@@ -31,6 +31,7 @@ from rover_env.config.io import ConfigError
 from rover_env.config.rig import (
     PERCEPTION_PRESETS,
     PerceptionPreset,
+    PresetName,
     SensorConfig,
     check_rig,
     imu_config,
@@ -169,7 +170,7 @@ class PerceptionPipeline:
     def __init__(
         self,
         sim: RoverSim,
-        preset: str | PerceptionPreset = "train",
+        preset: PresetName | PerceptionPreset = "train",
         odometry: FlowOdometryConfig | None = None,
         kinematics: KinematicsConfig | None = None,
         slip: SlipConfig | None = None,

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rover_env.envs.rover_env import RoverEnv
+from rover_env.config.rig import PresetName
+from rover_env.envs.rover_env import ObsSourceName, RoverEnv
 
 
 @dataclass(frozen=True)
@@ -53,16 +54,16 @@ class EnvBenchResult:
     """
 
     scenario: str
-    obs_source: str
-    preset: str
+    obs_source: ObsSourceName
+    preset: PresetName
     steps_per_s: float
     real_time_factor: float
 
 
 def bench_env(
     scenario: str,
-    obs_source: str,
-    preset: str = "train",
+    obs_source: ObsSourceName,
+    preset: PresetName = "train",
     steps: int = 90,
     control_hz: float = 30.0,
     seed: int = 0,

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rover_env.config.rig import PresetName
 from rover_env.tools.registry import (  # noqa: F401 (the sweep's names)
     CONTROLLERS,
     OBS_SOURCES,
@@ -67,7 +68,7 @@ class EvalJob:
     controller: str
     mission: str
     seed: int
-    preset: str = "train"
+    preset: PresetName = "train"
     out: str | None = None
     video: bool = False
     rerun: bool = False
@@ -293,7 +294,7 @@ def jobs_for(
     controllers: Iterable[str],
     missions: Iterable[str],
     seeds: Iterable[int],
-    preset: str = "train",
+    preset: PresetName = "train",
     out: str | Path | None = None,
     video: bool = False,
     rerun: bool = False,

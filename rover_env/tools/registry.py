@@ -10,6 +10,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast, get_args
+
+from rover_env.envs.rover_env import ActionModeName
 
 
 @dataclass(frozen=True)
@@ -28,9 +31,12 @@ class ControllerSpec:
     description: str
 
     @property
-    def action_mode(self) -> str:
+    def action_mode(self) -> ActionModeName:
         """The environment's action mode the controller needs."""
-        return self.mode() if callable(self.mode) else self.mode
+        mode = self.mode() if callable(self.mode) else self.mode
+        if mode not in get_args(ActionModeName):
+            raise ValueError(f"action mode {mode!r}: use one of {list(get_args(ActionModeName))}")
+        return cast(ActionModeName, mode)
 
 
 def _slip_unaware(env):

@@ -30,6 +30,8 @@ from controllers.rl import (
     observation_fields,
 )
 from perception.slip import SLIP_EVENT
+from rover_env.config.rig import PresetName
+from rover_env.envs.rover_env import ObsSourceName
 from rover_env.task.course import RewardConfig
 
 log = logging.getLogger(__name__)
@@ -152,8 +154,8 @@ class MissionCycle(gym.Env):
 
 def make_env(
     missions: str | Sequence[str],
-    obs_source: str = "estimated",
-    preset: str = "train",
+    obs_source: ObsSourceName = "estimated",
+    preset: PresetName = "train",
     residual: Sequence[float] | None = (0.5, 0.3, 0.3),
     seed: int | None = None,
     reward: dict | None = None,
@@ -224,8 +226,8 @@ class TrainConfig:
     missions: tuple[str, ...] = ("Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0", "RoverSlopeLoose-v0")
     total_steps: int = 200_000
     n_envs: int = 2
-    obs_source: str = "estimated"
-    preset: str = "train"
+    obs_source: ObsSourceName = "estimated"
+    preset: PresetName = "train"
     residual: tuple[float, float, float] | None = (0.5, 0.3, 0.3)
     base: str = "traction"
     seed: int = 0
