@@ -25,7 +25,8 @@ from rover_env.sensors.rig import PERCEPTION_PRESETS, EstimatorFactory, Percepti
 from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.ground_truth import GroundTruth
 from rover_env.sim.simulation import RoverSim, quat_to_yaw, yaw_to_quat
-from rover_env.task.course import RewardConfig, WaypointCourse
+from rover_env.task.course import WaypointCourse
+from rover_env.task.judge import Judge, RewardConfig, StepFacts, wheel_power
 
 
 class ActionMode(str, enum.Enum):
@@ -56,11 +57,6 @@ def task_values(feats) -> dict[str, float]:
         "cross_track": feats.cross_track,
         "heading_error": feats.heading_error,
     }
-
-
-def wheel_power(gt: GroundTruth) -> float:
-    """Mechanical power of the four drive motors, sum of |torque * rate| [W]."""
-    return float(np.sum(np.abs(gt.wheel_torque * gt.wheel_rate)))
 
 
 class RoverEnv(gym.Env):
@@ -105,12 +101,14 @@ class RoverEnv(gym.Env):
     true position is farther it ends with ``termination="off_target"`` (a failure), and
     ``info["miss_distance"]`` gives the true distance.
 
-    **Reward**: the sum of the terms in ``info["reward_terms"]`` (see :class:`RewardConfig`):
+    **Reward**: the sum of the terms in ``info["reward_terms"]`` (the judge,
+    :mod:`rover_env.task.judge`: :data:`~rover_env.task.judge.REWARD_TERMS` weighted by :class:`RewardConfig`):
     progress along the course, minus cross-track, heading, slip, energy and time penalties,
     plus a success bonus, minus a failure penalty.
 
-    **Episode end**: terminated on success, on tipping over (body tilt > 60 deg), on leaving
-    the terrain or off target; truncated after the scenario's ``duration``.
+    **Episode end**: terminated on tipping over (body tilt > 60 deg), on leaving the terrain,
+    off target or on success, the first that holds in that order
+    (:data:`~rover_env.task.judge.TERMINATIONS`); truncated after the scenario's ``duration``.
 
     **Info**: ``ground_truth`` (exact state), ``wheel_contact`` (friction, normal force,
     contact flag and point per wheel), ``reward_terms``, ``t`` [s], ``waypoint_index`` (the
@@ -211,6 +209,7 @@ class RoverEnv(gym.Env):
         self.scenario = load_scenario(scenario)
         self.geometry = geometry or RoverGeometry()
         self.reward_cfg = reward or RewardConfig()
+        self.judge = Judge(self.reward_cfg, self.scenario.duration)
         self.render_mode = render_mode
         self.render_size = (int(render_size[0]), int(render_size[1]))
         self.control_hz = float(control_hz)
@@ -305,7 +304,7 @@ class RoverEnv(gym.Env):
         feats = self.course.features(self._nav[:2], self._nav[2])
         judge = self._judge_features()
         self._progress = judge.progress
-        terms = dict.fromkeys(self._term_names(), 0.0)
+        terms = Judge.zero_terms()
         return self._observation(feats), self._info(judge, terms, False, None)
 
     def step(self, action):
@@ -342,29 +341,34 @@ class RoverEnv(gym.Env):
         tipped = 1.0 - 2.0 * (qx * qx + qy * qy) < 0.5  # body z axis tilted more than 60 deg
         off = not self.sim.terrain.contains(xy[0], xy[1], margin=0.5)
         off_target = arrived and miss > self.scenario.course.tolerance
-        failure = tipped or off or off_target
-        success = arrived and not failure
-        judge = self._judge_features(success)
-        terms = self._reward_terms(gt, judge, success, failure)
-        self._progress = judge.progress
-        terminated = success or failure
-        truncated = (not terminated) and gt.t >= self.scenario.duration - 1e-9
-        reason = (
-            "tipped_over"
-            if tipped
-            else "left_terrain"
-            if off
-            else "off_target"
-            if off_target
-            else "success"
-            if success
-            else ("time_limit" if truncated else None)
+        facts = StepFacts(
+            gt=gt,
+            progress_gain=0.0,
+            cross_track=0.0,
+            heading_error=0.0,
+            wheel_radius=self.geometry.wheel_radius,
+            dt=self.control_dt,
+            tipped=tipped,
+            left_terrain=off,
+            off_target=off_target,
+            arrived=arrived,
         )
+        end = self.judge.end(facts)
+        # the true pose's course features (progress at the course's end once it has succeeded)
+        judged = self._judge_features(end is not None and not end.failure)
+        facts = dataclasses.replace(
+            facts,
+            progress_gain=judged.progress - self._progress,
+            cross_track=judged.cross_track,
+            heading_error=judged.heading_error,
+        )
+        verdict = self.judge(facts)
+        self._progress = judged.progress
         obs = self._observation(feats)
-        info = self._info(judge, terms, success, reason)
+        info = self._info(judged, verdict.terms, verdict.success, verdict.reason)
         if arrived:
             info["miss_distance"] = miss
-        return obs, float(sum(terms.values())), terminated, truncated, info
+        return obs, verdict.reward, verdict.terminated, verdict.truncated, info
 
     def _nav_pose(self) -> np.ndarray:
         """(x, y, yaw) the on-board tracker is fed: dead-reckoned, or the truth for ground truth."""
@@ -473,40 +477,6 @@ class RoverEnv(gym.Env):
         out["odometry_pose"] = np.array(v["pose"], dtype=np.float64)
         out["quality"] = np.array(qualities(v), dtype=np.float64)
         return out
-
-    @staticmethod
-    def _term_names() -> tuple[str, ...]:
-        return (
-            "progress",
-            "cross_track",
-            "heading",
-            "slip",
-            "slip_speed",
-            "energy",
-            "time",
-            "success",
-            "failure",
-        )
-
-    def _slip_speed(self, gt: GroundTruth) -> float:
-        """Mean over the wheels of |omega r - v_long| [m/s]."""
-        return float(np.mean(np.abs(gt.wheel_rate * self.geometry.wheel_radius - gt.wheel_v_long)))
-
-    def _reward_terms(self, gt: GroundTruth, feats, success: bool, failure: bool) -> dict[str, float]:
-        w = self.reward_cfg
-        dt = self.control_dt
-        power = wheel_power(gt)
-        return {
-            "progress": w.progress * (feats.progress - self._progress),
-            "cross_track": -w.cross_track * abs(feats.cross_track) * dt,
-            "heading": -w.heading * abs(feats.heading_error) * dt,
-            "slip": -w.slip * float(np.mean(np.abs(gt.slip_ratio))) * dt,
-            "slip_speed": -w.slip_speed * self._slip_speed(gt) * dt,
-            "energy": -w.energy * power * dt,
-            "time": -w.time * dt,
-            "success": w.success if success else 0.0,
-            "failure": -w.failure if failure else 0.0,
-        }
 
     def _info(self, feats, terms: dict[str, float], success: bool, reason: str | None) -> dict[str, Any]:
         gt = self._gt

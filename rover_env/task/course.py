@@ -1,4 +1,4 @@
-"""The waypoint-course driving task: progress, task features and reward terms."""
+"""The waypoint-course driving task: the on-board tracker, progress and task features."""
 
 from __future__ import annotations
 
@@ -7,46 +7,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rover_env.config.io import check_range
 from rover_env.config.scenario import CourseConfig
 
 
 def wrap_angle(a: float) -> float:
     """Wrap an angle to [-pi, pi) [rad]."""
     return (a + math.pi) % (2 * math.pi) - math.pi
-
-
-@dataclass(frozen=True)
-class RewardConfig:
-    """Weights of the reward terms; every term is reported in ``info["reward_terms"]``.
-
-    Attributes:
-        progress: Reward per metre of progress along the course [1/m].
-        cross_track: Penalty per metre of |cross-track error| per second [1/(m s)].
-        heading: Penalty per radian of |heading error| per second [1/(rad s)].
-        slip: Penalty per unit of mean |slip ratio| of the wheels per second [1/s].
-        slip_speed: Penalty per m/s of mean wheel slip speed |omega r - v_long| per second
-            [1/m]: unlike the ratio, which saturates at 1, it keeps falling as a spinning wheel
-            slows toward its ground speed (0: off).
-        energy: Penalty per joule of wheel-motor mechanical work [1/J].
-        time: Penalty per second [1/s].
-        success: Bonus for reaching the last waypoint.
-        failure: Penalty for tipping over or leaving the terrain.
-    """
-
-    progress: float = 1.0
-    cross_track: float = 0.2
-    heading: float = 0.05
-    slip: float = 0.5
-    slip_speed: float = 0.0
-    energy: float = 0.002
-    time: float = 0.05
-    success: float = 10.0
-    failure: float = 10.0
-
-    def __post_init__(self) -> None:
-        for name in self.__dataclass_fields__:
-            check_range(name, getattr(self, name), 0.0, 1e6)
 
 
 @dataclass(frozen=True)

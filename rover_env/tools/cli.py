@@ -135,7 +135,7 @@ def _max_workers() -> int:
 
 def _weight(text: str) -> tuple[str, float]:
     """``"slip=5"`` -> ("slip", 5.0); the term must be one of RewardConfig's, the weight in [0, 1e6]."""
-    from rover_env.task.course import RewardConfig
+    from rover_env.task.judge import RewardConfig
 
     key, sep, value = text.partition("=")
     terms = tuple(RewardConfig.__dataclass_fields__)

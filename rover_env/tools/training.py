@@ -32,7 +32,7 @@ from controllers.rl import (
 from perception.slip import SLIP_EVENT
 from rover_env.config.rig import PresetName
 from rover_env.envs.rover_env import ObsSourceName
-from rover_env.task.course import RewardConfig
+from rover_env.task.judge import RewardConfig
 
 log = logging.getLogger(__name__)
 
@@ -170,7 +170,7 @@ def make_env(
         preset: Camera preset.
         residual: Residual scale (None: the policy's action is the action).
         seed: Seed of the action space (episodes are seeded by ``reset``).
-        reward: Weights of the reward terms that differ from :class:`~rover_env.task.course.RewardConfig`'s.
+        reward: Weights of the reward terms that differ from :class:`~rover_env.task.judge.RewardConfig`'s.
         base: The residual's base, a key of :data:`BASES` (sets the action mode).
     """
     check_base(base)
@@ -219,7 +219,7 @@ class TrainConfig:
         checkpoint_every: Save a checkpoint every this many steps.
         hyper: Algorithm keyword arguments (override the defaults).
         reward: Reward weights that differ from the environment's
-            (:class:`~rover_env.task.course.RewardConfig`).
+            (:class:`~rover_env.task.judge.RewardConfig`).
     """
 
     algo: str = "ppo"
