@@ -102,7 +102,7 @@ class RoverEnv(gym.Env):
     ``info["miss_distance"]`` gives the true distance.
 
     **Reward**: the sum of the terms in ``info["reward_terms"]`` (the judge,
-    :mod:`rover_env.task.judge`: :data:`~rover_env.task.judge.REWARD_TERMS` weighted by :class:`RewardConfig`):
+    :mod:`rover_env.task.judge`: its ``REWARD_TERMS`` weighted by :class:`RewardConfig`):
     progress along the course, minus cross-track, heading, slip, energy and time penalties,
     plus a success bonus, minus a failure penalty.
 
