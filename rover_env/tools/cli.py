@@ -362,6 +362,37 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from perception import bags
+    from perception.estimator import EstimatorError
+    from perception.outputs import OutputFolder
+    from perception.replay import load_rig, replay, write_estimates
+    from perception.rover_estimator import RoverEstimator
+    from rover_env.tools.evaluation import load_estimator
+
+    _need_source(args.source)
+    if not bags.is_log(args.source):
+        raise ValueError(
+            f"{args.source}: not a ROS 1 bag, ROS 2 bag folder or MCAP file (replay reads robot logs)"
+        )
+    log_rig = load_rig(args.rig)  # the inputs before the output
+    factory = load_estimator(args.estimator) if args.estimator else RoverEstimator
+    try:
+        estimator = factory(log_rig.rig)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"--estimator: building it from {args.rig}'s rig failed: {exc}") from exc
+    with OutputFolder(args.out, ("estimates.csv",), args.overwrite, inputs=(args.source, args.rig)) as folder:
+        with folder.writing("estimates.csv") as tmp:
+            try:
+                n = write_estimates(replay(args.source, log_rig, estimator, args.control_hz, args.start), tmp)
+            except EstimatorError as exc:
+                raise ValueError(str(exc)) from exc
+        folder.commit()
+    csv_path = Path(args.out) / "estimates.csv"
+    print(f"{n} control steps of {type(estimator).__name__} on {args.source}; wrote {csv_path}")
+    return 0
+
+
 def _need_source(source: str) -> None:
     if not Path(source).exists():
         raise FileNotFoundError(f"{source}: no such file or folder")
@@ -574,6 +605,28 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", required=True, help="output folder (kinematics.csv, kinematics.mcap)")
     k.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     k.set_defaults(func=_cmd_kinematics)
+    r = sub.add_parser(
+        "replay",
+        formatter_class=fmt,
+        help="replay a robot log through any estimator (the one that drives in the simulation)",
+    )
+    r.add_argument("source", help="a ROS 1 bag, a ROS 2 bag folder or an MCAP file")
+    r.add_argument(
+        "--rig", required=True, help="rig file: the log's sensors, calibrations and topics (docs/replay.md)"
+    )
+    r.add_argument(
+        "--estimator", help="module:FACTORY or path/file.py:FACTORY (default: the built-in RoverEstimator)"
+    )
+    r.add_argument(
+        "--control-hz", type=_float_in(0.0, 1000.0), default=30.0, help="update() calls per second [Hz]"
+    )
+    r.add_argument(
+        "--start", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "YAW"),
+        help="start fix: x, y [m], yaw [rad]",
+    )  # fmt: skip
+    r.add_argument("--out", required=True, help="output folder (estimates.csv)")
+    r.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
+    r.set_defaults(func=_cmd_replay)
     s = sub.add_parser("scenarios", formatter_class=fmt, help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
     return p
