@@ -612,7 +612,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("source", help="a ROS 1 bag, a ROS 2 bag folder or an MCAP file")
     r.add_argument(
-        "--rig", required=True, help="rig file: the log's sensors, calibrations and topics (docs/replay.md)"
+        "--rig", required=True, help="rig file: the log's sensors, calibrations and topics (docs/own_estimator.md)"
     )
     r.add_argument(
         "--estimator", help="module:FACTORY or path/file.py:FACTORY (default: the built-in RoverEstimator)"
