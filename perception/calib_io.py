@@ -20,15 +20,17 @@ class CalibrationError(ConfigError):
     """A calibration file or value is missing, malformed or physically impossible."""
 
 
-def read_mapping(path: str | Path, required: set[str], optional: set[str]) -> dict[str, Any]:
-    """Load a YAML mapping and check its keys.
+def read_mapping(
+    path: str | Path, required: set[str], optional: set[str], what: str = "calibration file"
+) -> dict[str, Any]:
+    """Load a YAML mapping and check its keys (``what`` the file is, for the messages).
 
     Raises:
         CalibrationError: The file is missing or unreadable, is not a mapping, lacks a required
             key or has an unknown one (the message names it and lists the accepted keys).
     """
     p = Path(path)
-    data = read_yaml(p, CalibrationError, "calibration file")
+    data = read_yaml(p, CalibrationError, what)
     if not isinstance(data, dict):
         raise CalibrationError(f"{p}: expected a mapping of keys at the top level")
     missing = sorted(required - data.keys(), key=str)

@@ -55,7 +55,8 @@ log = logging.getLogger(__name__)
 TICK_TOLERANCE = 1e-6
 
 #: The columns of :func:`write_estimates`'s CSV: time, the dead-reckoned pose, every estimate.
-CSV_COLUMNS: tuple[str, ...] = ("t", "x", "y", "yaw", *(f for f in ESTIMATE_FIELDS if f != "pose"))
+#: ``t`` is from the first camera frame [s], ``t_log`` the same instant on the log's clock [s].
+CSV_COLUMNS: tuple[str, ...] = ("t", "t_log", "x", "y", "yaw", *(f for f in ESTIMATE_FIELDS if f != "pose"))
 
 
 @dataclass(frozen=True)
@@ -96,7 +97,7 @@ def load_rig(path: str | Path) -> LogRig:
             one name; the message names the file and the key.
     """
     path = Path(path)
-    d = read_mapping(path, {"sensors"}, {"rover", "steer_max_rate"})
+    d = read_mapping(path, {"sensors"}, {"rover", "steer_max_rate"}, what="rig file")
     here = path.parent
     sensors = d["sensors"]
     if not isinstance(sensors, list) or not sensors:
@@ -112,7 +113,9 @@ def load_rig(path: str | Path) -> LogRig:
         for need in ("name", "kind", "rate_hz"):
             if need not in s:
                 raise ConfigError(f"{key}.{need}: missing")
-        name, kind = str(s["name"]), s["kind"]
+        name, kind = s["name"], s["kind"]
+        if not isinstance(name, str) or not name.strip():
+            raise ConfigError(f"{key}.name: {name!r}; give each sensor a non-empty name")
         if kind in ("pinhole", "fisheye"):
             if "calibration" not in s:
                 raise ConfigError(f"{key}.calibration: missing (a {kind} camera's calibration file)")
@@ -127,12 +130,17 @@ def load_rig(path: str | Path) -> LogRig:
             )
             try:
                 mount = check_rigid(np.asarray(s.get("mount", np.eye(4)), dtype=np.float64), "mount")
-            except (CalibrationError, TypeError, ValueError) as exc:
+            except CalibrationError as exc:
                 raise ConfigError(f"{key}.{exc}") from None
+            except (TypeError, ValueError):
+                raise ConfigError(
+                    f"{key}.mount: {s['mount']!r}; give a 4 x 4 rigid matrix (body from IMU)"
+                ) from None
         else:
             raise ConfigError(f"{key}.kind: {kind!r}; use pinhole, fisheye or imu")
         try:
-            specs.append(SensorSpec(name, kind, s["rate_hz"], mount, model, readout_window=kind == "fisheye"))
+            # a log's images are recorded: no readout window can be asked for
+            specs.append(SensorSpec(name, kind, s["rate_hz"], mount, model))
         except ConfigError as exc:
             raise ConfigError(f"{key}: {exc}") from None
         topic = s.get("topic")
@@ -146,15 +154,43 @@ def load_rig(path: str | Path) -> LogRig:
     return LogRig(rig, topics)
 
 
-def save_rig(rig: Rig, folder: str | Path, topics: dict[str, str] | None = None) -> Path:
+def save_rig(
+    rig: Rig, folder: str | Path, topics: dict[str, str] | None = None, overwrite: bool = False
+) -> Path:
     """Write ``rig`` as a rig file ``rig.yaml`` with its calibrations in ``folder``; its path.
+
+    Each camera's calibration is ``<name>.yaml``, the rover's model ``rover.yaml``.
 
     Args:
         rig: The rig (cameras' models must be :class:`PinholeCamera` or :class:`OmniCamera`).
-        folder: Where to write (created if missing); files of the same names are replaced.
+        folder: Where to write (created if missing).
         topics: Sensor name -> log topic, where the log has several topics of a kind.
+        overwrite: Replace files of those names already in ``folder``.
+
+    Raises:
+        FileExistsError: A file to write is already there (without ``overwrite``); nothing is written.
+        ValueError: A sensor's name cannot be a file name (a path separator, ``rig``, ``rover``).
     """
     folder = Path(folder)
+    files = ["rig.yaml"] + (["rover.yaml"] if rig.vehicle is not None else [])
+    for spec in rig.values():
+        if spec.kind == "imu":
+            continue
+        if (
+            spec.name in ("rig", "rover")
+            or not spec.name
+            or any(c in spec.name for c in "/\\\0")
+            or spec.name.startswith(".")
+        ):
+            raise ValueError(
+                f"sensor {spec.name!r}: its calibration file would be {spec.name}.yaml; rename it"
+            )
+        files.append(f"{spec.name}.yaml")
+    there = [f for f in files if (folder / f).exists()]
+    if there and not overwrite:
+        raise FileExistsError(
+            f"{folder}: holds {', '.join(there)}; pass overwrite=True or choose another folder"
+        )
     folder.mkdir(parents=True, exist_ok=True)
     sensors = []
     for spec in rig.values():
@@ -231,12 +267,14 @@ class ReplayStep:
     """One control tick of a replay.
 
     Attributes:
-        t: Control time from the first message [s].
+        t: Control time from the first camera frame [s].
+        t_log: The same instant on the log's clock (its header stamps) [s].
         estimate: What the estimator returned (checked, :func:`perception.estimator.check_estimate`).
         messages: How many messages it was given at this tick.
     """
 
     t: float
+    t_log: float
     estimate: dict[str, Any]
     messages: int
 
@@ -258,22 +296,36 @@ def replay(
         control_hz: Ticks per second [Hz].
         start_fix: The start fix (x [m], y [m], yaw [rad]).
 
-    Yields:
-        A :class:`ReplayStep` per tick, from t = 0 (the first camera frame) to the last message.
+    Returns:
+        An iterator of a :class:`ReplayStep` per tick, from t = 0 (the first camera frame) to the
+        last message; the log is read as it is iterated.
 
     Raises:
-        EstimatorError: The estimator raised or returned something malformed (named, with the step).
-        ValueError: A log without a sensor's topic, or images of another size than the calibration.
+        ValueError: A bad ``control_hz`` or ``start_fix`` (at once). While iterating: a log
+            without a sensor's topic, or images of another size than the calibration.
+        TypeError: ``estimator`` lacks ``reset`` or ``update`` (at once).
+        EstimatorError: While iterating: the estimator raised or returned something malformed
+            (named, with the step).
     """
-    from perception.estimator import EstimatorError
-
-    log_path = Path(log_path)
     rate = real_number("control_hz", control_hz)
     if not 0 < rate <= 1000:
         raise ValueError(f"control_hz={control_hz!r}: give a control rate in (0, 1000] Hz")
     fix = np.asarray(start_fix, dtype=np.float64)
     if fix.shape != (3,) or not np.all(np.isfinite(fix)):
         raise ValueError(f"start_fix={list(start_fix)!r}: give a finite (x, y, yaw) [m, rad]")
+    for name in ("reset", "update"):
+        if not callable(getattr(estimator, name, None)):
+            raise TypeError(
+                f"estimator {estimator_name(estimator)} has no {name}() method (see perception.estimator)"
+            )
+    return _replay(Path(log_path), log_rig, estimator, rate, fix)
+
+
+def _replay(
+    log_path: Path, log_rig: LogRig, estimator: Any, rate: float, fix: np.ndarray
+) -> Iterator[ReplayStep]:
+    from perception.estimator import EstimatorError
+
     streams, firsts = [], []
     for name, spec in log_rig.rig.items():
         make: Callable = _imu_stream if spec.kind == "imu" else _camera_stream
@@ -304,7 +356,7 @@ def replay(
             values = estimator.update(list(pending), t)
         except Exception as exc:
             raise EstimatorError(f"estimator {who}, step {step}: {type(exc).__name__}: {exc}") from exc
-        return ReplayStep(t, check_estimate(values, who, step), len(pending))
+        return ReplayStep(t, t0 + t, check_estimate(values, who, step), len(pending))
 
     for t_abs, name, data in merged:
         t = t_abs - t0
@@ -332,8 +384,8 @@ def write_estimates(steps: Iterator[ReplayStep], path: str | Path) -> int:
         out.writerow(CSV_COLUMNS)
         for s in steps:
             pose = s.estimate["pose"]
-            row = [f"{s.t:.6f}", *(repr(float(v)) for v in pose)]
-            row += ["" if s.estimate.get(c) is None else repr(float(s.estimate[c])) for c in CSV_COLUMNS[4:]]
+            row = [f"{s.t:.6f}", f"{s.t_log:.9f}", *(repr(float(v)) for v in pose)]
+            row += ["" if s.estimate.get(c) is None else repr(float(s.estimate[c])) for c in CSV_COLUMNS[5:]]
             out.writerow(row)
             n += 1
     return n

@@ -81,9 +81,15 @@ def test_a_rig_file_round_trips_the_simulation_s_rig(recorded):
     assert list(lr.rig) == ["fisheye", "downward", "imu"] and lr.topics == TOPICS
     assert [s.kind for s in lr.rig.values()] == ["fisheye", "pinhole", "imu"]
     assert lr.rig["downward"].rate_hz == 30.0 and lr.rig["imu"].rate_hz == 240.0
-    assert lr.rig["fisheye"].readout_window and lr.rig.vehicle is not None
+    assert not lr.rig["fisheye"].readout_window  # a log's images are recorded: no windows to ask for
+    assert lr.rig.vehicle is not None
     K = lr.rig["downward"].model.K
     assert K[0, 0] > 0 and lr.rig["downward"].model.image_size == (160, 120)
+    # writing it again over the same files is refused, and nothing is changed
+    before = {p.name: p.read_bytes() for p in rig_file.parent.iterdir()}
+    with pytest.raises(FileExistsError, match="rig.yaml"):
+        save_rig(lr.rig, rig_file.parent)
+    assert {p.name: p.read_bytes() for p in rig_file.parent.iterdir()} == before
 
 
 def test_the_estimator_gives_on_the_log_what_it_gave_in_the_loop(recorded, tmp_path, monkeypatch):
@@ -92,11 +98,23 @@ def test_the_estimator_gives_on_the_log_what_it_gave_in_the_loop(recorded, tmp_p
     log_path, rig_file, in_loop, _, start = recorded
     monkeypatch.chdir(ROOT)
     out = tmp_path / "lk"
-    argv = ["replay", str(log_path), "--rig", str(rig_file), "--out", str(out), "--start", *map(str, start)]
+    argv = [
+        "replay",
+        str(log_path),
+        "--rig",
+        str(rig_file),
+        "--out",
+        str(out),
+        "--start",
+        str(start[0]),
+        str(start[1]),
+        str(math.degrees(start[2])),
+    ]
     assert main([*argv, "--estimator", "examples.own_estimator:LucasKanadeEstimator"]) == 0
     got = read_csv(out / "estimates.csv")
     assert len(got["t"]) == STEPS + 1  # the reset's tick and one per control step
     np.testing.assert_allclose(got["t"], [t for t, _ in in_loop], atol=1e-6)
+    np.testing.assert_allclose(got["t_log"], T0 + got["t"], atol=1e-6)  # the log's clock
     pose = np.array([v["pose"] for _, v in in_loop])
     np.testing.assert_allclose(np.c_[got["x"], got["y"], got["yaw"]], pose, atol=1e-5)
     for name in ("v_x", "omega"):
@@ -135,6 +153,26 @@ def test_bad_input_is_named_and_writes_nothing(recorded, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "160x120 px image" in err and "'downward'" in err and "80x60 px" in err
     assert not out.exists()
+    # a factory that fails on the rig: named, exit status 2, nothing written
+    picky = tmp_path / "picky.py"
+    picky.write_text("class Picky:\n    def __init__(self, rig): self.cam = rig['front']\n")
+    out = tmp_path / "o0"
+    assert (
+        main(
+            [
+                "replay",
+                str(log_path),
+                "--rig",
+                str(rig_file),
+                "--estimator",
+                f"{picky}:Picky",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
+    assert "KeyError: 'front'" in capsys.readouterr().err and not out.exists()
     # an estimator that fails at its third update: named, with the step
     bad = tmp_path / "bad_estimator.py"
     bad.write_text(

@@ -173,3 +173,41 @@ def test_a_scenario_with_both_a_rig_and_an_imu_is_refused(tmp_path):
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError, match="imu: this scenario declares a rig"):
         load_scenario(path)
+
+
+def test_a_turned_only_mount_keeps_the_imu_s_place_and_the_keyword_replaces_its_settings(tmp_path):
+    rig = [
+        {"name": "fisheye", "kind": "fisheye"},
+        {"name": "downward", "kind": "pinhole"},
+        {"name": "imu", "kind": "imu", "imu": {"preset": "bmi088", "position": [0.1, 0.2, 0.05]},
+         "mount": {"rpy": [0.0, 0.0, math.pi / 2]}},
+    ]  # fmt: skip
+    path = scenario_file(tmp_path, rig)
+    scenario = load_scenario(path)
+    assert load_scenario(scenario) == scenario  # a configuration passes through unchanged
+    env = gym.make("Rover-v0", scenario=str(path), renderer="tiny")
+    try:
+        mount = env.unwrapped.rig["imu"].mount
+        np.testing.assert_allclose(mount[:3, 3], [0.1, 0.2, 0.05])  # the IMU's own place ...
+        np.testing.assert_allclose(mount[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)  # ... turned
+    finally:
+        env.close()
+    # the keyword's settings take the place of the rig's (its name, rate and mount stay)
+    env = gym.make("Rover-v0", scenario=str(path), imu="ideal", renderer="tiny")
+    try:
+        spec = env.unwrapped.rig["imu"]
+        np.testing.assert_allclose(spec.mount[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+        assert spec.model.gyro.noise_density == 0.0
+    finally:
+        env.close()
+
+def test_the_scenario_s_imu_rate_is_named_where_it_was_written(tmp_path):
+    data = to_dict(load_scenario("flat_patches")) | {"imu": {"preset": "bmi088", "rate_hz": 100}}
+    path = tmp_path / "imu100.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"^imu\.rate_hz: 100 Hz \(sensor 'imu'\) does not divide"):
+        gym.make("Rover-v0", scenario=str(path), renderer="tiny")
+    rig = [{"name": "f", "kind": "fisheye"}, {"name": "d", "kind": "pinhole"},
+           {"name": "i", "kind": "imu", "imu": {"preset": "bmi088", "rate_hz": 100}}]  # fmt: skip
+    with pytest.raises(ConfigError, match=r"^rig\[2\]\.imu\.rate_hz: 100 Hz"):
+        gym.make("Rover-v0", scenario=str(scenario_file(tmp_path, rig)), renderer="tiny")

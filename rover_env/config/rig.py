@@ -4,13 +4,15 @@ A scenario's ``rig`` lists the rover's sensors in the order the simulation sampl
 has a name (the ``sensor`` of its messages), a kind, and optionally a rate, a mount and the
 settings of its kind. Without a ``rig`` a rover carries the standard one
 (:func:`standard_rig`): the fisheye, the downward camera and, if the scenario names an IMU,
-the IMU. Example (a second downward camera further forward, and the IMU at 100 Hz)::
+the IMU. Example (the downward camera moved forward at 60 Hz, and an IMU at 120 Hz)::
 
     rig:
       - {name: fisheye, kind: fisheye}
-      - {name: downward, kind: pinhole}
-      - {name: front, kind: pinhole, rate_hz: 30, mount: {position: [0.45, 0.0, 0.5]}}
+      - {name: downward, kind: pinhole, rate_hz: 60, mount: {position: [0.45, 0.0, 0.5]}}
       - {name: imu, kind: imu, rate_hz: 120, imu: bmi088}
+
+The built-in estimator takes one pinhole camera and one fisheye (and an IMU if there is one);
+a rig with other sensors, more of them or fewer needs an estimator of your own that takes it.
 
 Frames: a mount is the sensor's frame in the body frame (x forward, y left, z up), "body from
 sensor", as a 4 x 4 matrix or as ``position`` [m] and ``rpy`` [rad] (roll, pitch, yaw about the
@@ -40,8 +42,9 @@ SENSOR_KIND_NAMES: tuple[str, ...] = get_args(SensorKind)
 #: The estimator-in-the-loop presets (:data:`PERCEPTION_PRESETS`).
 PresetName = Literal["eval", "train"]
 
-#: Standard orientations (body from sensor, ``rpy`` [rad]) of the kinds' sensors: the downward
-#: camera's image up is body forward; the fisheye's image x is body forward; both look down.
+#: The standard mounts' orientations as ``rpy`` [rad] (body from sensor): the downward camera's
+#: image up is body forward; the fisheye's image x is body forward; both look down. (An IMU's
+#: standard mount is where its settings put it.)
 STANDARD_RPY: dict[str, tuple[float, float, float]] = {
     "pinhole": (math.pi, 0.0, -math.pi / 2),
     "fisheye": (math.pi, 0.0, 0.0),
@@ -57,8 +60,12 @@ def mount_matrix(position, rpy) -> np.ndarray:
     return T
 
 
-def _mount(value: Any, kind: str) -> tuple[tuple[float, ...], ...] | None:
-    """A mount from a scenario (None, a 4 x 4 list, or ``position`` and ``rpy``) as 4 x 4 rows."""
+def _mount(value: Any) -> Any:
+    """A scenario's mount, checked: None, ``{position, rpy}`` (either optional) or a 4 x 4 rigid matrix.
+
+    Returned in its own form (a mapping of tuples, or 4 x 4 rows), so that a configuration
+    written out (:func:`rover_env.config.io.to_dict`) reads back the same.
+    """
     if value is None:
         return None
     if isinstance(value, dict):
@@ -66,23 +73,17 @@ def _mount(value: Any, kind: str) -> tuple[tuple[float, ...], ...] | None:
         if unknown:
             raise ConfigError(f"mount: unknown key {unknown[0]!r}; give position [m] and/or rpy [rad]")
         pose = from_dict(_MountPose, value, "mount")
-        T = mount_matrix(
-            pose.position if pose.position is not None else (0.0, 0.0, 0.0),
-            pose.rpy if pose.rpy is not None else STANDARD_RPY[kind],
-        )
-        if pose.position is None:  # only turned: the standard place is filled in when built
-            T[:3, 3] = np.nan
-    else:
-        try:
-            T = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ConfigError(f"mount: {value!r}; give a 4 x 4 matrix or position and rpy") from None
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise ConfigError(f"mount: {value!r}; give a 4 x 4 matrix of finite numbers (body from sensor)")
-        try:
-            check_rigid(T, "mount")
-        except ConfigError as exc:
-            raise ConfigError(f"{exc}; a mount is a rigid transform (rotation and translation)") from None
+        return {k: v for k, v in (("position", pose.position), ("rpy", pose.rpy)) if v is not None}
+    try:
+        T = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"mount: {value!r}; give a 4 x 4 matrix or position and rpy") from None
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ConfigError(f"mount: {value!r}; give a 4 x 4 matrix of finite numbers (body from sensor)")
+    try:
+        check_rigid(T, "mount")
+    except ConfigError as exc:
+        raise ConfigError(f"{exc}; a mount is a rigid transform (rotation and translation)") from None
     return tuple(tuple(float(v) for v in row) for row in T)
 
 
@@ -108,10 +109,10 @@ class SensorConfig:
         rate_hz: Samples per second [Hz]; must divide the physics rate (240 Hz: 240, 120, 80,
             60, 48, 40, 30, ...). None: the preset's (cameras) or the IMU's own.
         mount: Body from sensor: a 4 x 4 rigid transform, or ``{position: [x, y, z], rpy: [r,
-            p, y]}`` [m, rad] (either may be left out: the kind's standard place or
-            orientation, :data:`STANDARD_RPY`). None: the kind's standard mount (the downward
-            camera on the mast, the fisheye under the body, the IMU where its settings say).
-            Stored as 4 x 4 rows; a row of NaN translation means "the standard place".
+            p, y]}`` [m, rad], either of which may be left out and is then the standard
+            mount's. None: the standard mount (the downward camera on the mast, the fisheye
+            under the body, looking down as :data:`STANDARD_RPY` says; the IMU where its
+            settings put it).
         camera: A camera's settings that differ from the preset's: fields of
             :class:`~rover_env.config.cameras.DownwardCameraConfig` (pinhole) or
             :class:`~rover_env.config.cameras.FisheyeCameraConfig` (fisheye), except ``rate_hz``.
@@ -136,7 +137,7 @@ class SensorConfig:
             )
         if self.rate_hz is not None:
             check_range("rate_hz", self.rate_hz, 0.0, 10000.0, lo_open=True)
-        object.__setattr__(self, "mount", _mount(self.mount, self.kind))
+        object.__setattr__(self, "mount", _mount(self.mount))
         if self.camera is not None:
             if self.kind == "imu":
                 raise ConfigError(f"camera: sensor {self.name!r} is an IMU; give its settings as imu")
@@ -153,12 +154,15 @@ class SensorConfig:
             imu_config(self.imu)  # validated here
 
     def mount_or(self, standard: np.ndarray) -> np.ndarray:
-        """The (4, 4) mount, with ``standard`` (the kind's standard mount) where none is given."""
-        if self.mount is None:
-            return np.array(standard, dtype=np.float64)
-        T = np.array(self.mount, dtype=np.float64)
-        if np.isnan(T[:3, 3]).any():
-            T[:3, 3] = np.asarray(standard)[:3, 3]
+        """The (4, 4) mount; ``standard`` (the sensor's mount without one) fills what it leaves out."""
+        T = np.array(standard, dtype=np.float64)
+        if isinstance(self.mount, dict):
+            if "position" in self.mount:
+                T[:3, 3] = self.mount["position"]
+            if "rpy" in self.mount:
+                T[:3, :3] = Rotation.from_euler("xyz", self.mount["rpy"]).as_matrix()
+        elif self.mount is not None:
+            T = np.array(self.mount, dtype=np.float64)
         return T
 
     def camera_config(self, preset: CameraConfig) -> CameraConfig:
@@ -180,6 +184,8 @@ def check_rig(rig: tuple[SensorConfig, ...]) -> None:
     """Reject a rig with two sensors of one name (:class:`ConfigError` naming the key)."""
     seen: dict[str, int] = {}
     for i, s in enumerate(rig):
+        if s.name == "fisheye_windowed":  # the pipeline's count of windowed fisheye frames
+            raise ConfigError(f"rig[{i}].name: 'fisheye_windowed' is reserved; give the sensor another name")
         if s.name in seen:
             raise ConfigError(
                 f"rig[{i}].name: {s.name!r} is also rig[{seen[s.name]}]'s; give each sensor its own name"

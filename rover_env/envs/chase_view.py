@@ -29,12 +29,26 @@ class ChaseView:
         sim: The simulation.
         scenario: Its scenario (the sun and the friction patches).
         size: (width, height) of a frame [px].
+        mounts: The insets' camera mounts (4 x 4, body from camera) by kind, ``"pinhole"`` and
+            ``"fisheye"``: the rig's first camera of each kind; a kind given as None is left
+            out (a black inset). None: both at their standard mounts.
     """
 
-    def __init__(self, sim: RoverSim, scenario: ScenarioConfig, size: tuple[int, int]) -> None:
+    def __init__(
+        self,
+        sim: RoverSim,
+        scenario: ScenarioConfig,
+        size: tuple[int, int],
+        mounts: dict[str, np.ndarray | None] | None = None,
+    ) -> None:
         self.sim = sim
         self.scenario = scenario
         self.size = size
+        std = {
+            "pinhole": DownwardCamera.standard_mount(sim.geometry),
+            "fisheye": FisheyeCamera.standard_mount(sim.geometry),
+        }
+        self.mounts = std if mounts is None else {k: mounts.get(k) for k in std}
         self._views: dict | None = None
         self._outlines: list | None = None  # the friction patches drawn in the chase view
 
@@ -62,7 +76,11 @@ class ChaseView:
         # the friction patches, outlined and labelled in the chase view only (no camera sees them)
         self._draw_patches(frame[:, :left], views["chase"], T_world_chase)
         for row, cam, label in ((0, views["downward"], "downward camera"), (1, views["fisheye"], "fisheye")):
-            img = cv2.resize(cam.capture().image, (side, h // 2), interpolation=cv2.INTER_AREA)
+            if cam is None:
+                img = np.zeros((h // 2, side, 3), np.uint8)
+                label = f"no {label} in the rig"
+            else:
+                img = cv2.resize(cam.capture().image, (side, h // 2), interpolation=cv2.INTER_AREA)
             cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 0), 1, cv2.LINE_AA)
             frame[row * (h // 2) : (row + 1) * (h // 2), left:] = img
         return frame
@@ -127,10 +145,12 @@ class ChaseView:
             self._views = {
                 "chase": PinholeCamera.from_fov((left, h), math.radians(55.0 * left / h), math.radians(55.0)),
                 "lighting": Lighting((sx, sy, sz), ambient=0.35, shadows=shadows),
-                "downward": DownwardCamera(
-                    self.sim, DownwardCameraConfig(width=iw, height=ih, shadows=shadows)
-                ),
-                "fisheye": FisheyeCamera(self.sim, FisheyeCameraConfig(width=iw, height=ih, shadows=shadows)),
+                "downward": None
+                if (m := self.mounts["pinhole"]) is None
+                else DownwardCamera(self.sim, DownwardCameraConfig(width=iw, height=ih, shadows=shadows), m),
+                "fisheye": None
+                if (m := self.mounts["fisheye"]) is None
+                else FisheyeCamera(self.sim, FisheyeCameraConfig(width=iw, height=ih, shadows=shadows), m),
                 # what the chase view shows past the terrain: a dark sky, lighter at the top
                 "sky": np.broadcast_to(
                     (np.linspace(70, 20, h)[:, None, None] * np.array([0.8, 0.9, 1.2])).astype(np.uint8),

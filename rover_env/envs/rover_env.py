@@ -237,7 +237,10 @@ class RoverEnv(gym.Env):
             rig = scenario_rig(self.scenario)
             if imu is not None:  # the keyword's IMU takes the place of the scenario's
                 rig = with_imu(rig, imu_config(imu))
-            self.pipeline = PerceptionPipeline(self.sim, preset, estimator=estimator, rig=rig)
+            declared = self.scenario.rig is not None
+            self.pipeline = PerceptionPipeline(
+                self.sim, preset, estimator=estimator, rig=rig, declared=declared
+            )
         self._est: dict[str, Any] | None = None  # the estimator's last (checked) estimate
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
@@ -362,7 +365,7 @@ class RoverEnv(gym.Env):
             cross_track=judged.cross_track,
             heading_error=judged.heading_error,
         )
-        verdict = self.judge(facts)
+        verdict = self.judge.score(facts, end)
         self._progress = judged.progress
         obs = self._observation(feats)
         info = self._info(judged, verdict.terms, verdict.success, verdict.reason)
@@ -410,7 +413,14 @@ class RoverEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._chase is None:
-            self._chase = ChaseView(self.sim, self.scenario, self.render_size)
+            mounts = None  # ground truth: the standard cameras' views
+            if self.pipeline is not None:  # the rig's first camera of each kind, where it has one
+                down, fish = self.pipeline.downward, self.pipeline.fisheye
+                mounts = {
+                    "pinhole": None if down is None else down.T_body_cam,
+                    "fisheye": None if fish is None else fish.T_body_cam,
+                }
+            self._chase = ChaseView(self.sim, self.scenario, self.render_size, mounts)
         return self._chase.frame()
 
     def close(self) -> None:

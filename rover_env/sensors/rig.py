@@ -69,17 +69,21 @@ def _figures(triad) -> TriadFigures:
 SimSensor = DownwardCamera | FisheyeCamera | Imu
 
 
-def build_sensor(sim: RoverSim, config: SensorConfig, preset: PerceptionPreset, key: str) -> SimSensor:
+def build_sensor(
+    sim: RoverSim, config: SensorConfig, preset: PerceptionPreset, key: str, declared: bool = True
+) -> SimSensor:
     """The simulated sensor ``config`` declares, on ``sim``'s rover (not yet attached).
 
     Args:
         sim: The simulation (its rover, sun and physics rate).
         config: The sensor's declaration.
         preset: The cameras' settings where ``config`` gives none.
-        key: Its key in the scenario (``"rig[2]"``), for error messages.
+        key: Its key in the scenario, for error messages: ``"rig[2]"`` in a declared rig, or
+            the sensor's name in the standard rig (``"imu"``: the scenario's ``imu`` key).
+        declared: It is an entry of the scenario's ``rig`` (its IMU settings under ``imu``).
 
     Raises:
-        ConfigError: Its rate does not divide the physics rate.
+        ConfigError: Its rate does not divide the physics rate (naming the key that set it).
     """
     if config.kind == "imu":
         imu = imu_config(config.imu if config.imu is not None else "bmi088")
@@ -92,14 +96,20 @@ def build_sensor(sim: RoverSim, config: SensorConfig, preset: PerceptionPreset, 
             changes["rpy"] = tuple(float(v) for v in Rotation.from_matrix(T[:3, :3]).as_euler("xyz"))
         imu = dataclasses.replace(imu, **changes) if changes else imu
         rate = imu.rate_hz
+        settings = f"{key}.imu" if declared else key
     else:
         base = preset.downward if config.kind == "pinhole" else preset.fisheye
-        cam_cfg = config.camera_config(base)
+        try:
+            cam_cfg = config.camera_config(base)
+        except ConfigError as exc:
+            raise ConfigError(f"{key}.{exc}") from None
         rate = cam_cfg.rate_hz
+        settings = f"the preset {preset.name!r}'s {config.kind} camera"
     steps = (1.0 / sim.dt) / rate
     if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+        where = f"{key}.rate_hz" if config.rate_hz is not None else f"{settings}.rate_hz"
         raise ConfigError(
-            f"{key}.rate_hz: {rate:g} Hz (sensor {config.name!r}) does not divide the physics rate "
+            f"{where}: {rate:g} Hz (sensor {config.name!r}) does not divide the physics rate "
             f"{1 / sim.dt:g} Hz; use a whole fraction of it (240, 120, 80, 60, 48, 40, 30 ... at 240 Hz)"
         )
     if config.kind == "imu":
@@ -107,8 +117,10 @@ def build_sensor(sim: RoverSim, config: SensorConfig, preset: PerceptionPreset, 
     if config.kind == "pinhole":
         standard = DownwardCamera.standard_mount(sim.geometry)
         return DownwardCamera(sim, cam_cfg, config.mount_or(standard))  # type: ignore[arg-type]
-    standard = FisheyeCamera.standard_mount(sim.geometry)
-    return FisheyeCamera(sim, cam_cfg, config.mount_or(standard))  # type: ignore[arg-type]
+    if config.kind == "fisheye":
+        standard = FisheyeCamera.standard_mount(sim.geometry)
+        return FisheyeCamera(sim, cam_cfg, config.mount_or(standard))  # type: ignore[arg-type]
+    raise ConfigError(f"{key}.kind: {config.kind!r}; no simulated sensor of this kind")
 
 
 def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
@@ -132,8 +144,12 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             specs.append(
                 SensorSpec(name, "fisheye", sensor.config.rate_hz, sensor.T_body_cam, sensor.model, True)
             )
-        else:
+        elif isinstance(sensor, DownwardCamera):
             specs.append(SensorSpec(name, "pinhole", sensor.config.rate_hz, sensor.T_body_cam, sensor.model))
+        else:
+            raise TypeError(
+                f"sensor {name!r}: {type(sensor).__name__} has no rig spec; add its kind to rig_of"
+            )
     fisheyes = [s for s in sensors.values() if isinstance(s, FisheyeCamera)]
     T_fish = fisheyes[0].T_body_cam if fisheyes else FisheyeCamera.standard_mount(g)
     return Rig(specs, vehicle=g.kinematic_model(T_fish), steer_max_rate=g.steer_max_rate)
@@ -165,6 +181,8 @@ class PerceptionPipeline:
         rig: The sensors to build and attach, in sampling order (a scenario's ``rig``, see
             :mod:`rover_env.config.rig`); None: the standard rig (fisheye, downward camera,
             ``imu``). Cameras take the preset's settings where their declaration gives none.
+        declared: ``rig`` is the scenario's ``rig`` key (errors name ``rig[i]``), not the
+            standard rig (errors name the sensor: ``imu.rate_hz``).
     """
 
     def __init__(
@@ -178,6 +196,7 @@ class PerceptionPipeline:
         odometry_gyro: bool = True,
         estimator: EstimatorFactory | None = None,
         rig: tuple[SensorConfig, ...] | None = None,
+        declared: bool = False,
     ) -> None:
         if isinstance(preset, str):
             if preset not in PERCEPTION_PRESETS:
@@ -192,10 +211,11 @@ class PerceptionPipeline:
         #: The simulated sensors by name, in the order the simulation samples them.
         self.sensors: dict[str, SimSensor] = {}
         for i, config in enumerate(rig):
-            sensor = build_sensor(sim, config, preset, f"rig[{i}]")
+            key = f"rig[{i}]" if declared else config.name
+            sensor = build_sensor(sim, config, preset, key, declared)
             sim.attach_sensor(config.name, sensor)
             self.sensors[config.name] = sensor
-        self.cameras = [s for s in self.sensors.values() if not isinstance(s, Imu)]
+        self.cameras = [s for s in self.sensors.values() if isinstance(s, DownwardCamera | FisheyeCamera)]
         self.imus = [s for s in self.sensors.values() if isinstance(s, Imu)]
         # the first of each kind, as a user reaches them (None if the rig has none)
         self.downward = next((s for s in self.cameras if isinstance(s, DownwardCamera)), None)
@@ -209,7 +229,13 @@ class PerceptionPipeline:
                 self.rig, odometry, kinematics, slip, overrides, preset.fisheye_window, odometry_gyro
             )
         else:
-            self.estimator = estimator(self.rig)
+            try:
+                self.estimator = estimator(self.rig)
+            except Exception as exc:  # the user's code: any error, named
+                who = getattr(estimator, "__qualname__", type(estimator).__name__)
+                raise EstimatorError(
+                    f"estimator factory {who}({self.rig!r}): {type(exc).__name__}: {exc}"
+                ) from exc
             for method in ("reset", "update"):
                 if not callable(getattr(self.estimator, method, None)):
                     raise TypeError(
@@ -218,7 +244,7 @@ class PerceptionPipeline:
                     )
         self.name = estimator_name(self.estimator)
         self.builtin = isinstance(self.estimator, RoverEstimator)
-        camera_names = [n for n, s in self.sensors.items() if not isinstance(s, Imu)]
+        camera_names = [n for n, s in self.sensors.items() if isinstance(s, DownwardCamera | FisheyeCamera)]
         #: Each camera's latest image given to the estimator (None before the first).
         self.last_images: dict[str, np.ndarray | None] = dict.fromkeys(camera_names)
         self._sim_timing = sim.timing

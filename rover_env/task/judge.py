@@ -202,10 +202,17 @@ class Judge:
 
     def __call__(self, facts: StepFacts) -> Verdict:
         """The verdict on one step."""
-        end = self.end(facts)
+        return self.score(facts, self.end(facts))
+
+    def score(self, facts: StepFacts, end: Termination | None) -> Verdict:
+        """The verdict on one step that ``end`` (:meth:`end` of the same step) ended or not.
+
+        A term whose measure is zero is +0.0.
+        """
         terms = {}
         for t in REWARD_TERMS:
-            value = t.sign * getattr(self.weights, t.name) * t.measure(facts, end)
+            m = t.measure(facts, end)
+            value = t.sign * getattr(self.weights, t.name) * m if m != 0.0 else 0.0
             terms[t.name] = value * facts.dt if t.per_second else value
         truncated = end is None and facts.gt.t >= self.duration - 1e-9
         return Verdict(terms, float(sum(terms.values())), end, truncated)

@@ -364,7 +364,7 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
 
 def _cmd_replay(args: argparse.Namespace) -> int:
     from perception import bags
-    from perception.estimator import EstimatorError
+    from perception.estimator import EstimatorError, estimator_name
     from perception.outputs import OutputFolder
     from perception.replay import load_rig, replay, write_estimates
     from perception.rover_estimator import RoverEstimator
@@ -377,19 +377,23 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         )
     log_rig = load_rig(args.rig)  # the inputs before the output
     factory = load_estimator(args.estimator) if args.estimator else RoverEstimator
+    who = args.estimator or "RoverEstimator (the built-in)"
     try:
         estimator = factory(log_rig.rig)
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"--estimator: building it from {args.rig}'s rig failed: {exc}") from exc
+    except Exception as exc:  # the user's code: any error, named
+        what = f"{type(exc).__name__}: {exc}"
+        raise ValueError(f"estimator {who} on {args.rig}'s rig {log_rig.rig!r}: {what}") from exc
+    x, y, yaw_deg = args.start
+    steps = replay(args.source, log_rig, estimator, args.control_hz, (x, y, math.radians(yaw_deg)))
     with OutputFolder(args.out, ("estimates.csv",), args.overwrite, inputs=(args.source, args.rig)) as folder:
         with folder.writing("estimates.csv") as tmp:
             try:
-                n = write_estimates(replay(args.source, log_rig, estimator, args.control_hz, args.start), tmp)
+                n = write_estimates(steps, tmp)
             except EstimatorError as exc:
                 raise ValueError(str(exc)) from exc
         folder.commit()
     csv_path = Path(args.out) / "estimates.csv"
-    print(f"{n} control steps of {type(estimator).__name__} on {args.source}; wrote {csv_path}")
+    print(f"{n} control steps of {estimator_name(estimator)} on {args.source}; wrote {csv_path}")
     return 0
 
 
@@ -612,7 +616,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("source", help="a ROS 1 bag, a ROS 2 bag folder or an MCAP file")
     r.add_argument(
-        "--rig", required=True, help="rig file: the log's sensors, calibrations and topics (docs/own_estimator.md)"
+        "--rig",
+        required=True,
+        help="rig file: the log's sensors, calibrations and topics (see docs/own_estimator.md)",
     )
     r.add_argument(
         "--estimator", help="module:FACTORY or path/file.py:FACTORY (default: the built-in RoverEstimator)"
@@ -621,8 +627,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--control-hz", type=_float_in(0.0, 1000.0), default=30.0, help="update() calls per second [Hz]"
     )
     r.add_argument(
-        "--start", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "YAW"),
-        help="start fix: x, y [m], yaw [rad]",
+        "--start", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "YAW_DEG"),
+        help="start fix: x, y [m], yaw [deg]",
     )  # fmt: skip
     r.add_argument("--out", required=True, help="output folder (estimates.csv)")
     r.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
