@@ -238,9 +238,13 @@ class RoverEnv(gym.Env):
             if imu is not None:  # the keyword's IMU takes the place of the scenario's
                 rig = with_imu(rig, imu_config(imu))
             declared = self.scenario.rig is not None
-            self.pipeline = PerceptionPipeline(
-                self.sim, preset, estimator=estimator, rig=rig, declared=declared
-            )
+            try:
+                self.pipeline = PerceptionPipeline(
+                    self.sim, preset, estimator=estimator, rig=rig, declared=declared
+                )
+            except BaseException:  # a bad rig or estimator: release the physics client
+                self.sim.close()
+                raise
         self._est: dict[str, Any] | None = None  # the estimator's last (checked) estimate
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
