@@ -2,11 +2,11 @@
 
 A drive with ``obs_source="estimated"`` is recorded once (every sensor message of every step, a
 steady turn with a speed ramp, so the wheels turn and the ground moves); the environment's own
-:class:`rover_env.sensors.rig.PerceptionPipeline` is then reset and fed the recorded messages step
-by step, ``--repeat`` times, with ``cv2.setNumThreads(1)``. Each step's time is split into the
-odometry (downward frames), the fisheye kinematics and the rest (slip filter, dead reckoning,
-the fisheye window request). The figures are medians over steps of the fastest repeat (a shared
-machine's load only ever adds time). Replaying the same frames also checks the pipeline is
+:class:`perception.RoverEstimator` (the built-in estimator in the loop) is then reset and fed the
+recorded messages step by step, ``--repeat`` times, with ``cv2.setNumThreads(1)``. Each step's
+time is split into the odometry (downward frames), the fisheye kinematics and the rest (slip
+filter, dead reckoning, the fisheye window request). The figures are medians over steps of the fastest repeat (a shared
+machine's load only ever adds time). Replaying the same frames also checks the estimator is
 deterministic: every repeat's estimates must equal the live run's.
 
 Run: python benchmarks/perception_speed.py [--envs Rover-v0 RoverRoughSlippery-v0] [--steps 300]
@@ -25,45 +25,40 @@ import rover_env  # noqa: F401  (registers the missions)
 
 
 def record(env_id: str, preset: str, steps: int, renderer: str) -> tuple:
-    """The environment, its reset and step messages, and the live estimates of ``steps`` steps."""
+    """The environment, its estimator's reset and update calls, and the live estimates of ``steps`` steps."""
     env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer)
-    u = env.unwrapped
+    est = env.unwrapped.pipeline.estimator  # the built-in perception.RoverEstimator
     log = []
-    process, reset = u.pipeline.process, u.pipeline.reset
-    resetting = []
+    update, reset = est.update, est.reset
 
-    def keep_process(messages, t):
-        out = process(messages, t)
-        if not resetting:  # reset() processes the first frames itself
-            log.append(("step", list(messages), t, _values(out)))
+    def keep_reset(start_fix):
+        log.append(("reset", np.array(start_fix, dtype=np.float64), 0.0, None))
+        return reset(start_fix)
+
+    def keep_update(messages, t):
+        out = update(messages, t)
+        log.append(("step", list(messages), t, _values(out)))
         return out
 
-    def keep_reset(pose0, messages, t=0.0):
-        resetting.append(True)
-        try:
-            out = reset(pose0, messages, t)
-        finally:
-            resetting.clear()
-        log.append(("reset", (np.array(pose0), list(messages)), t, _values(out)))
-        return out
-
-    u.pipeline.process, u.pipeline.reset = keep_process, keep_reset
-    env.reset(seed=0)
-    for k in range(steps):
-        ramp = min(1.0, 0.2 + k / 60)  # 0.4 -> 2 m/s: 3.5 -> 17 rad/s wheel rates
-        env.step(np.array([ramp, 0.15, -0.15], dtype=np.float32))
-    u.pipeline.process, u.pipeline.reset = process, reset
+    est.update, est.reset = keep_update, keep_reset  # instance attributes shadow the methods
+    try:
+        env.reset(seed=0)
+        for k in range(steps):
+            ramp = min(1.0, 0.2 + k / 60)  # 0.4 -> 2 m/s: 3.5 -> 17 rad/s wheel rates
+            env.step(np.array([ramp, 0.15, -0.15], dtype=np.float32))
+    finally:
+        del est.update, est.reset
     return env, log
 
 
-def _values(est) -> np.ndarray:
-    return np.concatenate([np.ravel(v) for v in est.values.values()])
+def _values(est: dict) -> np.ndarray:
+    return np.concatenate([np.ravel(np.asarray(est[k], dtype=np.float64)) for k in sorted(est)])
 
 
-def replay(pipe, log) -> tuple[np.ndarray, bool]:
+def replay(est, log) -> tuple[np.ndarray, bool]:
     """Per step (odometry, kinematics, total) [ms], and whether every estimate matched the live run."""
     clocks = {"odometry": 0.0, "kinematics": 0.0}
-    odo, kin = pipe.odometry.update, pipe.kinematics.update
+    odo, kin = est.odometry.update, est.kinematics.update
 
     def timed(name, fn):
         def run(*a, **k):
@@ -75,22 +70,21 @@ def replay(pipe, log) -> tuple[np.ndarray, bool]:
 
         return run
 
-    pipe.odometry.update, pipe.kinematics.update = timed("odometry", odo), timed("kinematics", kin)
+    est.odometry.update, est.kinematics.update = timed("odometry", odo), timed("kinematics", kin)
     rows, same = [], True
     try:
         for kind, payload, t, live in log:
+            if kind == "reset":
+                est.reset(payload)
+                continue
             clocks["odometry"] = clocks["kinematics"] = 0.0
             t0 = time.perf_counter()
-            if kind == "reset":
-                out = pipe.reset(payload[0], payload[1], t)
-            else:
-                out = pipe.process(payload, t)
+            out = est.update(payload, t)
             total = time.perf_counter() - t0
             same &= bool(np.array_equal(_values(out), live, equal_nan=True))
-            if kind == "step":
-                rows.append((clocks["odometry"], clocks["kinematics"], total))
+            rows.append((clocks["odometry"], clocks["kinematics"], total))
     finally:
-        del pipe.odometry.update, pipe.kinematics.update
+        del est.odometry.update, est.kinematics.update
     return np.asarray(rows) * 1e3, same
 
 
@@ -110,7 +104,7 @@ def main(argv=None) -> int:
     for env_id in args.envs:
         env, log = record(env_id, args.preset, args.steps, args.renderer)
         try:
-            runs = [replay(env.unwrapped.pipeline, log) for _ in range(args.repeat)]
+            runs = [replay(env.unwrapped.pipeline.estimator, log) for _ in range(args.repeat)]
         finally:
             env.close()
         best = min(runs, key=lambda r: float(np.median(r[0][:, 2])))[0]
