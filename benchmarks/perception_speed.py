@@ -6,8 +6,8 @@ steady turn with a speed ramp, so the wheels turn and the ground moves); the env
 recorded messages step by step, ``--repeat`` times, with ``cv2.setNumThreads(1)``. Each step's
 time is split into the odometry (downward frames), the fisheye kinematics and the rest (slip
 filter, dead reckoning, the fisheye window request). The figures are medians over steps of the
-fastest repeat (a shared machine's load only ever adds time). Replaying the same frames also checks the estimator is
-deterministic: every repeat's estimates must equal the live run's.
+fastest repeat (a shared machine's load only ever adds time). Replaying the same frames also
+checks the estimator is deterministic: every repeat's estimates must equal the live run's.
 
 Run: python benchmarks/perception_speed.py [--envs Rover-v0 RoverRoughSlippery-v0] [--steps 300]
 """
