@@ -129,6 +129,10 @@ def test_traction_control_holds_the_slip_set_point_where_the_slip_unaware_follow
     xy_a, vx_a, slip_a, energy_a, info_a = runs["aware"]
     s_u, s_a = slip_u[accelerating(vx_u)], slip_a[accelerating(vx_a)]
     assert len(s_u) > 100 and len(s_a) > 100
+    print(
+        f"true slip while climbing: slip-unaware median {np.median(s_u):.2f}, {energy_u:.0f} J; traction "
+        f"control median {np.median(s_a):.3f}, 95th percentile {np.percentile(s_a, 95):.3f}, {energy_a:.0f} J"
+    )
     assert np.median(s_u) > 0.5  # the commanded speed spins the wheels on sand
     assert abs(np.median(s_a) - SETPOINT) < 0.03
     assert np.percentile(s_a, 95) < SETPOINT + 0.03
@@ -142,6 +146,9 @@ def test_traction_control_on_the_estimated_slip():
     # the same climb with the estimator in the loop: the estimates drive the bounds
     runs = unaware_and_aware("Rover-v0", 25.0, scenario=slope_on_sand(), obs_source="estimated")
     slips = {name: r[2][accelerating(r[1])] for name, r in runs.items()}
+    s = slips["aware"]
+    p90 = np.percentile(s, 90)
+    print(f"traction control on the estimated slip: median {np.median(s):.2f}, 90th percentile {p90:.2f}")
     assert np.median(slips["unaware"]) > 0.5
     assert np.median(slips["aware"]) < SETPOINT + 0.1
     assert np.percentile(slips["aware"], 90) < 0.4
