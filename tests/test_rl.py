@@ -71,6 +71,7 @@ def test_traction_residual_is_the_slip_aware_controller_plus_a_drive_change_with
             progress[mode] = float(info["progress"])
         finally:
             env.close()
+    print(f"median slip with +1 m/s asked for on the loose slope: {median_slip}")
     assert median_slip["drive"] > 0.5, median_slip
     assert median_slip["wheels"] < 0.1, median_slip
     assert progress["wheels"] > 5.0 > progress["drive"], progress  # and it climbs
