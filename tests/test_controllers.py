@@ -84,6 +84,7 @@ def test_path_follower_converges_on_a_circle(speed):
     turn = np.unwrap(np.arctan2(xy[:, 0], radius - xy[:, 1]))
     settled = np.abs(err[turn > 1.25 * math.pi])  # the last turn
     assert len(settled) > 100
+    print(f"circle at {speed} m/s: last turn within {100 * settled.max():.1f} cm of the circle")
     assert settled.max() < 0.05, settled.max()  # steady-state cross-track [m]
 
 
