@@ -20,25 +20,17 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parents[1]
 
-# runs in the tree under test: its own rover_env, whatever the environment has installed
+# runs in the tree under test: its own rover_env and its own benchmarks/env_speed.py's ``run``
+# (10 warm-up steps, then ``steps`` timed), whatever the environment has installed
 PROBE = r"""
-import json, sys, time
-sys.path.insert(0, sys.argv[1])
-import cv2, gymnasium as gym, numpy as np
+import json, sys
+sys.path[:0] = [sys.argv[1], sys.argv[1] + "/benchmarks"]
+import cv2
 cv2.setNumThreads(1)
 import rover_env
 assert rover_env.__file__.startswith(sys.argv[1]), rover_env.__file__
-env = gym.make(sys.argv[2], obs_source=sys.argv[3], preset="train", renderer=sys.argv[4])
-a = np.array([0.5, 0.1, -0.1], dtype=np.float32)
-env.reset(seed=0)
-for _ in range(10):
-    env.step(a)
-t0 = time.perf_counter()
-n = int(sys.argv[5])
-for _ in range(n):
-    env.step(a)
-print(json.dumps({"ms": (time.perf_counter() - t0) / n * 1e3}))
-env.close()
+from env_speed import run
+print(json.dumps(run(sys.argv[2], sys.argv[3], "train", int(sys.argv[5]), sys.argv[4])))
 """
 
 

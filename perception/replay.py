@@ -32,6 +32,7 @@ then ``update(messages up to t, t)`` at t = 0, 1/control_hz, ... [s] from the fi
 from __future__ import annotations
 
 import heapq
+import itertools
 import logging
 import math
 from collections.abc import Callable, Iterator, Sequence
@@ -335,7 +336,7 @@ def _replay(
             log.warning("%s: no usable message of sensor %r", log_path, name)
             continue
         firsts.append((first[0], spec.kind != "imu"))
-        streams.append(_chain_first(first, stream))
+        streams.append(itertools.chain([first], stream))
     if not streams:
         raise ValueError(f"{log_path}: no usable message from the rig's sensors")
     # time 0 is the first camera frame (the cameras pace the loop); earlier IMU samples come with it
@@ -367,11 +368,6 @@ def _replay(
         pending.append(SensorMessage(name, t, data))
     if pending:
         yield tick()
-
-
-def _chain_first(first, rest) -> Iterator:
-    yield first
-    yield from rest
 
 
 def write_estimates(steps: Iterator[ReplayStep], path: str | Path) -> int:

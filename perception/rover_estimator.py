@@ -40,10 +40,8 @@ from perception.rover_parts import joint_window_parts
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.validation import ConfigError
 
-#: Keys of ``StepEstimate.values``: the ground truth's state keys and the dead-reckoned
-#: ``odometry_pose`` (x, y, yaw); the qualities are the StepEstimate's own fields.
-STEP_KEYS: tuple[str, ...] = (
-    "odometry_pose",
+#: The rover's state under the names the simulator's ground truth uses too (besides its pose).
+STATE_KEYS: tuple[str, ...] = (
     "twist",
     "wheel_rate",
     "wheel_angle",
@@ -54,6 +52,9 @@ STEP_KEYS: tuple[str, ...] = (
     "steering",
     "tilt",
 )
+#: Keys of ``StepEstimate.values``: the dead-reckoned ``odometry_pose`` (x, y, yaw) and the
+#: state keys; the qualities are the StepEstimate's own fields.
+STEP_KEYS: tuple[str, ...] = ("odometry_pose", *STATE_KEYS)
 #: The gyro's bias is calibrated on its samples over this long before the start [s]: the
 #: rover is then at rest on its wheels.
 IMU_CALIBRATION_S = 0.25

@@ -215,7 +215,8 @@ class PerceptionPipeline:
             sensor = build_sensor(sim, config, preset, key, declared)
             sim.attach_sensor(config.name, sensor)
             self.sensors[config.name] = sensor
-        self.cameras = [s for s in self.sensors.values() if isinstance(s, DownwardCamera | FisheyeCamera)]
+        cameras = {n: s for n, s in self.sensors.items() if isinstance(s, DownwardCamera | FisheyeCamera)}
+        self.cameras = list(cameras.values())
         self.imus = [s for s in self.sensors.values() if isinstance(s, Imu)]
         # the first of each kind, as a user reaches them (None if the rig has none)
         self.downward = next((s for s in self.cameras if isinstance(s, DownwardCamera)), None)
@@ -244,7 +245,7 @@ class PerceptionPipeline:
                     )
         self.name = estimator_name(self.estimator)
         self.builtin = isinstance(self.estimator, RoverEstimator)
-        camera_names = [n for n, s in self.sensors.items() if isinstance(s, DownwardCamera | FisheyeCamera)]
+        camera_names = list(cameras)
         #: Each camera's latest image given to the estimator (None before the first).
         self.last_images: dict[str, np.ndarray | None] = dict.fromkeys(camera_names)
         self._sim_timing = sim.timing

@@ -7,18 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-GROUND_TRUTH_KEYS: tuple[str, ...] = (
-    "pose",
-    "twist",
-    "wheel_rate",
-    "wheel_angle",
-    "slip_ratio",
-    "slip_angle",
-    "axle_roll",
-    "axle_height",
-    "steering",
-    "tilt",
-)
+from perception.rover_estimator import STATE_KEYS
+
+#: ``info["ground_truth"]``'s keys: the pose and the state under the estimator's names.
+GROUND_TRUTH_KEYS: tuple[str, ...] = ("pose", *STATE_KEYS)
 
 
 @dataclass(frozen=True)
