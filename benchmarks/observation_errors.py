@@ -29,9 +29,14 @@ from rover_env.envs import OBS_FIELDS
 from rover_env.tools.estimator_metrics import EstimateLog, field_errors, slip_metrics
 
 
-def run(env_id: str, seed: int, preset: str, seconds: float, renderer: str = "gl") -> dict:
-    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer)
+def run(
+    env_id: str, seed: int, preset: str, seconds: float, renderer: str = "gl", make=None, setup=None
+) -> dict:
+    """One closed-loop drive; ``make``: more ``gym.make`` keywords, ``setup(env)``: called before reset."""
+    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer, **(make or {}))
     try:
+        if setup is not None:
+            setup(env)
         ctrl = PurePursuit(OBS_FIELDS)
         obs, info = env.reset(seed=seed)
         ctrl.reset()
@@ -45,9 +50,10 @@ def run(env_id: str, seed: int, preset: str, seconds: float, renderer: str = "gl
                 break
         wall = time.perf_counter() - wall
         fisheye_period = env.unwrapped.pipeline.fisheye.period
+        timing = env.unwrapped.pipeline.timing
     finally:
         env.close()
-    return log.arrays(fisheye_period) | {"wall": wall, "success": bool(info["is_success"])}
+    return log.arrays(fisheye_period) | {"wall": wall, "success": bool(info["is_success"]), "timing": timing}
 
 
 def main(argv=None) -> int:

@@ -20,6 +20,7 @@ beyond the tread tracker's search, and are lost for several frames.
 from __future__ import annotations
 
 import argparse
+import time
 
 import gymnasium as gym
 import numpy as np
@@ -53,9 +54,15 @@ def drive(
     ramp: float = 0.0,
     renderer: str = "gl",
     imu: str | None = None,
+    make=None,
+    setup=None,
 ) -> dict:
-    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer, imu=imu)
+    """One drive over the patch; ``make``: more ``gym.make`` keywords, ``setup(env)``: called before reset."""
+    env = gym.make(env_id, obs_source="estimated", preset=preset, renderer=renderer, imu=imu, **(make or {}))
     try:
+        if setup is not None:
+            setup(env)
+        wall = time.perf_counter()
         obs, info = env.reset(seed=seed)
         log = EstimateLog(env.unwrapped.geometry.wheel_radius)
         rng = np.random.default_rng(seed)
@@ -72,10 +79,11 @@ def drive(
             log.add(obs, info)
             if term or trunc or x > patch_x[1] + 0.5:
                 break
+        wall = time.perf_counter() - wall
         frame = env.unwrapped.pipeline.fisheye.period
     finally:
         env.close()
-    return log.arrays(frame)
+    return log.arrays(frame) | {"wall": wall, "steps": k + 1}
 
 
 def main(argv=None) -> int:

@@ -15,7 +15,7 @@ import dataclasses
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -51,6 +51,7 @@ __all__ = [
     "PerceptionPipeline",
     "PerceptionPreset",
     "StepEstimate",
+    "builtin_estimator",
     "rig_of",
 ]
 
@@ -159,6 +160,48 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
 EstimatorFactory = Callable[[Rig], Any]
 
 
+def builtin_estimator(
+    preset: PresetName | PerceptionPreset = "train",
+    *,
+    odometry: FlowOdometryConfig | None = None,
+    kinematics: KinematicsConfig | None = None,
+    slip: SlipConfig | None = None,
+    odometry_gyro: bool = True,
+    odometry_overrides: Mapping[str, Any] | None = None,
+    fisheye_window: tuple[float, float, float] | None | Literal["preset"] = "preset",
+) -> EstimatorFactory:
+    """A factory of the built-in :class:`perception.RoverEstimator` as ``preset`` sets it up, with changes.
+
+    With no changes it builds what an environment builds without ``estimator=``; pass it as
+    ``gym.make(ID, estimator=builtin_estimator("train", slip=SlipConfig(grip_std=0.0)))`` to
+    run the built-in estimator with other parameters (an ablation).
+
+    Args:
+        preset: The preset whose odometry settings and fisheye windows are used.
+        odometry: The odometry's whole configuration; None: :meth:`FlowOdometryConfig.for_camera`
+            of the downward camera with the preset's settings and ``odometry_overrides``.
+        kinematics: Fisheye-kinematics parameters (None: the defaults).
+        slip: Slip-filter parameters (None: the defaults).
+        odometry_gyro: Give the odometry's 3-D fit the gyro's roll and pitch rates (with an IMU).
+        odometry_overrides: :class:`FlowOdometryConfig` fields set over the preset's.
+        fisheye_window: The fisheye's windowed readout (see :class:`PerceptionPreset`):
+            ``"preset"``, None (whole frames) or (roll [rad/s], travel [m/s], steering [rad/s]).
+    """
+    if isinstance(preset, str):
+        if preset not in PERCEPTION_PRESETS:
+            raise ConfigError(f"preset: {preset!r}; use one of {sorted(PERCEPTION_PRESETS)}")
+        preset = PERCEPTION_PRESETS[preset]
+    # the simulated camera is noise-free and renders each frame anew: a repeat is a standstill
+    overrides = {"repeated_frames": "still"} | preset.odometry | dict(odometry_overrides or {})
+    window = preset.fisheye_window if fisheye_window == "preset" else fisheye_window
+
+    def factory(rig: Rig) -> RoverEstimator:
+        return RoverEstimator(rig, odometry, kinematics, slip, overrides, window, odometry_gyro)
+
+    factory.__qualname__ = f"builtin_estimator({preset.name!r})"
+    return factory
+
+
 class PerceptionPipeline:
     """The simulated sensors of one rover and the estimator that consumes their messages.
 
@@ -224,11 +267,9 @@ class PerceptionPipeline:
         self.imu = self.imus[0] if self.imus else None
         self.rig = rig_of(sim, self.sensors)
         if estimator is None:
-            # the simulated camera is noise-free and renders each frame anew: a repeat is a standstill
-            overrides = {"repeated_frames": "still"} | preset.odometry
-            self.estimator: Any = RoverEstimator(
-                self.rig, odometry, kinematics, slip, overrides, preset.fisheye_window, odometry_gyro
-            )
+            self.estimator: Any = builtin_estimator(
+                preset, odometry=odometry, kinematics=kinematics, slip=slip, odometry_gyro=odometry_gyro
+            )(self.rig)
         else:
             try:
                 self.estimator = estimator(self.rig)
