@@ -164,15 +164,15 @@ def speed_error(runs, above: float = 0.5) -> float:
 def events_row(runs) -> str:
     m = slip_metrics(runs)
     return (
-        f"{m['events']} | {m['false']} | {m['missed']} | {m['precision']:.2f} | {m['recall']:.2f} "
-        f"| {m['f1']:.2f} | {m['mae_slip']:.3f} | {m['mae_calm']:.3f}"
+        f"{m['events']} | {m['false']} | {m['in_band']} | {m['missed']} | {m['precision']:.2f} "
+        f"| {m['recall']:.2f} | {m['f1']:.2f} | {m['mae_slip']:.3f} | {m['mae_calm']:.3f}"
     )
 
 
 EVENTS_HEAD = (
-    "| variant | true events | false | missed | precision | recall | F1 | slip MAE, abs(s) > 0.1 "
+    "| variant | true events | false | in band | missed | precision | recall | F1 | slip MAE, abs(s) > 0.1 "
     "| slip MAE, otherwise | wheel rate MAE / p95 [rad/s] | ms a step |\n"
-    "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
 )
 
 

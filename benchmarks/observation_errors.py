@@ -81,7 +81,8 @@ def main(argv=None) -> int:
         m = slip_metrics(runs)
         print(
             f"\nslip ratio MAE: {m['mae_slip']:.3f} while |s| > 0.1 ({m['n_slip']} wheel-steps), "
-            f"{m['mae_calm']:.3f} otherwise; events: {m['events']}, precision {m['precision']:.2f}, "
+            f"{m['mae_calm']:.3f} otherwise; events: {m['events']}, false {m['false']}, in the band "
+            f"{m['in_band']}, precision {m['precision']:.2f}, "
             f"recall {m['recall']:.2f}, F1 {m['f1']:.2f}, onset latency median {m['latency_median']:.1f} "
             f"/ max {m['latency_max']:.1f} camera frames ({100 * m['within_2']:.0f} % within 2)"
         )

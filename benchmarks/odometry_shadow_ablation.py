@@ -4,7 +4,7 @@ rover's own shadow in the downward camera (sun behind, 30 deg up), estimated on 
 (a) no robustness (every tracked feature, no mask), (b) RANSAC only, as in the paper (no validity
 decision), and with this package's validity decision, (c) mask and RANSAC (the full estimator).
 The ground plane under the body comes from the wheel centres, as the fisheye kinematics estimator
-measures it: the body rolls about 3 deg on its suspension in this turn.
+measures it: the body rolls on its suspension in this turn (the output says how far).
 
 Writes a table (stdout and ``OUT/odometry_ablation.csv``) and ``OUT/odometry_ablation.png``.
 
@@ -42,7 +42,11 @@ CONFIGS = {
 
 
 def record(seconds: float, preset: str, sun_elevation: float, sun_azimuth: float, texture: str = "concrete"):
-    """Drive the arc and capture the downward camera (chained, 60 Hz) with exact body poses."""
+    """Drive the arc and capture the downward camera (chained, 60 Hz) with exact body poses.
+
+    Returns the camera model, the frames, the poses (t, x, y, yaw), the ground planes under the
+    wheels, the mean share of the image in the rover's shadow, and the largest body roll [rad].
+    """
     scenario = ScenarioConfig(
         name="odometry_arc",
         course=CourseConfig(waypoints=((5.0, 5.0),)),
@@ -57,7 +61,7 @@ def record(seconds: float, preset: str, sun_elevation: float, sun_azimuth: float
         sim.rover.command(g.drive.wheel_speeds(SPEED, lam, -lam) / g.wheel_radius, lam, -lam)
         sim.step(1.5)  # up to speed
         cam = DownwardCamera(sim, DownwardCameraConfig.preset(preset))
-        frames, poses, planes, shadow_share = [], [], [], []
+        frames, poses, planes, shadow_share, roll = [], [], [], [], []
         c = sim.client
         wheels = sim.rover.wheel_links
         n = int(round(seconds / cam.period)) + 1
@@ -69,11 +73,13 @@ def record(seconds: float, preset: str, sun_elevation: float, sun_azimuth: float
             # the ground under the wheels in the body frame, from the wheel centres (what the
             # fisheye kinematics estimator measures through axle roll and height)
             R = np.array(c.getMatrixFromQuaternion(quat)).reshape(3, 3)
+            roll.append(math.atan2(R[2, 1], R[2, 2]))
             centres = np.array([st[4] for st in c.getLinkStates(sim.rover.body_id, wheels)])
             planes.append(ground_plane_from_wheels((centres - pos) @ R, g.wheel_radius))
             shadow_share.append(f.shadow.mean())
             sim.step(cam.period)
-        return cam.model, frames, np.array(poses), planes, float(np.mean(shadow_share))
+        largest_roll = float(np.max(np.abs(roll)))
+        return cam.model, frames, np.array(poses), planes, float(np.mean(shadow_share)), largest_roll
     finally:
         sim.close()
 
@@ -243,14 +249,15 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    camera, frames, poses, planes, shadow = record(
+    camera, frames, poses, planes, shadow, roll = record(
         args.seconds, args.preset, args.sun_elevation, args.sun_azimuth
     )
     sys.stderr.write(f"recorded {len(frames)} frames in {time.perf_counter() - t0:.0f} s\n")
     truth, results = evaluate(camera, frames, poses, planes)
     print(
         f"5 m arc at 2 m/s, {len(frames) - 1} frame pairs at 60 Hz ({args.preset}), "
-        f"shadow covers {100 * shadow:.0f} % of the image on average\n"
+        f"shadow covers {100 * shadow:.0f} % of the image on average; the body rolls up to "
+        f"{math.degrees(roll):.1f} deg on its suspension\n"
     )
     cols = [
         ("locked_share", "tracks on the shadow", "{:.0%}"),

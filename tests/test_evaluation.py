@@ -138,3 +138,26 @@ def test_slip_detection_scores_are_undefined_without_events_not_zero():
     tru[10:20, 7] = 0.5  # one true event on FL, missed
     m = slip_metrics([dict(run, tru=tru)])
     assert (m["events"], m["missed"], m["f1"], m["recall"]) == (1, 1, 0.0, 0.0) and math.isnan(m["precision"])
+
+
+def test_an_estimated_event_on_true_slip_that_peaks_in_the_hysteresis_band_is_no_false_alarm():
+    from rover_env.tools.estimator_metrics import slip_metrics
+
+    t = np.arange(90) / 30.0 + 1.5
+    tru = np.zeros((90, 19))
+    est = tru.copy()
+    events = np.zeros((90, 4), bool)
+    tru[10:20, 7] = 0.18  # FL peaks in the band [0.15, 0.2): no true event
+    events[12:16, 0] = True
+    tru[40:50, 8] = 0.12  # FR below the band: an event there is a false alarm
+    events[42:46, 1] = True
+    tru[60:70, 9] = 0.14  # RL: 0.25 for one frame only is no true event, and above the band
+    tru[65, 9] = 0.25
+    events[63:68, 2] = True
+    run = {"t": t, "est": est, "tru": tru, "events": events, "speed": np.ones((90, 4)), "frame": 1 / 30}
+    m = slip_metrics([run])
+    assert (m["events"], m["matched"], m["in_band"], m["false"]) == (0, 0, 1, 2), m
+    tru[10:20, 7] = 0.21  # a true event: matched, with no false alarm on that wheel
+    m = slip_metrics([dict(run, tru=tru)])
+    assert (m["events"], m["matched"], m["in_band"], m["false"]) == (1, 1, 0, 2), m
+    assert m["precision"] == 1 / 3

@@ -11,7 +11,7 @@ import odometry_shadow_ablation as ablation  # noqa: E402
 
 @pytest.mark.slow
 def test_mask_and_ransac_track_the_arc_where_no_robustness_fails(tmp_path):
-    camera, frames, poses, planes, shadow = ablation.record(1.5, "full", 30.0, 225.0)
+    camera, frames, poses, planes, shadow, _ = ablation.record(1.5, "full", 30.0, 225.0)
     truth, results = ablation.evaluate(camera, frames, poses, planes)
     a = results["(a) no robustness"]
     c = results["(c) mask + RANSAC + validity gate"]
