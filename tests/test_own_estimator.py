@@ -10,7 +10,7 @@ import pytest
 
 import rover_env  # noqa: F401
 from perception.estimator import EstimatorError
-from perception.observation import field_index
+from perception.observation import OBS_FIELDS, field_index
 
 ACTIONS = [np.array([0.6, 0.2 * math.sin(k / 5), -0.1], dtype=np.float32) for k in range(30)]
 
@@ -96,6 +96,28 @@ def test_the_true_trajectory_is_the_same_whatever_estimates():
         return np.array(poses)
 
     np.testing.assert_array_equal(truth(), truth(estimator=Scripted))
+
+
+def test_builtin_estimator_is_the_default_unchanged_and_its_changes_take_effect():
+    from perception.slip import SlipConfig
+    from rover_env.sensors.rig import builtin_estimator
+
+    def observations(**kw):
+        env = gym.make("RoverRoughSlippery-v0", renderer="tiny", **kw)
+        try:
+            env.reset(seed=3)
+            return np.array([env.step(a)[0] for a in ACTIONS[:20]])
+        finally:
+            env.close()
+
+    default = observations()
+    np.testing.assert_array_equal(default, observations(estimator=builtin_estimator("train")))
+    # without the gripping wheels' zero-slip prior the slip estimates differ
+    slips = [field_index(OBS_FIELDS, f"slip_{w}") for w in ("FL", "FR", "RL", "RR")]
+    other = observations(estimator=builtin_estimator("train", slip=SlipConfig(grip_std=0.0)))
+    assert np.abs(other[:, slips] - default[:, slips]).max() > 1e-3
+    with pytest.raises(rover_env.ConfigError, match="preset"):
+        builtin_estimator("fast")
 
 
 @pytest.mark.parametrize(

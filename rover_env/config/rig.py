@@ -266,7 +266,8 @@ def _presets() -> dict[str, PerceptionPreset]:
         # far between frames at 2 m/s; the fisheye renders only its region of interest, and
         # both cameras draw only the exact ground within 2 m. At 160 px a feature's track is
         # noisy, and the yaw rate rests on how far apart the features lie: twice the paper's
-        # 40-50 features, out to 8 px from the border (a 2 m/s frame step), halve its error.
+        # 40-50 features, out to 8 px from the border (a 2 m/s frame step), lower its error
+        # by a tenth (benchmarks/ablations.py features)
         # The downward camera stays at 30 Hz too: at 15 Hz (half its rendering and odometry time)
         # slip while slipping was 0.44 MAE against 0.025 over the four missions, 0.62 against
         # 0.021 on loose slope, and slip-event F1 0.90 against 0.99 (benchmarks/slip_accuracy.py

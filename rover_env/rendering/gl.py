@@ -47,9 +47,8 @@ log = logging.getLogger(__name__)
 SHADOW_MAP_PX = 2048  # largest shadow map edge [texels]
 #: Textures are sampled one mipmap level sharper than a pixel's footprint asks for. Trilinear
 #: mipmapping picks its level from the footprint's longest side, which blurs ground seen at a
-#: slant and the treads; at the default level the train preset's slip events were 0.84 / 0.63
-#: precise on Rover-v0 / RoverShadows-v0 (TinyRenderer 0.96 / 0.90), at -1 1.00 / 0.95
-#: (benchmarks/slip_accuracy.py, seeds 201-203).
+#: slant and the treads; at the default level the train preset's slip events are less precise
+#: and the wheel rates less accurate (benchmarks/ablations.py lod_bias).
 LOD_BIAS = -1.0
 _CHUNK = 0.8  # [m] least edge of a terrain chunk (the unit of view culling)
 _CHUNK_CELLS = 8  # least grid cells along a chunk's edge
