@@ -290,8 +290,8 @@ def ab_lod_bias(renderer: str) -> None:
 
 
 def ab_fisheye_readout(renderer: str) -> None:
-    env_id, seeds = "Rover-v0", [301]
-    for preset in ("train", "eval"):
+    env_id = "Rover-v0"
+    for preset, seeds in (("train", [301, 302, 303]), ("eval", [301])):
         print(f"\n## fisheye_readout\n\n{env_id}, {preset} preset, seeds {seeds}, closed loop\n", flush=True)
         table_head(
             "fisheye rendering [ms a frame]", "pixels drawn", "wheel rate MAE [rad/s]", "axle roll MAE [rad]"

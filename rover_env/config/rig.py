@@ -253,8 +253,9 @@ def _presets() -> dict[str, PerceptionPreset]:
         # the papers' resolutions and rates. The downward camera sees no ground beyond 2 m, so only
         # that is drawn for it. The fisheye reads out what the kinematics estimator can use, as
         # the train preset does: its region of interest, and while it tracks every joint only
-        # the windows about them (pixels the estimator reads are unchanged, see the tests); this
-        # halves its rendering time at 640 x 480 (benchmarks/env_speed.py)
+        # the windows about them (the pixels the estimator reads, along the same rays, see the
+        # tests); this cuts its rendering time by 40 % at 640 x 480 (benchmarks/ablations.py
+        # fisheye_readout)
         "eval": PerceptionPreset(
             "eval",
             DownwardCameraConfig.preset("full", rate_hz=60.0, ground_range=2.0),
