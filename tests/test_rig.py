@@ -201,6 +201,7 @@ def test_a_turned_only_mount_keeps_the_imu_s_place_and_the_keyword_replaces_its_
     finally:
         env.close()
 
+
 def test_the_scenario_s_imu_rate_is_named_where_it_was_written(tmp_path):
     data = to_dict(load_scenario("flat_patches")) | {"imu": {"preset": "bmi088", "rate_hz": 100}}
     path = tmp_path / "imu100.yaml"

@@ -34,6 +34,7 @@ def check_renderer(name: object) -> RendererName:
         )
     return cast(RendererName, name)
 
+
 #: The renderers draw the exact ground within this distance of the rover [m]; a camera's
 #: ``ground_range`` is at most this.
 FINE_RADIUS = 2.0

@@ -130,7 +130,6 @@ class FisheyeView:
     points_world: np.ndarray | None = None
 
 
-
 class Renderer(ABC):
     """Draws one PyBullet client's scene: pinhole views and fisheye images with sun shadows.
 

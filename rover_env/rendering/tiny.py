@@ -81,7 +81,6 @@ def _camera_image(client, size, view, proj, lighting: Lighting, segmentation=Tru
     return rgb, depth, seg
 
 
-
 class TinyRenderer(Renderer):
     """PyBullet's TinyRenderer drawing ``client``'s scene, with sun shadows cast by one body.
 
@@ -204,6 +203,7 @@ class TinyRenderer(Renderer):
         shadow = remapper.lookup(atlas("shadow", False), outside=False)
         pts = remapper.lookup(atlas("points_world", np.nan), outside=np.nan)
         return FisheyeView(rgb=rgb, segmentation=seg, shadow=shadow, points_world=pts)
+
 
 def _darken(
     rgb: np.ndarray,

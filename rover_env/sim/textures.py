@@ -111,8 +111,6 @@ def _to_rgb(gray: np.ndarray, tint: tuple[float, float, float]) -> np.ndarray:
     return rgb.astype(np.uint8)
 
 
-
-
 def ground_texture(name: str, px: int = 1024, seed: int = 0) -> np.ndarray:
     """A seamlessly tiling ground texture.
 
