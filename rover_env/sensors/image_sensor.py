@@ -1,0 +1,167 @@
+"""An image sensor between the renderer and the estimator: light to photo-electrons to an 8-bit image.
+
+:class:`ImageSensor` takes the rendered scene as linear radiance (1 = a white surface facing the
+full sun) and delivers what a colour machine-vision camera would: lens vignetting, a Bayer
+colour-filter array, photon shot noise, dark current, fixed-pattern noise (DSNU, PRNU), read
+noise, the full well's clipping, analog gain, quantisation at the ADC's bit depth, demosaicing,
+the output gamma to 8 bits, optional JPEG, and auto-exposure that meters each frame and adapts
+with a lag. Its figures are an :class:`rover_env.config.image_sensor.ImageSensorConfig`.
+
+Noise is drawn from the sensor's own generator, seeded per episode (:meth:`ImageSensor.reset`):
+the same seed gives the same images. Shot noise is Gaussian with the Poisson variance (exact in
+mean and variance; the sensor never counts fewer than a few electrons where it matters).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from rover_env.config.image_sensor import ImageSensorConfig
+
+#: Bayer pattern of the colour-filter array: R at (0, 0), G at (0, 1) and (1, 0), B at (1, 1).
+BAYER = "RGGB"
+# OpenCV names a Bayer pattern by the second row's second and third pixels: RGGB is its "BG"
+_DEMOSAIC = cv2.COLOR_BayerBG2RGB
+
+
+def vignetting_map(size: tuple[int, int], corner: float) -> np.ndarray:
+    """Relative illumination (H, W) float32 of a lens with ``corner`` at the image corner (1 at the centre).
+
+    The falloff is 1 / (1 + a r^2)^2 over r, the distance from the image centre as a share of
+    the half diagonal, with ``a`` set by ``corner``.
+    """
+    w, h = size
+    if not 0.0 < corner <= 1.0:
+        raise ValueError(f"corner: {corner!r}; use a relative illumination in (0, 1]")
+    a = 1.0 / math.sqrt(corner) - 1.0
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    r2 = ((xs - (w - 1) / 2.0) ** 2 + (ys - (h - 1) / 2.0) ** 2) / ((w / 2.0) ** 2 + (h / 2.0) ** 2)
+    return (1.0 / (1.0 + a * r2) ** 2).astype(np.float32)
+
+
+def mosaic(rgb: np.ndarray) -> np.ndarray:
+    """The (H, W) Bayer (RGGB) samples of an (H, W, 3) image."""
+    out = np.empty(rgb.shape[:2], dtype=rgb.dtype)
+    out[0::2, 0::2] = rgb[0::2, 0::2, 0]
+    out[0::2, 1::2] = rgb[0::2, 1::2, 1]
+    out[1::2, 0::2] = rgb[1::2, 0::2, 1]
+    out[1::2, 1::2] = rgb[1::2, 1::2, 2]
+    return out
+
+
+class ImageSensor:
+    """One camera's sensor: exposure, noise, quantisation, demosaicing, gamma and auto-exposure.
+
+    Args:
+        config: The sensor's figures.
+        size: Image (width, height) [px]; both even (a whole Bayer pattern).
+        frame_period: Time between frames [s]; the longest exposure must fit in it.
+        seed: Seeds the fixed pattern (PRNU, DSNU) and the per-frame noise.
+
+    Attributes:
+        exposure_s: The exposure of the next frame [s].
+        gain_db: The analog gain of the next frame [dB].
+    """
+
+    def __init__(
+        self, config: ImageSensorConfig, size: tuple[int, int], frame_period: float, seed: int | None = None
+    ) -> None:
+        w, h = size
+        if w % 2 or h % 2:
+            raise ValueError(f"size: {size}; a Bayer sensor needs an even width and height")
+        config.check_frame_period(frame_period)
+        self.config = config
+        self.size = (int(w), int(h))
+        self.frame_period = float(frame_period)
+        self._vignetting = vignetting_map(self.size, config.vignetting)
+        self._lut = self._gamma_lut()
+        self._alpha = 1.0 - math.exp(-frame_period / config.settling_tau(frame_period))
+        self.reset(seed)
+
+    def _gamma_lut(self) -> np.ndarray:
+        c = self.config
+        x = np.clip((np.arange(c.dn_max + 1) - c.black_level_dn) / (c.dn_max - c.black_level_dn), 0.0, 1.0)
+        return np.clip(np.rint(255.0 * x ** (1.0 / c.gamma)), 0, 255).astype(np.uint8)
+
+    def reset(self, seed: int | None = None) -> None:
+        """A new episode: a new fixed pattern and noise from ``seed``; exposure and gain at their start."""
+        c = self.config
+        rng = np.random.default_rng(seed)
+        w, h = self.size
+        self._gain_map = (1.0 + c.prnu * rng.standard_normal((h, w))).astype(np.float32)
+        self._offset_e = (c.dsnu_e * rng.standard_normal((h, w))).astype(np.float32)
+        self._rng = rng
+        self.exposure_s = c.exposure_s
+        self.gain_db = c.gain_db
+
+    # ------------------------------------------------------------------ the chain
+    def electrons(self, radiance: np.ndarray, exposure_s: float | None = None) -> np.ndarray:
+        """Photo- and dark electrons (H, W) float32 of one exposure, noisy, clipped at the full well.
+
+        Args:
+            radiance: (H, W, 3) linear RGB radiance (1: white in full sun) or (H, W) Bayer samples.
+            exposure_s: Exposure [s]; None: :attr:`exposure_s`.
+        """
+        c = self.config
+        t = self.exposure_s if exposure_s is None else float(exposure_s)
+        bayer = mosaic(radiance) if radiance.ndim == 3 else radiance
+        if bayer.shape != self._gain_map.shape:
+            w, h = self.size
+            raise ValueError(f"radiance: shape {radiance.shape}; this sensor is {w} x {h} px")
+        signal = bayer.astype(np.float32) * self._vignetting * self._gain_map * np.float32(c.sun_e_per_s * t)
+        mean = np.maximum(signal + np.float32(c.dark_current_e_s * t), 0.0) + self._offset_e
+        mean = np.maximum(mean, 0.0)
+        rng = self._rng
+        e = mean + np.sqrt(mean) * rng.standard_normal(mean.shape, dtype=np.float32)
+        return np.minimum(np.maximum(e, 0.0), np.float32(c.full_well_e))
+
+    def digitise(self, electrons: np.ndarray, gain_db: float | None = None) -> np.ndarray:
+        """Raw values (H, W) uint16 [DN]: read noise, gain, black level, the ADC's rounding and range."""
+        c = self.config
+        k = c.system_gain(self.gain_db if gain_db is None else gain_db)
+        noise = self._rng.standard_normal(electrons.shape, dtype=np.float32)
+        e = electrons + np.float32(c.read_noise_e) * noise
+        dn = np.rint(e * np.float32(k) + np.float32(c.black_level_dn))
+        return np.clip(dn, 0, c.dn_max).astype(np.uint16)
+
+    def develop(self, raw: np.ndarray) -> np.ndarray:
+        """The delivered (H, W, 3) uint8 RGB image of raw Bayer values: demosaiced, gamma-encoded, JPEG."""
+        rgb = self._lut[cv2.cvtColor(raw, _DEMOSAIC)]
+        q = self.config.jpeg_quality
+        if q is not None:
+            ok, buf = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(q)])
+            bgr = cv2.imdecode(buf, cv2.IMREAD_COLOR) if ok else None
+            if bgr is None:  # OpenCV encodes and decodes any 8-bit image
+                raise RuntimeError("JPEG round trip failed")
+            rgb = bgr[..., ::-1].copy()
+        return rgb
+
+    def capture(self, radiance: np.ndarray, meter: np.ndarray | None = None) -> np.ndarray:
+        """One frame: ``radiance`` (H, W, 3) exposed at the current settings, delivered as uint8 RGB.
+
+        Auto-exposure then meters the frame (over ``meter``, an (H, W) bool mask; None: all of
+        it) and sets the next frame's exposure and gain.
+        """
+        raw = self.digitise(self.electrons(radiance))
+        out = self.develop(raw)
+        if self.config.auto_exposure:
+            self._meter(out, meter)
+        return out
+
+    # ------------------------------------------------------------------ auto-exposure
+    def _meter(self, image: np.ndarray, mask: np.ndarray | None) -> None:
+        """Move exposure, then gain, toward the level at which ``image``'s mean is the target."""
+        c = self.config
+        luma = image.mean(axis=2) if mask is None else image[mask].mean(axis=-1)
+        level = float(np.mean(luma)) / 255.0 if luma.size else 0.0
+        # the linear change that brings the mean to the target (at most 16x a frame when black or white)
+        ratio = (c.ae_target / level) ** c.gamma if level > 1e-3 else 16.0
+        ratio = min(max(ratio, 1.0 / 16.0), 16.0)
+        total = self.exposure_s * 10.0 ** (self.gain_db / 20.0)
+        total *= math.exp(self._alpha * math.log(ratio))
+        exposure = min(max(total, c.exposure_min_s), c.exposure_max_s)
+        gain = min(max(20.0 * math.log10(total / exposure), 0.0), c.gain_max_db)
+        self.exposure_s, self.gain_db = exposure, gain

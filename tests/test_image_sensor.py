@@ -1,0 +1,135 @@
+"""The image sensor model against known answers: photon transfer, auto-exposure, vignetting, gamma."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rover_env.config.image_sensor import ImageSensorConfig
+from rover_env.config.io import ConfigError
+from rover_env.sensors.image_sensor import ImageSensor, vignetting_map
+
+PERIOD = 1 / 30
+
+
+def flat(level: float, size=(256, 256)) -> np.ndarray:
+    w, h = size
+    return np.full((h, w, 3), level, np.float32)
+
+
+def test_photon_transfer_recovers_the_system_gain_and_read_noise():
+    """EMVA 1288's method on flat fields: variance of the difference of two frames against the mean."""
+    gain_db = 12.0
+    cfg = ImageSensorConfig(gain_db=gain_db, auto_exposure=False, vignetting=1.0)
+    sensor = ImageSensor(cfg, (256, 256), PERIOD, seed=1)
+    k_true = cfg.system_gain(gain_db)
+    # flat fields from dark to 80 % of the ADC's range (at this gain, before the full well), by exposure
+    means, variances = [], []
+    dark = [sensor.digitise(sensor.electrons(flat(0.0), 1e-4)).astype(np.float64) for _ in range(2)]
+    dark_mean = 0.5 * (dark[0].mean() + dark[1].mean())
+    for share in np.linspace(0.05, 0.8, 8):
+        t = share * (cfg.dn_max - cfg.black_level_dn) / k_true / cfg.sun_e_per_s
+        a, b = (sensor.digitise(sensor.electrons(flat(1.0), t)).astype(np.float64) for _ in range(2))
+        means.append(0.5 * (a.mean() + b.mean()) - dark_mean)
+        variances.append(np.var(a - b) / 2.0)
+    slope, intercept = np.polyfit(means, variances, 1)
+    assert slope == pytest.approx(k_true, rel=0.1), (slope, k_true)
+    # the dark variance is the read noise's plus the ADC's rounding (1/12 DN^2)
+    dark_var = np.var(dark[0] - dark[1]) / 2.0
+    read_noise_e = math.sqrt(max(dark_var - 1 / 12, 0.0)) / slope
+    assert read_noise_e == pytest.approx(cfg.read_noise_e, rel=0.1), read_noise_e
+    assert intercept == pytest.approx(dark_var, abs=0.2 * dark_var + 0.1)
+
+
+@pytest.mark.parametrize("step", [4.0, 0.25])
+def test_auto_exposure_settles_within_its_configured_time_after_a_step_of_light(step):
+    cfg = ImageSensorConfig(exposure_max_s=PERIOD, exposure_s=0.002)
+    sensor = ImageSensor(cfg, (128, 96), PERIOD, seed=2)
+    rng = np.random.default_rng(0)
+    scene = rng.uniform(0.1, 0.5, (96, 128, 1)).astype(np.float32) * np.ones(3, np.float32)
+    for _ in range(60):
+        out = sensor.capture(scene)
+    assert out.mean() / 255 == pytest.approx(cfg.ae_target, rel=0.05)
+    scene = scene * np.float32(step)
+    frames = None
+    for k in range(1, 60):
+        level = sensor.capture(scene).mean() / 255
+        if frames is None and abs(level / cfg.ae_target - 1) <= 0.05:
+            frames = k
+        elif frames is not None and abs(level / cfg.ae_target - 1) > 0.05:
+            frames = None  # it must stay within
+    settle = cfg.ae_settling_s / PERIOD
+    assert frames is not None
+    # the first frame after the step was exposed before the light changed: it is counted too
+    assert 0.5 * settle <= frames <= settle + 1, (frames, settle)
+
+
+def test_vignetting_matches_its_model_and_the_corner_figure():
+    cfg = ImageSensorConfig(vignetting=0.7, auto_exposure=False, prnu=0.0, dsnu_e=0.0, read_noise_e=0.0)
+    size = (320, 240)
+    sensor = ImageSensor(cfg, size, PERIOD, seed=3)
+    t = 0.5 * cfg.full_well_e / cfg.sun_e_per_s
+    e = np.mean([sensor.electrons(flat(1.0, size), t) for _ in range(8)], axis=0)
+    centre = e[110:130, 150:170].mean()
+    model = vignetting_map(size, 0.7)
+    rel = e / centre
+    assert np.abs(rel - model / model[110:130, 150:170].mean()).mean() < 0.01
+    assert rel[:4, :4].mean() == pytest.approx(0.7, abs=0.02)
+
+
+def test_gamma_saturation_and_the_same_seed():
+    cfg = ImageSensorConfig(auto_exposure=False, prnu=0.0, dsnu_e=0.0, read_noise_e=0.0, vignetting=1.0)
+    sensor = ImageSensor(cfg, (64, 48), PERIOD, seed=4)
+    # half the full well: the output is 255 * 0.5 ** (1 / gamma) up to shot noise
+    sensor.exposure_s = 0.5 * cfg.full_well_e / cfg.sun_e_per_s
+    out = sensor.capture(flat(1.0, (64, 48)))
+    assert out.mean() == pytest.approx(255 * 0.5 ** (1 / cfg.gamma), abs=1.0)
+    sensor.exposure_s = cfg.exposure_max_s  # far beyond the full well
+    assert np.all(sensor.capture(flat(1.0, (64, 48))) == 255)
+    scene = np.random.default_rng(5).uniform(0, 0.3, (48, 64, 3)).astype(np.float32)
+    a = ImageSensor(ImageSensorConfig(), (64, 48), PERIOD, seed=7).capture(scene)
+    b = ImageSensor(ImageSensorConfig(), (64, 48), PERIOD, seed=7).capture(scene)
+    c = ImageSensor(ImageSensorConfig(), (64, 48), PERIOD, seed=8).capture(scene)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_jpeg_output_is_close_to_the_uncompressed_image():
+    scene = np.random.default_rng(6).uniform(0.05, 0.4, (48, 64, 3)).astype(np.float32)
+    raw = ImageSensor(ImageSensorConfig(auto_exposure=False), (64, 48), PERIOD, seed=9).capture(scene)
+    jpg = ImageSensor(ImageSensorConfig(auto_exposure=False, jpeg_quality=80), (64, 48), PERIOD, seed=9)
+    out = jpg.capture(scene)
+    assert out.shape == raw.shape and out.dtype == np.uint8
+    diff = np.abs(out.astype(int) - raw.astype(int))
+    assert 0 < diff.mean() < 12
+
+
+@pytest.mark.parametrize(
+    "figures, key",
+    [
+        ({"exposure_s": -0.001}, "exposure_s"),
+        ({"full_well_e": 0.0}, "full_well_e"),
+        ({"gamma": 0.0}, "gamma"),
+        ({"gamma": -1.0}, "gamma"),
+        ({"adc_bits": 7}, "adc_bits"),
+        ({"jpeg_quality": 0}, "jpeg_quality"),
+        ({"prnu": float("nan")}, "prnu"),
+        ({"exposure_min_s": 0.01, "exposure_max_s": 0.001, "exposure_s": 0.005}, "exposure_max_s"),
+    ],
+)
+def test_impossible_figures_are_refused_naming_the_key(figures, key):
+    with pytest.raises(ConfigError, match=key):
+        ImageSensorConfig(**figures)
+    with pytest.raises(ConfigError, match=f"sensor.{key}|{key}"):
+        ImageSensorConfig.from_dict(figures)
+
+
+def test_an_exposure_longer_than_the_frame_period_is_refused():
+    cfg = ImageSensorConfig(exposure_max_s=0.05)
+    with pytest.raises(ConfigError, match="exposure_max_s: 50 ms is longer than the frame period 33.3333 ms"):
+        ImageSensor(cfg, (64, 48), PERIOD)
+    with pytest.raises(ConfigError, match="unknown key 'sensor.exposure'"):
+        ImageSensorConfig.from_dict({"exposure": 0.01})
+    with pytest.raises(ConfigError, match="sensor.preset"):
+        ImageSensorConfig.from_dict({"preset": "nikon"})
