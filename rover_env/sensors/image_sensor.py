@@ -8,8 +8,9 @@ the output gamma to 8 bits, optional JPEG, and auto-exposure that meters each fr
 with a lag. Its figures are an :class:`rover_env.config.image_sensor.ImageSensorConfig`.
 
 Noise is drawn from the sensor's own generator, seeded per episode (:meth:`ImageSensor.reset`):
-the same seed gives the same images. Shot noise is Gaussian with the Poisson variance (exact in
-mean and variance; the sensor never counts fewer than a few electrons where it matters).
+the same seed gives the same images. Shot and read noise are one Gaussian draw with the Poisson
+variance plus the read variance (exact in mean and variance). The raw values are gamma-encoded
+before demosaicing, as a camera's image pipeline does on 8-bit data.
 """
 
 from __future__ import annotations
@@ -91,45 +92,56 @@ class ImageSensor:
         c = self.config
         rng = np.random.default_rng(seed)
         w, h = self.size
-        self._gain_map = (1.0 + c.prnu * rng.standard_normal((h, w))).astype(np.float32)
+        # each pixel's response: the lens's vignetting times its fixed gain (PRNU)
+        prnu = 1.0 + c.prnu * rng.standard_normal((h, w))
+        self._response = (self._vignetting * prnu).astype(np.float32)
         self._offset_e = (c.dsnu_e * rng.standard_normal((h, w))).astype(np.float32)
         self._rng = rng
         self.exposure_s = c.exposure_s
         self.gain_db = c.gain_db
 
     # ------------------------------------------------------------------ the chain
-    def electrons(self, radiance: np.ndarray, exposure_s: float | None = None) -> np.ndarray:
-        """Photo- and dark electrons (H, W) float32 of one exposure, noisy, clipped at the full well.
+    def raw(
+        self,
+        image: np.ndarray,
+        exposure_s: float | None = None,
+        gain_db: float | None = None,
+        light: float = 1.0,
+    ) -> np.ndarray:
+        """Raw Bayer values (H, W) uint16 [DN] of one exposure of a rendered image.
 
         Args:
-            radiance: (H, W, 3) linear RGB radiance (1: white in full sun) or (H, W) Bayer samples.
+            image: (H, W, 3) uint8 linear RGB as rendered (255: a white surface facing the full sun).
             exposure_s: Exposure [s]; None: :attr:`exposure_s`.
+            gain_db: Analog gain [dB]; None: :attr:`gain_db`.
+            light: The scene's brightness relative to the rendered image (a passing cloud: < 1).
+
+        Each pixel's mean charge is its radiance times the lens's vignetting, its fixed gain
+        (PRNU) and ``sun_e_per_s * exposure``, plus dark current and its fixed offset (DSNU).
+        The charge gets photon shot noise (the Poisson variance: the mean) and read noise in one
+        Gaussian draw, clips at the full well, and is digitised: times the system gain, plus the
+        black level, rounded and clipped to the ADC's range.
         """
         c = self.config
         t = self.exposure_s if exposure_s is None else float(exposure_s)
-        bayer = mosaic(radiance) if radiance.ndim == 3 else radiance
-        if bayer.shape != self._gain_map.shape:
+        bayer = mosaic(image)
+        if bayer.shape != self._response.shape:
             w, h = self.size
-            raise ValueError(f"radiance: shape {radiance.shape}; this sensor is {w} x {h} px")
-        signal = bayer.astype(np.float32) * self._vignetting * self._gain_map * np.float32(c.sun_e_per_s * t)
-        mean = np.maximum(signal + np.float32(c.dark_current_e_s * t), 0.0) + self._offset_e
-        mean = np.maximum(mean, 0.0)
-        rng = self._rng
-        e = mean + np.sqrt(mean) * rng.standard_normal(mean.shape, dtype=np.float32)
-        return np.minimum(np.maximum(e, 0.0), np.float32(c.full_well_e))
-
-    def digitise(self, electrons: np.ndarray, gain_db: float | None = None) -> np.ndarray:
-        """Raw values (H, W) uint16 [DN]: read noise, gain, black level, the ADC's rounding and range."""
-        c = self.config
+            raise ValueError(f"image: shape {image.shape}; this sensor is {w} x {h} px")
+        scale = np.float32(light * c.sun_e_per_s * t / 255.0)
+        mean = bayer * (self._response * scale)
+        mean += self._offset_e + np.float32(c.dark_current_e_s * t)
+        np.maximum(mean, 0.0, out=mean)
+        sd = np.sqrt(mean + np.float32(c.read_noise_e**2))
+        e = mean + sd * self._rng.standard_normal(mean.shape, dtype=np.float32)
+        np.minimum(e, np.float32(c.full_well_e), out=e)
         k = c.system_gain(self.gain_db if gain_db is None else gain_db)
-        noise = self._rng.standard_normal(electrons.shape, dtype=np.float32)
-        e = electrons + np.float32(c.read_noise_e) * noise
         dn = np.rint(e * np.float32(k) + np.float32(c.black_level_dn))
         return np.clip(dn, 0, c.dn_max).astype(np.uint16)
 
     def develop(self, raw: np.ndarray) -> np.ndarray:
-        """The delivered (H, W, 3) uint8 RGB image of raw Bayer values: demosaiced, gamma-encoded, JPEG."""
-        rgb = self._lut[cv2.cvtColor(raw, _DEMOSAIC)]
+        """The delivered (H, W, 3) uint8 RGB image of raw Bayer values: gamma-encoded, demosaiced, JPEG."""
+        rgb = cv2.cvtColor(self._lut[raw], _DEMOSAIC)
         q = self.config.jpeg_quality
         if q is not None:
             ok, buf = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(q)])
@@ -139,24 +151,27 @@ class ImageSensor:
             rgb = bgr[..., ::-1].copy()
         return rgb
 
-    def capture(self, radiance: np.ndarray, meter: np.ndarray | None = None) -> np.ndarray:
-        """One frame: ``radiance`` (H, W, 3) exposed at the current settings, delivered as uint8 RGB.
+    def capture(self, image: np.ndarray, light: float = 1.0, meter: np.ndarray | None = None) -> np.ndarray:
+        """One frame of a rendered ``image`` (see :meth:`raw`) at the current settings, as uint8 RGB.
 
         Auto-exposure then meters the frame (over ``meter``, an (H, W) bool mask; None: all of
         it) and sets the next frame's exposure and gain.
         """
-        raw = self.digitise(self.electrons(radiance))
+        raw = self.raw(image, light=light)
         out = self.develop(raw)
         if self.config.auto_exposure:
-            self._meter(out, meter)
+            self._meter(self._lut[raw], meter)
         return out
 
     # ------------------------------------------------------------------ auto-exposure
-    def _meter(self, image: np.ndarray, mask: np.ndarray | None) -> None:
-        """Move exposure, then gain, toward the level at which ``image``'s mean is the target."""
+    def _meter(self, encoded: np.ndarray, mask: np.ndarray | None) -> None:
+        """Move exposure, then gain, toward the level at which the output's mean is the target.
+
+        ``encoded``: the frame's (H, W) gamma-encoded Bayer values (all colours alike).
+        """
         c = self.config
-        luma = image.mean(axis=2) if mask is None else image[mask].mean(axis=-1)
-        level = float(np.mean(luma)) / 255.0 if luma.size else 0.0
+        values = encoded if mask is None else encoded[mask]
+        level = float(values.mean()) / 255.0 if values.size else 0.0
         # the linear change that brings the mean to the target (at most 16x a frame when black or white)
         ratio = (c.ae_target / level) ** c.gamma if level > 1e-3 else 16.0
         ratio = min(max(ratio, 1.0 / 16.0), 16.0)
