@@ -13,6 +13,7 @@ from typing import Literal, TypeVar, cast, get_args
 import numpy as np
 
 from perception.cameras import OmniCamera
+from rover_env.config.image_sensor import ImageSensorConfig
 from rover_env.config.io import ConfigError, check_range
 
 #: What draws the cameras' images: ``"gl"`` (OpenGL on headless EGL), ``"tiny"`` (PyBullet's
@@ -60,6 +61,8 @@ class CameraConfig:
             terrain's exact-detail radius, 2 m), for speed: TinyRenderer spends time on every
             triangle whose projection overlaps a view, even where nearer surfaces hide it. Ground
             seen beyond it is left out (the background shows). None: all ground is drawn.
+        sensor: The image sensor and lens between the renderer and the estimator, used with
+            ``camera_effects="field"`` (:class:`~rover_env.config.image_sensor.ImageSensorConfig`).
     """
 
     width: int = 640
@@ -68,6 +71,7 @@ class CameraConfig:
     shadows: bool = True
     ambient: float = 0.25
     ground_range: float | None = None
+    sensor: ImageSensorConfig = ImageSensorConfig()
 
     def __post_init__(self) -> None:
         for key in ("width", "height"):

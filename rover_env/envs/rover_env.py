@@ -47,6 +47,9 @@ class ObsSource(str, enum.Enum):
 ActionModeName = Literal["drive", "wheels"]
 #: The ``obs_source`` keyword's values (:class:`ObsSource`).
 ObsSourceName = Literal["estimated", "ground_truth"]
+#: The ``camera_effects`` keyword's values: images through each camera's image sensor and lens
+#: (``"field"``), or as rendered (``"ideal"``).
+CameraEffectsName = Literal["field", "ideal"]
 
 
 def task_values(feats) -> dict[str, float]:
@@ -157,6 +160,10 @@ class RoverEnv(gym.Env):
             (:mod:`perception.estimator`: ``reset(start_fix)``, ``update(messages, t)``); the
             observation's state fields and ``info["estimate"]`` are what it returns. None: the
             built-in :class:`perception.RoverEstimator`. See docs/own_estimator.md.
+        camera_effects: With ``obs_source="estimated"``: ``"field"`` delivers each camera's
+            images through its image sensor and lens (noise, auto-exposure, vignetting, gamma;
+            the camera configuration's ``sensor``), drawn per episode from the reset's seed;
+            ``"ideal"`` (default) delivers them as rendered.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -178,6 +185,7 @@ class RoverEnv(gym.Env):
         renderer: str = "auto",
         imu: str | dict | ImuConfig | None = None,
         estimator: EstimatorFactory | None = None,
+        camera_effects: CameraEffectsName = "ideal",
     ) -> None:
         super().__init__()
         try:
@@ -233,6 +241,9 @@ class RoverEnv(gym.Env):
             raise ValueError(
                 "estimator: an estimator makes the observation; use it with obs_source='estimated'"
             )
+        if camera_effects not in ("field", "ideal"):
+            raise ValueError(f"camera_effects={camera_effects!r}: use 'field' or 'ideal'")
+        self.camera_effects = camera_effects
         if self.obs_source is ObsSource.ESTIMATED:
             rig = scenario_rig(self.scenario)
             if imu is not None:  # the keyword's IMU takes the place of the scenario's
@@ -242,6 +253,8 @@ class RoverEnv(gym.Env):
                 self.pipeline = PerceptionPipeline(
                     self.sim, preset, estimator=estimator, rig=rig, declared=declared
                 )
+                for cam in self.pipeline.cameras:
+                    cam.set_effects(camera_effects == "field")
             except BaseException:  # a bad rig or estimator: release the physics client
                 self.sim.close()
                 raise
@@ -296,6 +309,9 @@ class RoverEnv(gym.Env):
                 cam.set_blackout(blackout)
             for imu in self.pipeline.imus:  # this episode's turn-on bias, scale factors, noise
                 imu.reset(int(rng.integers(2**63 - 1)))
+            if self.camera_effects == "field":  # each image sensor's fixed pattern and noise
+                for cam in self.pipeline.cameras:
+                    cam.reset_effects(int(rng.integers(2**63 - 1)))
         self._gt = self.sim.reset(x, y, yaw)
         messages = self.sim.take_messages()
         if self.pipeline is not None:

@@ -21,6 +21,7 @@ from rover_env.config.io import ConfigError
 from rover_env.rendering import focus_on_rover, renderer_for
 from rover_env.rendering.base import FisheyeView, Lighting, RenderedView
 from rover_env.rendering.cubemap import CubemapRemap
+from rover_env.sensors.image_sensor import ImageSensor
 from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.simulation import RoverSim
 
@@ -77,6 +78,9 @@ class _RoverCamera(ABC):
                 "frame pairs must be whole physics steps apart (e.g. 30, 60, 80, 120 Hz at 240 Hz)"
             )
         self._last: Frame | None = None
+        #: The image sensor between the renderer and the estimator (``camera_effects="field"``),
+        #: or None: the rendered image is delivered as it is.
+        self.image_sensor: ImageSensor | None = None
         #: (t0, t1) windows of simulation time [s] in which :meth:`sample` delivers black frames
         #: (a camera fault: the estimator sees only the images).
         self.blackout: list[tuple[float, float]] = []
@@ -110,6 +114,35 @@ class _RoverCamera(ABC):
         focus_on_rover(self.sim, self.config.ground_range)
         return self._keep(self._render(labels=False))
 
+    def set_effects(self, on: bool, seed: int | None = None) -> None:
+        """Deliver images through the configured image sensor (``on``) or as rendered.
+
+        Raises:
+            ConfigError: The sensor's figures do not fit this camera (an exposure longer than
+                its frame period, an odd image size).
+        """
+        if not on:
+            self.image_sensor = None
+            return
+        size = (self.config.width, self.config.height)
+        if size[0] % 2 or size[1] % 2:
+            raise ConfigError(f"width, height: {size}; an image sensor with a Bayer pattern needs even sizes")
+        try:
+            self.image_sensor = ImageSensor(self.config.sensor, size, self.period, seed)
+        except ConfigError as exc:
+            raise ConfigError(f"sensor.{exc}") from None
+
+    def reset_effects(self, seed: int | None) -> None:
+        """A new episode of the image sensor (its fixed pattern, noise and exposure), if it has one."""
+        if self.image_sensor is not None:
+            self.image_sensor.reset(seed)
+
+    def _deliver(self, image: np.ndarray) -> np.ndarray:
+        """The image the estimator gets of a rendered ``image``: through the image sensor, if any."""
+        if self.image_sensor is None:
+            return image
+        return self.image_sensor.capture(image, meter="rendered")
+
     def set_blackout(self, windows) -> None:
         """Deliver black frames from :meth:`sample` within each (t0, t1) window [s] of simulation time.
 
@@ -132,7 +165,7 @@ class _RoverCamera(ABC):
         """
         if self._dark():
             return self._black()
-        return self.capture().image
+        return self._deliver(self.capture().image)
 
     @property
     def last_frame(self) -> Frame | None:
@@ -292,7 +325,7 @@ class FisheyeCamera(_RoverCamera):
         if self._dark():
             return self._black()
         self.sampled["windowed"] += parts is not None
-        return self.capture(parts=parts).image
+        return self._deliver(self.capture(parts=parts).image)
 
     def render_view(self, parts: np.ndarray | None = None) -> FisheyeView:
         """Render now, with segmentation, shadow and 3-D points (for tests and evaluation).

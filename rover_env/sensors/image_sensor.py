@@ -125,6 +125,7 @@ class ImageSensor:
         c = self.config
         t = self.exposure_s if exposure_s is None else float(exposure_s)
         bayer = mosaic(image)
+        self._rendered = bayer > 0
         if bayer.shape != self._response.shape:
             w, h = self.size
             raise ValueError(f"image: shape {image.shape}; this sensor is {w} x {h} px")
@@ -151,16 +152,22 @@ class ImageSensor:
             rgb = bgr[..., ::-1].copy()
         return rgb
 
-    def capture(self, image: np.ndarray, light: float = 1.0, meter: np.ndarray | None = None) -> np.ndarray:
+    def capture(
+        self, image: np.ndarray, light: float = 1.0, meter: np.ndarray | str | None = None
+    ) -> np.ndarray:
         """One frame of a rendered ``image`` (see :meth:`raw`) at the current settings, as uint8 RGB.
 
-        Auto-exposure then meters the frame (over ``meter``, an (H, W) bool mask; None: all of
-        it) and sets the next frame's exposure and gain.
+        Auto-exposure then meters the frame and sets the next frame's exposure and gain, over
+        ``meter``: an (H, W) bool mask, ``"rendered"`` (the pixels the renderer drew: not black,
+        as a region-of-interest readout meters its region), or None (all of it).
         """
         raw = self.raw(image, light=light)
         out = self.develop(raw)
         if self.config.auto_exposure:
-            self._meter(self._lut[raw], meter)
+            mask = self._rendered if isinstance(meter, str) else meter
+            if isinstance(meter, str) and meter != "rendered":
+                raise ValueError(f"meter={meter!r}: use a mask, 'rendered' or None")
+            self._meter(self._lut[raw], mask)
         return out
 
     # ------------------------------------------------------------------ auto-exposure
