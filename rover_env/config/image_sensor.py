@@ -68,15 +68,15 @@ class ImageSensorConfig:
     """
 
     name: str = "imx296"
-    full_well_e: float = 10_000.0
-    read_noise_e: float = 2.5
+    full_well_e: float = 10_400.0
+    read_noise_e: float = 2.1
     dark_current_e_s: float = 3.0
     dsnu_e: float = 1.0
     prnu: float = 0.005
     adc_bits: int = 10
     black_level_dn: float = 60.0
-    gain_max_db: float = 24.0
-    exposure_min_s: float = 30e-6
+    gain_max_db: float = 48.0
+    exposure_min_s: float = 29e-6
     exposure_max_s: float = 0.010
     exposure_s: float = 0.002
     gain_db: float = 0.0
@@ -186,8 +186,13 @@ class ImageSensorConfig:
         return span / math.log(math.log(4.0) / (self.gamma * math.log(1.05)))
 
 
-#: Sensor presets by name. ``imx296``: a global-shutter colour sensor of the class used on small
-#: rovers' navigation and optical-flow cameras (figures and sources in ``docs/cameras.md``).
+#: Sensor presets by name. ``imx296``: Sony's IMX296 global-shutter colour sensor (3.45 um pixels,
+#: 10-bit ADC, 0-48 dB gain, exposures from 29 us: Teledyne FLIR Firefly FFY-U3-16S2 spec sheet;
+#: black level 60 DN: the Linux imx296 driver's setting). Its EMVA 1288 figures are not
+#: published; the full well (10,400 e-) and read noise (2.1 e-) are those of the IMX273, the
+#: same 3.45 um Pregius pixel (Allied Vision Alvium 1800 C-158m data sheet). Assumed: dark
+#: current, DSNU, PRNU, the lens's throughput (sun_e_per_s) and vignetting, and the
+#: auto-exposure's target and settling time. Sources in docs/cameras.md.
 IMAGE_SENSOR_PRESETS: dict[str, ImageSensorConfig] = {
     "imx296": ImageSensorConfig(),
 }

@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -22,6 +23,7 @@ from rover_env.rendering import focus_on_rover, renderer_for
 from rover_env.rendering.base import FisheyeView, Lighting, RenderedView
 from rover_env.rendering.cubemap import CubemapRemap
 from rover_env.sensors.image_sensor import ImageSensor
+from rover_env.sensors.motion_blur import MotionField, blur
 from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.simulation import RoverSim
 
@@ -81,6 +83,7 @@ class _RoverCamera(ABC):
         #: The image sensor between the renderer and the estimator (``camera_effects="field"``),
         #: or None: the rendered image is delivered as it is.
         self.image_sensor: ImageSensor | None = None
+        self._motion: MotionField | None = None
         #: (t0, t1) windows of simulation time [s] in which :meth:`sample` delivers black frames
         #: (a camera fault: the estimator sees only the images).
         self.blackout: list[tuple[float, float]] = []
@@ -106,8 +109,16 @@ class _RoverCamera(ABC):
         return self._render(labels=True)
 
     @abstractmethod
-    def _render(self, labels: bool):
-        """Render the view now; the per-pixel labels only if ``labels``."""
+    def _render(self, labels: bool, parts: np.ndarray | None = None):
+        """Render the view now; the per-pixel labels only if ``labels`` (``parts``: a fisheye's windows)."""
+
+    @abstractmethod
+    def _rays_and_model(self) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+        """(H, W, 3) unit ray of each pixel in the optical frame, and the model's projection."""
+
+    @abstractmethod
+    def _points_cam(self, view) -> np.ndarray:
+        """(H, W, 3) each pixel's surface point in the optical frame of a labelled view [m]."""
 
     def capture(self) -> Frame:
         """Render one frame at the current simulation time."""
@@ -131,17 +142,37 @@ class _RoverCamera(ABC):
             self.image_sensor = ImageSensor(self.config.sensor, size, self.period, seed)
         except ConfigError as exc:
             raise ConfigError(f"sensor.{exc}") from None
+        s = self.config.sensor
+        if s.blur_samples > 1 or s.rolling_shutter_s > 0:
+            self._motion = MotionField(*self._rays_and_model())
+        else:
+            self._motion = None
 
     def reset_effects(self, seed: int | None) -> None:
         """A new episode of the image sensor (its fixed pattern, noise and exposure), if it has one."""
         if self.image_sensor is not None:
             self.image_sensor.reset(seed)
 
-    def _deliver(self, image: np.ndarray) -> np.ndarray:
-        """The image the estimator gets of a rendered ``image``: through the image sensor, if any."""
-        if self.image_sensor is None:
-            return image
-        return self.image_sensor.capture(image, meter="rendered")
+    def _field_frame(self, parts: np.ndarray | None = None) -> np.ndarray:
+        """A frame through the image sensor: rendered, blurred along each pixel's motion, exposed."""
+        sensor = self.image_sensor
+        assert sensor is not None
+        focus_on_rover(self.sim, self.config.ground_range)
+        motion = self._motion
+        view = self._render(labels=motion is not None, parts=parts)
+        self._keep(view)
+        image = view.rgb
+        if motion is not None:
+            velocity = motion.velocity(
+                self._points_cam(view),
+                view.segmentation,
+                self.T_world_cam(),
+                self.sim.link_motion(),
+                self.sim.rover.body_id,
+            )
+            s = self.config.sensor
+            image = blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s)
+        return sensor.capture(image, meter="rendered")
 
     def set_blackout(self, windows) -> None:
         """Deliver black frames from :meth:`sample` within each (t0, t1) window [s] of simulation time.
@@ -165,7 +196,9 @@ class _RoverCamera(ABC):
         """
         if self._dark():
             return self._black()
-        return self._deliver(self.capture().image)
+        if self.image_sensor is not None:
+            return self._field_frame()
+        return self.capture().image
 
     @property
     def last_frame(self) -> Frame | None:
@@ -216,7 +249,20 @@ class DownwardCamera(_RoverCamera):
         """Render now, with depth and segmentation (for tests and evaluation)."""
         return super().render_view()
 
-    def _render(self, labels: bool) -> RenderedView:
+    def _rays_and_model(self):
+        w, h = self.model.image_size
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        rays = self.model.unproject(np.stack([xs, ys], -1))
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        return rays, self.model.project
+
+    def _points_cam(self, view) -> np.ndarray:
+        rays = self._motion.rays if self._motion is not None else self._rays_and_model()[0]
+        return rays * (view.depth / rays[..., 2])[..., None]
+
+    def _render(self, labels: bool, parts: np.ndarray | None = None) -> RenderedView:
+        if parts is not None:
+            raise ValueError("parts: a pinhole camera renders whole frames")
         lighting = self.lighting
         renderer = renderer_for(self.sim)
         return renderer.render_pinhole(self.model, self.T_world_cam(), lighting, segmentation=labels)
@@ -325,7 +371,9 @@ class FisheyeCamera(_RoverCamera):
         if self._dark():
             return self._black()
         self.sampled["windowed"] += parts is not None
-        return self._deliver(self.capture(parts=parts).image)
+        if self.image_sensor is not None:
+            return self._field_frame(parts)
+        return self.capture(parts=parts).image
 
     def render_view(self, parts: np.ndarray | None = None) -> FisheyeView:
         """Render now, with segmentation, shadow and 3-D points (for tests and evaluation).
@@ -365,6 +413,15 @@ class FisheyeCamera(_RoverCamera):
     @functools.cached_property
     def _T_cam_body(self) -> np.ndarray:
         return np.linalg.inv(self.T_body_cam)
+
+    def _rays_and_model(self):
+        w, h = self.model.image_size
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        return self.model.cam2world(np.stack([xs, ys], -1)), self.model.world2cam
+
+    def _points_cam(self, view) -> np.ndarray:
+        T = (self._T_cam_body @ np.linalg.inv(self.sim.base_matrix())).astype(np.float32)
+        return view.points_world @ T[:3, :3].T + T[:3, 3]
 
     def _render(self, labels: bool, parts: np.ndarray | None = None) -> FisheyeView:
         lighting = self.lighting

@@ -289,6 +289,21 @@ class RoverSim:
         T[:3, 3] = pos
         return T
 
+    def link_motion(self) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Each rover link's centre of mass [m], linear [m/s] and angular velocity [rad/s] now, world frame.
+
+        Keyed by link index (-1: the base). A point p of a link moves at v + w x (p - c).
+        """
+        c = self.client
+        body = self.rover.body_id
+        pos, _ = c.getBasePositionAndOrientation(body)
+        lin, ang = c.getBaseVelocity(body)
+        out = {-1: (np.array(pos), np.array(lin), np.array(ang))}
+        links = list(range(c.getNumJoints(body)))
+        for j, st in zip(links, c.getLinkStates(body, links, computeLinkVelocity=1), strict=True):
+            out[j] = (np.array(st[0]), np.array(st[6]), np.array(st[7]))
+        return out
+
     def base_velocity(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """The rover body's linear [m/s] and angular [rad/s] velocity now, world frame."""
         lin, ang = self.client.getBaseVelocity(self.rover.body_id)

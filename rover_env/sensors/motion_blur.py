@@ -1,0 +1,159 @@
+"""Exposure blur and rolling shutter along each pixel's actual motion.
+
+A camera exposes each row over ``exposure`` seconds ending at its readout; whatever moves
+across the image meanwhile is smeared along its path. :class:`MotionField` computes, from a
+rendered view's per-pixel 3-D points and body labels and the simulator's link velocities, the
+image velocity of every pixel [px/s]: the ground is still, the rover's links move rigidly (the
+wheels turn, the body carries the camera). :func:`blur` then averages the rendered image
+along those paths (a gather along each pixel's motion vector, as renderers' velocity-buffer
+motion blur does), and a rolling shutter shifts each row by its velocity times its readout
+delay.
+
+The image velocity is the camera model's exact derivative at each pixel: for a point at
+distance ``rho`` along the pixel's ray ``r`` moving at ``p_dot`` in the camera frame,
+``x_dot = J (I - r r^T) p_dot / rho``, with ``J`` the projection's derivative on the unit
+sphere, found once per camera by finite differences of its model.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+LINK_SHIFT = 24  # segmentation label: body id + ((link + 1) << 24)
+
+
+class MotionField:
+    """Per-pixel image velocity of one camera from its rendered views.
+
+    Args:
+        rays: (H, W, 3) unit ray of each pixel in the camera's optical frame (NaN outside the
+            field of view).
+        project: Pixels (N, 2) of points (N, 3) in the optical frame: the camera's model.
+    """
+
+    def __init__(self, rays: np.ndarray, project: Callable[[np.ndarray], np.ndarray]) -> None:
+        h, w, _ = rays.shape
+        r = rays.reshape(-1, 3)
+        ok = np.all(np.isfinite(r), axis=1)
+        # two unit tangents of the sphere at each ray
+        helper = np.where(np.abs(r[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        e1 = np.cross(r, helper)
+        e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-12)
+        e2 = np.cross(r, e1)
+        eps = 1e-4
+        jac = np.zeros((h * w, 2, 3))
+        base = np.full((h * w, 2), np.nan)
+        base[ok] = project(r[ok])
+        for e in (e1, e2):
+            moved = np.full((h * w, 2), np.nan)
+            moved[ok] = project(r[ok] + eps * e[ok])
+            d = (moved - base) / eps  # pixel change per radian along e
+            jac += d[:, :, None] * e[:, None, :]
+        jac[~ok] = 0.0
+        self.rays = rays.astype(np.float32)
+        self.jacobian = np.nan_to_num(jac).reshape(h, w, 2, 3).astype(np.float32)
+        self.size = (w, h)
+
+    def velocity(
+        self,
+        points_cam: np.ndarray,
+        labels: np.ndarray | None,
+        T_world_cam: np.ndarray,
+        links: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]],
+        body_id: int,
+        camera_link: int = -1,
+    ) -> np.ndarray:
+        """Image velocity (H, W, 2) [px/s] of every pixel now.
+
+        Args:
+            points_cam: (H, W, 3) each pixel's surface point in the optical frame [m] (NaN: none).
+            labels: (H, W) segmentation (body id + ((link + 1) << 24), -1 none), or None: a still world.
+            T_world_cam: The camera's pose [m].
+            links: :meth:`rover_env.sim.simulation.RoverSim.link_motion`.
+            body_id: The rover's body id (its links move; every other body is still).
+            camera_link: The link the camera is fixed to (-1: the base).
+        """
+        R = T_world_cam[:3, :3].astype(np.float32)
+        c_cam = T_world_cam[:3, 3]
+        com, v_l, w_l = links[camera_link]
+        v_cam = v_l + np.cross(w_l, c_cam - com)  # the camera's own velocity, world frame
+        h, w = points_cam.shape[:2]
+        out = np.zeros((h, w, 2), np.float32)
+        flat = points_cam.reshape(-1, 3)
+        idx = np.flatnonzero(np.isfinite(flat[:, 0]))
+        if len(idx) == 0:
+            return out
+        p = flat[idx].astype(np.float32)
+        # velocity of each surface point relative to the camera, in the camera frame:
+        # R^T (v_p - v_cam) - (R^T w_cam) x p_cam
+        wx, wy, wz = (R.T @ w_l).astype(np.float32)
+        rel = -(R.T @ v_cam).astype(np.float32) - np.stack(
+            [wy * p[:, 2] - wz * p[:, 1], wz * p[:, 0] - wx * p[:, 2], wx * p[:, 1] - wy * p[:, 0]], axis=1
+        )
+        if labels is not None:
+            lab = labels.reshape(-1)[idx]
+            rover = np.flatnonzero((lab & ((1 << LINK_SHIFT) - 1)) == body_id)
+            if len(rover):
+                link_of = (lab[rover] >> LINK_SHIFT) - 1
+                p_world = p[rover] @ R.T + c_cam.astype(np.float32)
+                for link in np.unique(link_of):
+                    if int(link) not in links:
+                        continue
+                    sel = link_of == link
+                    c_l, v, w_ = links[int(link)]
+                    v_p = v + np.cross(w_, p_world[sel] - c_l)
+                    rel[rover[sel]] += (v_p @ R).astype(np.float32)
+        rel /= np.maximum(np.sqrt(np.einsum("ij,ij->i", p, p)), 1e-6)[:, None]
+        jac = self.jacobian.reshape(-1, 2, 3)[idx]
+        out.reshape(-1, 2)[idx] = np.einsum("nij,nj->ni", jac, rel)
+        return out
+
+
+def blur(
+    image: np.ndarray,
+    velocity: np.ndarray,
+    exposure_s: float,
+    samples: int,
+    rolling_shutter_s: float = 0.0,
+) -> np.ndarray:
+    """``image`` (the scene at the end of the exposure) integrated over the exposure along ``velocity``.
+
+    Args:
+        image: (H, W, C) uint8 rendered at the readout of the frame (the last row's, with a
+            rolling shutter).
+        velocity: (H, W, 2) image velocity [px/s] (:meth:`MotionField.velocity`).
+        exposure_s: Exposure [s].
+        samples: Most samples along a path; fewer when the longest path is shorter (one per pixel).
+        rolling_shutter_s: Readout time from the first row to the last [s]: row y ends its
+            exposure ``rolling_shutter_s * (1 - y / (H - 1))`` before the last.
+
+    Returns:
+        (H, W, C) uint8.
+    """
+    h, w = image.shape[:2]
+    longest = float(np.max(np.abs(velocity))) * (exposure_s + rolling_shutter_s) if velocity.size else 0.0
+    if longest < 0.25:
+        return image
+    n = int(min(samples, max(2, 2 * math.ceil(longest))))
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    # a pixel saw, s seconds before its readout, what is now (at the last readout) at x + v s
+    lag = (
+        np.float32(rolling_shutter_s) * (1.0 - ys / max(h - 1, 1))
+        if rolling_shutter_s > 0
+        else np.float32(0.0)
+    )
+    acc = np.zeros((h, w, image.shape[2]), np.float32)
+    for k in range(n):
+        s = lag + np.float32(exposure_s * (k + 0.5) / n)  # the midpoints of n equal parts
+        acc += cv2.remap(
+            image,
+            xs + velocity[..., 0] * s,
+            ys + velocity[..., 1] * s,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+    return np.clip(acc / n + 0.5, 0, 255).astype(np.uint8)

@@ -1,0 +1,125 @@
+"""Field cameras in the simulation: motion blur along each pixel's actual motion, and the keyword."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import flat_scenario
+
+import rover_env  # noqa: F401
+from rover_env.config.cameras import DownwardCameraConfig
+from rover_env.sensors.cameras import DownwardCamera
+from rover_env.sensors.motion_blur import MotionField, blur
+from rover_env.sim.simulation import RoverSim
+
+
+def pinhole_rays(f: float, size=(64, 48)):
+    w, h = size
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+    xs, ys = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    rays = np.stack([(xs - K[0, 2]) / f, (ys - K[1, 2]) / f, np.ones_like(xs)], -1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+
+    def project(p):
+        return np.stack([f * p[:, 0] / p[:, 2] + K[0, 2], f * p[:, 1] / p[:, 2] + K[1, 2]], -1)
+
+    return rays, project, K
+
+
+def test_motion_field_of_a_camera_over_a_still_plane_is_the_known_flow():
+    f, height = 100.0, 0.8
+    rays, project, K = pinhole_rays(f)
+    field = MotionField(rays, project)
+    points = rays * (height / rays[..., 2])[..., None]  # the plane z = height in the optical frame
+    T = np.eye(4)
+    # the camera translates along its x at 1.5 m/s and turns about its axis at 0.4 rad/s
+    links = {-1: (np.zeros(3), np.array([1.5, 0.0, 0.0]), np.array([0.0, 0.0, 0.4]))}
+    vel = field.velocity(points, None, T, links, body_id=99)
+    xs, ys = np.meshgrid(np.arange(64.0), np.arange(48.0))
+    # translation: the plane moves by -v f / h; rotation w about z: a pixel moves by -w x (x - c)
+    u, v = xs - K[0, 2], ys - K[1, 2]
+    expected_u = -1.5 * f / height + 0.4 * v
+    expected_v = -0.4 * u
+    np.testing.assert_allclose(vel[..., 0], expected_u, atol=0.02 * 1.5 * f / height)
+    np.testing.assert_allclose(vel[..., 1], expected_v, atol=0.02 * 1.5 * f / height)
+
+
+def test_blur_of_an_edge_spans_speed_times_exposure_over_the_ground_sample_distance():
+    """A rendered step edge moving at the field's velocity: its 0-100 % ramp is v T / GSD long."""
+    f, height, speed, exposure = 400.0, 0.8, 2.0, 0.004
+    rays, project, _ = pinhole_rays(f, (160, 40))
+    field = MotionField(rays, project)
+    points = rays * (height / rays[..., 2])[..., None]
+    links = {-1: (np.zeros(3), np.array([speed, 0.0, 0.0]), np.zeros(3))}
+    vel = field.velocity(points, None, np.eye(4), links, body_id=99)
+    image = np.zeros((40, 160, 3), np.uint8)
+    image[:, 80:] = 200
+    out = blur(image, vel, exposure, samples=32).astype(float)[20, :, 0]
+    gsd = height / f  # [m/px] at the image centre
+    expected = speed * exposure / gsd  # 4 px
+    # the edge's derivative is the blur's box (length L) convolved with the 1 px box of resampling
+    # a step: its variance is (L^2 + 1) / 12
+    g = np.diff(out)
+    x = np.arange(len(g))
+    mean = np.sum(g * x) / g.sum()
+    var = np.sum(g * (x - mean) ** 2) / g.sum()
+    measured = math.sqrt(12 * var - 1)
+    assert measured == pytest.approx(expected, rel=0.1), (measured, expected)
+
+
+def test_the_downward_cameras_motion_field_follows_the_rovers_true_speed():
+    sim = RoverSim(flat_scenario(mu=1.0), renderer="tiny")
+    try:
+        sim.reset(0.0, 0.0, 0.3)
+        g = sim.geometry
+        sim.rover.command(np.full(4, 1.2 / g.wheel_radius), 0.0, 0.0)
+        sim.step(2.0)
+        cam = DownwardCamera(sim, DownwardCameraConfig.preset("train", rate_hz=30.0))
+        cam.set_effects(True, seed=1)
+        view = cam.render_view()
+        vel = cam._motion.velocity(
+            cam._points_cam(view), view.segmentation, cam.T_world_cam(), sim.link_motion(), sim.rover.body_id
+        )
+        lin, _ = sim.base_velocity()
+        speed = math.hypot(lin[0], lin[1])
+        ground = (view.segmentation & ((1 << 24) - 1)) != sim.rover.body_id
+        assert ground.mean() > 0.5
+        f = cam.model.K[1, 1]
+        # image up is body forward: the ground moves down the image at v f / depth, pixel by pixel
+        expected = speed * f / view.depth[ground]
+        assert np.median(vel[..., 1][ground] / expected) == pytest.approx(1.0, abs=0.03)
+        assert np.median(np.abs(vel[..., 0][ground])) < 0.05 * np.median(expected)
+        # the rover's own body moves with the camera
+        if (~ground).any():
+            assert np.median(np.abs(vel[~ground])) < 0.05 * np.median(expected)
+    finally:
+        sim.close()
+
+
+def test_field_cameras_change_the_images_not_the_physics_and_the_seed_repeats_them():
+    actions = [np.array([0.6, 0.1 * math.sin(k / 4), 0.0], np.float32) for k in range(25)]
+
+    def run(effects, seed=4):
+        env = gym.make("RoverShadows-v0", renderer="tiny", camera_effects=effects)
+        try:
+            env.reset(seed=seed)
+            out = [env.step(a) for a in actions]
+            images = {k: v.copy() for k, v in env.unwrapped.pipeline.last_images.items()}
+        finally:
+            env.close()
+        poses = np.array([o[4]["ground_truth"]["pose"] for o in out])
+        return poses, np.array([o[0] for o in out]), images
+
+    p_ideal, o_ideal, im_ideal = run("ideal")
+    p_field, o_field, im_field = run("field")
+    p_again, o_again, im_again = run("field")
+    np.testing.assert_array_equal(p_ideal, p_field)  # the physics is the same whatever observes
+    np.testing.assert_array_equal(o_field, o_again)
+    assert all(np.array_equal(im_field[k], im_again[k]) for k in im_field)
+    assert not np.array_equal(o_ideal, o_field)
+    assert not np.array_equal(im_ideal["downward"], im_field["downward"])
+    with pytest.raises(ValueError, match="camera_effects"):
+        gym.make("Rover-v0", camera_effects="vivid")
