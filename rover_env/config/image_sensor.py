@@ -62,6 +62,9 @@ class ImageSensorConfig:
         gamma: Output encoding: the 8-bit value is 255 * x ** (1 / gamma) of the linear level x.
         vignetting: Relative illumination at the image corner (1: none): the lens's falloff
             1 / (1 + a r^2)^2 over the radius r from the centre (1 at the corner).
+        distortion: A pinhole camera's lens distortion, Brown-Conrady (k1, k2, p1, p2, k3) as
+            OpenCV and ROS's ``plumb_bob`` write it; the estimator is given it with the camera's
+            calibration. A fisheye's own model already holds its lens, so it ignores this.
         jpeg_quality: JPEG quality of the delivered frames (1-100), or None: uncompressed.
         rolling_shutter_s: Readout time from the first row to the last [s]; 0: a global shutter.
         blur_samples: Samples along each pixel's motion that integrate the exposure's blur.
@@ -86,6 +89,7 @@ class ImageSensorConfig:
     ae_settling_s: float = 0.3
     gamma: float = 2.2
     vignetting: float = 0.8
+    distortion: tuple[float, float, float, float, float] = (-0.25, 0.07, 0.0, 0.0, 0.0)
     jpeg_quality: int | None = None
     rolling_shutter_s: float = 0.0
     blur_samples: int = 8
@@ -113,6 +117,10 @@ class ImageSensorConfig:
         check_range("ae_settling_s", self.ae_settling_s, 0.0, 60.0, lo_open=True)
         check_range("gamma", self.gamma, 0.0, 5.0, lo_open=True)
         check_range("vignetting", self.vignetting, 0.0, 1.0, lo_open=True)
+        if len(self.distortion) != 5:
+            raise ConfigError(f"distortion: {self.distortion!r}; give five coefficients (k1, k2, p1, p2, k3)")
+        for i, k in enumerate(self.distortion):
+            check_range(f"distortion[{i}]", k, -2.0, 2.0)
         if self.jpeg_quality is not None and (
             not _is_int(self.jpeg_quality) or not 1 <= self.jpeg_quality <= 100
         ):

@@ -251,10 +251,13 @@ class RoverEnv(gym.Env):
             declared = self.scenario.rig is not None
             try:
                 self.pipeline = PerceptionPipeline(
-                    self.sim, preset, estimator=estimator, rig=rig, declared=declared
+                    self.sim,
+                    preset,
+                    estimator=estimator,
+                    rig=rig,
+                    declared=declared,
+                    camera_effects=camera_effects == "field",
                 )
-                for cam in self.pipeline.cameras:
-                    cam.set_effects(camera_effects == "field")
             except BaseException:  # a bad rig or estimator: release the physics client
                 self.sim.close()
                 raise

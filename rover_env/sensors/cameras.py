@@ -172,7 +172,11 @@ class _RoverCamera(ABC):
             )
             s = self.config.sensor
             image = blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s)
-        return sensor.capture(image, meter="rendered")
+        return sensor.capture(self._lens(image), meter="rendered")
+
+    def _lens(self, image: np.ndarray) -> np.ndarray:
+        """The rendered (ideal) image as the lens forms it on the sensor (a fisheye's model has its lens)."""
+        return image
 
     def set_blackout(self, windows) -> None:
         """Deliver black frames from :meth:`sample` within each (t0, t1) window [s] of simulation time.
@@ -237,6 +241,7 @@ class DownwardCamera(_RoverCamera):
         T = self.standard_mount(g) if T_body_cam is None else np.asarray(T_body_cam, dtype=np.float64)
         super().__init__(sim, cfg, T)
         nominal_height = g.wheel_radius - g.axle_z  # body origin above flat ground at rest [m]
+        #: The camera's calibration: its intrinsics, distortion (with a field lens) and mount.
         self.model = PinholeCamera.from_fov(
             (cfg.width, cfg.height),
             math.radians(cfg.hfov_deg),
@@ -244,17 +249,64 @@ class DownwardCamera(_RoverCamera):
             T_body_cam=T,
             ground_plane=(0.0, 0.0, -nominal_height),
         )
+        self._ideal = self.model
+        # the ideal view that is rendered, and the lens's remap from it (None: no distortion)
+        self._render_model = self.model
+        self._lens_maps: tuple[np.ndarray, np.ndarray] | None = None
+
+    def set_effects(self, on: bool, seed: int | None = None) -> None:
+        """As :meth:`_RoverCamera.set_effects`; a field lens also distorts (``sensor.distortion``).
+
+        With distortion, :attr:`model` carries it (the calibration the estimator is given), and
+        an ideal view wide enough to hold every distorted pixel's ray is rendered and remapped.
+        """
+        dist = np.asarray(self.config.sensor.distortion, dtype=np.float64)
+        ideal = self._ideal
+        if not (on and np.any(dist)):
+            self.model, self._render_model, self._lens_maps = ideal, ideal, None
+        else:
+            model = PinholeCamera(
+                K=ideal.K,
+                image_size=ideal.image_size,
+                distortion=dist,
+                T_body_cam=ideal.T_body_cam,
+                ground_plane=ideal.ground_plane,
+            )
+            w, h = ideal.image_size
+            xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+            ideal_px = ideal.project(
+                np.concatenate([model.normalized(np.stack([xs, ys], -1)), np.ones((h, w, 1))], -1)
+            )
+            lo = np.floor(ideal_px.reshape(-1, 2).min(axis=0)) - 2
+            hi = np.ceil(ideal_px.reshape(-1, 2).max(axis=0)) + 2
+            K = ideal.K.copy()
+            K[0, 2] -= lo[0]
+            K[1, 2] -= lo[1]
+            size = (int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
+            self._render_model = PinholeCamera(K=K, image_size=size, T_body_cam=ideal.T_body_cam)
+            self._lens_maps = (
+                (ideal_px[..., 0] - lo[0]).astype(np.float32),
+                (ideal_px[..., 1] - lo[1]).astype(np.float32),
+            )
+            self.model = model
+        super().set_effects(on, seed)
+
+    def _lens(self, image: np.ndarray) -> np.ndarray:
+        if self._lens_maps is None:
+            return image
+        return cv2.remap(image, *self._lens_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def render_view(self) -> RenderedView:
         """Render now, with depth and segmentation (for tests and evaluation)."""
         return super().render_view()
 
     def _rays_and_model(self):
-        w, h = self.model.image_size
+        model = self._render_model
+        w, h = model.image_size
         xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        rays = self.model.unproject(np.stack([xs, ys], -1))
+        rays = model.unproject(np.stack([xs, ys], -1))
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-        return rays, self.model.project
+        return rays, model.project
 
     def _points_cam(self, view) -> np.ndarray:
         rays = self._motion.rays if self._motion is not None else self._rays_and_model()[0]
@@ -265,7 +317,7 @@ class DownwardCamera(_RoverCamera):
             raise ValueError("parts: a pinhole camera renders whole frames")
         lighting = self.lighting
         renderer = renderer_for(self.sim)
-        return renderer.render_pinhole(self.model, self.T_world_cam(), lighting, segmentation=labels)
+        return renderer.render_pinhole(self._render_model, self.T_world_cam(), lighting, segmentation=labels)
 
 
 def kinematics_roi(

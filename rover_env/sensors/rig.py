@@ -226,6 +226,8 @@ class PerceptionPipeline:
             ``imu``). Cameras take the preset's settings where their declaration gives none.
         declared: ``rig`` is the scenario's ``rig`` key (errors name ``rig[i]``), not the
             standard rig (errors name the sensor: ``imu.rate_hz``).
+        camera_effects: Deliver the cameras' images through their image sensors and lenses
+            (``camera_effects="field"``); the rig's calibrations then hold the lenses' distortion.
     """
 
     def __init__(
@@ -240,6 +242,7 @@ class PerceptionPipeline:
         estimator: EstimatorFactory | None = None,
         rig: tuple[SensorConfig, ...] | None = None,
         declared: bool = False,
+        camera_effects: bool = False,
     ) -> None:
         if isinstance(preset, str):
             if preset not in PERCEPTION_PRESETS:
@@ -265,6 +268,8 @@ class PerceptionPipeline:
         self.downward = next((s for s in self.cameras if isinstance(s, DownwardCamera)), None)
         self.fisheye = next((s for s in self.cameras if isinstance(s, FisheyeCamera)), None)
         self.imu = self.imus[0] if self.imus else None
+        for cam in self.cameras:  # before the rig is described: a field lens is in the calibration
+            cam.set_effects(camera_effects)
         self.rig = rig_of(sim, self.sensors)
         if estimator is None:
             self.estimator: Any = builtin_estimator(
