@@ -179,3 +179,32 @@ def test_lens_distortion_matches_the_calibration_the_estimator_is_given():
     err = np.linalg.norm(corners(delivered) - expected[inside], axis=1)
     print(f"delivered: median {np.median(err):.3f} px, p95 {np.percentile(err, 95):.3f} px")
     assert np.median(err) <= 0.15 and np.percentile(err, 95) <= 0.3
+
+
+def test_a_scenario_sets_a_cameras_sensor_figures_and_bad_ones_name_the_key():
+    import dataclasses
+
+    from rover_env.config.io import ConfigError
+    from rover_env.config.rig import SensorConfig
+
+    scenario = rover_env.load_scenario("flat_patches")
+    rig = (
+        SensorConfig("fisheye", "fisheye"),
+        SensorConfig("downward", "pinhole", camera={"sensor": {"jpeg_quality": 70, "exposure_max_s": 0.008}}),
+    )
+    env = gym.make("Rover-v0", scenario=dataclasses.replace(scenario, rig=rig), camera_effects="field")
+    try:
+        sensor = env.unwrapped.pipeline.downward.image_sensor.config
+        assert (sensor.jpeg_quality, sensor.exposure_max_s, sensor.full_well_e) == (70, 0.008, 10_400.0)
+        assert np.allclose(env.unwrapped.rig["downward"].model.distortion[:2], sensor.distortion[:2])
+    finally:
+        env.close()
+    with pytest.raises(ConfigError, match=r"camera\.sensor\.gamma"):
+        SensorConfig("downward", "pinhole", camera={"sensor": {"gamma": 0.0}})
+    with pytest.raises(ConfigError, match=r"unknown key 'camera\.sensor\.iso'"):
+        SensorConfig("downward", "pinhole", camera={"sensor": {"iso": 100}})
+    long = SensorConfig("downward", "pinhole", rate_hz=120.0, camera={"sensor": {"exposure_max_s": 0.01}})
+    with pytest.raises(ConfigError, match="exposure_max_s: 10 ms is longer than the frame period 8.33333 ms"):
+        gym.make(
+            "Rover-v0", scenario=dataclasses.replace(scenario, rig=(rig[0], long)), camera_effects="field"
+        )

@@ -170,6 +170,9 @@ class SensorConfig:
         changes = dict(self.camera or {})
         if self.rate_hz is not None:
             changes["rate_hz"] = self.rate_hz
+        if isinstance(changes.get("sensor"), dict):  # figures over the preset camera's sensor
+            merged = dataclasses.asdict(preset.sensor) | changes["sensor"]
+            changes["sensor"] = from_dict(type(preset.sensor), merged, "camera.sensor")
         return dataclasses.replace(preset, **changes) if changes else preset
 
 
