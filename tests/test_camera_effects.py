@@ -208,3 +208,50 @@ def test_a_scenario_sets_a_cameras_sensor_figures_and_bad_ones_name_the_key():
         gym.make(
             "Rover-v0", scenario=dataclasses.replace(scenario, rig=(rig[0], long)), camera_effects="field"
         )
+
+
+def test_the_sun_moves_and_clouds_dim_it_and_auto_exposure_follows():
+    import dataclasses
+
+    from rover_env.config.io import ConfigError
+    from rover_env.config.scenario import SunConfig
+
+    sun = SunConfig(
+        azimuth_deg=90.0, elevation_deg=30.0, azimuth_rate_deg_s=2.0, clouds=((1.0, 3.0, 0.2, 0.0),)
+    )
+    az = math.radians(90.0 + 2.0 * 5.0)
+    assert np.allclose(
+        sun.direction(5.0)[:2] / np.linalg.norm(sun.direction(5.0)[:2]), [math.cos(az), math.sin(az)]
+    )
+    assert np.allclose([sun.transmission(t) for t in (0.5, 1.0, 2.0, 3.5)], [1.0, 0.2, 0.2, 1.0])
+    ramped = SunConfig(clouds=((1.0, 3.0, 0.2, 0.5),))
+    assert ramped.transmission(1.25) == pytest.approx(0.6)
+    for bad, key in (
+        ((1.0, 0.5, 0.2, 0.0), "end"),
+        ((1.0, 2.0, 1.5, 0.0), "transmission"),
+        ((0, 1, 0.5), "clouds"),
+    ):
+        with pytest.raises(ConfigError, match=key):
+            SunConfig(clouds=(bad,))
+    # the rover stands still; a cloud covers the sun at 1 s: the image darkens, then the
+    # auto-exposure brings its mean back to the target within its settling time
+    scenario = rover_env.load_scenario(rover_env.MISSIONS["Rover-v0"])
+    scenario = dataclasses.replace(
+        scenario, sun=dataclasses.replace(scenario.sun, clouds=((1.0, 4.0, 0.15, 0.0),))
+    )
+    env = gym.make("Rover-v0", scenario=scenario, renderer="tiny", camera_effects="field")
+    try:
+        env.reset(seed=3)
+        cam = env.unwrapped.pipeline.downward
+        target, settle = cam.config.sensor.ae_target, cam.config.sensor.ae_settling_s
+        levels = []
+        for _ in range(int(3.5 * 30)):
+            env.step(np.zeros(3, np.float32))
+            levels.append((env.unwrapped.sim.t, env.unwrapped.pipeline.last_images["downward"].mean() / 255))
+    finally:
+        env.close()
+    t, level = np.array(levels).T
+    assert abs(level[(t > 0.6) & (t < 0.99)].mean() / target - 1) < 0.05
+    assert level[(t > 0.99) & (t < 1.05)].min() < 0.8 * target  # the cloud darkens the frame
+    back = (t > 1.0 + settle + 2 / 30) & (t < 3.5)
+    assert np.all(np.abs(level[back] / target - 1) < 0.05)

@@ -183,25 +183,57 @@ class FrictionMapConfig:
 
 @dataclass(frozen=True)
 class SunConfig:
-    """Directional sunlight.
+    """Directional sunlight, which may move and be dimmed during a mission.
 
     Attributes:
         azimuth_deg: Direction toward the sun in the ground plane, counter-clockwise from
-            world x [deg].
-        elevation_deg: Sun height above the horizon [deg].
+            world x [deg], at t = 0.
+        elevation_deg: Sun height above the horizon [deg], at t = 0.
+        azimuth_rate_deg_s: The sun's azimuth change per second of mission time [deg/s].
+        elevation_rate_deg_s: The sun's elevation change per second [deg/s]; the elevation is
+            held within 1..90 deg.
+        clouds: Clouds passing in front of the sun: (start [s], end [s], transmission [0..1],
+            ramp [s]) each. Between start and end the direct sunlight is multiplied by the
+            transmission (the sky light stays), reached over ``ramp`` seconds at both ends (0: a
+            step). Where clouds overlap their transmissions multiply.
     """
 
     azimuth_deg: float = 180.0
     elevation_deg: float = 45.0
+    azimuth_rate_deg_s: float = 0.0
+    elevation_rate_deg_s: float = 0.0
+    clouds: tuple[tuple[float, float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         check_range("azimuth_deg", self.azimuth_deg, -360.0, 360.0)
         check_range("elevation_deg", self.elevation_deg, 1.0, 90.0)
+        check_range("azimuth_rate_deg_s", self.azimuth_rate_deg_s, -90.0, 90.0)
+        check_range("elevation_rate_deg_s", self.elevation_rate_deg_s, -90.0, 90.0)
+        for i, cloud in enumerate(self.clouds):
+            key = f"clouds[{i}]"
+            if len(cloud) != 4:
+                raise ConfigError(f"{key}: {cloud!r}; give (start [s], end [s], transmission, ramp [s])")
+            start, end, transmission, ramp = cloud
+            check_range(f"{key}.start", start, 0.0, 1e6)
+            check_range(f"{key}.end", end, start, 1e6, lo_open=True)
+            check_range(f"{key}.transmission", transmission, 0.0, 1.0)
+            check_range(f"{key}.ramp", ramp, 0.0, 0.5 * (end - start))
 
-    def direction(self) -> np.ndarray:
-        """Unit vector from the ground toward the sun, world frame."""
-        az, el = math.radians(self.azimuth_deg), math.radians(self.elevation_deg)
+    def direction(self, t: float = 0.0) -> np.ndarray:
+        """Unit vector from the ground toward the sun at mission time ``t`` [s], world frame."""
+        az = math.radians(self.azimuth_deg + self.azimuth_rate_deg_s * t)
+        el = math.radians(min(max(self.elevation_deg + self.elevation_rate_deg_s * t, 1.0), 90.0))
         return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+
+    def transmission(self, t: float) -> float:
+        """Share of the direct sunlight that reaches the ground at mission time ``t`` [s] (1: no cloud)."""
+        out = 1.0
+        for start, end, trans, ramp in self.clouds:
+            if start <= t <= end:
+                edge = min(t - start, end - t)
+                k = 1.0 if ramp <= 0 else min(edge / ramp, 1.0)
+                out *= 1.0 - k * (1.0 - trans)
+        return out
 
 
 @dataclass(frozen=True)

@@ -67,7 +67,11 @@ class ChaseView:
         views = self._render_views(left, h, side, h // 2)
         renderer = focus_on_rover(self.sim)
         T_world_chase = look_at(eye, [pos[0], pos[1], pos[2] - 0.1])
-        chase = renderer.render_pinhole(views["chase"], T_world_chase, views["lighting"], far=60.0)
+        sun = self.scenario.sun  # where the sun is now, and how much of it the clouds let through
+        t = self.sim.t
+        sx, sy, sz = (float(v) for v in sun.direction(t))
+        lighting = Lighting((sx, sy, sz), ambient=0.35, diffuse=sun.transmission(t), shadows=True)
+        chase = renderer.render_pinhole(views["chase"], T_world_chase, lighting, far=60.0)
         frame = np.zeros((h, w, 3), dtype=np.uint8)
         frame[:, :left] = chase.rgb
         if chase.segmentation is not None:  # past the terrain's edge: a dark sky, not the clear colour
@@ -138,13 +142,11 @@ class ChaseView:
         """Cameras of the composite frame, built on first use (the fisheye precomputes its remap)."""
         if self._views is None:
             shadows = True
-            sx, sy, sz = (float(v) for v in self.scenario.sun.direction())
             # insets at about their display size (even sizes, the camera's 4:3 aspect)
             iw = max(16, 2 * (inset_w // 2))
             ih = max(16, 2 * (iw * 3 // 8))
             self._views = {
                 "chase": PinholeCamera.from_fov((left, h), math.radians(55.0 * left / h), math.radians(55.0)),
-                "lighting": Lighting((sx, sy, sz), ambient=0.35, shadows=shadows),
                 "downward": None
                 if (m := self.mounts["pinhole"]) is None
                 else DownwardCamera(self.sim, DownwardCameraConfig(width=iw, height=ih, shadows=shadows), m),

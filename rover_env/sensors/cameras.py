@@ -96,8 +96,14 @@ class _RoverCamera(ABC):
     @property
     def lighting(self) -> Lighting:
         """Sun lighting from the scenario."""
-        sx, sy, sz = (float(v) for v in self.sim.scenario.sun.direction())
-        return Lighting((sx, sy, sz), ambient=self.config.ambient, shadows=self.config.shadows)
+        sun = self.sim.scenario.sun
+        sx, sy, sz = (float(v) for v in sun.direction(self.sim.t))
+        return Lighting(
+            (sx, sy, sz),
+            ambient=self.config.ambient,
+            diffuse=sun.transmission(self.sim.t),
+            shadows=self.config.shadows,
+        )
 
     def T_world_cam(self) -> np.ndarray:
         """Pose of the camera optical frame in the world now [m]."""
