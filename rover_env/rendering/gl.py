@@ -1194,15 +1194,17 @@ class GLRenderer(Renderer):
             )
         fbo.scissor = None
         w, h = remapper.model.image_size
-        if not drawn:
-            rgb = np.zeros((h, w, 3), np.uint8)
-        else:
+        if not labels:
+            if not drawn:
+                return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8))
             # the remap on the CPU: reading back the small atlas and one fixed-point cv2.remap
             # cost less than a remap pass on llvmpipe
             atlas_rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(ah, aw, 3)
-            rgb = remapper.remap(atlas_rgb)
-        if not labels:
-            return FisheyeView(rgb=rgb)
+            return FisheyeView(rgb=remapper.remap(atlas_rgb))
+        # one read of the colour with its shadow flag; nothing drawn where the world point's w is
+        # still the clear colour's 0 (every labelled fragment writes w = 1)
+        col = np.frombuffer(fbo_labels.read(components=4, attachment=0), np.uint8).reshape(ah, aw, 4)
+        rgb = remapper.remap(np.ascontiguousarray(col[..., :3])) if drawn else np.zeros((h, w, 3), np.uint8)
         seg = (
             np.frombuffer(fbo_labels.read(components=1, attachment=1, dtype="i4"), np.int32)
             .reshape(ah, aw)
@@ -1211,11 +1213,7 @@ class GLRenderer(Renderer):
         world = np.frombuffer(fbo_labels.read(components=4, attachment=3, dtype="f4"), np.float32).reshape(
             ah, aw, 4
         )
-        col = np.frombuffer(fbo_labels.read(components=4, attachment=0), np.uint8).reshape(ah, aw, 4)
-        zbuf = np.frombuffer(fbo_labels.read(components=1, attachment=-1, dtype="f4"), np.float32).reshape(
-            ah, aw
-        )
-        empty = zbuf >= 1.0
+        empty = world[..., 3] < 0.5
         seg[empty] = -1
         pts = np.ascontiguousarray(world[..., :3])
         pts[empty] = np.nan
