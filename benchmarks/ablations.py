@@ -111,17 +111,6 @@ def timed_fisheye(store: dict) -> Callable:
     return setup
 
 
-def both(*setups: Callable | None) -> Callable:
-    """One ``setup(env)`` that runs each of ``setups``."""
-
-    def setup(env) -> None:
-        for s in setups:
-            if s is not None:
-                s(env)
-
-    return setup
-
-
 # ------------------------------------------------------------------ runs
 def course(env_id, seeds, preset, renderer, make=None, setup=None) -> list[dict]:
     return [

@@ -66,6 +66,12 @@ class Frame:
     shadow: np.ndarray | None = None
 
 
+def _pixels(w: int, h: int) -> np.ndarray:
+    """(H, W, 2) the (x, y) coordinates of every pixel of a W x H image [px]."""
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    return np.stack([xs, ys], -1)
+
+
 class _RoverCamera(ABC):
     """A camera fixed to the rover body: pose, sun lighting, frames and frame pairs."""
 
@@ -279,9 +285,8 @@ class DownwardCamera(_RoverCamera):
                 ground_plane=ideal.ground_plane,
             )
             w, h = ideal.image_size
-            xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
             ideal_px = ideal.project(
-                np.concatenate([model.normalized(np.stack([xs, ys], -1)), np.ones((h, w, 1))], -1)
+                np.concatenate([model.normalized(_pixels(w, h)), np.ones((h, w, 1))], -1)
             )
             lo = np.floor(ideal_px.reshape(-1, 2).min(axis=0)) - 2
             hi = np.ceil(ideal_px.reshape(-1, 2).max(axis=0)) + 2
@@ -309,8 +314,7 @@ class DownwardCamera(_RoverCamera):
     def _rays_and_model(self):
         model = self._render_model
         w, h = model.image_size
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        rays = model.unproject(np.stack([xs, ys], -1))
+        rays = model.unproject(_pixels(w, h))
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
         return rays, model.project
 
@@ -474,8 +478,7 @@ class FisheyeCamera(_RoverCamera):
 
     def _rays_and_model(self):
         w, h = self.model.image_size
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        return self.model.cam2world(np.stack([xs, ys], -1)), self.model.world2cam
+        return self.model.cam2world(_pixels(w, h)), self.model.world2cam
 
     def _points_cam(self, view) -> np.ndarray:
         T = (self._T_cam_body @ np.linalg.inv(self.sim.base_matrix())).astype(np.float32)

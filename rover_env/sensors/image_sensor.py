@@ -161,13 +161,12 @@ class ImageSensor:
         ``meter``: an (H, W) bool mask, ``"rendered"`` (the pixels the renderer drew: not black,
         as a region-of-interest readout meters its region), or None (all of it).
         """
+        if isinstance(meter, str) and meter != "rendered":
+            raise ValueError(f"meter={meter!r}: use a mask, 'rendered' or None")
         raw = self.raw(image, light=light)
         out = self.develop(raw)
         if self.config.auto_exposure:
-            mask = self._rendered if isinstance(meter, str) else meter
-            if isinstance(meter, str) and meter != "rendered":
-                raise ValueError(f"meter={meter!r}: use a mask, 'rendered' or None")
-            self._meter(self._lut[raw], mask)
+            self._meter(self._lut[raw], self._rendered if isinstance(meter, str) else meter)
         return out
 
     # ------------------------------------------------------------------ auto-exposure

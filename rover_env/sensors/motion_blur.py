@@ -17,6 +17,7 @@ sphere, found once per camera by finite differences of its model.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -113,6 +114,14 @@ class MotionField:
         return out
 
 
+@functools.lru_cache(maxsize=8)
+def _grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel x and y coordinates (H, W) float32 of an image, made once per size (read-only)."""
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    xs.flags.writeable = ys.flags.writeable = False
+    return xs, ys
+
+
 def blur(
     image: np.ndarray,
     velocity: np.ndarray,
@@ -139,7 +148,7 @@ def blur(
     if longest < 0.25:
         return image
     n = int(min(samples, max(2, 2 * math.ceil(longest))))
-    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    xs, ys = _grid(w, h)
     # a pixel saw, s seconds before its readout, what is now (at the last readout) at x + v s
     lag = (
         np.float32(rolling_shutter_s) * (1.0 - ys / max(h - 1, 1))
