@@ -12,8 +12,11 @@ fields are compared with the simulator's ground truth of the same fields. Prints
   precision, recall, F1 over events (an estimated event matches a true one it overlaps) and the
   median and largest onset latency in camera frames, from the truth's first frame at 0.2.
 
+With ``--camera-effects ideal field`` the same seeds run with both camera models and the table
+holds both side by side.
+
 Run: python benchmarks/observation_errors.py [--preset eval] [--seeds 101 102] [--seconds 40]
-(the seeds are ones the tests never use).
+[--camera-effects field] (the seeds are ones the tests never use).
 """
 
 from __future__ import annotations
@@ -63,30 +66,55 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[101, 102])
     ap.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
     ap.add_argument("--seconds", type=float, default=40.0, help="longest drive per episode [s]")
+    ap.add_argument(
+        "--camera-effects",
+        nargs="+",
+        default=["field"],
+        choices=("ideal", "field"),
+        help="the cameras' images: 'field' (the image sensor model), 'ideal' (as rendered), or both",
+    )
     args = ap.parse_args(argv)
+    cams = args.camera_effects
     for env_id in args.missions:
-        runs = [run(env_id, s, args.preset, args.seconds, args.renderer) for s in args.seeds]
-        steps = sum(len(r["t"]) for r in runs)
-        wall = sum(r["wall"] for r in runs)
+        by_cams = {
+            c: [
+                run(env_id, s, args.preset, args.seconds, args.renderer, make={"camera_effects": c})
+                for s in args.seeds
+            ]
+            for c in cams
+        }
         print(
-            f"\n### {env_id} ({rover_env.MISSIONS[env_id]}), preset {args.preset}, renderer {args.renderer}, "
-            f"seeds {args.seeds}: "
-            f"{steps} steps, {steps / wall:.1f} steps/s, reached the goal {sum(r['success'] for r in runs)}"
-            f" of {len(runs)}\n"
+            f"\n### {env_id} ({rover_env.MISSIONS[env_id]}), preset {args.preset}, renderer {args.renderer}"
         )
-        print("| field | MAE | p95 |")
-        print("|---|---:|---:|")
-        for name, (mae, p95) in field_errors(runs).items():
-            print(f"| {name} | {mae:.4f} | {p95:.4f} |")
-        m = slip_metrics(runs)
-        print(
-            f"\nslip ratio MAE: {m['mae_slip']:.3f} while |s| > 0.1 ({m['n_slip']} wheel-steps), "
-            f"{m['mae_calm']:.3f} otherwise; events: {m['events']}, false {m['false']}, in the band "
-            f"{m['in_band']}, precision {m['precision']:.2f}, "
-            f"recall {m['recall']:.2f}, F1 {m['f1']:.2f}, onset latency median {m['latency_median']:.1f} "
-            f"/ max {m['latency_max']:.1f} camera frames ({100 * m['within_2']:.0f} % within 2)"
-        )
+        print(f"\nseeds {args.seeds}")
+        for c, runs in by_cams.items():
+            steps = sum(len(r["t"]) for r in runs)
+            wall = sum(r["wall"] for r in runs)
+            print(
+                f"- {c} cameras: {steps} steps, {steps / wall:.1f} steps/s, "
+                f"reached the goal {sum(r['success'] for r in runs)} of {len(runs)}"
+            )
+        print("\n| field | " + " | ".join(f"{c} MAE | {c} p95" for c in cams) + " |")
+        print("|---|" + "---:|---:|" * len(cams))
+        errors = {c: field_errors(runs) for c, runs in by_cams.items()}
+        for name in errors[cams[0]]:
+            cells = " | ".join(f"{errors[c][name][0]:.4f} | {errors[c][name][1]:.4f}" for c in cams)
+            print(f"| {name} | {cells} |")
+        print()
+        for c, runs in by_cams.items():
+            slip_line(c, slip_metrics(runs))
     return 0
+
+
+def slip_line(cams: str, m: dict) -> None:
+    """Print one camera model's slip figures."""
+    print(
+        f"{cams} cameras: slip ratio MAE: {m['mae_slip']:.3f} while |s| > 0.1 ({m['n_slip']} wheel-steps), "
+        f"{m['mae_calm']:.3f} otherwise; events: {m['events']}, false {m['false']}, in the band "
+        f"{m['in_band']}, precision {m['precision']:.2f}, "
+        f"recall {m['recall']:.2f}, F1 {m['f1']:.2f}, onset latency median {m['latency_median']:.1f} "
+        f"/ max {m['latency_max']:.1f} camera frames ({100 * m['within_2']:.0f} % within 2)"
+    )
 
 
 if __name__ == "__main__":

@@ -13,7 +13,8 @@ filter's rule, applied to the true slip to label the truth. An estimated event o
 peaks between 0.15 and 0.2 is neither a match nor a false alarm ("in band").
 
 Run: python benchmarks/slip_accuracy.py [--preset eval] [--seeds 201 202 203] [--ramp 0.05]
-[--envs Rover-v0 ...] (seeds the tests never use); one row per mission and one for all of them.
+[--envs Rover-v0 ...] [--camera-effects ideal field] (seeds the tests never use); one row per
+mission and camera model (the same seeds and drives for each) and one for all missions.
 With ``--ramp 0`` the speed command steps: the wheels jump by up to 10 rad/s within a frame,
 beyond the tread tracker's search, and are lost for several frames.
 """
@@ -102,6 +103,13 @@ def main(argv=None) -> int:
     ap.add_argument("--envs", nargs="+", default=list(rover_env.ENV_IDS), choices=rover_env.ENV_IDS)
     ap.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
     ap.add_argument(
+        "--camera-effects",
+        nargs="+",
+        default=["field"],
+        choices=("ideal", "field"),
+        help="the cameras' images: 'field' (the image sensor model), 'ideal' (as rendered), or both",
+    )
+    ap.add_argument(
         "--imu",
         default=None,
         choices=sorted(IMU_PRESETS),
@@ -111,30 +119,36 @@ def main(argv=None) -> int:
     head = f"preset {args.preset}, renderer {args.renderer}, imu {args.imu}"
     print(f"{head}, seeds {args.seeds}, ramp {args.ramp}", flush=True)
     print(
-        "| mission | steps | slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events | false / in band "
+        "| mission | cameras | steps | slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events "
+        "| false / in band "
         "| precision | recall | F1 | latency median / max [frames] | within 2 frames |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    every = []
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    every: dict[str, list] = {c: [] for c in args.camera_effects}
     for env_id in args.envs + (["all"] if len(args.envs) > 1 else []):
-        if env_id == "all":
-            runs = every
-        else:
-            span = patch_span(env_id)
-            runs = [
-                drive(s, args.preset, env_id, span, args.seconds, args.ramp, args.renderer, args.imu)
-                for s in args.seeds
-            ]
-            every += runs
-        m = slip_metrics(runs)
-        steps = sum(len(r["t"]) for r in runs)
-        print(
-            f"| {env_id} | {steps} | {m['mae_slip']:.3f} ({m['n_slip']} wheel-steps) | {m['mae_calm']:.3f} "
-            f"| {m['events']} | {m['false']} / {m['in_band']} | {m['precision']:.2f} | {m['recall']:.2f} "
-            f"| {m['f1']:.2f} "
-            f"| {m['latency_median']:.1f} / {m['latency_max']:.1f} | {100 * m['within_2']:.0f} % |",
-            flush=True,
-        )
+        for cams in args.camera_effects:
+            if env_id == "all":
+                runs = every[cams]
+            else:
+                span = patch_span(env_id)
+                make = {"camera_effects": cams}
+                runs = [
+                    drive(
+                        s, args.preset, env_id, span, args.seconds, args.ramp, args.renderer, args.imu, make
+                    )
+                    for s in args.seeds
+                ]
+                every[cams] += runs
+            m = slip_metrics(runs)
+            steps = sum(len(r["t"]) for r in runs)
+            print(
+                f"| {env_id} | {cams} | {steps} | {m['mae_slip']:.3f} ({m['n_slip']} wheel-steps) "
+                f"| {m['mae_calm']:.3f} "
+                f"| {m['events']} | {m['false']} / {m['in_band']} | {m['precision']:.2f} | {m['recall']:.2f} "
+                f"| {m['f1']:.2f} "
+                f"| {m['latency_median']:.1f} / {m['latency_max']:.1f} | {100 * m['within_2']:.0f} % |",
+                flush=True,
+            )
     return 0
 
 

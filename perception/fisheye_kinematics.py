@@ -28,7 +28,13 @@ from perception.markers import (
     segment_magenta,
 )
 from perception.wheel_kinematics import rolling_speeds
-from perception.wheel_rotation import TreadConfig, measure_pairs, strip_resolution, unwrap_treads
+from perception.wheel_rotation import (
+    TreadConfig,
+    linear_gray,
+    measure_pairs,
+    strip_resolution,
+    unwrap_treads,
+)
 
 DOF_NAMES: tuple[str, ...] = (
     "psi_F",
@@ -159,6 +165,9 @@ class KinematicStateEstimator:
         model: The rover's kinematic geometry.
         config: Parameters.
         calibration: Use the paper's distance-ratio steering (eq. 5) through this map.
+        gamma: The camera's photometric response (:attr:`perception.rig.SensorSpec.gamma`): the
+            treads are unwrapped from the linearised grey image, so that their band-pass, which
+            divides by the local light level, sees light as a factor.
     """
 
     def __init__(
@@ -167,6 +176,7 @@ class KinematicStateEstimator:
         model: RoverKinematicModel,
         config: KinematicsConfig | None = None,
         calibration: SteeringCalibration | None = None,
+        gamma: float = 1.0,
     ) -> None:
         if not np.allclose(camera.T_body_cam, model.T_body_cam, atol=1e-9):
             raise ValueError("camera.T_body_cam and model.T_body_cam differ; use one fisheye mount for both")
@@ -174,6 +184,7 @@ class KinematicStateEstimator:
         self.model = model
         self.config = config or KinematicsConfig()
         self.calibration = calibration
+        self.gamma = float(gamma)
         nominal = model.wheel_frames(np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4))
         # one column step for all wheels (the finest), so that their strips are processed together
         self._dphi = min(
@@ -284,6 +295,8 @@ class KinematicStateEstimator:
         valid.update({f"d_{a}": bool(np.isfinite(meas.depth[i])) for i, a in enumerate(AXLES)})
         valid.update({f"lam_{a}": bool(np.isfinite(meas.lam[i])) for i, a in enumerate(AXLES)})
         gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        if self.gamma != 1.0:  # the treads' band-pass divides light levels: linear ones
+            gray = linear_gray(gray, self.gamma)
         theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
         corrected = []
         curr_frames = self.model.wheel_frames(psi, depth, delta)
@@ -489,6 +502,8 @@ class KinematicStateEstimator:
         vis = strip.visible
         hsv = cv2.cvtColor(strip.sample(img), cv2.COLOR_RGB2HSV)
         v, sat = hsv[..., 2].astype(np.float32), hsv[..., 1]
+        if self.gamma != 1.0:  # paint against tread is a ratio of linear levels
+            v = linear_gray(hsv[..., 2], self.gamma)
         # the marker is white paint on a grey tread: far brighter than the tread around it under
         # the same light, whatever that light is
         # the tread's level around each column: the median over the cells of the columns within

@@ -86,6 +86,10 @@ class SensorSpec:
         model: The calibration an estimator uses (see :data:`SENSOR_KINDS`).
         readout_window: The sensor can render only the windows an estimator asks for (a
             tracker-driven windowed readout, see :meth:`perception.estimator.Estimator`).
+        gamma: A camera's photometric response: an 8-bit value ``v`` of its images encodes the
+            relative irradiance ``(v / 255) ** gamma`` (1: linear; 2.2: a camera's usual output
+            gamma). Estimators that compare light levels (shadow ratios, paint against tread)
+            linearise with it. Ignored for an IMU.
     """
 
     name: str
@@ -94,10 +98,17 @@ class SensorSpec:
     mount: np.ndarray
     model: Any
     readout_window: bool = False
+    gamma: float = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in SENSOR_KINDS:
             raise ConfigError(f"{self.name}.kind: {self.kind!r}; use one of {sorted(SENSOR_KINDS)}")
+        gamma = real_number(f"{self.name}.gamma", self.gamma)
+        if not 0.2 <= gamma <= 5.0:
+            raise ConfigError(
+                f"{self.name}.gamma: {self.gamma!r}; give the camera's response exponent in [0.2, 5] "
+                "(1: linear images, 2.2: the usual output gamma)"
+            )
         rate = real_number(f"{self.name}.rate_hz", self.rate_hz)
         if not rate > 0:
             raise ConfigError(f"{self.name}.rate_hz: {self.rate_hz!r}; give a rate above 0 [Hz]")

@@ -188,7 +188,7 @@ class RoverEstimator:
             down.model,
             odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {})),
         )
-        self.kinematics = KinematicStateEstimator(fish.model, self.model, kinematics)
+        self.kinematics = KinematicStateEstimator(fish.model, self.model, kinematics, gamma=fish.gamma)
         nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
         slip = slip or SlipConfig()
         if imu is not None:

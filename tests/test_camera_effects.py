@@ -10,6 +10,8 @@ import pytest
 from conftest import flat_scenario
 
 import rover_env  # noqa: F401
+from perception.rig import SensorSpec
+from perception.validation import ConfigError
 from rover_env.config.cameras import DownwardCameraConfig
 from rover_env.sensors.cameras import DownwardCamera
 from rover_env.sensors.motion_blur import MotionField, blur
@@ -122,6 +124,16 @@ def test_field_cameras_change_the_images_not_the_physics_and_the_seed_repeats_th
     assert all(np.array_equal(im_field[k], im_again[k]) for k in im_field)
     assert not np.array_equal(o_ideal, o_field)
     assert not np.array_equal(im_ideal["downward"], im_field["downward"])
+    # the estimator is given the field cameras' photometric response (their output gamma)
+    env = gym.make("RoverShadows-v0", renderer="tiny", camera_effects="field")
+    try:
+        rig = env.unwrapped.pipeline.rig
+        assert [rig[n].gamma for n in ("fisheye", "downward")] == [2.2, 2.2]
+        assert env.unwrapped.pipeline.kinematics.gamma == 2.2
+    finally:
+        env.close()
+    with pytest.raises(ConfigError, match="gamma"):
+        SensorSpec("downward", "pinhole", 30.0, np.eye(4), None, gamma=0.0)
     with pytest.raises(ValueError, match="camera_effects"):
         gym.make("Rover-v0", camera_effects="vivid")
 

@@ -124,10 +124,16 @@ def build_sensor(
     raise ConfigError(f"{key}.kind: {config.kind!r}; no simulated sensor of this kind")
 
 
+def _gamma(camera) -> float:
+    """A simulated camera's photometric response exponent: its image sensor's output gamma, or 1."""
+    return 1.0 if camera.image_sensor is None else float(camera.image_sensor.config.gamma)
+
+
 def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
     """The :class:`perception.rig.Rig` of a simulated rover's sensors: what an estimator is given.
 
-    The cameras' calibrations are their exact models (the simulation renders through them); the
+    The cameras' calibrations are their exact models (the simulation renders through them) and
+    their image sensors' output gamma (their photometric response); the
     IMU's is its data sheet (its errors are drawn per episode, and not given away). The rover's
     kinematic model sees the markers through the rig's first fisheye (or where the standard
     fisheye would be).
@@ -142,11 +148,11 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             model = ImuModel(gyro=_figures(sensor.config.gyro), accel=_figures(sensor.config.accel))
             specs.append(SensorSpec(name, "imu", sensor.config.rate_hz, T, model))
         elif isinstance(sensor, FisheyeCamera):
-            specs.append(
-                SensorSpec(name, "fisheye", sensor.config.rate_hz, sensor.T_body_cam, sensor.model, True)
-            )
+            rate, T = sensor.config.rate_hz, sensor.T_body_cam
+            specs.append(SensorSpec(name, "fisheye", rate, T, sensor.model, True, _gamma(sensor)))
         elif isinstance(sensor, DownwardCamera):
-            specs.append(SensorSpec(name, "pinhole", sensor.config.rate_hz, sensor.T_body_cam, sensor.model))
+            rate, T = sensor.config.rate_hz, sensor.T_body_cam
+            specs.append(SensorSpec(name, "pinhole", rate, T, sensor.model, gamma=_gamma(sensor)))
         else:
             raise TypeError(
                 f"sensor {name!r}: {type(sensor).__name__} has no rig spec; add its kind to rig_of"
