@@ -331,19 +331,16 @@ def test_a_gamma_encoded_shadow_edge_is_found_once_the_tread_is_linearised():
     shadow = np.where((gx - mid[0]) + 0.4 * (gy - mid[1]) > 0, 1.0, 1 / 3)
     tex = tread_texture(np.random.default_rng(8))
     alpha, gamma = 0.2, 2.2
-    encoded = [
-        np.rint(255 * (np.clip(render_wheel(model, cam, frame, th, tex) * shadow, 0, 255) / 255) ** (1 / gamma))
-        .astype(np.uint8)
-        for th in (0.4, 0.4 + alpha)
-    ]
-    lin = linear_gray(encoded[0], gamma)
-    assert lin.dtype == np.float32 and abs(float(linear_gray(np.array([128], np.uint8), gamma)[0]) - 55.98) < 0.01
+    lit = [np.clip(render_wheel(model, cam, frame, th, tex) * shadow, 0, 255) for th in (0.4, 0.4 + alpha)]
+    encoded = [np.rint(255 * (x / 255) ** (1 / gamma)).astype(np.uint8) for x in lit]
+    assert linear_gray(encoded[0], gamma).dtype == np.float32
+    assert abs(float(linear_gray(np.array([128], np.uint8), gamma)[0]) - 55.98) < 0.01
     as_is = [unwrap_tread(img, model, cam, *frame, dphi, cfg) for img in encoded]
     linear = [unwrap_tread(linear_gray(img, gamma), model, cam, *frame, dphi, cfg) for img in encoded]
     band = [float((~s.valid & s.visible).mean()) for s in (as_is[1], linear[1])]
     m_as_is = measure_strips(*as_is, model.wheel_radius, cfg)
     m_lin = measure_strips(*linear, model.wheel_radius, cfg)
-    print(f"edge band {band}; rotation {m_as_is.alpha:.5f} encoded, {m_lin.alpha:.5f} linearised, for {alpha}")
+    print(f"edge band {band}; rotation {m_as_is.alpha:.5f} encoded, {m_lin.alpha:.5f} linear, for {alpha}")
     assert band[0] < 0.02 < 0.05 < band[1]  # the step is found only in linear levels
     assert m_lin.valid and abs(m_lin.alpha - alpha) <= 0.01 * alpha
     assert not (m_as_is.valid and abs(m_as_is.alpha - alpha) <= 0.01 * alpha)

@@ -320,6 +320,8 @@ class ScenarioConfig:
         rig: The rover's sensors in sampling order (:class:`~rover_env.config.rig.SensorConfig`);
             None: the standard rig (:func:`~rover_env.config.rig.standard_rig`: the fisheye,
             the downward camera and the ``imu`` if any).
+        randomize: Domain randomisation of each episode's world: ``"off"`` (or absent), ``"on"``
+            (the default ranges) or a mapping of ranges (:mod:`rover_env.config.randomize`).
     """
 
     name: str
@@ -332,9 +334,13 @@ class ScenarioConfig:
     duration: float = 60.0
     imu: Any = None
     rig: tuple[SensorConfig, ...] | None = None
+    randomize: Any = None
 
     def __post_init__(self) -> None:
         check_range("duration", self.duration, 0.1, 36000.0)
+        from rover_env.config.randomize import randomize_config
+
+        randomize_config(self.randomize)  # ConfigError naming the key
         if self.imu is not None:
             # validated here (ConfigError naming the key): a preset name or a mapping
             imu_config(self.imu)

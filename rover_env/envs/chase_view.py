@@ -67,10 +67,11 @@ class ChaseView:
         views = self._render_views(left, h, side, h // 2)
         renderer = focus_on_rover(self.sim)
         T_world_chase = look_at(eye, [pos[0], pos[1], pos[2] - 0.1])
-        sun = self.scenario.sun  # where the sun is now, and how much of it the clouds let through
+        sun = self.sim.scenario.sun  # where the sun is now, and how much of it the clouds let through
         t = self.sim.t
         sx, sy, sz = (float(v) for v in sun.direction(t))
-        lighting = Lighting((sx, sy, sz), ambient=0.35, diffuse=sun.transmission(t), shadows=True)
+        diffuse = sun.transmission(t) * self.sim.haze
+        lighting = Lighting((sx, sy, sz), ambient=0.35, diffuse=diffuse, shadows=True)
         chase = renderer.render_pinhole(views["chase"], T_world_chase, lighting, far=60.0)
         frame = np.zeros((h, w, 3), dtype=np.uint8)
         frame[:, :left] = chase.rgb

@@ -16,6 +16,7 @@ from perception import observation as obs_table
 from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
 from rover_env.config.imu import ImuConfig
+from rover_env.config.randomize import RandomizeConfig, WorldDraw, randomize_config
 from rover_env.config.rig import PresetName, imu_config, with_imu
 from rover_env.config.scenario import ScenarioConfig, load_scenario, scenario_rig
 from rover_env.envs.chase_view import ChaseView
@@ -27,6 +28,38 @@ from rover_env.sim.ground_truth import GroundTruth
 from rover_env.sim.simulation import RoverSim, quat_to_yaw, yaw_to_quat
 from rover_env.task.course import WaypointCourse
 from rover_env.task.judge import Judge, RewardConfig, StepFacts, wheel_power
+
+
+def _imu_unit(config: ImuConfig, world: WorldDraw | None) -> ImuConfig | None:
+    """This episode's IMU unit: the data sheet's noise figures times the world's factor (None: as is)."""
+    if world is None:
+        return None
+    f = world.imu_noise
+
+    def scaled(t):
+        return dataclasses.replace(
+            t,
+            noise_density=t.noise_density * f,
+            bias_instability=t.bias_instability * f,
+            bias_random_walk=t.bias_random_walk * f,
+        )
+
+    return dataclasses.replace(config, gyro=scaled(config.gyro), accel=scaled(config.accel))
+
+
+def _sensor_unit(config, world: WorldDraw | None, i: int):
+    """Camera ``i``'s image sensor this episode: the data sheet's figures times the world's factors."""
+    if world is None:
+        return None
+    fp = world.fixed_pattern[i]
+    return dataclasses.replace(
+        config,
+        read_noise_e=config.read_noise_e * world.read_noise[i],
+        full_well_e=config.full_well_e * world.full_well[i],
+        prnu=min(config.prnu * fp, 0.5),
+        dsnu_e=config.dsnu_e * fp,
+        dark_current_e_s=config.dark_current_e_s * fp,
+    )
 
 
 class ActionMode(str, enum.Enum):
@@ -164,6 +197,13 @@ class RoverEnv(gym.Env):
             images through its image sensor and lens (noise, auto-exposure, vignetting, gamma;
             the camera configuration's ``sensor``), drawn per episode from the reset's seed;
             ``"ideal"`` (default) delivers them as rendered.
+        randomize: Domain randomisation (:mod:`rover_env.config.randomize`): ``"on"`` draws each
+            episode's sun, sky light, ground texture, albedo and contrast, camera mount errors,
+            camera and IMU figures and friction factor from the reset's seed, within the default
+            ranges; a mapping or :class:`~rover_env.config.randomize.RandomizeConfig` sets the
+            ranges; ``"off"`` keeps the scenario's world. None (default): the scenario's
+            ``randomize`` key (off if absent). The draw is :attr:`world` and ``info["world"]``
+            at reset; the estimator keeps the nominal calibration.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -186,6 +226,7 @@ class RoverEnv(gym.Env):
         imu: str | dict | ImuConfig | None = None,
         estimator: EstimatorFactory | None = None,
         camera_effects: CameraEffectsName = "ideal",
+        randomize: str | dict | RandomizeConfig | None = None,
     ) -> None:
         super().__init__()
         try:
@@ -215,6 +256,12 @@ class RoverEnv(gym.Env):
         if len(render_size) != 2 or min(render_size) < 96 or max(render_size) > 4096:
             raise ValueError(f"render_size={render_size}: use (width, height) of 96 to 4096 px")
         self.scenario = load_scenario(scenario)
+        #: The ranges of domain randomisation, or None (off).
+        self.randomize: RandomizeConfig | None = randomize_config(
+            self.scenario.randomize if randomize is None else randomize
+        )
+        #: This episode's world draw (None: the scenario's world).
+        self.world: WorldDraw | None = None
         self.geometry = geometry or RoverGeometry()
         self.reward_cfg = reward or RewardConfig()
         self.judge = Judge(self.reward_cfg, self.scenario.duration)
@@ -307,14 +354,25 @@ class RoverEnv(gym.Env):
         y = st.position[1] + r * math.sin(ang)
         yaw = st.yaw + math.radians(st.jitter_yaw_deg) * rng.uniform(-1.0, 1.0)
         fix_noise = rng.normal(size=3) * np.array([st.fix_std[0], st.fix_std[0], math.radians(st.fix_std[1])])
+        # the world's draw comes before the sensors' (the same whatever observes it)
+        world_seed = int(rng.integers(2**63 - 1)) if self.randomize is not None else None
+        cams = self.pipeline.cameras if self.pipeline is not None else []
+        self.world = (
+            None
+            if world_seed is None
+            else WorldDraw.draw(self.randomize, np.random.default_rng(world_seed), len(cams))  # type: ignore[arg-type]
+        )
+        self._apply_world(self.world)
         if self.pipeline is not None:
-            for cam in self.pipeline.cameras:
+            for cam in cams:
                 cam.set_blackout(blackout)
             for imu in self.pipeline.imus:  # this episode's turn-on bias, scale factors, noise
-                imu.reset(int(rng.integers(2**63 - 1)))
+                imu.reset(int(rng.integers(2**63 - 1)), _imu_unit(imu.config, self.world))
             if self.camera_effects == "field":  # each image sensor's fixed pattern and noise
-                for cam in self.pipeline.cameras:
-                    cam.reset_effects(int(rng.integers(2**63 - 1)))
+                for i, cam in enumerate(cams):
+                    cam.reset_effects(
+                        int(rng.integers(2**63 - 1)), _sensor_unit(cam.config.sensor, self.world, i)
+                    )
         self._gt = self.sim.reset(x, y, yaw)
         messages = self.sim.take_messages()
         if self.pipeline is not None:
@@ -331,7 +389,10 @@ class RoverEnv(gym.Env):
         judge = self._judge_features()
         self._progress = judge.progress
         terms = Judge.zero_terms()
-        return self._observation(feats), self._info(judge, terms, False, None)
+        info = self._info(judge, terms, False, None)
+        if self.world is not None:
+            info["world"] = dataclasses.asdict(self.world)
+        return self._observation(feats), info
 
     def step(self, action):
         """Apply ``action`` for one control period and advance physics."""
@@ -395,6 +456,28 @@ class RoverEnv(gym.Env):
         if arrived:
             info["miss_distance"] = miss
         return obs, verdict.reward, verdict.terminated, verdict.truncated, info
+
+    def _apply_world(self, world: WorldDraw | None) -> None:
+        """Set the simulation's world to ``world`` (None: the scenario's own)."""
+        sim = self.sim
+        if world is None:
+            sim.scenario = self.scenario
+            sim.haze, sim.ambient = 1.0, None
+            sim.terrain.set_look()
+            sim.terrain.friction.scale = 1.0
+            mounts: list = [None] * len(self.pipeline.cameras if self.pipeline is not None else [])
+        else:
+            sun = dataclasses.replace(
+                self.scenario.sun, elevation_deg=world.sun_elevation_deg, azimuth_deg=world.sun_azimuth_deg
+            )
+            sim.scenario = dataclasses.replace(self.scenario, sun=sun)
+            sim.haze, sim.ambient = world.sun_transmission, world.ambient
+            sim.terrain.set_look(world.texture, world.albedo, world.contrast)
+            sim.terrain.friction.scale = world.friction
+            mounts = list(world.mounts)
+        if self.pipeline is not None:
+            for cam, mount in zip(self.pipeline.cameras, mounts, strict=True):
+                cam.set_mount_error(mount)
 
     def _nav_pose(self) -> np.ndarray:
         """(x, y, yaw) the on-board tracker is fed: dead-reckoned, or the truth for ground truth."""

@@ -111,6 +111,12 @@ uniform bool u_shadows;
 uniform vec3 u_sun;
 uniform float u_ambient;
 uniform float u_diffuse;
+#ifdef GROUND
+uniform bool u_look;  // the ground's albedo and contrast changed (domain randomisation)
+uniform float u_albedo;
+uniform float u_contrast;
+uniform vec3 u_tex_mean;
+#endif
 in vec3 v_normal;
 in vec2 v_uv;
 in vec3 v_light;
@@ -130,6 +136,7 @@ layout(location = 3) out vec4 f_world;
 void main() {
 #ifdef GROUND
     vec4 albedo = texture(u_tex, v_uv, u_lod_bias);
+    if (u_look) albedo.rgb = u_albedo * (u_tex_mean + u_contrast * (albedo.rgb - u_tex_mean));
 #else
     vec4 albedo = v_color;
     if (u_textured) albedo *= texture(u_tex, v_uv, u_lod_bias);
@@ -606,6 +613,7 @@ class GLRenderer(Renderer):
                 _set(prog, "u_lod_bias", float(lod_bias))
                 _set(prog, "u_shadow", 1)
             self._textures: dict[str, object] = {}
+            self._texture_means: dict[str, tuple[float, float, float]] = {}
             self._bodies: dict[int, list[_Group]] = {}
             self._posed: dict[int, bytes] = {}  # body -> the link poses its vertices are at
             self._joints: dict[int, list] = {}  # body -> _joint_table
@@ -663,6 +671,8 @@ class GLRenderer(Renderer):
             tex.build_mipmaps()
             tex.filter = (self._mgl.LINEAR_MIPMAP_LINEAR, self._mgl.LINEAR)
             self._textures[path] = tex
+            r, g, b = (float(v) for v in img.reshape(-1, 3).mean(axis=0) / 255.0)
+            self._texture_means[path] = (r, g, b)
         return tex
 
     # ------------------------------------------------------------------ scene
@@ -813,7 +823,6 @@ class GLRenderer(Renderer):
             "level": np.asarray(level_of),
             "levels": len(levels),
             "fine_radius": FINE_RADIUS,
-            "texture": self._texture(str(terrain.texture_path)),
             "body": terrain.body_id,
         }
 
@@ -1034,7 +1043,16 @@ class GLRenderer(Renderer):
             t = self._terrain
             g = progs[0]
             _set(g, "u_body", int(t["body"]))
-            t["texture"].use(0)
+            terrain = self.terrain
+            assert terrain is not None  # a terrain's chunks are drawn only with it
+            path = str(terrain.texture_path)
+            self._texture(path).use(0)
+            look = terrain.albedo != 1.0 or terrain.contrast != 1.0
+            _set(g, "u_look", look)
+            if look:
+                _set(g, "u_albedo", float(terrain.albedo))
+                _set(g, "u_contrast", float(terrain.contrast))
+                _set(g, "u_tex_mean", self._texture_means[path])
             visible = self._ground_chunks(view_planes_world)
             if len(visible):
                 # runs of consecutive chunks, one draw each (an indirect multi-draw would make

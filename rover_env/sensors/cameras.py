@@ -93,6 +93,9 @@ class _RoverCamera(ABC):
         #: (t0, t1) windows of simulation time [s] in which :meth:`sample` delivers black frames
         #: (a camera fault: the estimator sees only the images).
         self.blackout: list[tuple[float, float]] = []
+        #: (4, 4) the mount's error: the camera sits at ``T_body_cam @ mount_error`` while its
+        #: calibration (:attr:`T_body_cam`, the rig's mount) stays nominal.
+        self.mount_error = np.eye(4)
 
     @property
     def period(self) -> float:
@@ -102,18 +105,38 @@ class _RoverCamera(ABC):
     @property
     def lighting(self) -> Lighting:
         """Sun lighting from the scenario."""
-        sun = self.sim.scenario.sun
-        sx, sy, sz = (float(v) for v in sun.direction(self.sim.t))
+        sim = self.sim
+        sun = sim.scenario.sun
+        sx, sy, sz = (float(v) for v in sun.direction(sim.t))
         return Lighting(
             (sx, sy, sz),
-            ambient=self.config.ambient,
-            diffuse=sun.transmission(self.sim.t),
+            ambient=self.config.ambient if sim.ambient is None else sim.ambient,
+            diffuse=sun.transmission(sim.t) * sim.haze,
             shadows=self.config.shadows,
         )
 
+    def set_mount_error(self, error: np.ndarray | None) -> None:
+        """Mount the camera off its nominal pose by ``error`` (see :attr:`mount_error`; None: none).
+
+        ``error``: (6,) rotation vector [rad] and offset [m] in the camera's frame, or (4, 4).
+        """
+        if error is None:
+            self.mount_error = np.eye(4)
+            return
+        e = np.asarray(error, dtype=np.float64)
+        if e.shape == (4, 4):
+            self.mount_error = e.copy()
+            return
+        if e.shape != (6,) or not np.all(np.isfinite(e)):
+            raise ValueError(f"error: {error!r}; give (rx, ry, rz [rad], dx, dy, dz [m]) or a (4, 4) pose")
+        T = np.eye(4)
+        T[:3, :3] = cv2.Rodrigues(e[:3])[0]
+        T[:3, 3] = e[3:]
+        self.mount_error = T
+
     def T_world_cam(self) -> np.ndarray:
-        """Pose of the camera optical frame in the world now [m]."""
-        return self.sim.base_matrix() @ self.T_body_cam
+        """Pose of the camera optical frame in the world now (its true mount) [m]."""
+        return self.sim.base_matrix() @ self.T_body_cam @ self.mount_error
 
     def render_view(self):
         """Render now, with per-pixel ground truth (for tests and evaluation)."""
@@ -160,10 +183,14 @@ class _RoverCamera(ABC):
         else:
             self._motion = None
 
-    def reset_effects(self, seed: int | None) -> None:
-        """A new episode of the image sensor (its fixed pattern, noise and exposure), if it has one."""
+    def reset_effects(self, seed: int | None, sensor=None) -> None:
+        """A new episode of the image sensor (its fixed pattern, noise and exposure), if it has one.
+
+        ``sensor``: this episode's :class:`~rover_env.config.image_sensor.ImageSensorConfig`
+        (domain randomisation); None: the configured one.
+        """
         if self.image_sensor is not None:
-            self.image_sensor.reset(seed)
+            self.image_sensor.reset(seed, self.config.sensor if sensor is None else sensor)
 
     def _field_frame(self, parts: np.ndarray | None = None) -> np.ndarray:
         """A frame through the image sensor: rendered, blurred along each pixel's motion, exposed."""
@@ -413,6 +440,7 @@ class FisheyeCamera(_RoverCamera):
         roi = _kinematics_roi(cfg, g, tuple(T.ravel().tolist())) if cfg.roi else None
         self.remapper = CubemapRemap(self.model, oversample=cfg.oversample, roi=roi)
         self._window: tuple[float, np.ndarray] | None = None
+        self._cam_body: tuple[bytes, np.ndarray] | None = None
         #: Frames sampled so far: all, and those rendered in windows.
         self.sampled = {"frames": 0, "windowed": 0}
 
@@ -472,9 +500,13 @@ class FisheyeCamera(_RoverCamera):
         pts = np.asarray(parts, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
         return self.remapper.windows(pts, self.window_margin)
 
-    @functools.cached_property
+    @property
     def _T_cam_body(self) -> np.ndarray:
-        return np.linalg.inv(self.T_body_cam)
+        """Camera-from-body pose of the camera as mounted (with its mount error)."""
+        key = self.mount_error.tobytes()
+        if self._cam_body is None or self._cam_body[0] != key:
+            self._cam_body = (key, np.linalg.inv(self.T_body_cam @ self.mount_error))
+        return self._cam_body[1]
 
     def _rays_and_model(self):
         w, h = self.model.image_size

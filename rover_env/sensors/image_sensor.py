@@ -87,8 +87,18 @@ class ImageSensor:
         x = np.clip((np.arange(c.dn_max + 1) - c.black_level_dn) / (c.dn_max - c.black_level_dn), 0.0, 1.0)
         return np.clip(np.rint(255.0 * x ** (1.0 / c.gamma)), 0, 255).astype(np.uint8)
 
-    def reset(self, seed: int | None = None) -> None:
-        """A new episode: a new fixed pattern and noise from ``seed``; exposure and gain at their start."""
+    def reset(self, seed: int | None = None, config: ImageSensorConfig | None = None) -> None:
+        """A new episode: a new fixed pattern and noise from ``seed``; exposure and gain at their start.
+
+        ``config``: this episode's figures (a unit's own, as domain randomisation draws them);
+        None: keep the current ones.
+        """
+        if config is not None and config is not self.config:
+            config.check_frame_period(self.frame_period)
+            self.config = config
+            self._vignetting = vignetting_map(self.size, config.vignetting)
+            self._lut = self._gamma_lut()
+            self._alpha = 1.0 - math.exp(-self.frame_period / config.settling_tau(self.frame_period))
         c = self.config
         rng = np.random.default_rng(seed)
         w, h = self.size

@@ -183,9 +183,13 @@ class Imu:
         """Time between samples [s]."""
         return 1.0 / float(self.config.rate_hz)
 
-    def reset(self, seed: int | None = None) -> None:
-        """A new episode: new turn-on biases, scale factors, misalignment and noise streams."""
-        self.noise = ImuNoise(self.config, seed)
+    def reset(self, seed: int | None = None, config: ImuConfig | None = None) -> None:
+        """A new episode: new turn-on biases, scale factors, misalignment and noise streams.
+
+        ``config``: this episode's unit (its own figures, as domain randomisation draws them),
+        while :attr:`config` stays the data sheet; None: the data sheet's figures.
+        """
+        self.noise = ImuNoise(self.config if config is None else config, seed)
         self._last = None
 
     def truth(self) -> tuple[np.ndarray, np.ndarray]:

@@ -94,6 +94,10 @@ class RoverSim:
                 f"{MAX_SOLVER_ITERATIONS} (10 is the default; 20 halves a braked rover's creep)"
             )
         self.scenario = scenario
+        #: Factor on the sun's direct light (haze) and the sky light's share (None: each
+        #: camera's ``ambient``), as domain randomisation sets them per episode.
+        self.haze = 1.0
+        self.ambient: float | None = None
         self.geometry = geometry or RoverGeometry()
         self.dt = 1.0 / physics_hz
         self.settle_time = settle_time

@@ -56,6 +56,8 @@ class FrictionMap:
             )
         #: Whether any patch is loose soil (grip lost to slip, :class:`FrictionMapConfig`).
         self.loose = any(p.slip_loss > 0 for p in cfg.patches)
+        #: Factor on every friction coefficient of the map (domain randomisation; 1: as configured).
+        self.scale = 1.0
 
     def mu_at(self, x: float, y: float) -> float:
         """Friction coefficient at world point (x, y) [m] (scalar fast path)."""
@@ -71,7 +73,7 @@ class FrictionMap:
                     mu, loss = pmu, ploss
             elif abs(c * dx + s * dy) <= hx and abs(-s * dx + c * dy) <= hy:
                 mu, loss = pmu, ploss
-        return mu, loss
+        return mu * self.scale, loss
 
     def dig(self, slip_ratio: np.ndarray, slip_speed: np.ndarray) -> np.ndarray:
         """How far each wheel has dug in (0-1) at slip ratios and slip speeds [m/s] (see the config)."""
@@ -89,7 +91,7 @@ class FrictionMap:
             else:
                 inside = (np.abs(c * dx + s * dy) <= hx) & (np.abs(-s * dx + c * dy) <= hy)
             mu[inside] = pmu
-        return mu
+        return mu * self.scale
 
 
 def make_heights(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -185,13 +187,52 @@ class Terrain:
             else Path(cfg.texture)
         )
         read_texture(tex_path)  # a clear error for a file that is not an image
-        #: The ground texture's image file.
-        self.texture_path = Path(tex_path)
-        self.texture_id = client.loadTexture(str(tex_path))
-        if self.texture_id < 0:
-            raise ValueError(f"terrain.texture: PyBullet could not load image {tex_path}")
+        self._client = client
+        self._texture_ids: dict[str, int] = {}
+        #: The scenario's own ground texture (image file).
+        self.base_texture = Path(tex_path)
+        #: The ground's look now (:meth:`set_look`): texture file, albedo and contrast factors.
+        self.texture_path = self.base_texture
+        self.albedo = 1.0
+        self.contrast = 1.0
+        self.texture_id = self._load(self.texture_path)
         client.changeVisualShape(
             self.body_id, -1, textureUniqueId=self.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
+        )
+
+    def _load(self, path: Path) -> int:
+        """PyBullet's texture id of an image file (loaded once per client: PyBullet never frees one)."""
+        key = str(path)
+        if key not in self._texture_ids:
+            tid = self._client.loadTexture(key)
+            if tid < 0:
+                raise ValueError(f"terrain.texture: PyBullet could not load image {path}")
+            self._texture_ids[key] = tid
+        return self._texture_ids[key]
+
+    def set_look(self, texture: str | None = None, albedo: float = 1.0, contrast: float = 1.0) -> None:
+        """Give the ground another look (domain randomisation); its shape and friction stay.
+
+        Args:
+            texture: A texture preset (:data:`TEXTURE_PRESETS`, made with this terrain's seed
+                and size) or None: the scenario's own.
+            albedo: Factor on the ground's reflectance [-].
+            contrast: Factor on the texture's deviations from its mean colour [-] (1: as made).
+                The GL renderer draws it; TinyRenderer draws the albedo (up to 1) and not this.
+        """
+        cfg = self.cfg
+        if texture is None:
+            path = self.base_texture
+        elif texture in TEXTURE_PRESETS:
+            path = texture_file(texture, cfg.texture_px, cfg.seed)
+        else:
+            raise ValueError(f"texture: {texture!r}; use one of {TEXTURE_PRESETS} or None")
+        self.texture_path = Path(path)
+        self.albedo, self.contrast = float(albedo), float(contrast)
+        self.texture_id = self._load(self.texture_path)
+        a = min(self.albedo, 1.0)
+        self._client.changeVisualShape(
+            self.body_id, -1, textureUniqueId=self.texture_id, rgbaColor=[a, a, a, 1], specularColor=[0, 0, 0]
         )
 
     def grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
