@@ -92,6 +92,9 @@ class RenderedView:
     K: np.ndarray
     T_world_cam: np.ndarray
     _points: np.ndarray | None = field(default=None, repr=False)
+    #: (H, W, 3) float32 each pixel's ray velocity [rad/s] in the ``motion`` camera's optical frame
+    #: (:class:`MotionSpec`), 0 where nothing was drawn; None unless asked for.
+    motion: np.ndarray | None = None
 
     @property
     def points_world(self) -> np.ndarray:
@@ -128,6 +131,28 @@ class FisheyeView:
     segmentation: np.ndarray | None = None
     shadow: np.ndarray | None = None
     points_world: np.ndarray | None = None
+    #: As :attr:`RenderedView.motion` (the fisheye's optical frame), or None.
+    motion: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class MotionSpec:
+    """What a renderer needs to draw a velocity buffer: how the scene moves relative to a camera.
+
+    A surface point ``p`` of body ``body``'s link ``k`` moves at ``v + w x (p - c)`` with
+    ``(c, v, w) = links[k]`` (world frame; ``k = -1``: the base); every other body is still. The
+    camera's optical frame is at ``T_world_cam`` and moves at ``v_cam`` with ``w_cam``. The
+    buffer holds, per pixel, the velocity of its ray's direction, ``(I - r r^T) p_dot / |p|``
+    in the optical frame, where ``p`` is the point relative to the camera and ``p_dot`` its
+    velocity relative to the camera; the camera model's Jacobian turns it into pixels per
+    second (:class:`rover_env.sensors.motion_blur.MotionField`).
+    """
+
+    body: int
+    links: dict
+    T_world_cam: np.ndarray
+    v_cam: np.ndarray
+    w_cam: np.ndarray
 
 
 class Renderer(ABC):
@@ -140,6 +165,9 @@ class Renderer(ABC):
 
     #: ``"gl"`` or ``"tiny"``.
     name: ClassVar[str]
+    #: Whether :meth:`render_K` and :meth:`render_fisheye` take ``motion=`` (:class:`MotionSpec`)
+    #: and draw a velocity buffer in the colour pass.
+    draws_motion: ClassVar[bool] = False
 
     @abstractmethod
     def focus(self, x: float, y: float, ground_range: float | None = None) -> None:

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rover_env.config.cameras import FINE_RADIUS
-from rover_env.rendering.base import FisheyeView, Lighting, RenderedView, Renderer, view_planes
+from rover_env.rendering.base import FisheyeView, Lighting, MotionSpec, RenderedView, Renderer, view_planes
 from rover_env.sim.terrain import Terrain
 from rover_env.sim.transforms import quat_to_matrix
 
@@ -79,6 +79,15 @@ out vec3 v_world;
 out float v_depth;
 flat out int v_link;
 #endif
+#ifdef MOTION
+// each link's centre of mass, linear and angular velocity (index: link + 1), world frame
+uniform vec3 u_com[MOTION_LINKS];
+uniform vec3 u_lin[MOTION_LINKS];
+uniform vec3 u_ang[MOTION_LINKS];
+uniform bool u_moving;
+out vec3 v_pos;
+out vec3 v_vel;
+#endif
 void main() {
     vec4 w = vec4(in_pos, 1.0);
     vec3 n = in_normal;
@@ -90,6 +99,16 @@ void main() {
     v_normal = n;
     v_uv = in_uv;
     v_light = (u_light * vec4(w.xyz + u_normal_offset * n, 1.0)).xyz * 0.5 + 0.5;
+#ifdef MOTION
+    // a rigid link's velocity is affine in position: exact when interpolated over a triangle
+    v_pos = w.xyz;
+#ifdef GROUND
+    v_vel = vec3(0.0);
+#else
+    int k = int(in_link + 0.5);
+    v_vel = u_moving ? u_lin[k] + cross(u_ang[k], w.xyz - u_com[k]) : vec3(0.0);
+#endif
+#endif
 #ifdef LABELS
     v_world = w.xyz;
     v_depth = cam.z;
@@ -133,6 +152,15 @@ layout(location = 1) out int f_id;
 layout(location = 2) out float f_depth;
 layout(location = 3) out vec4 f_world;
 #endif
+#ifdef MOTION
+uniform mat3 u_cam_R;  // world -> the camera's optical frame
+uniform vec3 u_cam_c;  // its origin [m]
+uniform vec3 u_cam_v;  // its velocity [m/s]
+uniform vec3 u_cam_w;  // its angular velocity [rad/s]
+in vec3 v_pos;
+in vec3 v_vel;
+layout(location = 1) out vec4 f_motion;
+#endif
 void main() {
 #ifdef GROUND
     vec4 albedo = texture(u_tex, v_uv, u_lod_bias);
@@ -145,6 +173,14 @@ void main() {
     float lit = u_shadows ? texture(u_shadow, v_light) : 1.0;
     float shade = u_ambient + u_diffuse * cos_i * lit;
     f_color = vec4(min(albedo.rgb * shade, vec3(1.0)), lit < 0.5 ? 1.0 : 0.0);
+#ifdef MOTION
+    // the ray's velocity, (I - r r^T) p_dot / |p|, in the optical frame
+    vec3 p = u_cam_R * (v_pos - u_cam_c);
+    vec3 q = u_cam_R * (v_vel - u_cam_v - cross(u_cam_w, v_pos - u_cam_c));
+    float rho = max(length(p), 1e-6);
+    vec3 r = p / rho;
+    f_motion = vec4((q - r * dot(r, q)) / rho, 1.0);
+#endif
 #ifdef LABELS
     f_id = u_body + (v_link << 24);
     f_depth = v_depth;
@@ -152,6 +188,17 @@ void main() {
 #endif
 }
 """
+
+
+#: Links (base included) whose velocities the motion program takes.
+MOTION_LINKS = 32
+#: Program modes: colour only, colour and labels, colour and velocity buffer.
+_MODES: tuple[bool | str, ...] = (False, True, "motion")
+_MODE_DEFINES: dict[bool | str, tuple[str, ...]] = {
+    False: (),
+    True: ("LABELS",),
+    "motion": ("MOTION", f"MOTION_LINKS {MOTION_LINKS}"),
+}
 
 
 def _variant(source: str, *defines: str) -> str:
@@ -503,6 +550,16 @@ def _layout(prog, vbo, skip=()) -> tuple:
     return (vbo, " ".join(fmt), *names)
 
 
+def _link_arrays(links: dict) -> tuple[bytes, bytes, bytes]:
+    """The motion program's (com, linear, angular velocity) arrays of ``links`` (index: link + 1)."""
+    out = np.zeros((3, MOTION_LINKS, 3), np.float32)
+    for k, (c, v, w) in links.items():
+        if not -1 <= k < MOTION_LINKS - 1:
+            raise ValueError(f"link {k}: the motion program takes links -1..{MOTION_LINKS - 2}")
+        out[:, k + 1] = (c, v, w)
+    return out[0].tobytes(), out[1].tobytes(), out[2].tobytes()
+
+
 def _gl(m: np.ndarray) -> bytes:
     """A float32 column-major copy of matrix ``m`` for a uniform."""
     return np.asarray(m, dtype=np.float32).T.tobytes()
@@ -573,6 +630,7 @@ class GLRenderer(Renderer):
     """
 
     name = "gl"
+    draws_motion = True
 
     def __init__(
         self,
@@ -595,17 +653,18 @@ class GLRenderer(Renderer):
         self.released = False
         with self.ctx:  # current for the objects below (other contexts may exist in this process)
             ctx = self.ctx
-            #: (ground, labels) -> program
+            #: (ground, mode) -> program; mode: False (colour), True (labels), "motion" (colour
+            #: and velocity buffer)
             self._progs = {
-                (ground, labels): self._own(
+                (ground, mode): self._own(
                     ctx.program(
                         vertex_shader=_variant(_SCENE_VS, *defs),
                         fragment_shader=_variant(_SCENE_FS, *defs),
                     )
                 )
                 for ground in (False, True)
-                for labels in (False, True)
-                for defs in [(("GROUND",) if ground else ()) + (("LABELS",) if labels else ())]
+                for mode in _MODES
+                for defs in [(("GROUND",) if ground else ()) + _MODE_DEFINES[mode]]
             }
             self._prog_depth = self._own(ctx.program(vertex_shader=_DEPTH_VS, fragment_shader=_DEPTH_FS))
             for prog in self._progs.values():
@@ -679,15 +738,16 @@ class GLRenderer(Renderer):
     def _vaos(self, data: np.ndarray, ground: bool, ibo=None, dynamic: bool = False) -> tuple:
         """A buffer of ``data`` (13-float vertices) and its vertex arrays.
 
-        For the image and label programs (and the shadow pass for bodies): keys False, True, "depth".
+        For the image, label and motion programs (and the shadow pass for bodies): keys False,
+        True, "motion", "depth".
         """
         vbo = self._own(
             self.ctx.buffer(np.ascontiguousarray(data, dtype=np.float32).tobytes(), dynamic=dynamic)
         )
         out: dict[bool | str, Any] = {}
-        for labels in (False, True):
-            prog = self._progs[(ground, labels)]
-            out[labels] = self._own(self.ctx.vertex_array(prog, [_layout(prog, vbo)], ibo))
+        for mode in _MODES:
+            prog = self._progs[(ground, mode)]
+            out[mode] = self._own(self.ctx.vertex_array(prog, [_layout(prog, vbo)], ibo))
         if not ground:
             out["depth"] = self._own(
                 self.ctx.vertex_array(self._prog_depth, [_layout(self._prog_depth, vbo)], ibo)
@@ -989,13 +1049,15 @@ class GLRenderer(Renderer):
         return smap
 
     # ------------------------------------------------------------------ drawing
-    def _fbo(self, size: tuple[int, int], labels: bool):
+    def _fbo(self, size: tuple[int, int], labels: bool | str):
         key = (size, labels)
         fb = self._fbos.get(key)
         if fb is None:
             ctx = self.ctx
             color = [self._own(ctx.texture(size, 4))]
-            if labels:
+            if labels == "motion":
+                color.append(self._own(ctx.texture(size, 4, dtype="f4")))
+            elif labels:
                 color += [
                     self._own(ctx.texture(size, 1, dtype="i4")),
                     self._own(ctx.texture(size, 1, dtype="f4")),
@@ -1018,8 +1080,21 @@ class GLRenderer(Renderer):
         # shadow's edge steps by up to a few pixels; a finer map would cost a pass of up to 4x)
         return self._update_shadow(poses, sun / np.linalg.norm(sun), dist / focal)
 
-    def _draw(self, view_planes_world, T_world_cam, P, lighting: Lighting, poses, labels: bool, smap) -> None:
-        """Draw the scene into the bound framebuffer's viewport, with shadow map ``smap`` (or None)."""
+    def _draw(
+        self,
+        view_planes_world,
+        T_world_cam,
+        P,
+        lighting: Lighting,
+        poses,
+        labels: bool | str,
+        smap,
+        motion: MotionSpec | None = None,
+    ) -> None:
+        """Draw the scene into the bound framebuffer's viewport, with shadow map ``smap`` (or None).
+
+        ``labels``: the program mode (False, True or ``"motion"``, which needs ``motion``).
+        """
         mgl = self._mgl
         ctx = self.ctx
         sun = np.asarray(lighting.sun_direction, dtype=np.float64)
@@ -1038,6 +1113,16 @@ class GLRenderer(Renderer):
             _set(p, "u_diffuse", float(lighting.diffuse))
             _set(p, "u_proj", _gl(P))
             _set(p, "u_view", view)
+        link_motion = None
+        if labels == "motion":
+            assert motion is not None
+            R = np.asarray(motion.T_world_cam, dtype=np.float64)[:3, :3]
+            for p in progs:
+                _set(p, "u_cam_R", np.asarray(R.T, dtype=np.float32).T.tobytes())  # column-major
+                _set(p, "u_cam_c", tuple(float(v) for v in motion.T_world_cam[:3, 3]))
+                _set(p, "u_cam_v", tuple(float(v) for v in motion.v_cam))
+                _set(p, "u_cam_w", tuple(float(v) for v in motion.w_cam))
+            link_motion = _link_arrays(motion.links)
         ctx.enable(mgl.DEPTH_TEST)
         if self._terrain is not None:
             t = self._terrain
@@ -1064,6 +1149,12 @@ class GLRenderer(Renderer):
         _set(prog, "u_normal_offset", 1.5 * smap["texel"] if shadows else 0.0)
         for body in poses:
             _set(prog, "u_body", int(body))
+            if link_motion is not None:
+                moving = body == motion.body  # type: ignore[union-attr]
+                _set(prog, "u_moving", moving)
+                if moving:
+                    for name, arr in zip(("u_com", "u_lin", "u_ang"), link_motion, strict=True):
+                        _set(prog, name, arr)
             for g in self._bodies[body]:
                 runs = g.visible_runs(view_planes_world)
                 if not runs:
@@ -1084,12 +1175,21 @@ class GLRenderer(Renderer):
         near: float = 0.05,
         far: float = 20.0,
         segmentation: bool = True,
+        motion: MotionSpec | None = None,
     ) -> RenderedView:
-        """See :meth:`Renderer.render_K` (this context is made current for it)."""
+        """See :meth:`Renderer.render_K` (this context is made current for it).
+
+        ``motion``: also draw the velocity buffer (:attr:`RenderedView.motion`) in the colour
+        pass (not with ``segmentation``).
+        """
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
+        if motion is not None and segmentation:
+            raise ValueError(
+                "motion: a velocity buffer is drawn without segmentation; pass segmentation=False"
+            )
         with self.ctx:
-            return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation)
+            return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation, motion)
 
     def render_fisheye(
         self,
@@ -1100,12 +1200,18 @@ class GLRenderer(Renderer):
         near: float = 0.01,
         far: float = 20.0,
         windows=None,
+        motion: MotionSpec | None = None,
     ) -> FisheyeView:
-        """See :meth:`Renderer.render_fisheye` (this context is made current for it)."""
+        """See :meth:`Renderer.render_fisheye` (this context is made current for it).
+
+        ``motion``: also draw the velocity buffer (:attr:`FisheyeView.motion`; not with ``labels``).
+        """
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
+        if motion is not None and labels:
+            raise ValueError("motion: a velocity buffer is drawn without labels; pass labels=False")
         with self.ctx:
-            return self._render_fisheye(remapper, T_world_cam, lighting, labels, near, far, windows)
+            return self._render_fisheye(remapper, T_world_cam, lighting, labels, near, far, windows, motion)
 
     def _render_K(
         self,
@@ -1116,6 +1222,7 @@ class GLRenderer(Renderer):
         near: float = 0.05,
         far: float = 20.0,
         segmentation: bool = True,
+        motion: MotionSpec | None = None,
     ) -> RenderedView:
         """Render the pinhole view ``K`` [px], ``size`` = (W, H) [px] from ``T_world_cam`` (optical frame).
 
@@ -1125,17 +1232,23 @@ class GLRenderer(Renderer):
         """
         w, h = int(size[0]), int(size[1])
         poses = self._sync_bodies()
-        fbo, color = self._fbo((w, h), segmentation)
+        mode: bool | str = "motion" if motion is not None else bool(segmentation)
+        fbo, color = self._fbo((w, h), mode)
         planes = view_planes(K, (w, h), T_world_cam, near)
         P = projection_from_K(K, (w, h), near, far)
         smap = self._shadow_for(lighting, poses, T_world_cam, float(K[0, 0]))
         fbo.use()
         fbo.viewport = (0, 0, w, h)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        self._draw(planes, T_world_cam, P, lighting, poses, segmentation, smap)
+        self._draw(planes, T_world_cam, P, lighting, poses, mode, smap, motion)
         rgba = np.frombuffer(fbo.read(components=4, attachment=0), np.uint8).reshape(h, w, 4)
         rgb = np.ascontiguousarray(rgba[..., :3])
         shadow = rgba[..., 3] > 127
+        if motion is not None:
+            vel = np.frombuffer(fbo.read(components=3, attachment=1, dtype="f4"), np.float32).reshape(h, w, 3)
+            view = RenderedView(rgb, None, None, shadow, np.asarray(K, float), np.asarray(T_world_cam, float))
+            view.motion = vel
+            return view
         if not segmentation:
             depth = None
             seg = None
@@ -1173,7 +1286,9 @@ class GLRenderer(Renderer):
         depth = self._own(ctx.depth_renderbuffer((aw, ah)))
         fbo_color = self._own(ctx.framebuffer(color_attachments=atlas[:1], depth_attachment=depth))
         fbo_labels = self._own(ctx.framebuffer(color_attachments=atlas, depth_attachment=depth))
-        entry = (remapper, (aw, ah), fbo_color, fbo_labels)
+        motion = self._own(ctx.texture((aw, ah), 4, dtype="f4"))
+        fbo_motion = self._own(ctx.framebuffer(color_attachments=[atlas[0], motion], depth_attachment=depth))
+        entry = (remapper, (aw, ah), fbo_color, fbo_labels, fbo_motion)
         self._fisheye[key] = entry
         return entry
 
@@ -1186,12 +1301,14 @@ class GLRenderer(Renderer):
         near: float = 0.01,
         far: float = 20.0,
         windows=None,
+        motion: MotionSpec | None = None,
     ):
         """Render the fisheye of ``remapper``'s model at ``T_world_cam`` (see :meth:`render_fisheye`)."""
-        _, (aw, ah), fbo_color, fbo_labels = self._fisheye_targets(remapper)
+        _, (aw, ah), fbo_color, fbo_labels, fbo_motion = self._fisheye_targets(remapper)
         poses = self._sync_bodies()
         smap = self._shadow_for(lighting, poses, T_world_cam, float(remapper.focal))
-        fbo = fbo_labels if labels else fbo_color
+        mode: bool | str = "motion" if motion is not None else bool(labels)
+        fbo = fbo_motion if motion is not None else fbo_labels if labels else fbo_color
         fbo.use()
         fbo.viewport = (0, 0, aw, ah)
         fbo.scissor = None
@@ -1207,11 +1324,17 @@ class GLRenderer(Renderer):
             planes = view_planes(K, size, T_face, near)
             fbo.viewport = (0, fc.atlas_row, fw, fh)
             fbo.scissor = (u0, fc.atlas_row + v0, u1 - u0, v1 - v0)
-            self._draw(
-                planes, T_face, projection_from_K(fc.K, (fw, fh), near, far), lighting, poses, labels, smap
-            )
+            P = projection_from_K(fc.K, (fw, fh), near, far)
+            self._draw(planes, T_face, P, lighting, poses, mode, smap, motion)
         fbo.scissor = None
         w, h = remapper.model.image_size
+        if motion is not None:
+            if not drawn:
+                return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8), motion=np.zeros((h, w, 3), np.float32))
+            atlas_rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(ah, aw, 3)
+            raw = fbo.read(components=3, attachment=1, dtype="f4")
+            vel = np.frombuffer(raw, np.float32).reshape(ah, aw, 3)
+            return FisheyeView(rgb=remapper.remap(atlas_rgb), motion=remapper.remap(vel))
         if not labels:
             if not drawn:
                 return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8))

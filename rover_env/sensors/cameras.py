@@ -11,6 +11,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -20,7 +21,7 @@ from perception.rover_parts import kinematic_parts
 from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.io import ConfigError
 from rover_env.rendering import focus_on_rover, renderer_for
-from rover_env.rendering.base import FisheyeView, Lighting, RenderedView
+from rover_env.rendering.base import FisheyeView, Lighting, MotionSpec, RenderedView
 from rover_env.rendering.cubemap import CubemapRemap
 from rover_env.sensors.image_sensor import ImageSensor
 from rover_env.sensors.motion_blur import MotionField, blur
@@ -144,8 +145,11 @@ class _RoverCamera(ABC):
         return self._render(labels=True)
 
     @abstractmethod
-    def _render(self, labels: bool, parts: np.ndarray | None = None):
-        """Render the view now; the per-pixel labels only if ``labels`` (``parts``: a fisheye's windows)."""
+    def _render(self, labels: bool, parts: np.ndarray | None = None, motion: MotionSpec | None = None):
+        """Render the view now; the per-pixel labels only if ``labels``.
+
+        ``parts``: a fisheye's windows; ``motion``: with the renderer's velocity buffer.
+        """
 
     @abstractmethod
     def _rays_and_model(self) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
@@ -196,12 +200,18 @@ class _RoverCamera(ABC):
         """A frame through the image sensor: rendered, blurred along each pixel's motion, exposed."""
         sensor = self.image_sensor
         assert sensor is not None
-        focus_on_rover(self.sim, self.config.ground_range)
+        renderer = focus_on_rover(self.sim, self.config.ground_range)
         motion = self._motion
-        view = self._render(labels=motion is not None, parts=parts)
-        self._keep(view)
-        image = view.rgb
-        if motion is not None:
+        if motion is not None and renderer.draws_motion:
+            # the renderer draws each pixel's ray velocity in the colour pass (a velocity buffer)
+            T = self.T_world_cam()
+            links = self.sim.link_motion()
+            com, v_l, w_l = links[-1]
+            spec = MotionSpec(self.sim.rover.body_id, links, T, v_l + np.cross(w_l, T[:3, 3] - com), w_l)
+            view = self._render(labels=False, parts=parts, motion=spec)
+            velocity = motion.image_velocity(view.motion)
+        elif motion is not None:  # from a labelled render: each pixel's point and body
+            view = self._render(labels=True, parts=parts)
             velocity = motion.velocity(
                 self._points_cam(view),
                 view.segmentation,
@@ -209,6 +219,11 @@ class _RoverCamera(ABC):
                 self.sim.link_motion(),
                 self.sim.rover.body_id,
             )
+        else:
+            view = self._render(labels=False, parts=parts)
+        self._keep(view)
+        image = view.rgb
+        if motion is not None:
             s = self.config.sensor
             image = blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s)
         return sensor.capture(self._lens(image), meter="rendered")
@@ -349,12 +364,16 @@ class DownwardCamera(_RoverCamera):
         rays = self._motion.rays if self._motion is not None else self._rays_and_model()[0]
         return rays * (view.depth / rays[..., 2])[..., None]
 
-    def _render(self, labels: bool, parts: np.ndarray | None = None) -> RenderedView:
+    def _render(
+        self, labels: bool, parts: np.ndarray | None = None, motion: MotionSpec | None = None
+    ) -> RenderedView:
         if parts is not None:
             raise ValueError("parts: a pinhole camera renders whole frames")
         lighting = self.lighting
         renderer = renderer_for(self.sim)
-        return renderer.render_pinhole(self._render_model, self.T_world_cam(), lighting, segmentation=labels)
+        extra = {} if motion is None else {"motion": motion}
+        T = self.T_world_cam()
+        return renderer.render_pinhole(self._render_model, T, lighting, segmentation=labels, **extra)
 
 
 def kinematics_roi(
@@ -516,12 +535,16 @@ class FisheyeCamera(_RoverCamera):
         T = (self._T_cam_body @ np.linalg.inv(self.sim.base_matrix())).astype(np.float32)
         return view.points_world @ T[:3, :3].T + T[:3, 3]
 
-    def _render(self, labels: bool, parts: np.ndarray | None = None) -> FisheyeView:
+    def _render(
+        self, labels: bool, parts: np.ndarray | None = None, motion: MotionSpec | None = None
+    ) -> FisheyeView:
         lighting = self.lighting
+        extra: dict[str, Any] = {} if motion is None else {"motion": motion}
         return renderer_for(self.sim).render_fisheye(
             self.remapper,
             self.T_world_cam(),
             lighting,
             labels=labels,
             windows=None if parts is None else self.windows(parts),
+            **extra,
         )

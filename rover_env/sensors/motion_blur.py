@@ -58,6 +58,20 @@ class MotionField:
         self.rays = rays.astype(np.float32)
         self.jacobian = np.nan_to_num(jac).reshape(h, w, 2, 3).astype(np.float32)
         self.size = (w, h)
+        # the six (H, W) planes of the Jacobian, contiguous (image_velocity's hot path)
+        self._planes = [np.ascontiguousarray(self.jacobian[..., i, k]) for i in range(2) for k in range(3)]
+
+    def image_velocity(self, ray_velocity: np.ndarray) -> np.ndarray:
+        """Image velocity (H, W, 2) [px/s] of each pixel's ray velocity (H, W, 3) [rad/s], optical frame.
+
+        ``ray_velocity``: a renderer's velocity buffer (:class:`rover_env.rendering.base.MotionSpec`).
+        """
+        a, b, c = (np.ascontiguousarray(ray_velocity[..., k]) for k in range(3))
+        j = self._planes
+        out = np.empty(a.shape + (2,), np.float32)
+        out[..., 0] = j[0] * a + j[1] * b + j[2] * c
+        out[..., 1] = j[3] * a + j[4] * b + j[5] * c
+        return out
 
     def velocity(
         self,
@@ -136,7 +150,8 @@ def blur(
             rolling shutter).
         velocity: (H, W, 2) image velocity [px/s] (:meth:`MotionField.velocity`).
         exposure_s: Exposure [s].
-        samples: Most samples along a path; fewer when the longest path is shorter (one per pixel).
+        samples: Most samples along a path; fewer when the longest path is shorter (at most a
+            pixel apart along it, interpolated bilinearly).
         rolling_shutter_s: Readout time from the first row to the last [s]: row y ends its
             exposure ``rolling_shutter_s * (1 - y / (H - 1))`` before the last.
 
@@ -144,25 +159,25 @@ def blur(
         (H, W, C) uint8.
     """
     h, w = image.shape[:2]
-    longest = float(np.max(np.abs(velocity))) * (exposure_s + rolling_shutter_s) if velocity.size else 0.0
+    vx, vy = np.ascontiguousarray(velocity[..., 0]), np.ascontiguousarray(velocity[..., 1])
+    span = float(max(-vx.min(), vx.max(), -vy.min(), vy.max())) if velocity.size else 0.0
+    longest = span * (exposure_s + rolling_shutter_s)
     if longest < 0.25:
         return image
-    n = int(min(samples, max(2, 2 * math.ceil(longest))))
+    # samples at most a pixel apart along the longest path (bilinear between them)
+    n = int(min(samples, max(2, math.ceil(longest) + 1)))
     xs, ys = _grid(w, h)
-    # a pixel saw, s seconds before its readout, what is now (at the last readout) at x + v s
-    lag = (
-        np.float32(rolling_shutter_s) * (1.0 - ys / max(h - 1, 1))
-        if rolling_shutter_s > 0
-        else np.float32(0.0)
-    )
-    acc = np.zeros((h, w, image.shape[2]), np.float32)
+    acc = np.zeros(image.shape[:2] + (image.shape[2],), np.float32)
+    if rolling_shutter_s > 0:
+        # row y ends its exposure rolling_shutter_s * (1 - y / (H - 1)) before the last row
+        lag = np.float32(rolling_shutter_s) * (1.0 - ys / max(h - 1, 1))
     for k in range(n):
-        s = lag + np.float32(exposure_s * (k + 0.5) / n)  # the midpoints of n equal parts
-        acc += cv2.remap(
-            image,
-            xs + velocity[..., 0] * s,
-            ys + velocity[..., 1] * s,
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_REPLICATE,
-        )
-    return np.clip(acc / n + 0.5, 0, 255).astype(np.uint8)
+        # a pixel saw, s seconds before its readout, what is now (at the last readout) at x + v s
+        s = float(exposure_s * (k + 0.5) / n)  # the midpoints of n equal parts
+        if rolling_shutter_s > 0:
+            t = lag + np.float32(s)
+            mx, my = xs + vx * t, ys + vy * t
+        else:
+            mx, my = cv2.scaleAdd(vx, s, xs), cv2.scaleAdd(vy, s, ys)
+        cv2.accumulate(cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), acc)
+    return cv2.convertScaleAbs(acc, alpha=1.0 / n)
