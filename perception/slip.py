@@ -87,6 +87,10 @@ class SlipConfig:
         event_on: |s| at which a slip event starts ...
         event_hold: ... once it has stayed there this long [s] (0: at once; the default, just
             under one 30 Hz frame, asks for two frames in a row and ignores one-frame spikes).
+        event_confirm: An event also needs a second measurement of the wheel's rate while it
+            lasts: the rate that raised |s| to ``event_on`` and a newer one. A wrong tread
+            alignment is a single frame's, and a wheel missed in the next frame keeps its last
+            rate, so without this one outlier and a missed frame make an event.
         event_off: |s| below which it ends.
         event_min_speed: Events hold only while the wheel's tread or ground speed reaches this
             [m/s]. Below it a ratio of ``event_on`` is a speed difference of under 0.03 m/s, the
@@ -138,6 +142,7 @@ class SlipConfig:
     max_age: float = 0.05
     event_on: float = SLIP_EVENT
     event_hold: float = 0.03
+    event_confirm: bool = True
     event_off: float = 0.1
     event_min_speed: float = 0.15
     eps: float = 0.01
@@ -321,6 +326,7 @@ class SlipEstimator:
         self._t_rate = np.full(N_WHEELS, -math.inf)
         self._events = np.zeros(N_WHEELS, bool)
         self._above_since = np.full(N_WHEELS, math.nan)  # when |s| last rose to event_on [s]
+        self._above_rate = np.full(N_WHEELS, math.nan)  # the wheel's last rate measurement then [s]
         self._seq = 0
         self.rejected = 0  # readings left out as impossible (see MAX_SPEED and the others)
 
@@ -631,11 +637,15 @@ class SlipEstimator:
         mag = np.abs(s)
         fast = speed >= c.event_min_speed
         above = valid & fast & (mag >= c.event_on)
-        self._above_since = np.where(
-            above, np.where(np.isnan(self._above_since), t, self._above_since), math.nan
-        )
+        rising = above & np.isnan(self._above_since)
+        self._above_since = np.where(above, np.where(rising, t, self._above_since), math.nan)
+        self._above_rate = np.where(above, np.where(rising, self._t_rate, self._above_rate), math.nan)
         with np.errstate(invalid="ignore"):
             start = above & (t - self._above_since >= c.event_hold - 1e-9)
+            if c.event_confirm and c.event_hold > 0:
+                # a newer rate of the wheel says so too: one outlying rate, held while the
+                # next frame misses the wheel, is not an event
+                start &= self._t_rate > self._above_rate
         self._events = np.where(valid & fast, np.where(self._events, mag >= c.event_off, start), False)
         return SlipEstimate(
             t=float(t),

@@ -421,3 +421,34 @@ def test_accelerometer_input_is_checked():
     assert not est._accel_used
     with pytest.raises(ValueError, match="accel_wheel_rate_rw"):
         SlipConfig(accel_wheel_rate_rw=-1.0)
+
+
+def test_one_outlying_wheel_rate_held_over_a_missed_frame_is_not_an_event():
+    """At 0.6 m/s a wrong tread alignment reads FL 30 % slow; the next frame misses FL (its rate is
+    held), the one after measures it right: no event. Two measurements in a row that slow: an event."""
+    v, dt = 0.6, 1 / 30
+    rate = v / R_WHEEL
+
+    def run(fl_rates, config=None):
+        est = SlipEstimator(XY, R_WHEEL, config)
+        events = []
+        for k in range(40):
+            t = (k + 1) * dt
+            est.add_odometry(t, [v, 0.0, 0.0], dt)
+            rates = np.full(4, rate)
+            valid = np.ones(4, bool)
+            j = k - 30
+            if 0 <= j < len(fl_rates):
+                if fl_rates[j] is None:
+                    valid[0] = False  # the wheel is missed in this frame
+                else:
+                    rates[0] = fl_rates[j]
+            est.add_wheels(t, rates, dt, valid)
+            events.append(bool(est.estimate(t).events[0]))
+        return events
+
+    slow = 0.7 * rate
+    assert not any(run([slow, None, rate]))  # s = -0.3 for two frames from one measurement
+    assert any(run([slow, slow, rate]))
+    assert any(run([slow, None, slow]))  # a newer measurement confirms it
+    assert any(run([slow, None, rate], SlipConfig(event_confirm=False)))  # the outlier alone, held
