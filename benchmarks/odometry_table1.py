@@ -16,15 +16,22 @@ Two dead-reckoned paths are scored against the truth by the paper's method
 Both columns use the vision-only velocities, as the paper does (``odometry_gyro=False``: the
 gyro's roll and pitch rates are not given to the odometry's fit).
 
+With ``--camera-effects field`` the cameras deliver their images through their image sensors
+(noise, auto-exposure, motion blur, vignetting, the downward lens's distortion), and with
+``--randomize-light SEED`` each terrain gets a sun, haze and sky light drawn from the domain
+randomisation's ranges (``rover_env.config.randomize``) with that seed.
+
 Writes a markdown table (``--out``/table1.md) and a figure of the paths (``--out``/table1_paths.png).
 
 Run: LP_NUM_THREADS=1 python benchmarks/odometry_table1.py [--distance 300] [--out benchmarks/results/imu]
+[--camera-effects field] [--randomize-light 7]
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -33,6 +40,7 @@ import numpy as np
 from perception.odometry import integrate_twist
 from perception.trajectory import path_segment_errors
 from rover_env.config.imu import ImuConfig
+from rover_env.config.randomize import RandomizeConfig, WorldDraw
 from rover_env.config.scenario import load_scenario
 from rover_env.sensors.rig import PerceptionPipeline
 from rover_env.sim.simulation import RoverSim, quat_to_yaw
@@ -41,13 +49,35 @@ TERRAINS = {"flat": "flat_patches", "rough": "rough", "shadow-heavy": "shadow_he
 LENGTHS = (20.0, 50.0, 100.0, 150.0)
 
 
-def drive(scenario: str, imu: str, distance: float, radius: float, speed: float, preset: str) -> dict:
-    """Laps of a circle: the truth, the odometry's twists and the fused heading at each frame."""
-    sim = RoverSim(load_scenario(scenario))
+def drive(
+    scenario: str,
+    imu: str,
+    distance: float,
+    radius: float,
+    speed: float,
+    preset: str,
+    field: bool = False,
+    light: WorldDraw | None = None,
+) -> dict:
+    """Laps of a circle: the truth, the odometry's twists and the fused heading at each frame.
+
+    ``field``: field cameras; ``light``: a world draw whose sun, haze and sky light are used.
+    """
+    scn = load_scenario(scenario)
+    if light is not None:
+        sun = replace(scn.sun, elevation_deg=light.sun_elevation_deg, azimuth_deg=light.sun_azimuth_deg)
+        scn = replace(scn, sun=sun)
+    sim = RoverSim(scn)
+    if light is not None:
+        sim.haze, sim.ambient = light.sun_transmission, light.ambient
     try:
         # the paper's method: vision-only velocities in both columns (no gyro rates in the fit)
-        pipe = PerceptionPipeline(sim, preset, imu=ImuConfig.preset(imu), odometry_gyro=False)
+        pipe = PerceptionPipeline(
+            sim, preset, imu=ImuConfig.preset(imu), odometry_gyro=False, camera_effects=field
+        )
         pipe.imu.reset(0)
+        for k, cam in enumerate(pipe.cameras):
+            cam.reset_effects(k)
         g = sim.geometry
         gt = sim.reset(0.0, -radius, 0.0)  # the circle's centre at the origin
         yaw0 = quat_to_yaw(gt.pose[3:])
@@ -110,6 +140,8 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="eval", choices=("eval", "train"))
     ap.add_argument("--terrains", nargs="+", default=list(TERRAINS), choices=list(TERRAINS))
     ap.add_argument("--out", default="benchmarks/results/imu")
+    ap.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"))
+    ap.add_argument("--randomize-light", type=int, default=None, metavar="SEED")
     args = ap.parse_args(argv)
     if not (args.distance > 0 and args.radius >= 3 and 0 < args.speed <= 2):
         ap.error("--distance > 0, --radius >= 3 m and --speed in (0, 2] m/s")
@@ -118,7 +150,9 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     lines = [
         f"Path-segment endpoint error, {args.preset} preset, IMU {args.imu}, laps of a {args.radius:g} m "
-        f"circle at {args.speed:g} m/s, {args.distance:g} m per terrain (mean +- std, % of length)",
+        f"circle at {args.speed:g} m/s, {args.distance:g} m per terrain (mean +- std, % of length), "
+        f"{args.camera_effects} cameras"
+        + ("" if args.randomize_light is None else f", light randomised (seed {args.randomize_light})"),
         "",
         "| terrain | yaw | " + " | ".join(f"{L:g} m" for L in LENGTHS) + " |",
         "|---|---|" + "---:|" * len(LENGTHS),
@@ -129,8 +163,26 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(args.terrains), figsize=(5 * len(args.terrains), 5), squeeze=False)
+    rng = None if args.randomize_light is None else np.random.default_rng(args.randomize_light)
     for ax, name in zip(axes[0], args.terrains, strict=True):
-        run = drive(TERRAINS[name], args.imu, args.distance, args.radius, args.speed, args.preset)
+        light = None if rng is None else WorldDraw.draw(RandomizeConfig(), rng, 0)
+        if light is not None:
+            lines.insert(
+                1,
+                f"- {name}: sun at {light.sun_elevation_deg:.0f} deg elevation, "
+                f"{light.sun_azimuth_deg:.0f} deg azimuth, haze {light.sun_transmission:.2f}, "
+                f"sky light {light.ambient:.2f}",
+            )
+        run = drive(
+            TERRAINS[name],
+            args.imu,
+            args.distance,
+            args.radius,
+            args.speed,
+            args.preset,
+            args.camera_effects == "field",
+            light,
+        )
         odo, imu = paths(run)
         for label, est in (("odometry", odo), ("IMU", imu)):
             cells = []
