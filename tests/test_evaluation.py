@@ -161,3 +161,24 @@ def test_an_estimated_event_on_true_slip_that_peaks_in_the_hysteresis_band_is_no
     m = slip_metrics([dict(run, tru=tru)])
     assert (m["events"], m["matched"], m["in_band"], m["false"]) == (1, 1, 0, 2), m
     assert m["precision"] == 1 / 3
+
+
+def test_a_sweep_runs_field_cameras_in_a_randomised_world(tiny_scenario, tmp_path):
+    """``rover eval --camera-effects field --randomize on``: the rows say so, the seed draws the world
+    (two runs of one seed agree), and bad values are refused before anything runs."""
+    out = tmp_path / "eval"
+    argv = ["eval", "--controllers", "slip_aware", "slip_aware@ground_truth", "--missions", tiny_scenario]
+    argv += ["--seeds", "3", "--workers", "1", "--camera-effects", "field", "--randomize", "on"]
+    assert main(argv + ["--out", str(out)]) == 0
+    rows = {r["controller"]: r for r in json.loads((out / "results.json").read_text())}
+    assert rows["slip_aware"]["camera_effects"] == "field" and rows["slip_aware"]["randomize"] == "on"
+    assert rows["slip_aware@ground_truth"]["camera_effects"] == "none"
+    again = run_sweep([EvalJob("slip_aware@ground_truth", tiny_scenario, 3, randomize="on")], workers=1)
+    off = run_sweep([EvalJob("slip_aware@ground_truth", tiny_scenario, 3)], workers=1)
+    assert again[0]["energy"] == rows["slip_aware@ground_truth"]["energy"]  # the same world
+    assert off[0]["energy"] != again[0]["energy"]  # another world (its friction, its sun)
+    with pytest.raises(ValueError, match="randomize"):
+        run_sweep([EvalJob("slip_aware", tiny_scenario, 3, randomize="sometimes")], workers=1)
+    with pytest.raises(SystemExit):
+        main(argv[:-2] + ["--out", str(tmp_path / "x"), "--randomize", "maybe"])
+    assert not (tmp_path / "x").exists()

@@ -191,7 +191,16 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
         _rerun()  # the SDK is there, before anything runs
     jobs = jobs_for(
-        args.controllers, args.missions, seeds, args.preset, args.out, args.videos, args.rerun, args.estimator
+        args.controllers,
+        args.missions,
+        seeds,
+        args.preset,
+        args.out,
+        args.videos,
+        args.rerun,
+        args.estimator,
+        args.camera_effects,
+        args.randomize,
     )
     check_jobs(jobs)  # every input before the output folder is touched
     products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
@@ -251,6 +260,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         eval_every=args.eval_every,
         checkpoint_every=args.eval_every,
         reward=dict(args.reward),
+        camera_effects=args.camera_effects,
+        randomize=args.randomize,
     )
     _prepare_out(args.out, ("policy.zip", "policy.json", "obs_stats.npz", "checkpoints"), args.overwrite)
     start = time.perf_counter()
@@ -486,6 +497,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--seeds", nargs="+", type=_seeds, default=[[0, 1, 2]], help="seeds: N or N-M (default: 0-2)"
     )
     e.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
+    e.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"),
+                   help="estimated runs' cameras: as rendered, or through their image sensors")  # fmt: skip
+    e.add_argument("--randomize", default="off", choices=("off", "on"),
+                   help="domain randomisation: each run's world drawn from its seed")  # fmt: skip
     e.add_argument(
         "--estimator", metavar="MODULE:FACTORY",
         help="the estimator on the estimated-observation runs: a factory called with the rig "
@@ -526,6 +541,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train on perception's estimates or on the simulator's state")  # fmt: skip
     t.add_argument("--preset", default="train", choices=("train", "eval"),
                    help="camera preset (train: 160x120, 30 Hz; eval: 640x480, 60 Hz)")  # fmt: skip
+    t.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"),
+                   help="the cameras: as rendered, or through their image sensors")  # fmt: skip
+    t.add_argument("--randomize", default="off", choices=("off", "on"),
+                   help="domain randomisation: each episode's world drawn from its seed")  # fmt: skip
     t.add_argument("--residual", type=float, nargs=3, default=[0.5, 0.3, 0.3],
                    help="residual range on the drive command (speed, lam_F, lam_R)")  # fmt: skip
     t.add_argument("--base", default="traction", choices=("traction", "follower"),

@@ -63,6 +63,10 @@ class EvalJob:
         rerun: Also write ``mission.rrd`` there (Rerun; :mod:`rover_env.tools.rerun_log`).
         estimator: ``module:FACTORY`` (or ``path/file.py:FACTORY``) of the estimator on the
             estimated-observation runs (:func:`load_estimator`); None: the built-in.
+        camera_effects: The cameras of estimated-observation runs: ``"ideal"`` or ``"field"``
+            (the environment's ``camera_effects``).
+        randomize: Domain randomisation of the world: ``"off"`` or ``"on"`` (the environment's
+            ``randomize``; the episode's seed draws the world).
     """
 
     controller: str
@@ -73,6 +77,8 @@ class EvalJob:
     video: bool = False
     rerun: bool = False
     estimator: str | None = None
+    camera_effects: str = "ideal"
+    randomize: str = "off"
 
     @property
     def name(self) -> str:
@@ -111,15 +117,18 @@ def run_job(job: EvalJob) -> dict:
     spec, source = parse_controller(job.controller)
     render = "rgb_array" if (job.video and job.out) else None
     imu = controller_imu(job.controller)
-    extra = {"imu": imu} if imu else {}
+    extra: dict = {"imu": imu} if imu else {}
     if job.estimator and source == "estimated":
         extra["estimator"] = load_estimator(job.estimator)
+    if source == "estimated":
+        extra["camera_effects"] = job.camera_effects
     env = make_mission_env(
         job.mission,
         obs_source=source,
         action_mode=spec.action_mode,
         preset=job.preset,
         render_mode=render,
+        randomize=job.randomize,
         **extra,
     )
     start = time.perf_counter()
@@ -146,6 +155,8 @@ def run_job(job: EvalJob) -> dict:
     row = {"controller": job.controller, "mission": job.mission, "seed": job.seed, "preset": job.preset}
     row["obs_source"] = source
     row["estimator"] = (job.estimator or "built-in") if source == "estimated" else "none"
+    row["camera_effects"] = job.camera_effects if source == "estimated" else "none"
+    row["randomize"] = job.randomize
     row.update(asdict(result.metrics))
     row["wall_time"] = time.perf_counter() - start
     for k, v in (result.estimator or {}).items():
@@ -174,6 +185,10 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
         load_estimator(spec)
     for job in jobs:
         parse_controller(job.controller)
+        if job.camera_effects not in ("ideal", "field"):
+            raise ValueError(f"camera_effects {job.camera_effects!r}: use 'ideal' or 'field'")
+        if job.randomize not in ("off", "on"):
+            raise ValueError(f"randomize {job.randomize!r}: use 'off' or 'on'")
         if job.preset not in PERCEPTION_PRESETS:
             raise ValueError(f"preset {job.preset!r}: use one of {sorted(PERCEPTION_PRESETS)}")
         if job.mission not in missions and job.mission not in rover_env.ENV_IDS:
@@ -299,6 +314,8 @@ def jobs_for(
     video: bool = False,
     rerun: bool = False,
     estimator: str | None = None,
+    camera_effects: str = "ideal",
+    randomize: str = "off",
 ) -> list[EvalJob]:
     """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""
     jobs = []
@@ -306,10 +323,10 @@ def jobs_for(
         for m in missions:
             for s in seeds:
                 job = EvalJob(c, m, int(s), preset, estimator=estimator)
-                if out is not None:
-                    where = str(Path(out) / "runs" / job.name)
-                    job = EvalJob(c, m, int(s), preset, where, video, rerun, estimator)
-                jobs.append(job)
+                where = None if out is None else str(Path(out) / "runs" / job.name)
+                jobs.append(
+                    EvalJob(c, m, int(s), preset, where, video, rerun, estimator, camera_effects, randomize)
+                )
     return jobs
 
 

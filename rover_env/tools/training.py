@@ -160,6 +160,8 @@ def make_env(
     seed: int | None = None,
     reward: dict | None = None,
     base: str = "traction",
+    camera_effects: str = "ideal",
+    randomize: str = "off",
 ) -> gym.Env:
     """A training or evaluation environment: Monitor(EpisodeStats(ResidualDrive(env))).
 
@@ -172,6 +174,8 @@ def make_env(
         seed: Seed of the action space (episodes are seeded by ``reset``).
         reward: Weights of the reward terms that differ from :class:`~rover_env.task.judge.RewardConfig`'s.
         base: The residual's base, a key of :data:`BASES` (sets the action mode).
+        camera_effects: The cameras with estimated observations (``"ideal"`` or ``"field"``).
+        randomize: Domain randomisation (``"off"`` or ``"on"``).
     """
     check_base(base)
     from stable_baselines3.common.monitor import Monitor
@@ -183,7 +187,13 @@ def make_env(
     def one(mission: str):
         def make():
             env = make_mission_env(
-                mission, obs_source=obs_source, preset=preset, action_mode=BASES[base], reward=weights
+                mission,
+                obs_source=obs_source,
+                preset=preset,
+                action_mode=BASES[base],
+                reward=weights,
+                camera_effects=camera_effects,
+                randomize=randomize,
             )
             if residual is not None:
                 env = ResidualDrive(env, residual)
@@ -220,6 +230,8 @@ class TrainConfig:
         hyper: Algorithm keyword arguments (override the defaults).
         reward: Reward weights that differ from the environment's
             (:class:`~rover_env.task.judge.RewardConfig`).
+        camera_effects: The cameras (``"ideal"`` or ``"field"``).
+        randomize: Domain randomisation of each episode's world (``"off"`` or ``"on"``).
     """
 
     algo: str = "ppo"
@@ -236,6 +248,8 @@ class TrainConfig:
     checkpoint_every: int = 20_000
     hyper: dict = field(default_factory=dict)
     reward: dict = field(default_factory=dict)
+    camera_effects: str = "ideal"
+    randomize: str = "off"
 
     def __post_init__(self) -> None:
         if self.algo not in ("ppo", "sac"):
@@ -243,6 +257,10 @@ class TrainConfig:
         if self.total_steps < 1 or self.n_envs < 1:
             raise ValueError("total_steps and n_envs must be at least 1")
         check_base(self.base)
+        if self.camera_effects not in ("ideal", "field"):
+            raise ValueError(f"camera_effects {self.camera_effects!r}: use 'ideal' or 'field'")
+        if self.randomize not in ("off", "on"):
+            raise ValueError(f"randomize {self.randomize!r}: use 'off' or 'on'")
 
 
 PPO_DEFAULTS = dict(
@@ -370,7 +388,17 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
     missions = list(cfg.missions)
 
     def factory(names, seed: int):
-        return lambda: make_env(names, cfg.obs_source, cfg.preset, cfg.residual, seed, cfg.reward, cfg.base)
+        return lambda: make_env(
+            names,
+            cfg.obs_source,
+            cfg.preset,
+            cfg.residual,
+            seed,
+            cfg.reward,
+            cfg.base,
+            cfg.camera_effects,
+            cfg.randomize,
+        )
 
     # every process cycles through all missions, each from its own starting point
     fns = [
