@@ -27,10 +27,10 @@ from perception.markers import (
     measure_axles,
     segment_magenta,
 )
+from perception.photometry import cfa_luminance, linear_gray
 from perception.wheel_kinematics import rolling_speeds
 from perception.wheel_rotation import (
     TreadConfig,
-    linear_gray,
     measure_pairs,
     strip_resolution,
     unwrap_treads,
@@ -168,6 +168,9 @@ class KinematicStateEstimator:
         gamma: The camera's photometric response (:attr:`perception.rig.SensorSpec.gamma`): the
             treads are unwrapped from the linearised grey image, so that their band-pass, which
             divides by the local light level, sees light as a factor.
+        bayer: The camera's colour-filter array (:attr:`perception.rig.SensorSpec.bayer`), or
+            None: the treads are unwrapped from each pixel's own sample
+            (:func:`perception.photometry.cfa_luminance`).
     """
 
     def __init__(
@@ -177,6 +180,7 @@ class KinematicStateEstimator:
         config: KinematicsConfig | None = None,
         calibration: SteeringCalibration | None = None,
         gamma: float = 1.0,
+        bayer: str | None = None,
     ) -> None:
         if not np.allclose(camera.T_body_cam, model.T_body_cam, atol=1e-9):
             raise ValueError("camera.T_body_cam and model.T_body_cam differ; use one fisheye mount for both")
@@ -185,6 +189,7 @@ class KinematicStateEstimator:
         self.config = config or KinematicsConfig()
         self.calibration = calibration
         self.gamma = float(gamma)
+        self.bayer = bayer
         nominal = model.wheel_frames(np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4))
         # one column step for all wheels (the finest), so that their strips are processed together
         self._dphi = min(
@@ -294,9 +299,14 @@ class KinematicStateEstimator:
         valid = {f"psi_{a}": bool(np.isfinite(meas.psi[i])) for i, a in enumerate(AXLES)}
         valid.update({f"d_{a}": bool(np.isfinite(meas.depth[i])) for i, a in enumerate(AXLES)})
         valid.update({f"lam_{a}": bool(np.isfinite(meas.lam[i])) for i, a in enumerate(AXLES)})
-        gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-        if self.gamma != 1.0:  # the treads' band-pass divides light levels: linear ones
-            gray = linear_gray(gray, self.gamma)
+        # the treads' band-pass divides light levels: linear ones, without the colour-filter
+        # array's checker (fixed to the sensor, it would be found at zero rotation)
+        if self.bayer is not None:
+            gray = cfa_luminance(img, self.bayer, self.gamma)
+        else:
+            gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+            if self.gamma != 1.0:
+                gray = linear_gray(gray, self.gamma)
         theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
         corrected = []
         curr_frames = self.model.wheel_frames(psi, depth, delta)

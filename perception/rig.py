@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from perception.calib_io import check_rigid
+from perception.photometry import CFA_PATTERNS
 from perception.validation import ConfigError, real_number
 
 #: The kinds of sensor a rig may hold, and what ``SensorSpec.model`` is for each.
@@ -90,6 +91,10 @@ class SensorSpec:
             relative irradiance ``(v / 255) ** gamma`` (1: linear; 2.2: a camera's usual output
             gamma). Estimators that compare light levels (shadow ratios, paint against tread)
             linearise with it. Ignored for an IMU.
+        bayer: A colour camera's colour-filter array when its images are demosaiced from one
+            colour per pixel (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``;
+            :data:`perception.photometry.CFA_PATTERNS`), or None (full colour, or unknown).
+            Texture trackers then read each pixel's own sample.
     """
 
     name: str
@@ -99,6 +104,7 @@ class SensorSpec:
     model: Any
     readout_window: bool = False
     gamma: float = 1.0
+    bayer: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in SENSOR_KINDS:
@@ -108,6 +114,10 @@ class SensorSpec:
             raise ConfigError(
                 f"{self.name}.gamma: {self.gamma!r}; give the camera's response exponent in [0.2, 5] "
                 "(1: linear images, 2.2: the usual output gamma)"
+            )
+        if self.bayer is not None and self.bayer not in CFA_PATTERNS:
+            raise ConfigError(
+                f"{self.name}.bayer: {self.bayer!r}; use one of {sorted(CFA_PATTERNS)} or None (full colour)"
             )
         rate = real_number(f"{self.name}.rate_hz", self.rate_hz)
         if not rate > 0:

@@ -188,7 +188,9 @@ class RoverEstimator:
             down.model,
             odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {})),
         )
-        self.kinematics = KinematicStateEstimator(fish.model, self.model, kinematics, gamma=fish.gamma)
+        self.kinematics = KinematicStateEstimator(
+            fish.model, self.model, kinematics, gamma=fish.gamma, bayer=fish.bayer
+        )
         nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
         slip = slip or SlipConfig()
         if imu is not None:

@@ -257,24 +257,6 @@ class TreadStrip:
 
 
 @functools.lru_cache(maxsize=16)
-@functools.lru_cache(maxsize=8)
-def _linear_lut(gamma: float) -> np.ndarray:
-    lut = (255.0 * (np.arange(256) / 255.0) ** gamma).astype(np.float32)
-    lut.flags.writeable = False
-    return lut
-
-
-def linear_gray(gray: np.ndarray, gamma: float) -> np.ndarray:
-    """A gamma-encoded (H, W) uint8 grey image as relative irradiance, float32 on the same 0-255 scale.
-
-    ``gamma``: the camera's response (:attr:`perception.rig.SensorSpec.gamma`): a value ``v``
-    encodes the irradiance ``255 (v / 255) ** gamma``. The treads' band-pass divides by the local
-    light level and finds shadow edges by the step of its log, both of which hold only for
-    linear levels (gamma 2.2 shrinks a shadow's light ratio of 3 to 1.65).
-    """
-    return _linear_lut(float(gamma))[np.asarray(gray, dtype=np.uint8)]
-
-
 def _gaussian(sigma: float) -> np.ndarray:
     """The 1-D kernel cv2.GaussianBlur uses on float images for ``sigma`` (4 sigma each side)."""
     return cv2.getGaussianKernel(int(round(sigma * 8 + 1)) | 1, sigma, cv2.CV_32F)

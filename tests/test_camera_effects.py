@@ -172,11 +172,15 @@ def test_field_cameras_change_the_images_not_the_physics_and_the_seed_repeats_th
     try:
         rig = env.unwrapped.pipeline.rig
         assert [rig[n].gamma for n in ("fisheye", "downward")] == [2.2, 2.2]
+        assert [rig[n].bayer for n in ("fisheye", "downward")] == ["RGGB", "RGGB"]
         assert env.unwrapped.pipeline.kinematics.gamma == 2.2
+        assert env.unwrapped.pipeline.kinematics.bayer == "RGGB"
     finally:
         env.close()
     with pytest.raises(ConfigError, match="gamma"):
         SensorSpec("downward", "pinhole", 30.0, np.eye(4), None, gamma=0.0)
+    with pytest.raises(ConfigError, match="bayer"):
+        SensorSpec("downward", "pinhole", 30.0, np.eye(4), None, bayer="RGBW")
     with pytest.raises(ValueError, match="camera_effects"):
         gym.make("Rover-v0", camera_effects="vivid")
 

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from test_markers import fisheye, rover_model
 
+from perception.photometry import linear_gray
 from perception.wheel_rotation import (
     TreadConfig,
     align_strips,
     arc_angle,
-    linear_gray,
     masked_ncc,
     measure_pairs,
     measure_rotation,

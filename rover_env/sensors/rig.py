@@ -39,6 +39,7 @@ from rover_env.config.rig import (
     standard_rig,
 )
 from rover_env.sensors.cameras import DownwardCamera, FisheyeCamera
+from rover_env.sensors.image_sensor import BAYER
 from rover_env.sensors.imu import Imu
 from rover_env.sim.simulation import RoverSim
 
@@ -129,11 +130,16 @@ def _gamma(camera) -> float:
     return 1.0 if camera.image_sensor is None else float(camera.image_sensor.config.gamma)
 
 
+def _bayer(camera) -> str | None:
+    """A simulated camera's colour-filter array: its image sensor's, or None (rendered colour)."""
+    return None if camera.image_sensor is None else BAYER
+
+
 def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
     """The :class:`perception.rig.Rig` of a simulated rover's sensors: what an estimator is given.
 
     The cameras' calibrations are their exact models (the simulation renders through them) and
-    their image sensors' output gamma (their photometric response); the
+    their image sensors' output gamma and colour-filter array; the
     IMU's is its data sheet (its errors are drawn per episode, and not given away). The rover's
     kinematic model sees the markers through the rig's first fisheye (or where the standard
     fisheye would be).
@@ -149,10 +155,14 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             specs.append(SensorSpec(name, "imu", sensor.config.rate_hz, T, model))
         elif isinstance(sensor, FisheyeCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
-            specs.append(SensorSpec(name, "fisheye", rate, T, sensor.model, True, _gamma(sensor)))
+            specs.append(
+                SensorSpec(name, "fisheye", rate, T, sensor.model, True, _gamma(sensor), _bayer(sensor))
+            )
         elif isinstance(sensor, DownwardCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
-            specs.append(SensorSpec(name, "pinhole", rate, T, sensor.model, gamma=_gamma(sensor)))
+            specs.append(
+                SensorSpec(name, "pinhole", rate, T, sensor.model, gamma=_gamma(sensor), bayer=_bayer(sensor))
+            )
         else:
             raise TypeError(
                 f"sensor {name!r}: {type(sensor).__name__} has no rig spec; add its kind to rig_of"

@@ -1,0 +1,82 @@
+"""A camera's photometry as an estimator undoes it: its output gamma and its colour-filter array.
+
+Estimators that compare light levels (a shadow's ratio, paint against tread) need linear levels:
+:func:`linear_gray` undoes the camera's gamma (:attr:`perception.rig.SensorSpec.gamma`).
+
+A colour camera samples one colour per pixel through its colour-filter array (CFA) and
+interpolates the other two (demosaicing). Where the scene is tinted, its colours are read with
+different gains, so a grey image made from the demosaiced colours carries the array's 2-pixel
+checker, fixed to the sensor, at the scale of fine texture. A texture tracker then finds that
+checker at zero motion. :func:`cfa_luminance` takes each pixel's own sample (a bilinear
+demosaic keeps it) and scales it by its colour's local level: the checker goes, and every pixel
+keeps its own reading.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+
+#: The colour-filter arrays :func:`cfa_luminance` knows: the colours of the 2 x 2 tile's pixels
+#: (0, 0), (0, 1), (1, 0), (1, 1) as RGB channel indices.
+CFA_PATTERNS: dict[str, tuple[int, int, int, int]] = {
+    "RGGB": (0, 1, 1, 2),
+    "BGGR": (2, 1, 1, 0),
+    "GRBG": (1, 0, 2, 1),
+    "GBRG": (1, 2, 0, 1),
+}
+_SITES = ((0, 0), (0, 1), (1, 0), (1, 1))
+
+
+@functools.lru_cache(maxsize=8)
+def _linear_lut(gamma: float) -> np.ndarray:
+    lut = (255.0 * (np.arange(256) / 255.0) ** gamma).astype(np.float32)
+    lut.flags.writeable = False
+    return lut
+
+
+def linear_gray(gray: np.ndarray, gamma: float) -> np.ndarray:
+    """A gamma-encoded uint8 image (any shape) as relative irradiance, float32 on the same 0-255 scale.
+
+    ``gamma``: the camera's response (:attr:`perception.rig.SensorSpec.gamma`): a value ``v``
+    encodes the irradiance ``255 (v / 255) ** gamma``. The treads' band-pass divides by the local
+    light level and finds shadow edges by the step of its log, both of which hold only for
+    linear levels (gamma 2.2 shrinks a shadow's light ratio of 3 to 1.65).
+    """
+    return _linear_lut(float(gamma))[np.asarray(gray, dtype=np.uint8)]
+
+
+def cfa_luminance(rgb: np.ndarray, pattern: str, gamma: float = 1.0, sigma: float = 1.5) -> np.ndarray:
+    """Linear luminance (H, W) float32 of a demosaiced colour image, from each pixel's own sample.
+
+    Each pixel's sample of its own colour (``pattern``: the camera's CFA, :data:`CFA_PATTERNS`)
+    is linearised (``gamma``) and multiplied by the local luminance over the local level of its
+    colour (both Gaussian means, ``sigma`` pixels of that colour's quarter-resolution plane):
+    locally even colour then gives one level to all four sites, and every pixel keeps its own
+    reading of the texture.
+
+    Args:
+        rgb: (H, W, 3) uint8 RGB as the camera delivered it (bilinear demosaicing keeps each
+            pixel's own sample); H and W even.
+        pattern: The CFA, a key of :data:`CFA_PATTERNS`.
+        gamma: The camera's output gamma (1: linear images).
+        sigma: Width of the local levels [pixels of a colour plane, i.e. 2 image pixels].
+
+    Raises:
+        ValueError: An unknown pattern, an image that is not (H, W, 3) uint8 of even size.
+    """
+    if pattern not in CFA_PATTERNS:
+        raise ValueError(f"pattern: {pattern!r}; use one of {sorted(CFA_PATTERNS)}")
+    img = np.asarray(rgb)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3 or img.shape[0] % 2 or img.shape[1] % 2:
+        raise ValueError(f"rgb: {img.dtype} {img.shape}; expected (H, W, 3) uint8 with H and W even")
+    lin = linear_gray(img, gamma) if gamma != 1.0 else img.astype(np.float32)
+    level = cv2.GaussianBlur(cv2.cvtColor(lin, cv2.COLOR_RGB2GRAY), (0, 0), 2.0 * sigma)
+    out = np.empty(img.shape[:2], np.float32)
+    for (dy, dx), c in zip(_SITES, CFA_PATTERNS[pattern], strict=True):
+        plane = np.ascontiguousarray(lin[dy::2, dx::2, c])
+        mean = cv2.GaussianBlur(plane, (0, 0), sigma)
+        out[dy::2, dx::2] = plane * level[dy::2, dx::2] / np.maximum(mean, np.float32(1e-3))
+    return out
