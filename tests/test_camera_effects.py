@@ -314,3 +314,58 @@ def test_the_sun_moves_and_clouds_dim_it_and_auto_exposure_follows():
     assert level[(t > 0.99) & (t < 1.05)].min() < 0.8 * target  # the cloud darkens the frame
     back = (t > 1.0 + settle + 2 / 30) & (t < 3.5)
     assert np.all(np.abs(level[back] / target - 1) < 0.05)
+
+
+@pytest.mark.parametrize("renderer", ["gl", "tiny"])
+def test_a_cloud_shadow_sweeps_over_the_ground_with_the_wind(renderer):
+    """A cloud's shadow band moving along world x at 2 m/s, its leading edge in the downward view:
+    GL dims each pixel by the band's cover at its ground point (image / sunlit image against
+    (ambient + D sky) / (ambient + D)); TinyRenderer dims the whole view by its value at the camera."""
+    import dataclasses
+
+    from rover_env.config.io import ConfigError
+    from rover_env.config.scenario import SunConfig
+
+    if renderer == "gl" and not gl_status()[0]:
+        pytest.skip(f"no OpenGL context here: {gl_status()[1]}")
+    band = (1.0, 2.0, 0.0, 3.0, 0.2, 0.3)  # t_enter, speed, heading, length, transmission, edge
+    sun = SunConfig(azimuth_deg=30.0, elevation_deg=50.0, cloud_shadows=(band,))
+    assert sun.shade([[0.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.5, 0.0, 0.0]], 1.0) == pytest.approx(
+        [0.6, 0.2, 1.0]
+    )
+    sim = RoverSim(dataclasses.replace(flat_scenario(), sun=sun), renderer=renderer)
+    try:
+        sim.reset(0.0, 0.0, 0.0)
+        cam = DownwardCamera(sim)
+
+        def view_at(t):
+            sim._steps = int(round(t / sim.dt))  # the light at time t (the rover stands still)
+            return cam.render_view()
+
+        lit = view_at(0.0).rgb.astype(np.float64).mean(axis=2)
+        a, D = cam.config.ambient, sun.direction(0.0)[2]  # flat ground: cos(i) = the sun's height
+        seen = view_at(0.0).points_world
+        x0 = float(np.median(seen[..., 0]))
+        t = 1.0 + x0 / 2.0  # the leading edge at the middle of the view
+        view = view_at(t)
+        ratio = view.rgb.astype(np.float64).mean(axis=2) / np.maximum(lit, 1.0)
+        ok = ~view.shadow & (lit > 20) & (lit < 250)
+        if renderer == "gl":
+            expected = (a + D * sun.shade(view.points_world.reshape(-1, 3), t).reshape(ratio.shape)) / (a + D)
+            err = np.abs(ratio - expected)[ok]
+            print(
+                f"gl: ratio {ratio[ok].min():.2f} to {ratio[ok].max():.2f}; error median {np.median(err):.3f}"
+            )
+            assert ratio[ok].max() - ratio[ok].min() > 0.4  # the edge is in the view
+            assert np.median(err) < 0.02 and np.percentile(err, 95) < 0.06
+        else:
+            shade = float(sun.shade(cam.T_world_cam()[:3, 3][None], t)[0])
+            expected = (a + D * shade) / (a + D)
+            print(f"tiny: ratio median {np.median(ratio[ok]):.3f} against {expected:.3f}")
+            assert np.median(ratio[ok]) == pytest.approx(expected, abs=0.03)
+    finally:
+        sim.close()
+    with pytest.raises(ConfigError, match=r"cloud_shadows\[0\]\.edge"):
+        SunConfig(cloud_shadows=((1.0, 2.0, 0.0, 3.0, 0.2, 0.0),))
+    with pytest.raises(ConfigError, match="cloud_shadows"):
+        SunConfig(cloud_shadows=((1.0, 2.0, 0.0, 3.0),))

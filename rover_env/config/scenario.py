@@ -181,6 +181,30 @@ class FrictionMapConfig:
         check_range("dig_speed", self.dig_speed, 0.0, 10.0, lo_open=True)
 
 
+def cloud_shade(bands, sun, points) -> np.ndarray:
+    """Factor (N,) on the direct sunlight at world ``points`` (N, 3) [m] under cloud-shadow ``bands``.
+
+    ``bands``: :meth:`SunConfig.cloud_bands`; ``sun``: unit vector toward the sun. A point's place
+    in a band is that of where its ray to the sun meets the ground plane z = 0; the band's cover
+    rises linearly over its ``edge`` at both ends.
+    """
+    p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    out = np.ones(len(p))
+    if not bands:
+        return out
+    s = np.asarray(sun, dtype=np.float64)
+    q = p[:, :2] - p[:, 2:3] * (s[:2] / max(float(s[2]), 1e-6))[None]
+    for dx, dy, lead, length, trans, edge in bands:
+        u = q[:, 0] * dx + q[:, 1] * dy - lead
+        cover = np.clip(0.5 - u / edge, 0.0, 1.0) * np.clip(0.5 + (u + length) / edge, 0.0, 1.0)
+        out *= 1.0 - cover * (1.0 - trans)
+    return out
+
+
+#: Cloud shadows a scenario may hold (:attr:`SunConfig.cloud_shadows`; the GL renderer's limit).
+MAX_CLOUD_SHADOWS = 4
+
+
 @dataclass(frozen=True)
 class SunConfig:
     """Directional sunlight, which may move and be dimmed during a mission.
@@ -196,6 +220,15 @@ class SunConfig:
             ramp [s]) each. Between start and end the direct sunlight is multiplied by the
             transmission (the sky light stays), reached over ``ramp`` seconds at both ends (0: a
             step). Where clouds overlap their transmissions multiply.
+        cloud_shadows: Clouds' shadows that sweep over the ground with the wind: (t_enter [s],
+            speed [m/s], heading_deg, length [m], transmission [0..1], edge [m]) each. The
+            shadow is a band ``length`` metres long across the wind, moving toward
+            ``heading_deg`` (counter-clockwise from world x) at ``speed``; its leading edge
+            crosses the world origin at ``t_enter``; inside it the direct sunlight is multiplied
+            by ``transmission``, reached over an ``edge`` metres wide penumbra. The band lies in
+            the cloud layer and falls along the sun's rays (a point's place in it is that of
+            where its ray to the sun meets the ground plane z = 0). The GL renderer draws it per
+            pixel; TinyRenderer dims the whole view by its value at the camera.
     """
 
     azimuth_deg: float = 180.0
@@ -203,6 +236,7 @@ class SunConfig:
     azimuth_rate_deg_s: float = 0.0
     elevation_rate_deg_s: float = 0.0
     clouds: tuple[tuple[float, float, float, float], ...] = ()
+    cloud_shadows: tuple[tuple[float, float, float, float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         check_range("azimuth_deg", self.azimuth_deg, -360.0, 360.0)
@@ -218,12 +252,46 @@ class SunConfig:
             check_range(f"{key}.end", end, start, 1e6, lo_open=True)
             check_range(f"{key}.transmission", transmission, 0.0, 1.0)
             check_range(f"{key}.ramp", ramp, 0.0, 0.5 * (end - start))
+        if len(self.cloud_shadows) > MAX_CLOUD_SHADOWS:
+            raise ConfigError(
+                f"cloud_shadows: {len(self.cloud_shadows)} given; at most {MAX_CLOUD_SHADOWS} are drawn"
+            )
+        for i, band in enumerate(self.cloud_shadows):
+            key = f"cloud_shadows[{i}]"
+            if len(band) != 6:
+                raise ConfigError(
+                    f"{key}: {band!r}; give (t_enter [s], speed [m/s], heading_deg, length [m], "
+                    "transmission, edge [m])"
+                )
+            t_enter, speed, heading, length, transmission, edge = band
+            check_range(f"{key}.t_enter", t_enter, -1e6, 1e6)
+            check_range(f"{key}.speed", speed, 0.0, 100.0)
+            check_range(f"{key}.heading_deg", heading, -360.0, 360.0)
+            check_range(f"{key}.length", length, 0.0, 1e5, lo_open=True)
+            check_range(f"{key}.transmission", transmission, 0.0, 1.0)
+            check_range(f"{key}.edge", edge, 0.0, 1e3, lo_open=True)
 
     def direction(self, t: float = 0.0) -> np.ndarray:
         """Unit vector from the ground toward the sun at mission time ``t`` [s], world frame."""
         az = math.radians(self.azimuth_deg + self.azimuth_rate_deg_s * t)
         el = math.radians(min(max(self.elevation_deg + self.elevation_rate_deg_s * t, 1.0), 90.0))
         return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+
+    def cloud_bands(self, t: float) -> tuple[tuple[float, ...], ...]:
+        """The cloud shadows at mission time ``t`` [s].
+
+        Each is (d_x, d_y, lead [m], length [m], transmission, edge [m]): ``d`` the unit wind
+        direction and ``lead`` the leading edge's place along it, from the world origin.
+        """
+        out = []
+        for t_enter, speed, heading, length, trans, edge in self.cloud_shadows:
+            h = math.radians(heading)
+            out.append((math.cos(h), math.sin(h), speed * (t - t_enter), length, trans, edge))
+        return tuple(out)
+
+    def shade(self, points, t: float) -> np.ndarray:
+        """Factor (N,) on the direct sunlight at world ``points`` (N, 3) [m] from the cloud shadows."""
+        return cloud_shade(self.cloud_bands(t), self.direction(t), points)
 
     def transmission(self, t: float) -> float:
         """Share of the direct sunlight that reaches the ground at mission time ``t`` [s] (1: no cloud)."""

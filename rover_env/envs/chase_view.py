@@ -71,7 +71,9 @@ class ChaseView:
         t = self.sim.t
         sx, sy, sz = (float(v) for v in sun.direction(t))
         diffuse = sun.transmission(t) * self.sim.haze
-        lighting = Lighting((sx, sy, sz), ambient=0.35, diffuse=diffuse, shadows=True)
+        lighting = Lighting(
+            (sx, sy, sz), ambient=0.35, diffuse=diffuse, shadows=True, clouds=sun.cloud_bands(t)
+        )
         chase = renderer.render_pinhole(views["chase"], T_world_chase, lighting, far=60.0)
         frame = np.zeros((h, w, 3), dtype=np.uint8)
         frame[:, :left] = chase.rgb

@@ -16,6 +16,7 @@ from typing import ClassVar
 import numpy as np
 
 from perception.cameras import PinholeCamera
+from rover_env.config.scenario import cloud_shade
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -62,12 +63,18 @@ class Lighting:
         ambient: Share of the albedo seen in full shadow (sky light).
         diffuse: Sunlit share at normal incidence; lit/shadow = (ambient + diffuse cos i) / ambient.
         shadows: Compute cast shadows.
+        clouds: Cloud shadows over the ground now (:meth:`rover_env.config.scenario.SunConfig.cloud_bands`).
     """
 
     sun_direction: tuple[float, float, float]
     ambient: float = 0.25
     diffuse: float = 1.0
     shadows: bool = True
+    clouds: tuple[tuple[float, ...], ...] = ()
+
+    def cloud_shade(self, points) -> np.ndarray:
+        """Factor (N,) on the direct light at world ``points`` (N, 3) [m] from :attr:`clouds`."""
+        return cloud_shade(self.clouds, self.sun_direction, points)
 
 
 @dataclass

@@ -130,6 +130,11 @@ uniform bool u_shadows;
 uniform vec3 u_sun;
 uniform float u_ambient;
 uniform float u_diffuse;
+// cloud shadows: u = dot(a.xy, light uv) + a.z metres past the leading edge; b = (length,
+// transmission, edge)
+uniform int u_nclouds;
+uniform vec3 u_cloud_a[4];
+uniform vec3 u_cloud_b[4];
 #ifdef GROUND
 uniform bool u_look;  // the ground's albedo and contrast changed (domain randomisation)
 uniform float u_albedo;
@@ -171,7 +176,14 @@ void main() {
 #endif
     float cos_i = max(dot(normalize(v_normal), u_sun), 0.0);
     float lit = u_shadows ? texture(u_shadow, v_light) : 1.0;
-    float shade = u_ambient + u_diffuse * cos_i * lit;
+    float sky = 1.0;
+    for (int i = 0; i < u_nclouds; ++i) {
+        float u = dot(u_cloud_a[i].xy, v_light.xy) + u_cloud_a[i].z;
+        float e = u_cloud_b[i].z;
+        float cover = clamp(0.5 - u / e, 0.0, 1.0) * clamp(0.5 + (u + u_cloud_b[i].x) / e, 0.0, 1.0);
+        sky *= 1.0 - cover * (1.0 - u_cloud_b[i].y);
+    }
+    float shade = u_ambient + u_diffuse * sky * cos_i * lit;
     f_color = vec4(min(albedo.rgb * shade, vec3(1.0)), lit < 0.5 ? 1.0 : 0.0);
 #ifdef MOTION
     // the ray's velocity, (I - r r^T) p_dot / |p|, in the optical frame
@@ -548,6 +560,29 @@ def _layout(prog, vbo, skip=()) -> tuple:
         else:
             fmt.append(f"{nbytes}x")
     return (vbo, " ".join(fmt), *names)
+
+
+def _cloud_uniforms(bands, light: np.ndarray) -> tuple[tuple, bytes, bytes]:
+    """The scene program's cloud-shadow uniforms for ``bands`` under light matrix ``light``.
+
+    A band's place u [m past its leading edge] is affine in the light's (u, v) texture
+    coordinates, which are the same along a sun ray: solved from three ground points.
+    """
+    if not bands:
+        return (), b"", b""
+    a = np.zeros((4, 3), np.float32)
+    b = np.zeros((4, 3), np.float32)
+
+    def uv(x, y):
+        return (light[:2, :2] @ (x, y) + light[:2, 3]) * 0.5 + 0.5  # z = 0
+
+    for i, (dx, dy, lead, length, trans, edge) in enumerate(bands[:4]):
+        p0 = uv(dx * lead, dy * lead)
+        M = np.array([uv(dx * (lead + 1), dy * (lead + 1)) - p0, uv(dx * lead - dy, dy * lead + dx) - p0])
+        g = np.linalg.solve(M, [1.0, 0.0])  # one metre along the wind, none across it
+        a[i] = (g[0], g[1], -float(g @ p0))
+        b[i] = (length, trans, edge)
+    return tuple(bands[:4]), a.tobytes(), b.tobytes()
 
 
 def _link_arrays(links: dict) -> tuple[bytes, bytes, bytes]:
@@ -1101,6 +1136,10 @@ class GLRenderer(Renderer):
         sun = sun / np.linalg.norm(sun)
         shadows = smap is not None
         progs = (self._progs[(True, labels)], self._progs[(False, labels)])
+        diffuse = float(lighting.diffuse)
+        clouds = _cloud_uniforms(lighting.clouds, smap["light"]) if shadows else ((), b"", b"")
+        if lighting.clouds and not shadows:  # no light frame: the clouds' shade at the camera
+            diffuse *= float(lighting.cloud_shade(np.asarray(T_world_cam)[:3, 3])[0])
         if shadows:
             smap["texture"].use(1)
         view = _gl(np.linalg.inv(T_world_cam))
@@ -1110,7 +1149,11 @@ class GLRenderer(Renderer):
             _set(p, "u_shadows", shadows)
             _set(p, "u_sun", tuple(sun))
             _set(p, "u_ambient", float(lighting.ambient))
-            _set(p, "u_diffuse", float(lighting.diffuse))
+            _set(p, "u_diffuse", diffuse)
+            _set(p, "u_nclouds", len(clouds[0]))
+            if clouds[0]:
+                _set(p, "u_cloud_a", clouds[1])
+                _set(p, "u_cloud_b", clouds[2])
             _set(p, "u_proj", _gl(P))
             _set(p, "u_view", view)
         link_motion = None

@@ -11,6 +11,7 @@ share of their lit brightness. The ground near the rover is drawn at full detail
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import cv2
@@ -141,6 +142,9 @@ class TinyRenderer(Renderer):
         near-ground chunks that may be inside the view (:meth:`GroundDetail.cull`: the same
         image, at less cost).
         """
+        if lighting.clouds:  # no per-pixel light here: the cloud shadows' shade at the camera
+            shade = float(lighting.cloud_shade(np.asarray(T_world_cam)[:3, 3])[0])
+            lighting = dataclasses.replace(lighting, diffuse=lighting.diffuse * shade, clouds=())
         if cull and self.detail is not None and self.detail.view_cull is not None:
             self.detail.view_cull(view_planes(K, size, T_world_cam, near))
         view, proj = gl_view_matrix(T_world_cam), gl_projection_from_K(K, size, near, far)

@@ -114,6 +114,7 @@ class _RoverCamera(ABC):
             ambient=self.config.ambient if sim.ambient is None else sim.ambient,
             diffuse=sun.transmission(sim.t) * sim.haze,
             shadows=self.config.shadows,
+            clouds=sun.cloud_bands(sim.t),
         )
 
     def set_mount_error(self, error: np.ndarray | None) -> None:
