@@ -41,6 +41,7 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 from rover_env.config.io import ConfigError, from_dict, real_number
+from rover_env.config.textures import TEXTURE_PRESETS
 
 #: Ground textures drawn from by default (procedural presets of :mod:`rover_env.sim.textures`).
 TEXTURE_BANK: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete")
@@ -93,8 +94,6 @@ class RandomizeConfig:
                 raise ConfigError(f"randomize.{key}: ({lo:g}, {hi:g}) has its minimum above its maximum")
             if lo < lo_ok or hi > hi_ok:
                 raise ConfigError(f"randomize.{key}: ({lo:g}, {hi:g}) is outside [{lo_ok:g}, {hi_ok:g}]")
-        from rover_env.config.scenario import TEXTURE_PRESETS
-
         if not self.textures:
             raise ConfigError("randomize.textures: empty; name at least one texture preset")
         for i, name in enumerate(self.textures):

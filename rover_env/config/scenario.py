@@ -17,10 +17,9 @@ from typing import Any, Literal
 import numpy as np
 
 from rover_env.config.io import ConfigError, check_range, load_yaml_dataclass, replace
+from rover_env.config.randomize import randomize_config
 from rover_env.config.rig import SensorConfig, check_rig, imu_config, standard_rig
-
-TEXTURE_PRESETS: tuple[str, ...] = ("regolith", "sand", "gravel", "concrete", "checkerboard")
-
+from rover_env.config.textures import TEXTURE_PRESETS
 
 #: Most heightfield points a rough terrain may have (the memory budget): 1001 x 1001, e.g.
 #: 100 m x 100 m at 0.1 m or 20 m x 20 m at 0.02 m. A simulation holds about 1.3 kB a point
@@ -406,8 +405,6 @@ class ScenarioConfig:
 
     def __post_init__(self) -> None:
         check_range("duration", self.duration, 0.1, 36000.0)
-        from rover_env.config.randomize import randomize_config
-
         randomize_config(self.randomize)  # ConfigError naming the key
         if self.imu is not None:
             # validated here (ConfigError naming the key): a preset name or a mapping
