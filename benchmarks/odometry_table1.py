@@ -163,8 +163,11 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(args.terrains), figsize=(5 * len(args.terrains), 5), squeeze=False)
-    rng = None if args.randomize_light is None else np.random.default_rng(args.randomize_light)
     for ax, name in zip(axes[0], args.terrains, strict=True):
+        # each terrain its own light from the seed, whichever terrains are run
+        rng = None
+        if args.randomize_light is not None:
+            rng = np.random.default_rng([args.randomize_light, list(TERRAINS).index(name)])
         light = None if rng is None else WorldDraw.draw(RandomizeConfig(), rng, 0)
         if light is not None:
             lines.insert(

@@ -73,7 +73,7 @@ class LogRig:
     topics: dict[str, str | None]
 
 
-_SENSOR_KEYS = {"name", "kind", "rate_hz", "calibration", "topic", "mount", "gyro", "accel"}
+_SENSOR_KEYS = {"name", "kind", "rate_hz", "calibration", "topic", "mount", "gyro", "accel", "gamma", "bayer"}
 
 
 def _figures(data: Any, key: str) -> TriadFigures:
@@ -141,7 +141,8 @@ def load_rig(path: str | Path) -> LogRig:
             raise ConfigError(f"{key}.kind: {kind!r}; use pinhole, fisheye or imu")
         try:
             # a log's images are recorded: no readout window can be asked for
-            specs.append(SensorSpec(name, kind, s["rate_hz"], mount, model))
+            photometry = {k: s[k] for k in ("gamma", "bayer") if s.get(k) is not None}
+            specs.append(SensorSpec(name, kind, s["rate_hz"], mount, model, **photometry))
         except ConfigError as exc:
             raise ConfigError(f"{key}: {exc}") from None
         topic = s.get("topic")
@@ -203,6 +204,10 @@ def save_rig(
         else:
             spec.model.save(folder / f"{spec.name}.yaml")
             entry["calibration"] = f"{spec.name}.yaml"
+            if spec.gamma != 1.0:  # the camera's photometry, as its images were recorded
+                entry["gamma"] = float(spec.gamma)
+            if spec.bayer is not None:
+                entry["bayer"] = spec.bayer
         if topics and spec.name in topics:
             entry["topic"] = topics[spec.name]
         sensors.append(entry)

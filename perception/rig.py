@@ -94,7 +94,7 @@ class SensorSpec:
         bayer: A colour camera's colour-filter array when its images are demosaiced from one
             colour per pixel (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``;
             :data:`perception.photometry.CFA_PATTERNS`), or None (full colour, or unknown).
-            Texture trackers then read each pixel's own sample.
+            The fisheye kinematics then reads the treads from each pixel's own sample.
     """
 
     name: str
@@ -110,9 +110,9 @@ class SensorSpec:
         if self.kind not in SENSOR_KINDS:
             raise ConfigError(f"{self.name}.kind: {self.kind!r}; use one of {sorted(SENSOR_KINDS)}")
         gamma = real_number(f"{self.name}.gamma", self.gamma)
-        if not 0.2 <= gamma <= 5.0:
+        if not 0.0 < gamma <= 5.0:
             raise ConfigError(
-                f"{self.name}.gamma: {self.gamma!r}; give the camera's response exponent in [0.2, 5] "
+                f"{self.name}.gamma: {self.gamma!r}; give the camera's response exponent in (0, 5] "
                 "(1: linear images, 2.2: the usual output gamma)"
             )
         if self.bayer is not None and self.bayer not in CFA_PATTERNS:

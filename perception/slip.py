@@ -90,7 +90,8 @@ class SlipConfig:
         event_confirm: An event also needs a second measurement of the wheel's rate while it
             lasts: the rate that raised |s| to ``event_on`` and a newer one. A wrong tread
             alignment is a single frame's, and a wheel missed in the next frame keeps its last
-            rate, so without this one outlier and a missed frame make an event.
+            rate, so without this one outlier and a missed frame make an event. Only with an
+            ``event_hold`` above 0 (0 starts an event at once).
         event_off: |s| below which it ends.
         event_min_speed: Events hold only while the wheel's tread or ground speed reaches this
             [m/s]. Below it a ratio of ``event_on`` is a speed difference of under 0.03 m/s, the

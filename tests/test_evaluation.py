@@ -179,6 +179,11 @@ def test_a_sweep_runs_field_cameras_in_a_randomised_world(tiny_scenario, tmp_pat
     assert off[0]["energy"] != again[0]["energy"]  # another world (its friction, its sun)
     with pytest.raises(ValueError, match="randomize"):
         run_sweep([EvalJob("slip_aware", tiny_scenario, 3, randomize="sometimes")], workers=1)
+    # without the flag, the scenario's own randomize key holds
+    scenario = tmp_path / "randomized.yaml"
+    scenario.write_text(open(tiny_scenario).read() + "\nrandomize: on\n")
+    (row,) = run_sweep([EvalJob("slip_aware@ground_truth", str(scenario), 3)], workers=1)
+    assert row["randomize"] == "on"
     with pytest.raises(SystemExit):
         main(argv[:-2] + ["--out", str(tmp_path / "x"), "--randomize", "maybe"])
     assert not (tmp_path / "x").exists()

@@ -56,11 +56,15 @@ def test_draws_stay_within_their_ranges_and_fixed_ranges_fix_the_value():
         ({"albedo": (0.9,)}, "randomize.albedo"),
         ({"windiness": (0, 1)}, "windiness"),
         ("sometimes", "randomize: 'sometimes'"),
+        ({"friction": 1.0}, "randomize.friction"),
     ],
 )
 def test_a_bad_randomisation_is_a_config_error_naming_the_key(value, message):
     with pytest.raises(ConfigError, match=message):
         randomize_config(value)
+    if isinstance(value, dict) and "windiness" not in value:  # built directly, too
+        with pytest.raises(ConfigError, match=message):
+            RandomizeConfig(**value)
     with pytest.raises(ConfigError, match=message.split(":")[0].split(" ")[0]):
         dataclasses.replace(load_scenario("flat_patches"), randomize=value)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -90,6 +91,16 @@ def test_a_rig_file_round_trips_the_simulation_s_rig(recorded):
     with pytest.raises(FileExistsError, match="rig.yaml"):
         save_rig(lr.rig, rig_file.parent)
     assert {p.name: p.read_bytes() for p in rig_file.parent.iterdir()} == before
+    assert (lr.rig["fisheye"].gamma, lr.rig["fisheye"].bayer) == (1.0, None)  # ideal cameras
+    # a field camera's photometry (its output gamma and colour-filter array) is kept
+    from perception.rig import Rig, SensorSpec
+
+    specs = [
+        dataclasses.replace(s_, gamma=2.2, bayer="RGGB") if s_.kind != "imu" else s_ for s_ in lr.rig.values()
+    ]
+    again = load_rig(save_rig(Rig(specs, lr.rig.vehicle, lr.rig.steer_max_rate), rig_file.parent / "field"))
+    assert [(s_.gamma, s_.bayer) for s_ in again.rig.values()] == [(2.2, "RGGB"), (2.2, "RGGB"), (1.0, None)]
+    assert isinstance(again.rig["imu"], SensorSpec)
 
 
 def test_the_estimator_gives_on_the_log_what_it_gave_in_the_loop(recorded, tmp_path, monkeypatch):

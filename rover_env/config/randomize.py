@@ -86,7 +86,7 @@ class RandomizeConfig:
     def __post_init__(self) -> None:
         for key, (lo_ok, hi_ok) in _LIMITS.items():
             rng = getattr(self, key)
-            if len(rng) != 2:
+            if isinstance(rng, (str, bytes)) or not hasattr(rng, "__len__") or len(rng) != 2:
                 raise ConfigError(f"randomize.{key}: {rng!r}; give a range (min, max)")
             lo = real_number(f"randomize.{key}[0]", rng[0])
             hi = real_number(f"randomize.{key}[1]", rng[1])
@@ -132,7 +132,11 @@ def _draw(rng, r: tuple[float, float]) -> float:
 
 @dataclass(frozen=True)
 class WorldDraw:
-    """One episode's draw (see :class:`RandomizeConfig`); angles in radians, offsets in metres."""
+    """One episode's draw (see :class:`RandomizeConfig`).
+
+    The sun's angles are in degrees; each camera's mount error is (rotation vector [rad],
+    offset [m]) in its optical frame.
+    """
 
     sun_elevation_deg: float
     sun_azimuth_deg: float

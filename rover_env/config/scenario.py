@@ -221,7 +221,7 @@ class SunConfig:
             step). Where clouds overlap their transmissions multiply.
         cloud_shadows: Clouds' shadows that sweep over the ground with the wind: (t_enter [s],
             speed [m/s], heading_deg, length [m], transmission [0..1], edge [m]) each. The
-            shadow is a band ``length`` metres long across the wind, moving toward
+            shadow is a band ``length`` metres deep along the wind (unbounded across it), moving toward
             ``heading_deg`` (counter-clockwise from world x) at ``speed``; its leading edge
             crosses the world origin at ``t_enter``; inside it the direct sunlight is multiplied
             by ``transmission``, reached over an ``edge`` metres wide penumbra. The band lies in

@@ -499,8 +499,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
     e.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"),
                    help="estimated runs' cameras: as rendered, or through their image sensors")  # fmt: skip
-    e.add_argument("--randomize", default="off", choices=("off", "on"),
-                   help="domain randomisation: each run's world drawn from its seed")  # fmt: skip
+    e.add_argument("--randomize", default=None, choices=("off", "on"),
+                   help="domain randomisation, each run's world drawn from its seed "
+                        "(default: each scenario's randomize key)")  # fmt: skip
     e.add_argument(
         "--estimator", metavar="MODULE:FACTORY",
         help="the estimator on the estimated-observation runs: a factory called with the rig "
@@ -543,8 +544,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="camera preset (train: 160x120, 30 Hz; eval: 640x480, 60 Hz)")  # fmt: skip
     t.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"),
                    help="the cameras: as rendered, or through their image sensors")  # fmt: skip
-    t.add_argument("--randomize", default="off", choices=("off", "on"),
-                   help="domain randomisation: each episode's world drawn from its seed")  # fmt: skip
+    t.add_argument("--randomize", default=None, choices=("off", "on"),
+                   help="domain randomisation, each episode's world drawn from its seed "
+                        "(default: each scenario's randomize key)")  # fmt: skip
     t.add_argument("--residual", type=float, nargs=3, default=[0.5, 0.3, 0.3],
                    help="residual range on the drive command (speed, lam_F, lam_R)")  # fmt: skip
     t.add_argument("--base", default="traction", choices=("traction", "follower"),

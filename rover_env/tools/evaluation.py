@@ -65,8 +65,9 @@ class EvalJob:
             estimated-observation runs (:func:`load_estimator`); None: the built-in.
         camera_effects: The cameras of estimated-observation runs: ``"ideal"`` or ``"field"``
             (the environment's ``camera_effects``).
-        randomize: Domain randomisation of the world: ``"off"`` or ``"on"`` (the environment's
-            ``randomize``; the episode's seed draws the world).
+        randomize: Domain randomisation of the world: ``"off"``, ``"on"`` or None (the
+            mission's scenario says; the environment's ``randomize``). The episode's seed draws
+            the world.
     """
 
     controller: str
@@ -78,7 +79,7 @@ class EvalJob:
     rerun: bool = False
     estimator: str | None = None
     camera_effects: str = "ideal"
-    randomize: str = "off"
+    randomize: str | None = None
 
     @property
     def name(self) -> str:
@@ -131,6 +132,7 @@ def run_job(job: EvalJob) -> dict:
         randomize=job.randomize,
         **extra,
     )
+    randomized = env.unwrapped.randomize is not None
     start = time.perf_counter()
     try:
         ctrl = spec.make(env)
@@ -156,7 +158,7 @@ def run_job(job: EvalJob) -> dict:
     row["obs_source"] = source
     row["estimator"] = (job.estimator or "built-in") if source == "estimated" else "none"
     row["camera_effects"] = job.camera_effects if source == "estimated" else "none"
-    row["randomize"] = job.randomize
+    row["randomize"] = "on" if randomized else "off"
     row.update(asdict(result.metrics))
     row["wall_time"] = time.perf_counter() - start
     for k, v in (result.estimator or {}).items():
@@ -187,8 +189,8 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
         parse_controller(job.controller)
         if job.camera_effects not in ("ideal", "field"):
             raise ValueError(f"camera_effects {job.camera_effects!r}: use 'ideal' or 'field'")
-        if job.randomize not in ("off", "on"):
-            raise ValueError(f"randomize {job.randomize!r}: use 'off' or 'on'")
+        if job.randomize not in (None, "off", "on"):
+            raise ValueError(f"randomize {job.randomize!r}: use 'off', 'on' or None (the scenario's)")
         if job.preset not in PERCEPTION_PRESETS:
             raise ValueError(f"preset {job.preset!r}: use one of {sorted(PERCEPTION_PRESETS)}")
         if job.mission not in missions and job.mission not in rover_env.ENV_IDS:
@@ -315,7 +317,7 @@ def jobs_for(
     rerun: bool = False,
     estimator: str | None = None,
     camera_effects: str = "ideal",
-    randomize: str = "off",
+    randomize: str | None = None,
 ) -> list[EvalJob]:
     """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""
     jobs = []

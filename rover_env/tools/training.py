@@ -161,7 +161,7 @@ def make_env(
     reward: dict | None = None,
     base: str = "traction",
     camera_effects: str = "ideal",
-    randomize: str = "off",
+    randomize: str | None = None,
 ) -> gym.Env:
     """A training or evaluation environment: Monitor(EpisodeStats(ResidualDrive(env))).
 
@@ -175,7 +175,7 @@ def make_env(
         reward: Weights of the reward terms that differ from :class:`~rover_env.task.judge.RewardConfig`'s.
         base: The residual's base, a key of :data:`BASES` (sets the action mode).
         camera_effects: The cameras with estimated observations (``"ideal"`` or ``"field"``).
-        randomize: Domain randomisation (``"off"`` or ``"on"``).
+        randomize: Domain randomisation (``"off"``, ``"on"`` or None: the scenario's).
     """
     check_base(base)
     from stable_baselines3.common.monitor import Monitor
@@ -231,7 +231,8 @@ class TrainConfig:
         reward: Reward weights that differ from the environment's
             (:class:`~rover_env.task.judge.RewardConfig`).
         camera_effects: The cameras (``"ideal"`` or ``"field"``).
-        randomize: Domain randomisation of each episode's world (``"off"`` or ``"on"``).
+        randomize: Domain randomisation of each episode's world (``"off"``, ``"on"`` or None:
+            each scenario's ``randomize`` key).
     """
 
     algo: str = "ppo"
@@ -249,7 +250,7 @@ class TrainConfig:
     hyper: dict = field(default_factory=dict)
     reward: dict = field(default_factory=dict)
     camera_effects: str = "ideal"
-    randomize: str = "off"
+    randomize: str | None = None
 
     def __post_init__(self) -> None:
         if self.algo not in ("ppo", "sac"):
@@ -259,8 +260,8 @@ class TrainConfig:
         check_base(self.base)
         if self.camera_effects not in ("ideal", "field"):
             raise ValueError(f"camera_effects {self.camera_effects!r}: use 'ideal' or 'field'")
-        if self.randomize not in ("off", "on"):
-            raise ValueError(f"randomize {self.randomize!r}: use 'off' or 'on'")
+        if self.randomize not in (None, "off", "on"):
+            raise ValueError(f"randomize {self.randomize!r}: use 'off', 'on' or None (the scenario's)")
 
 
 PPO_DEFAULTS = dict(
