@@ -152,3 +152,20 @@ def test_the_grounds_albedo_and_contrast_scale_its_image():
         assert flat.mean() == pytest.approx(base.mean(), rel=0.02)
     finally:
         sim.close()
+
+
+def test_tinyrenderer_draws_the_drawn_albedo_on_the_near_ground():
+    """The cameras' near ground is TinyRenderer's detail chunks: they carry the ground's albedo."""
+    env = gym.make("Rover-v0", renderer="tiny", randomize={"albedo": (0.5, 0.5), "textures": ("concrete",)})
+    off = gym.make("Rover-v0", renderer="tiny", randomize={"albedo": (1.0, 1.0), "textures": ("concrete",)})
+    try:
+        means = []
+        for e in (env, off):
+            e.reset(seed=5)
+            e.step(np.zeros(3, np.float32))
+            means.append(float(e.unwrapped.pipeline.last_images["downward"].mean()))
+        print(f"downward image mean at albedo 0.5: {means[0]:.1f}, at 1: {means[1]:.1f}")
+        assert means[0] / means[1] == pytest.approx(0.5, abs=0.06)
+    finally:
+        env.close()
+        off.close()

@@ -100,7 +100,7 @@ class GroundDetail:
                 self._chunk_shapes[key] = self._chunk_shape(key)
             body = c.createMultiBody(0, -1, self._chunk_shapes[key], basePosition=[0, 0, t.base_z])
             c.changeVisualShape(
-                body, -1, textureUniqueId=t.texture_id, rgbaColor=[1, 1, 1, 1], specularColor=[0, 0, 0]
+                body, -1, textureUniqueId=t.texture_id, rgbaColor=self._tint(1.0), specularColor=[0, 0, 0]
             )
             self._shown[body] = True
             self._chunks[key] = body
@@ -195,9 +195,14 @@ class GroundDetail:
         h = slope_height(t.cfg, gx, gy)
         return t.mesh_shape(xs, ys, h, np.broadcast_to(t.plane_normal, h.shape + (3,)), t.base_z)
 
+    def _tint(self, alpha: float) -> list[float]:
+        """The ground's colour factor: its albedo (TinyRenderer caps it at 1) and ``alpha``."""
+        a = min(float(getattr(self.terrain, "albedo", 1.0)), 1.0)
+        return [a, a, a, alpha]
+
     def _show(self, body: int, on: bool) -> None:
         if self._shown.get(body, True) != on:
-            self.client.changeVisualShape(body, -1, rgbaColor=[1, 1, 1, 1.0 if on else 0.0])
+            self.client.changeVisualShape(body, -1, rgbaColor=self._tint(1.0 if on else 0.0))
             self._shown[body] = on
 
     def drop_detail(self) -> None:
