@@ -25,6 +25,7 @@ import argparse
 import time
 
 import gymnasium as gym
+from slip_accuracy import add_camera_effects
 
 import rover_env
 from controllers.pure_pursuit import PurePursuit
@@ -66,13 +67,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[101, 102])
     ap.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
     ap.add_argument("--seconds", type=float, default=40.0, help="longest drive per episode [s]")
-    ap.add_argument(
-        "--camera-effects",
-        nargs="+",
-        default=["field"],
-        choices=("ideal", "field"),
-        help="the cameras' images: 'field' (the image sensor model), 'ideal' (as rendered), or both",
-    )
+    add_camera_effects(ap)
     args = ap.parse_args(argv)
     cams = args.camera_effects
     for env_id in args.missions:

@@ -47,6 +47,17 @@ def patch_span(env_id: str, margin: float = 0.05) -> tuple[float, float]:
     return cx - half + margin, cx + half - margin
 
 
+def add_camera_effects(ap: argparse.ArgumentParser) -> None:
+    """The ``--camera-effects`` option: one or both camera models, run on the same seeds."""
+    ap.add_argument(
+        "--camera-effects",
+        nargs="+",
+        default=["field"],
+        choices=("ideal", "field"),
+        help="the cameras' images: 'field' (the image sensor model), 'ideal' (as rendered), or both",
+    )
+
+
 def drive(
     seed: int,
     preset: str,
@@ -102,13 +113,7 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--envs", nargs="+", default=list(rover_env.ENV_IDS), choices=rover_env.ENV_IDS)
     ap.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
-    ap.add_argument(
-        "--camera-effects",
-        nargs="+",
-        default=["field"],
-        choices=("ideal", "field"),
-        help="the cameras' images: 'field' (the image sensor model), 'ideal' (as rendered), or both",
-    )
+    add_camera_effects(ap)
     ap.add_argument(
         "--imu",
         default=None,

@@ -511,9 +511,9 @@ class KinematicStateEstimator:
             return None
         vis = strip.visible
         hsv = cv2.cvtColor(strip.sample(img), cv2.COLOR_RGB2HSV)
-        v, sat = hsv[..., 2].astype(np.float32), hsv[..., 1]
-        if self.gamma != 1.0:  # paint against tread is a ratio of linear levels
-            v = linear_gray(hsv[..., 2], self.gamma)
+        # paint against tread is a ratio of linear levels
+        v = linear_gray(hsv[..., 2], self.gamma) if self.gamma != 1.0 else hsv[..., 2].astype(np.float32)
+        sat = hsv[..., 1]
         # the marker is white paint on a grey tread: far brighter than the tread around it under
         # the same light, whatever that light is
         # the tread's level around each column: the median over the cells of the columns within

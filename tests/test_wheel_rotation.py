@@ -146,19 +146,24 @@ def test_the_papers_features_alone_recover_the_rotation_within_1_percent(alpha):
     assert abs(m.alpha - alpha) <= 0.01 * abs(alpha)
 
 
-def test_a_shadow_edge_fixed_in_the_image_does_not_pull_the_rotation():
-    """The body's shadow across a tread: it stays put while the tread turns under it."""
+def shadowed_front_left():
+    """The front-left wheel with the body's shadow edge across its tread's image: a straight edge
+    through the middle, slanted, light ratio 3. Returns (model, camera, frame, config, column step,
+    (480, 640) light factor)."""
     model = rover_model()
     cam = fisheye(model)
-    wheel = 0
-    frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[wheel]
+    frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[0]
     cfg = TreadConfig()
     dphi = strip_resolution(model, cam, *frame, cfg.column_px)
     probe = unwrap_tread(np.full((480, 640), 128, np.uint8), model, cam, *frame, dphi, cfg)
-    # a straight shadow edge through the middle of the tread's image, slanted, light ratio 3
     mid = probe.pixels[probe.visible].mean(axis=0)
     gx, gy = np.meshgrid(np.arange(640.0), np.arange(480.0))
-    shadow = np.where((gx - mid[0]) + 0.4 * (gy - mid[1]) > 0, 1.0, 1 / 3)
+    return model, cam, frame, cfg, dphi, np.where((gx - mid[0]) + 0.4 * (gy - mid[1]) > 0, 1.0, 1 / 3)
+
+
+def test_a_shadow_edge_fixed_in_the_image_does_not_pull_the_rotation():
+    """The body's shadow across a tread: it stays put while the tread turns under it."""
+    model, cam, frame, cfg, dphi, shadow = shadowed_front_left()
     alpha = 0.2
     prev, curr = strips_of(model, cam, frame, tread_texture(np.random.default_rng(8)), 0.4, alpha, shadow)
     assert 0.05 < (~curr.valid & curr.visible).mean() < 0.6  # the edge band is left out
@@ -320,15 +325,7 @@ def test_a_rotation_the_other_wheels_contradict_is_searched_for_near_theirs():
 def test_a_gamma_encoded_shadow_edge_is_found_once_the_tread_is_linearised():
     """A camera's output gamma shrinks a shadow's light ratio of 3 to 1.65: the edge band then misses
     the step and the rotation is pulled; linearised with the camera's gamma, it is as with linear images."""
-    model = rover_model()
-    cam = fisheye(model)
-    frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[0]
-    cfg = TreadConfig()
-    dphi = strip_resolution(model, cam, *frame, cfg.column_px)
-    probe = unwrap_tread(np.full((480, 640), 128, np.uint8), model, cam, *frame, dphi, cfg)
-    mid = probe.pixels[probe.visible].mean(axis=0)
-    gx, gy = np.meshgrid(np.arange(640.0), np.arange(480.0))
-    shadow = np.where((gx - mid[0]) + 0.4 * (gy - mid[1]) > 0, 1.0, 1 / 3)
+    model, cam, frame, cfg, dphi, shadow = shadowed_front_left()
     tex = tread_texture(np.random.default_rng(8))
     alpha, gamma = 0.2, 2.2
     lit = [np.clip(render_wheel(model, cam, frame, th, tex) * shadow, 0, 255) for th in (0.4, 0.4 + alpha)]

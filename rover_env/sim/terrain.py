@@ -227,6 +227,8 @@ class Terrain:
             path = texture_file(texture, cfg.texture_px, cfg.seed)
         else:
             raise ValueError(f"texture: {texture!r}; use one of {TEXTURE_PRESETS} or None")
+        if (Path(path), float(albedo), float(contrast)) == (self.texture_path, self.albedo, self.contrast):
+            return  # as it is (every reset without randomisation asks for the scenario's own)
         self.texture_path = Path(path)
         self.albedo, self.contrast = float(albedo), float(contrast)
         self.texture_id = self._load(self.texture_path)
