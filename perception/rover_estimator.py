@@ -151,6 +151,11 @@ class RoverEstimator:
             faster than its axle).
         odometry_gyro: With an IMU, give the odometry's 3-D fit the gyro's mean roll and pitch
             rates over each frame pair (default). False: vision only (the odometry paper's method).
+        zero_steering_at_start: The rover stands at rest with its steering centred when the time
+            line starts (a simulated mission does): the fisheye frame taken then sets the
+            steering's zero (:meth:`KinematicStateEstimator.zero_steering`), which takes out most
+            of a fisheye mount error's effect on the steering. False (default): the calibrated
+            mount is trusted (a log may start anywhere).
 
     Raises:
         ConfigError: The rig lacks a downward camera or a fisheye, or has two of a kind.
@@ -165,6 +170,7 @@ class RoverEstimator:
         odometry_overrides: dict | None = None,
         fisheye_window: tuple[float, float, float] | None = None,
         odometry_gyro: bool = True,
+        zero_steering_at_start: bool = False,
     ) -> None:
         down, fish, imu = (
             rig.one("pinhole", "RoverEstimator"),
@@ -182,6 +188,8 @@ class RoverEstimator:
         self.model = rig.vehicle
         self.fisheye_window = fisheye_window
         self.odometry_gyro = bool(odometry_gyro)
+        self.zero_steering_at_start = bool(zero_steering_at_start)
+        self._zero_at: float | None = None  # the start's time, until its fisheye frame is seen
         self._steer_max_rate = rig.steer_max_rate
         width = down.model.image_size[0]
         self.odometry = FlowOdometry(
@@ -260,6 +268,7 @@ class RoverEstimator:
         if not self._started:
             self._started = True
             self._t_pose = self._t = float(t)
+            self._zero_at = float(t) if self.zero_steering_at_start else None
             standstill = [m for m in messages if m.t < t - 1e-9]
             if standstill and self.imu is not None:
                 self._calibrate_gyro(standstill, t)
@@ -307,6 +316,10 @@ class RoverEstimator:
         )
 
     def _on_fisheye(self, img: np.ndarray, t: float) -> None:
+        if self._zero_at is not None:
+            if abs(t - self._zero_at) <= 1e-9:  # taken at rest, steering centred
+                self.kinematics.zero_steering(img)
+            self._zero_at = None
         state = self.kinematics.update(img, t)
         self.slip.add_wheels(
             t,

@@ -300,3 +300,50 @@ def test_a_lost_wheel_stays_tracked_for_track_hold_frames(monkeypatch):
     for _, span, check in fl[2 + cfg.track_hold :]:
         assert (span, check) == (cfg.acquire_span, 2)
     assert len(fl) == n
+
+
+def test_zeroing_the_steering_at_rest_takes_out_a_fisheye_mount_error(caplog):
+    """A fisheye mounted 0.3-0.45 degrees (and 2 mm) off its calibration reads up to 40 mrad of
+    steering; a frame at rest with the steering centred takes out three quarters of it over rolled,
+    sunk and steered states."""
+    import dataclasses
+
+    from perception.fisheye_kinematics import KinematicStateEstimator
+
+    nominal = rover_model()
+    cam = fisheye(nominal)
+    T = nominal.T_body_cam.copy()
+    T[:3, :3] = T[:3, :3] @ cv2.Rodrigues(np.radians([0.45, -0.4, 0.3]))[0]  # camera frame
+    T[:3, 3] += (0.002, -0.002, 0.001)
+    true = dataclasses.replace(nominal, T_body_cam=T)
+    true_cam = dataclasses.replace(cam, T_body_cam=T)
+    rng = np.random.default_rng(3)
+    rest = render_markers(true, true_cam, (0.02, -0.01), (0.155, 0.148), np.zeros(4), rng=rng)
+    states = [((0.08, -0.05), (0.16, 0.14), (0.2, -0.15)), ((-0.06, 0.03), (0.14, 0.15), (-0.2, 0.1))]
+    frames = [render_markers(true, true_cam, psi, d, nominal.wheel_angles(*lam), rng=rng) for psi, d, lam in states]
+    errors = {}
+    for zeroed in (False, True):
+        errs = []
+        for (psi, d, lam), img in zip(states, frames, strict=True):
+            est = KinematicStateEstimator(cam, nominal)
+            if zeroed:
+                offsets = est.zero_steering(rest)
+                assert offsets is not None and np.abs(offsets).max() > 0.005
+                np.testing.assert_allclose(est.steering_zero, offsets)
+            s = est.update(img, 0.0)
+            assert s.markers_found == len(MARKERS)
+            errs.append(np.abs(s.delta - nominal.wheel_angles(*lam)).max())
+        errors[zeroed] = max(errs)
+    assert errors[False] > 0.01  # the mount error shows as steering
+    assert errors[True] < min(0.3 * errors[False], 0.012)  # 40 -> 10 mrad at worst here
+    est.reset()
+    assert not est.steering_zero.any()
+    # a frame that is not of centred steering, or has no markers, sets no zero
+    steered = render_markers(true, true_cam, (0.0, 0.0), (0.15, 0.15), nominal.wheel_angles(0.3, 0.0), rng=rng)
+    with caplog.at_level("WARNING"):
+        assert est.zero_steering(steered) is None
+        assert est.zero_steering(np.zeros((480, 640, 3), np.uint8)) is None
+    assert "centred" in caplog.text and "markers found" in caplog.text
+    assert not est.steering_zero.any()
+    with pytest.raises(ValueError, match="uint8"):
+        est.zero_steering(np.zeros((480, 640), np.float32))

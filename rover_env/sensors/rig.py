@@ -212,7 +212,10 @@ def builtin_estimator(
     window = preset.fisheye_window if fisheye_window == "preset" else fisheye_window
 
     def factory(rig: Rig) -> RoverEstimator:
-        return RoverEstimator(rig, odometry, kinematics, slip, overrides, window, odometry_gyro)
+        # a simulated mission starts at rest, steering centred: the fisheye's first frame zeroes it
+        return RoverEstimator(
+            rig, odometry, kinematics, slip, overrides, window, odometry_gyro, zero_steering_at_start=True
+        )
 
     factory.__qualname__ = f"builtin_estimator({preset.name!r})"
     return factory
