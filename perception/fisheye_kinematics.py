@@ -263,7 +263,9 @@ class KinematicStateEstimator:
         img = np.asarray(image)
         w, h = self.camera.image_size
         if not (img.dtype == np.uint8 and img.ndim == 3 and img.shape[:2] == (h, w) and img.shape[2] == 3):
-            raise ValueError(f"image: {img.dtype} {img.shape}; give the fisheye's ({h}, {w}, 3) uint8 RGB frame")
+            raise ValueError(
+                f"image: {img.dtype} {img.shape}; give the fisheye's ({h}, {w}, 3) uint8 RGB frame"
+            )
         m = self.model
         rest = (np.zeros(2), np.full(2, m.nominal_depth))
         predicted, offsets = marker_projection(m, self.camera, *rest, np.zeros(4))
@@ -273,7 +275,7 @@ class KinematicStateEstimator:
             m, self.camera, {k: cent[j] for k, j in found.items()}, *rest, self.calibration, offsets=offsets
         )
         if not (np.all(np.isfinite(meas.delta)) and np.all(np.isfinite(meas.lam))):
-            log.warning("zero_steering: %d of %d markers found; the steering keeps no offset", len(found), len(MARKERS))
+            log.warning("zero_steering: %d of %d markers found; the steering keeps no offset", len(found), 8)
             return None
         worst = float(np.abs(meas.delta).max())
         if worst > self.config.max_steering_zero:

@@ -320,11 +320,11 @@ def test_zeroing_the_steering_at_rest_takes_out_a_fisheye_mount_error(caplog):
     rng = np.random.default_rng(3)
     rest = render_markers(true, true_cam, (0.02, -0.01), (0.155, 0.148), np.zeros(4), rng=rng)
     states = [((0.08, -0.05), (0.16, 0.14), (0.2, -0.15)), ((-0.06, 0.03), (0.14, 0.15), (-0.2, 0.1))]
-    frames = [render_markers(true, true_cam, psi, d, nominal.wheel_angles(*lam), rng=rng) for psi, d, lam in states]
+    frames = [render_markers(true, true_cam, p, d, true.wheel_angles(*lam), rng=rng) for p, d, lam in states]
     errors = {}
     for zeroed in (False, True):
         errs = []
-        for (psi, d, lam), img in zip(states, frames, strict=True):
+        for (_, _, lam), img in zip(states, frames, strict=True):
             est = KinematicStateEstimator(cam, nominal)
             if zeroed:
                 offsets = est.zero_steering(rest)
@@ -339,7 +339,7 @@ def test_zeroing_the_steering_at_rest_takes_out_a_fisheye_mount_error(caplog):
     est.reset()
     assert not est.steering_zero.any()
     # a frame that is not of centred steering, or has no markers, sets no zero
-    steered = render_markers(true, true_cam, (0.0, 0.0), (0.15, 0.15), nominal.wheel_angles(0.3, 0.0), rng=rng)
+    steered = render_markers(true, true_cam, (0, 0), (0.15, 0.15), nominal.wheel_angles(0.3, 0), rng=rng)
     with caplog.at_level("WARNING"):
         assert est.zero_steering(steered) is None
         assert est.zero_steering(np.zeros((480, 640, 3), np.uint8)) is None
