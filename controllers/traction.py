@@ -15,7 +15,10 @@ estimated ground speed v (the body twist transported to the wheel, along its hea
 An integral on the estimated slip's error scales each bound (in log space) and removes the bias
 of the ground-speed estimate; it acts only while the bound is active. While the odometry's
 quality is below ``min_quality`` the ground speed is not trusted: the wheels get the nominal
-commands, and the follower's speed schedule slows the rover down.
+commands, and the follower's speed schedule slows the rover down. Before the first trusted
+estimate of an episode the rover is at rest (every episode starts so), and its ground speed is
+taken as zero: the wheels start within ``min_slip_speed``, so that on loose soil they do not
+spin and dig in while the odometry has not yet seen a frame pair.
 """
 
 from __future__ import annotations
@@ -117,6 +120,7 @@ class SlipAwareController:
         self.follower.reset()
         self.correction = np.zeros(4)  # log-scale of each wheel's bound
         self.limited = np.zeros(4, dtype=bool)  # which wheels the bound held back last step
+        self._moving = False  # a trusted ground speed was seen since the reset
 
     def wheel_commands(self, obs: np.ndarray) -> tuple[np.ndarray, float]:
         """(tread-speed commands (4,) [m/s], axle steering lambda [rad]) for ``obs``."""
@@ -139,10 +143,15 @@ class SlipAwareController:
         obs = np.asarray(obs, dtype=np.float64)
         nominal = g.wheel_speeds(speed, lam_f, lam_r)
         self.limited[:] = False
-        if obs[self._i_quality] < c.min_quality:
+        trusted = bool(obs[self._i_quality] >= c.min_quality)
+        self._moving |= trusted
+        if not self._moving:  # at rest since the start: no ground speed yet
+            v_long = np.zeros(4)
+        elif not trusted:
             return nominal
-        delta = g.ackermann_angles(*obs[self._i_steer])
-        v_long, _ = wheel_ground_velocity(obs[self._i_twist], self._wheel_xy, delta)
+        else:
+            delta = g.ackermann_angles(*obs[self._i_steer])
+            v_long, _ = wheel_ground_velocity(obs[self._i_twist], self._wheel_xy, delta)
         sgn = np.sign(nominal)
         ground = sgn * v_long  # ground speed in the commanded direction
         scale = np.exp(self.correction)

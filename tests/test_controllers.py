@@ -124,6 +124,28 @@ def unaware_and_aware(env_id, seconds, **make):
     return runs
 
 
+def test_traction_control_starts_within_min_slip_speed_until_the_first_trusted_estimate():
+    # an episode starts at rest: before the odometry has a frame pair the wheels may not spin up
+    # (on loose soil a spinning start digs in and the rover slides off), afterwards a poor
+    # estimate leaves the nominal commands (the follower slows the rover instead)
+    ctrl = SlipAwareController()
+    c = ctrl.cfg
+    fields = list(OBS_FIELDS)
+    obs = np.zeros(len(fields))
+    nominal = ctrl.geometry.wheel_speeds(1.0, 0.1, -0.1)
+    for _ in range(3):
+        cmd = ctrl.limit(obs, 1.0, 0.1, -0.1)
+        assert np.all(cmd > 0) and np.all(cmd <= c.min_slip_speed + 1e-12)
+    obs[fields.index("odometry_quality")] = 1.0
+    obs[fields.index("v_x")] = 0.5
+    cmd = ctrl.limit(obs, 1.0, 0.1, -0.1)
+    assert np.all(cmd <= 0.5 * 1.05 / (1 - c.slip_setpoint)) and np.all(cmd > 0.5)
+    obs[fields.index("odometry_quality")] = 0.0
+    np.testing.assert_allclose(ctrl.limit(obs, 1.0, 0.1, -0.1), nominal)
+    ctrl.reset()
+    assert np.all(ctrl.limit(obs, 1.0, 0.1, -0.1) <= c.min_slip_speed + 1e-12)
+
+
 def test_traction_control_holds_the_slip_set_point_where_the_slip_unaware_follower_spins():
     runs = unaware_and_aware("Rover-v0", 25.0, scenario=slope_on_sand(), obs_source="ground_truth")
     _, vx_u, slip_u, energy_u, _ = runs["unaware"]

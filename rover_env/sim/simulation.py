@@ -59,7 +59,8 @@ class RoverSim:
         scenario: Terrain, friction map and sun (the course is the task's business).
         geometry: Rover geometry.
         physics_hz: Physics rate [Hz].
-        settle_time: Physics time spent at reset letting the suspension settle [s].
+        settle_time: Physics time spent at reset letting the suspension settle [s]: the rover
+            stands this long before every mission (an IMU calibrates its gyro meanwhile).
         solver_iterations: Constraint-solver iterations per physics step. Cost grows with it
             (contacts dominate a step); motor accuracy under load improves as its square: a
             braked rover on an 8 deg slope creeps 19 mm in 5 s at 10, 4 mm at 20 (see the tests).
@@ -78,7 +79,7 @@ class RoverSim:
         scenario: ScenarioConfig,
         geometry: RoverGeometry | None = None,
         physics_hz: float = 240.0,
-        settle_time: float = 0.5,
+        settle_time: float = 2.0,
         solver_iterations: int = 10,
         renderer: RendererName = "auto",
     ) -> None:
