@@ -105,8 +105,10 @@ def test_ideal_imu_at_rest_reads_gravity_and_the_mems_unit_its_bias():
     sim, imu = settled_sim(ImuConfig.preset("ideal"), 0)
     try:
         pre = [m.t for m in sim.take_messages() if m.sensor == "imu"]
-        # sampled while settling (0.5 s before t = 0), then at t = 0
-        assert len(pre) == 120 and pre[0] == pytest.approx(-119 / 240) and pre[-1] == 0.0
+        # sampled while settling (2 s before t = 0), then at t = 0
+        n = round(sim.settle_time * 240)
+        assert sim.settle_time == 2.0
+        assert len(pre) == n and pre[0] == pytest.approx(-(n - 1) / 240) and pre[-1] == 0.0
         sim.rover.command(np.zeros(4), 0.0, 0.0)
         sim.step(2.0)
         s = imu_samples(sim)
