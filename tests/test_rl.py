@@ -12,7 +12,14 @@ pytest.importorskip("stable_baselines3")
 from controllers import PathFollower, SlipAwareController  # noqa: E402
 from controllers.rl import PolicyController, policy_action_mode  # noqa: E402
 from rover_env.tools.evaluation import EvalJob, run_sweep  # noqa: E402
-from rover_env.tools.training import MissionCycle, ResidualDrive, TrainConfig, make_env, train  # noqa: E402
+from rover_env.tools.training import (  # noqa: E402
+    EpisodeSeeds,
+    MissionCycle,
+    ResidualDrive,
+    TrainConfig,
+    make_env,
+    train,
+)
 
 
 def test_residual_drive_adds_the_scaled_residual_to_the_follower():
@@ -92,6 +99,43 @@ def test_mission_cycle_runs_each_mission_in_turn():
         env.close()
 
 
+def test_episode_seeds_give_every_episode_a_known_seed_and_world():
+    env = make_env("Rover-v0", obs_source="ground_truth", randomize="on", episode_seeds=(5, 3))
+    plain = gym.make("Rover-v0", obs_source="ground_truth", randomize="on")
+    try:
+        worlds = [env.reset(seed=123)[1]["world"] for _ in range(2)]  # the given seed is overridden
+        assert worlds[0] != worlds[1]
+        for seed, world in zip((5, 8), worlds, strict=True):
+            assert plain.reset(seed=seed)[1]["world"] == world
+        assert isinstance(env.env, EpisodeSeeds) and env.env.episodes == 2
+    finally:
+        env.close()
+        plain.close()
+
+    class Two(gym.Env):  # ends after two steps
+        observation_space = gym.spaces.Box(-1.0, 1.0, (1,))
+        action_space = gym.spaces.Box(-1.0, 1.0, (1,))
+
+        def reset(self, *, seed=None, options=None):
+            self.k, self.seed_given = 0, seed
+            return np.zeros(1, np.float32), {}
+
+        def step(self, action):
+            self.k += 1
+            return np.zeros(1, np.float32), 0.0, self.k == 2, False, {}
+
+    wrapped = EpisodeSeeds(Two(), first=7, stride=2)
+    for seed in (7, 9):
+        wrapped.reset()
+        assert wrapped.unwrapped.seed_given == seed
+        assert "episode_seed" not in wrapped.step(np.zeros(1))[4]
+        assert wrapped.step(np.zeros(1))[4]["episode_seed"]["seed"] == seed
+    with pytest.raises(ValueError, match="stride"):
+        EpisodeSeeds(Two(), first=0, stride=0)
+    with pytest.raises(ValueError, match="episode_seeds"):
+        TrainConfig(episode_seeds=-1)
+
+
 def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, tiny_scenario, caplog):
     cfg = TrainConfig(
         missions=(tiny_scenario,),
@@ -107,6 +151,10 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
     assert meta["algo"] == "ppo" and meta["residual"] == [0.5, 0.3, 0.3]
     assert meta["base"] == "traction" and policy_action_mode(out) == "wheels"
     assert (out / "tb").is_dir()
+    # episodes.csv: every finished episode's mission and seed, from episode_seeds on
+    rows = (out / "episodes.csv").read_text().splitlines()
+    assert rows[0].startswith("step,mission,seed,success")
+    assert [int(r.split(",")[2]) for r in rows[1:]] == list(range(10_000, 10_000 + len(rows) - 1))
     env = gym.make("Rover-v0", scenario=tiny_scenario, obs_source="ground_truth", action_mode="wheels")
     try:
         ctrl = PolicyController(out, env)

@@ -262,8 +262,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
         reward=dict(args.reward),
         camera_effects=args.camera_effects,
         randomize=args.randomize,
+        episode_seeds=args.episode_seeds,
     )
-    _prepare_out(args.out, ("policy.zip", "policy.json", "obs_stats.npz", "checkpoints"), args.overwrite)
+    outputs = ("policy.zip", "policy.json", "obs_stats.npz", "checkpoints", "episodes.csv")
+    _prepare_out(args.out, outputs, args.overwrite)
     start = time.perf_counter()
     sys.stderr.write(
         f"training {args.algo} for {args.steps} steps on {args.envs} environments; logs: {args.out}/tb\n"
@@ -558,6 +560,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--reward", nargs="+", type=_weight, default=[], metavar="TERM=WEIGHT",
                    help="reward weights unlike the environment's (RewardConfig), e.g. slip=5")  # fmt: skip
     t.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="training seed (0 to 2^32 - 1)")
+    t.add_argument("--episode-seeds", type=_int_in(0, 2**62), default=10_000,
+                   help="the first episode's seed: episode k of process i has episode_seeds + k envs + i "
+                        "(episodes.csv lists them)")  # fmt: skip
     t.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     t.set_defaults(func=_cmd_train)
     b = sub.add_parser("bench", formatter_class=fmt, help="simulation speed benchmarks")

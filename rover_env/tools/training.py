@@ -104,6 +104,56 @@ class EpisodeStats(gym.Wrapper):
         return obs, reward, term, trunc, info
 
 
+def _mission_id(env: gym.Env) -> str:
+    """The registered id (else the scenario's name) of the running episode's environment."""
+    inner = env.current if isinstance(env, MissionCycle) else env
+    base = inner.unwrapped
+    spec = getattr(base, "spec", None)
+    if spec is not None:
+        return spec.id
+    scenario = getattr(base, "scenario", None)
+    return scenario.name if scenario is not None else type(base).__name__
+
+
+class EpisodeSeeds(gym.Wrapper):
+    """Seeds every episode from a fixed sequence: ``first``, ``first + stride``, ...
+
+    A training run's episodes then have known seeds, so its worlds (with randomisation, drawn
+    from the seed) can be driven again (``rover eval --seeds``). An explicit ``reset(seed=...)``
+    is overridden. At an episode's end, ``info["episode_seed"]`` holds the mission's id and the
+    seed.
+
+    Args:
+        env: The environment (or a :class:`MissionCycle`).
+        first: The first episode's seed.
+        stride: Between consecutive episodes' seeds (the number of processes, so that theirs
+            interleave and never meet).
+    """
+
+    def __init__(self, env: gym.Env, first: int, stride: int = 1) -> None:
+        super().__init__(env)
+        if first < 0 or stride < 1:
+            raise ValueError(f"EpisodeSeeds: first={first!r} must be >= 0 and stride={stride!r} >= 1")
+        self.first, self.stride = int(first), int(stride)
+        self.episodes = 0  # episodes reset so far
+        self._current: dict | None = None
+
+    def reset(self, *, seed=None, options=None):
+        """Reset with the next seed of the sequence (``seed`` is ignored)."""
+        s = self.first + self.stride * self.episodes
+        self.episodes += 1
+        obs, info = self.env.reset(seed=s, options=options)
+        self._current = {"mission": _mission_id(self.env), "seed": s}
+        return obs, info
+
+    def step(self, action):
+        """Step; at the episode's end add ``info["episode_seed"]``."""
+        obs, reward, term, trunc, info = self.env.step(action)
+        if (term or trunc) and self._current is not None:
+            info["episode_seed"] = dict(self._current)
+        return obs, reward, term, trunc, info
+
+
 class MissionCycle(gym.Env):
     """Several environments behind one: each reset moves on to the next (same spaces).
 
@@ -162,6 +212,7 @@ def make_env(
     base: str = "traction",
     camera_effects: str = "ideal",
     randomize: str | None = None,
+    episode_seeds: tuple[int, int] | None = None,
 ) -> gym.Env:
     """A training or evaluation environment: Monitor(EpisodeStats(ResidualDrive(env))).
 
@@ -176,6 +227,8 @@ def make_env(
         base: The residual's base, a key of :data:`BASES` (sets the action mode).
         camera_effects: The cameras with estimated observations (``"ideal"`` or ``"field"``).
         randomize: Domain randomisation (``"off"``, ``"on"`` or None: the scenario's).
+        episode_seeds: (first, stride): seed the episodes first, first + stride, ...
+            (:class:`EpisodeSeeds`); None: as ``reset`` is called.
     """
     check_base(base)
     from stable_baselines3.common.monitor import Monitor
@@ -203,6 +256,8 @@ def make_env(
 
     names = [missions] if isinstance(missions, str) else list(missions)
     env = one(names[0])() if len(names) == 1 else MissionCycle([one(m) for m in names])
+    if episode_seeds is not None:
+        env = EpisodeSeeds(env, *episode_seeds)
     env = Monitor(env, info_keywords=())
     if seed is not None:
         env.action_space.seed(seed)
@@ -231,6 +286,10 @@ class TrainConfig:
         reward: Reward weights that differ from the environment's
             (:class:`~rover_env.task.judge.RewardConfig`).
         camera_effects: The cameras (``"ideal"`` or ``"field"``).
+        episode_seeds: Episode k (0, 1, ...) of environment process i is seeded
+            ``episode_seeds + k * n_envs + i`` (:class:`EpisodeSeeds`): a run's worlds are known
+            (``episodes.csv`` lists them) and lie apart from the comparison's seeds (0-999) and
+            the evaluation's (``seed + 1000`` on).
         randomize: Domain randomisation of each episode's world (``"off"``, ``"on"`` or None:
             each scenario's ``randomize`` key).
     """
@@ -251,8 +310,11 @@ class TrainConfig:
     reward: dict = field(default_factory=dict)
     camera_effects: str = "ideal"
     randomize: str | None = None
+    episode_seeds: int = 10_000
 
     def __post_init__(self) -> None:
+        if self.episode_seeds < 0:
+            raise ValueError(f"episode_seeds {self.episode_seeds!r} must be >= 0")
         if self.algo not in ("ppo", "sac"):
             raise ValueError(f"algo {self.algo!r}: use 'ppo' or 'sac'")
         if self.total_steps < 1 or self.n_envs < 1:
@@ -327,6 +389,38 @@ def _slip_callback():
     return SlipMetrics()
 
 
+#: The episodes of a training run: one row per finished episode (mission, seed, success, ...).
+EPISODES_FILE = "episodes.csv"
+
+
+def _episodes_callback(path: Path):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class EpisodeLog(BaseCallback):
+        """Writes each finished episode's mission, seed and statistics to ``path`` (CSV)."""
+
+        def _on_training_start(self) -> None:
+            self._file = path.open("w", encoding="utf-8")
+            self._file.write("step,mission,seed,success,time_in_slip,mean_abs_slip,energy,progress\n")
+
+        def _on_step(self) -> bool:
+            for info in self.locals.get("infos", []):
+                world, stats = info.get("episode_seed"), info.get("episode_stats")
+                if world and stats:
+                    self._file.write(
+                        f"{self.num_timesteps},{world['mission']},{world['seed']},{int(stats['success'])},"
+                        f"{stats['time_in_slip']:.4g},{stats['mean_abs_slip']:.4g},{stats['energy']:.4g},"
+                        f"{stats['progress']:.4g}\n"
+                    )
+                    self._file.flush()
+            return True
+
+        def _on_training_end(self) -> None:
+            self._file.close()
+
+    return EpisodeLog()
+
+
 def _progress_callback(total: int):
     import sys
     import time
@@ -388,7 +482,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     missions = list(cfg.missions)
 
-    def factory(names, seed: int):
+    def factory(names, seed: int, episode_seeds=None):
         return lambda: make_env(
             names,
             cfg.obs_source,
@@ -399,11 +493,16 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
             cfg.base,
             cfg.camera_effects,
             cfg.randomize,
+            episode_seeds,
         )
 
     # every process cycles through all missions, each from its own starting point
     fns = [
-        factory(missions[i % len(missions) :] + missions[: i % len(missions)], cfg.seed + i)
+        factory(
+            missions[i % len(missions) :] + missions[: i % len(missions)],
+            cfg.seed + i,
+            (cfg.episode_seeds + i, cfg.n_envs),
+        )
         for i in range(cfg.n_envs)
     ]
     raw = SubprocVecEnv(fns, start_method="spawn") if cfg.n_envs > 1 else DummyVecEnv(fns)
@@ -424,6 +523,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
         [_progress_callback(cfg.total_steps)] * progress
         + [
             _slip_callback(),
+            _episodes_callback(out / EPISODES_FILE),
             CheckpointCallback(
                 max(cfg.checkpoint_every // per_env, 1), str(out / "checkpoints"), save_vecnormalize=True
             ),
