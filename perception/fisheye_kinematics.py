@@ -275,7 +275,11 @@ class KinematicStateEstimator:
             m, self.camera, {k: cent[j] for k, j in found.items()}, *rest, self.calibration, offsets=offsets
         )
         if not (np.all(np.isfinite(meas.delta)) and np.all(np.isfinite(meas.lam))):
-            log.warning("zero_steering: %d of %d markers found; the steering keeps no offset", len(found), 8)
+            log.warning(
+                "zero_steering: %d of %d markers found; the steering keeps no offset",
+                len(found),
+                len(MARKERS),
+            )
             return None
         worst = float(np.abs(meas.delta).max())
         if worst > self.config.max_steering_zero:
