@@ -262,7 +262,7 @@ class KinematicStateEstimator:
         """
         img = np.asarray(image)
         w, h = self.camera.image_size
-        if not (img.dtype == np.uint8 and img.ndim == 3 and img.shape[:2] == (h, w) and img.shape[2] == 3):
+        if not self._usable(img):
             raise ValueError(
                 f"image: {img.dtype} {img.shape}; give the fisheye's ({h}, {w}, 3) uint8 RGB frame"
             )
@@ -294,6 +294,11 @@ class KinematicStateEstimator:
         self._lam_zero = meas.lam.copy()
         self._geometry = None
         return self._delta_zero.copy()
+
+    def _usable(self, img: np.ndarray) -> bool:
+        """Whether ``img`` is a uint8 RGB frame at the fisheye's resolution."""
+        w, h = self.camera.image_size
+        return img.dtype == np.uint8 and img.ndim == 3 and img.shape[:2] == (h, w) and img.shape[2] == 3
 
     def _marker_geometry(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
         """(predicted marker pixels, centroid offsets) at the last state.
@@ -331,7 +336,7 @@ class KinematicStateEstimator:
             )
         img = np.asarray(image)
         w, h = self.camera.image_size
-        usable = img.dtype == np.uint8 and img.ndim == 3 and img.shape[:2] == (h, w) and img.shape[2] == 3
+        usable = self._usable(img)
         dt = t - prev.t if math.isfinite(prev.t) else math.nan
         if not usable:
             return self._carry(t, dt)
