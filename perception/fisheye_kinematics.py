@@ -144,6 +144,9 @@ class KinematicState:
         valid: Degree of freedom (``DOF_NAMES``) -> measured in this frame.
         markers_found: Magenta markers identified.
         corrected: Wheels whose rotation the correction marker reset in this frame.
+        theta_dot_std: Standard deviation of each wheel rate measured in this frame [rad/s]
+            (:meth:`~perception.wheel_rotation.RotationMeasurement.std` over the frame
+            interval; inf where not measured).
     """
 
     t: float
@@ -156,6 +159,7 @@ class KinematicState:
     valid: dict[str, bool]
     markers_found: int = 0
     corrected: tuple[str, ...] = ()
+    theta_dot_std: np.ndarray = field(default_factory=lambda: np.full(4, np.inf))
 
     @property
     def quality(self) -> float:
@@ -379,6 +383,7 @@ class KinematicStateEstimator:
             if self.gamma != 1.0:
                 gray = linear_gray(gray, self.gamma)
         theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
+        rate_std = np.full(4, np.inf)
         corrected = []
         curr_frames = self.model.wheel_frames(psi, depth, delta)
         strips = unwrap_treads(
@@ -435,6 +440,7 @@ class KinematicStateEstimator:
                     self._measured[k] = True
                     theta[k] += rot.alpha
                     theta_dot[k] = rot.alpha / dt
+                    rate_std[k] = rot.std(self._dphi, cfg.tread) / dt
                     self._missed[k] = 0
                 else:
                     self._missed[k] += 1
@@ -469,7 +475,7 @@ class KinematicStateEstimator:
                 corrected.append(wheel)
         self._strips = strips
         self._state = KinematicState(
-            t, psi, depth, lam, delta, theta, theta_dot, valid, len(found), tuple(corrected)
+            t, psi, depth, lam, delta, theta, theta_dot, valid, len(found), tuple(corrected), rate_std
         )
         return self._state
 

@@ -329,6 +329,7 @@ class RoverEstimator:
             self.fish.period,
             [state.valid[f"theta_{w}"] for w in WHEELS],
             state.delta,
+            state.theta_dot_std,
         )
         t0 = time.perf_counter()
         self._request = (t + self.fish.period, self._window_parts())

@@ -379,7 +379,7 @@ class SlipEstimator:
         self._queue(t - 0.5 * max(dt, 0.0), np.arange(3), z, R, H)
         self._t_odom = max(self._t_odom, t)
 
-    def add_wheels(self, t: float, wheel_rate, dt: float, valid=None, steering=None) -> None:
+    def add_wheels(self, t: float, wheel_rate, dt: float, valid=None, steering=None, std=None) -> None:
         """Wheel-rate measurements (and steering) from the fisheye.
 
         Args:
@@ -388,6 +388,10 @@ class SlipEstimator:
             dt: The frame interval [s]; the rates apply at t - dt/2.
             valid: (4,) which rates were measured (default: the finite ones).
             steering: (4,) wheel steering angles [rad], positive left; kept until the next.
+            std: (4,) each rate's own standard deviation [rad/s] (inf or NaN: none), added in
+                quadrature to ``rate_std`` (the fisheye's
+                :attr:`~perception.fisheye_kinematics.KinematicState.theta_dot_std`: a wheel
+                seen obliquely, on few cells, is measured far less well).
         """
         z = np.asarray(wheel_rate, dtype=np.float64).reshape(-1)
         if z.shape != (N_WHEELS,):
@@ -405,7 +409,14 @@ class SlipEstimator:
         if not ok.any():
             return
         floor, share = self.config.rate_std
-        R = np.diag((floor + share * np.abs(z[ok])) ** 2)
+        var = (floor + share * np.abs(z[ok])) ** 2
+        if std is not None:
+            sd = np.asarray(std, dtype=np.float64).reshape(-1)
+            if sd.shape != (N_WHEELS,):
+                raise ValueError(f"std: shape {sd.shape}; expected (4,) rate deviations [rad/s]")
+            own = sd[ok]
+            var = var + np.where(np.isfinite(own) & (own >= 0), own, 0.0) ** 2
+        R = np.diag(var)
         self._queue(t - 0.5 * max(dt, 0.0), 3 + np.flatnonzero(ok), z[ok], R)
         self._t_rate[ok] = np.maximum(self._t_rate[ok], t)
 
@@ -502,7 +513,14 @@ class SlipEstimator:
             self.add_odometry(t_o, odometry.twist, odometry.dt, odometry.quality)
         if kinematics is not None:
             valid = [kinematics.valid.get(f"theta_{w}", False) for w in WHEELS]
-            self.add_wheels(kinematics.t, kinematics.theta_dot, fisheye_dt or 0.0, valid, kinematics.delta)
+            self.add_wheels(
+                kinematics.t,
+                kinematics.theta_dot,
+                fisheye_dt or 0.0,
+                valid,
+                kinematics.delta,
+                getattr(kinematics, "theta_dot_std", None),
+            )
         return self.estimate(t)
 
     # ------------------------------------------------------------------ filter

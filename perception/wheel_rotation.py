@@ -53,6 +53,22 @@ class TreadConfig:
             treads (light ratio about 3) and not the tread's own texture; without the band, a
             tenth of the frames of a drive with a low sun lose a wheel.
         min_level: Band-pass: the texture is divided by the local grey level, at least this.
+        boundary: Cells (columns, rows) left out along the edge of the visible tread, where a
+            cell's bilinear sample and the fine blur reach past the silhouette, an occluding part
+            or the tread's edge into pixels that do not turn with the wheel. On two field-camera
+            drives of the loose slope (train preset, 320x240, first 20 s), with ``clip``, the
+            wheel rates' error fell from 0.16 to 0.135 rad/s (MAE) and the share of valid
+            rotations rose from 0.94 to 0.97; the wheels seen obliquely in the turns gained most.
+        clip: The band-passed texture is clipped at this many of its RMS (0: off), so that a
+            few bright specks (a marker's edge, a glint) do not outweigh the tread's speckle in
+            the correlation.
+        noise_cells: Scale of a rotation's standard deviation (:meth:`RotationMeasurement.std`):
+            at zero correlation, one column step over this many overlapping cells. Fitted on
+            4,652 rotations of two loose-slope drives with field cameras (train preset, 0.5-9
+            rad/s, correlations 0.45-0.98 on 150-1,300 cells), where the observed RMS error was
+            0.84-1.3 times the model's in every bin of correlation and overlap with 50 or more
+            samples; the error scales with 1 / overlap rather than 1 / sqrt(overlap), as a wheel
+            seen obliquely shows fewer cells and each of them less of the texture.
         min_cells: Fewest overlapping valid cells for a shift to count.
         min_overlap: Fewest overlapping valid cells, as a share of the smaller strip's.
         min_ncc: Smallest correlation of the alignment for a valid rotation, when the tracked
@@ -110,6 +126,9 @@ class TreadConfig:
     coarse: float = 0.011
     min_step: float = 45.0
     min_level: float = 8.0
+    boundary: tuple[int, int] = (1, 1)
+    clip: float = 2.5
+    noise_cells: float = 375.0
     min_cells: int = 150
     min_overlap: float = 0.25
     min_ncc: float = 0.6
@@ -426,18 +445,30 @@ def unwrap_treads(
         vis[1 : rows + 1, x0 : x0 + c1 - c0] = visible[k, :, c0:c1]
         maps[1 : rows + 1, x0 : x0 + c1 - c0] = grid[k, :, c0:c1]
     raw = cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR).astype(np.float32)
-    if shadow_robust:
-        tex, band = _band_pass(raw, vis, cell, cfg)
-        valid = vis & ~band
+    if any(cfg.boundary):
+        # cells whose samples reach past the visible tread (the empty rows around the strips
+        # count as its edge)
+        kernel = np.ones((2 * cfg.boundary[1] + 1, 2 * cfg.boundary[0] + 1), np.uint8)
+        core = cv2.erode(vis.view(np.uint8), kernel, borderValue=0).view(bool)
+        raw = np.where(core, raw, np.float32(0.0))  # the band-pass takes the image as 0 off its mask
     else:
-        valid = vis
+        core = vis
+    if shadow_robust:
+        tex, band = _band_pass(raw, core, cell, cfg)
+        valid = core & ~band
+    else:
+        valid = core
         tex = raw
     tex = np.where(valid, tex, np.float32(0.0))
     for x0, (k, c0, c1) in zip(starts, keep, strict=True):
         blk = np.s_[1 : rows + 1, x0 : x0 + c1 - c0]
         t_k = tex[blk]
-        if not shadow_robust:
-            t_k = np.where(valid[blk], t_k - np.float32(t_k[valid[blk]].mean()), np.float32(0.0))
+        v_k = valid[blk]
+        if not shadow_robust and v_k.any():
+            t_k = np.where(v_k, t_k - np.float32(t_k[v_k].mean()), np.float32(0.0))
+        if cfg.clip > 0 and v_k.any():
+            lim = np.float32(cfg.clip * math.sqrt(float(np.mean(np.square(t_k[v_k], dtype=np.float64)))))
+            t_k = np.clip(t_k, -lim, lim)
         strips[k] = TreadStrip(int(k0[k]) + c0, dphi, y, maps[blk], vis[blk], valid[blk], t_k)
     return strips
 
@@ -667,6 +698,7 @@ class RotationMeasurement:
         n_inliers: Features in the largest consistent set.
         valid: Whether alpha can be trusted.
         ncc: Correlation of the alignment (NaN if none).
+        overlap: Cells the alignment compared (0 if none).
     """
 
     alpha: float
@@ -675,6 +707,19 @@ class RotationMeasurement:
     n_inliers: int
     valid: bool
     ncc: float = math.nan
+    overlap: int = 0
+
+    def std(self, dphi: float, cfg: TreadConfig) -> float:
+        """Standard deviation of ``alpha`` [rad] (inf if not valid), from the alignment's quality.
+
+        ``dphi * sqrt(1 - ncc^2) * cfg.noise_cells / overlap`` (``dphi`` the strips' column step
+        [rad]): a correlation peak is as sharp as the texture, and moves with the part of the
+        strips that does not match.
+        """
+        if not (self.valid and self.overlap > 0 and math.isfinite(self.ncc)):
+            return math.inf
+        r = min(max(self.ncc, 0.0), 1.0)
+        return dphi * math.sqrt(1.0 - r * r) * cfg.noise_cells / self.overlap
 
 
 def _to_u8(texture: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -828,9 +873,9 @@ def measure_pairs(
             or (al.ncc >= cfg.prior_ncc and abs(al.alpha - priors[i]) <= cfg.prior_tolerance)
         )
         if not (math.isfinite(al.alpha) and (al.ncc >= cfg.min_ncc or decisive)):
-            out[i] = RotationMeasurement(math.nan, 0, 0, 0, False, al.ncc)
+            out[i] = RotationMeasurement(math.nan, 0, 0, 0, False, al.ncc, al.overlap)
         elif check[i] == 0 and (al.ncc >= cfg.strong_ncc or decisive):
-            out[i] = RotationMeasurement(al.alpha, 0, 0, 0, True, al.ncc)
+            out[i] = RotationMeasurement(al.alpha, 0, 0, 0, True, al.ncc, al.overlap)
         else:
             go.append((i, al))
     feats = track_pairs([both[i] for i, _ in go], radius, cfg, [al.alpha for _, al in go])
@@ -838,13 +883,17 @@ def measure_pairs(
         agree = f.valid and abs(f.alpha - al.alpha) <= cfg.ransac_tolerance
         if agree or (al.ncc >= cfg.strong_ncc and not f.valid and check[i] < 2):
             # two readings of the tread that agree, or a strong correlation and too few tracks
-            out[i] = RotationMeasurement(al.alpha, f.n_features, f.n_tracked, f.n_inliers, True, al.ncc)
+            out[i] = RotationMeasurement(
+                al.alpha, f.n_features, f.n_tracked, f.n_inliers, True, al.ncc, al.overlap
+            )
         elif f.valid and f.n_inliers >= cfg.min_override:
             # many tracks, started at the aligned rotation, settle on another: a shadow or a
             # change of light has pulled the correlation; the tracks follow the tread itself
-            out[i] = RotationMeasurement(f.alpha, f.n_features, f.n_tracked, f.n_inliers, True, al.ncc)
+            out[i] = RotationMeasurement(
+                f.alpha, f.n_features, f.n_tracked, f.n_inliers, True, al.ncc, al.overlap
+            )
         else:
-            out[i] = RotationMeasurement(math.nan, f.n_features, f.n_tracked, 0, False, al.ncc)
+            out[i] = RotationMeasurement(math.nan, f.n_features, f.n_tracked, 0, False, al.ncc, al.overlap)
     return out
 
 
