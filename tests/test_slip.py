@@ -458,25 +458,32 @@ def test_a_rate_given_with_its_own_deviation_weighs_less_and_starts_no_event():
     """One wheel's rates scattered by 1 rad/s, as a wheel seen obliquely on few cells is measured.
 
     Taken at the filter's usual rate noise (0.05 rad/s and 1 %) the scatter reads as slip and
-    starts events; given with their deviation (``std``), the rates weigh less, that wheel's slip
-    is less certain and no event starts. The other wheels are unchanged.
+    starts events; given with their deviation (``std``, taken whole: ``rate_std_own=1``), the
+    rates weigh less, that wheel's slip is less certain and no event starts. The other wheels
+    are unchanged. With ``rate_std_own=0`` the deviations change nothing.
     """
     twist, steer = np.array([0.3, 0.0, 0.0]), np.zeros(4)
-    plain, told = SlipEstimator(XY, R_WHEEL), SlipEstimator(XY, R_WHEEL)
+    whole = SlipConfig(rate_std_own=1.0)
+    plain, told, deaf = (
+        SlipEstimator(XY, R_WHEEL, whole),
+        SlipEstimator(XY, R_WHEEL, whole),
+        SlipEstimator(XY, R_WHEEL, SlipConfig(rate_std_own=0.0)),
+    )
     rng = np.random.default_rng(5)
-    events = {id(plain): 0, id(told): 0}
+    events: dict[int, int] = {}
     std = np.array([np.inf, 1.0, np.inf, np.inf])
     for k in range(1, 151):
         t = k / 30
         z = np.full(4, 0.3 / R_WHEEL) + rng.normal(0, 0.02, 4)
         z[1] += rng.normal(0, 1.0)
         odo = twist + rng.normal(0, 0.005, 3)
-        for est in (plain, told):
+        for est in (plain, told, deaf):
             est.add_odometry(t, odo, 1 / 30)
-            est.add_wheels(t, z, 1 / 30, steering=steer, std=std if est is told else None)
+            est.add_wheels(t, z, 1 / 30, steering=steer, std=None if est is plain else std)
             e = est.estimate(t)
-            events[id(est)] += int(e.events[1])
+            events[id(est)] = events.get(id(est), 0) + int(e.events[1])
     a, b = plain.estimate(150 / 30), told.estimate(150 / 30)
+    np.testing.assert_array_equal(deaf.estimate(150 / 30).slip_ratio, a.slip_ratio)
     assert events[id(plain)] >= 5 and events[id(told)] == 0
     assert b.slip_ratio_std[1] > 2 * a.slip_ratio_std[1]
     np.testing.assert_allclose(b.slip_ratio_std[[0, 2, 3]], a.slip_ratio_std[[0, 2, 3]], rtol=0.3)
