@@ -101,7 +101,16 @@ class SlipConfig:
             alignment is a single frame's, and a wheel missed in the next frame keeps its last
             rate, so without this one outlier and a missed frame make an event. Only with an
             ``event_hold`` above 0 (0 starts an event at once).
-        event_off: |s| below which it ends.
+        event_sure: An event also starts in its first frame above ``event_on`` where |s|
+            stands this many of its standard deviations above it and was at least
+            ``event_off`` in the estimate before (0: off). The estimates are frame means: a
+            wheel that brakes within a frame reads half-way in that frame and fully a frame
+            late, so a true event of two frames above 0.2 shows as one frame near 0.15, one
+            well above 0.2 and one near it. One outlying rate from steady rolling (|s| near 0
+            before it) still needs a second frame. Replayed on closed-loop drives with field
+            cameras and no IMU (seeds 100-104, slip-unaware on flat and rough ground, slip-aware
+            on the loose slope) it raised recall from 0.50 to 0.90 and 0.94 to 1.00, with 1, 0
+            and 1 more false events over the five runs of each.
         event_min_speed: Events hold only while the wheel's tread or ground speed reaches this
             [m/s]. Below it a ratio of ``event_on`` is a speed difference of under 0.03 m/s, the
             size of the odometry's noise at the training resolution, and every reversal of a
@@ -154,6 +163,7 @@ class SlipConfig:
     event_on: float = SLIP_EVENT
     event_hold: float = 0.03
     event_confirm: bool = True
+    event_sure: float = 1.0
     event_off: float = 0.1
     event_min_speed: float = 0.15
     eps: float = 0.01
@@ -340,6 +350,11 @@ class SlipEstimator:
         self._events = np.zeros(N_WHEELS, bool)
         self._above_since = np.full(N_WHEELS, math.nan)  # when |s| last rose to event_on [s]
         self._above_rate = np.full(N_WHEELS, math.nan)  # the wheel's last rate measurement then [s]
+        self._last_mag = (
+            -math.inf,
+            np.zeros(N_WHEELS),
+        )  # (time, |s| or 0 where not valid) of the last estimate
+        self._mag_before = np.zeros(N_WHEELS)  # |s| at the estimate before that time
         self._seq = 0
         self.rejected = 0  # readings left out as impossible (see MAX_SPEED and the others)
 
@@ -678,6 +693,13 @@ class SlipEstimator:
                 # a newer rate of the wheel says so too: one outlying rate, held while the
                 # next frame misses the wheel, is not an event
                 start &= self._t_rate > self._above_rate
+            if c.event_sure > 0:
+                if t > self._last_mag[0]:
+                    self._mag_before = self._last_mag[1]
+                # rising from at least event_off in the frame before to surely above event_on
+                sure = (mag - c.event_sure * s_std >= c.event_on) & (self._mag_before >= c.event_off)
+                start |= above & sure
+        self._last_mag = (t, np.where(valid & fast, mag, 0.0))
         self._events = np.where(valid & fast, np.where(self._events, mag >= c.event_off, start), False)
         return SlipEstimate(
             t=float(t),

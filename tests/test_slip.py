@@ -303,7 +303,7 @@ def test_slip_events_hysteresis():
 
 
 def test_one_frame_spike_is_no_event_but_two_frames_are():
-    est = SlipEstimator(XY, R_WHEEL)  # event_hold 0.03 s: two 30 Hz frames
+    est = SlipEstimator(XY, R_WHEEL, SlipConfig(event_sure=0.0))  # event_hold 0.03 s: two 30 Hz frames
     twist = np.array([0.5, 0.0, 0.0])
     seen = []
     for k, spin in enumerate([1.0, 1.0, 1.6, 1.0, 1.0, 1.6, 1.6, 1.6, 1.0, 1.0]):
@@ -489,3 +489,42 @@ def test_a_rate_given_with_its_own_deviation_weighs_less_and_starts_no_event():
     np.testing.assert_allclose(b.slip_ratio_std[[0, 2, 3]], a.slip_ratio_std[[0, 2, 3]], rtol=0.3)
     with pytest.raises(ValueError, match="std"):
         told.add_wheels(5.1, np.ones(4), 1 / 30, std=[1.0, 1.0])
+
+
+def test_a_sure_rise_starts_an_event_in_its_first_frame_above_the_threshold():
+    """``event_sure``: |s| at least ``event_off`` in one frame, then surely above ``event_on``.
+
+    The estimates are frame means, a frame behind a wheel that brakes within a frame, so a true
+    two-frame event shows as one frame part-way, one well above 0.2 and one near it. A jump from
+    steady rolling (one outlying rate) and a wheel that was not valid the frame before still
+    need two frames above ``event_on``.
+    """
+
+    def run(spins, quality=1.0, lost=(), config=None):
+        est = SlipEstimator(XY, R_WHEEL, config)
+        seen, std = [], []
+        for k, spin in enumerate(spins):
+            t = k / 30
+            for _ in range(20):
+                est.add_odometry(t, np.array([0.5, 0.0, 0.0]), 0.0, quality=quality)
+                if k not in lost:
+                    est.add_wheels(t, np.full(4, spin * 0.5 / R_WHEEL), 0.0)
+            e = est.estimate(t + (0.06 if k in lost else 0.0))  # a lost wheel's rate goes stale
+            seen.append(bool(e.events[0]))
+            std.append(float(e.slip_ratio_std[0]))
+        return seen, std
+
+    rise = [1.0, 1.0, 1.15, 1.6, 1.6, 1.0]  # s = 0.13, then 0.375
+    assert run(rise)[0] == [False, False, False, True, True, False]
+    assert run(rise, config=SlipConfig(event_sure=0.0))[0] == [False, False, False, False, True, False]
+    # from steady rolling straight to 0.375: two frames
+    assert run([1.0, 1.0, 1.6, 1.6, 1.0])[0] == [False, False, False, True, False]
+    # with poor odometry (quality 0.05, s = 0.371 +- 0.045) the rise is not sure at 4.5 deviations ...
+    strict = SlipConfig(event_sure=4.5, grip_std=0.0)
+    poor, std = run(rise, quality=0.05, config=strict)
+    assert std[3] > (0.371 - 0.2) / 4.5 and poor == [False, False, False, False, True, False]
+    # ... and with good odometry (+- 0.004) it is
+    sharp, std = run(rise, config=strict)
+    assert std[3] < (0.371 - 0.2) / 4.5 and sharp == [False, False, False, True, True, False]
+    # the wheel is not measured in the part-way frame (not valid), then found fast
+    assert run(rise, lost=(2,))[0] == [False, False, False, False, True, False]
