@@ -5,9 +5,15 @@ inputs is the live run; it reproduces the live events exactly with the same sett
     python benchmarks/slip_replay.py record --seeds 301 302 303 304 305 306 --imu bmi088 --out rec/
     python benchmarks/slip_replay.py score rec/ [--set event_on=0.21 grip_std=0.05]
     python benchmarks/slip_replay.py score rec/ --perfect-odometry   # the truth's v_x instead
+    python benchmarks/slip_replay.py record --closed-loop slip_unaware --camera-effects field \
+        --envs Rover-v0 --seeds 100 101 102 103 104 --out rec/
 
 ``record`` runs ``slip_accuracy.drive`` (train preset) on every mission and writes one pickle per
-mission and seed set (local files of your own: ``score`` unpickles them). ``score`` prints the
+mission and seed set (local files of your own: ``score`` unpickles them). With ``--closed-loop
+CONTROLLER`` it runs that controller's missions on the estimates instead (as ``rover eval``):
+a replay of the same inputs then gives the events of other event settings exactly (``event_*``:
+no controller reads the events), and of other filter settings on the same drive (the slip-aware
+controller, which reads the slip, would have driven a little differently). ``score`` prints the
 slip metrics of ``rover_env.tools.estimator_metrics.slip_metrics`` per mission and in all.
 """
 
@@ -49,16 +55,47 @@ def record(args) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for env_id in args.envs or rover_env.ENV_IDS:
-        span = sa.patch_span(env_id)
         runs = []
         for seed in args.seeds:
             calls.clear()
-            run = sa.drive(seed, "train", env_id, span, 20.0, 0.05, args.renderer, args.imu)
+            if args.closed_loop:
+                run = closed_loop(env_id, seed, args)
+            else:
+                span = sa.patch_span(env_id)
+                run = sa.drive(seed, "train", env_id, span, 20.0, 0.05, args.renderer, args.imu)
             runs.append({"seed": seed, "run": run, "calls": list(calls)})
-        path = out / f"{env_id}_{args.imu}_{args.seeds[0]}.pkl"
+        tag = f"_{args.closed_loop}" if args.closed_loop else ""
+        path = out / f"{env_id}{tag}_{args.imu}_{args.seeds[0]}.pkl"
         with open(path, "wb") as fh:
             pickle.dump(runs, fh)
         print(f"recorded {env_id}, seeds {args.seeds}: {path}", flush=True)
+
+
+def closed_loop(env_id: str, seed: int, args) -> dict:
+    """One mission of ``args.closed_loop`` on the estimates (train preset); its per-step log."""
+    from rover_env.tools.estimator_metrics import EstimateLog
+    from rover_env.tools.evaluation import make_mission_env, parse_controller
+
+    spec, source = parse_controller(args.closed_loop)
+    extra = {"imu": args.imu} if args.imu else {}
+    env = make_mission_env(
+        env_id, obs_source=source, action_mode=spec.action_mode, preset="train", randomize="off",
+        camera_effects=args.camera_effects, renderer=args.renderer, **extra,
+    )  # fmt: skip
+    try:
+        ctrl = spec.make(env)
+        obs, _ = env.reset(seed=seed)
+        ctrl.reset()
+        log = EstimateLog(env.unwrapped.geometry.wheel_radius)
+        done = False
+        while not done:
+            obs, _, term, trunc, info = env.step(ctrl.act(obs))
+            log.add(obs, info)
+            done = term or trunc
+        fisheye = env.unwrapped.pipeline.fisheye  # the events' time scale, as rover eval's
+        return log.arrays(fisheye.period if fisheye is not None else env.unwrapped.control_dt)
+    finally:
+        env.close()
 
 
 def replay(rec: dict, config, perfect_odometry: bool = False) -> dict:
@@ -124,6 +161,10 @@ def main(argv=None) -> int:
     r.add_argument("--imu", default=None, help="IMU preset (default: none)")
     r.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
     r.add_argument("--envs", nargs="+", default=None, help="environment ids (default: all)")
+    r.add_argument(
+        "--closed-loop", default=None, metavar="CONTROLLER", help="drive the missions with this controller"
+    )
+    r.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"), help="with --closed-loop")
     r.add_argument("--out", required=True, help="folder for the recordings")
     s = sub.add_parser("score", help="replay recordings through a filter's settings")
     s.add_argument("folder")

@@ -76,14 +76,14 @@ class SlipConfig:
         min_quality: Floor of the quality used to scale ``odom_std``.
         rate_std: Wheel-rate noise: (floor [rad/s], share of |rate|).
         rate_std_own: With a rate's own deviation (:meth:`SlipEstimator.add_wheels` ``std``),
-            its noise is the larger of ``rate_std`` and this share of that deviation. At 1 (the
-            deviation as fitted) a face-on wheel's rates weigh less than with ``rate_std`` alone,
-            and the filter follows a wheel that brakes within a frame (a turn's inner wheels)
-            a frame later: replayed on slip-unaware drives of the rough mission (field cameras,
-            seeds 100-104) the skids' recall fell from 0.94 to 0.72. At 0.5 it stays at 0.94 and
-            only a wheel seen obliquely on few cells is weighed down: the slip-aware drives of
-            the loose slope kept 3 of their 16 false events (0 for the rate deviations
-            unused). 0: the deviations are ignored.
+            its noise is the larger of ``rate_std`` and this share of that deviation (0: the
+            deviations are ignored). At 1 (the deviation as fitted) a face-on wheel's rates
+            weigh less than with ``rate_std`` alone, and the filter follows a wheel that brakes
+            within a frame (a turn's inner wheels) a frame later. Replayed on closed-loop drives
+            with field cameras (``benchmarks/slip_replay.py record --closed-loop ...
+            --camera-effects field``, seeds 100-104, no IMU): the slip-unaware follower's skids
+            on flat and rough ground were caught 27 times of 28 at 0.5, 23 at 1; the slip-aware
+            drives of the loose slope made 1 false event at 0.5, 2 at 1 and 22 at 0.
         init_std: Prior standard deviation of the state before any measurement
             (v [m/s], omega [rad/s], wheel rate [rad/s]).
         min_speed: Slip is reported as resolved only when the wheel's tread or ground speed
@@ -107,10 +107,10 @@ class SlipConfig:
             wheel that brakes within a frame reads half-way in that frame and fully a frame
             late, so a true event of two frames above 0.2 shows as one frame near 0.15, one
             well above 0.2 and one near it. One outlying rate from steady rolling (|s| near 0
-            before it) still needs a second frame. Replayed on closed-loop drives with field
-            cameras and no IMU (seeds 100-104, slip-unaware on flat and rough ground, slip-aware
-            on the loose slope) it raised recall from 0.50 to 0.90 and 0.94 to 1.00, with 1, 0
-            and 1 more false events over the five runs of each.
+            before it) still needs a second frame. In the replays named under ``rate_std_own``
+            it caught 9 of 10 skids on flat ground and 18 of 18 on rough ground, against 5 and 16
+            without it, with 1 and 1 more false events (7 and 5 in all); on the loose slope it
+            changed nothing.
         event_min_speed: Events hold only while the wheel's tread or ground speed reaches this
             [m/s]. Below it a ratio of ``event_on`` is a speed difference of under 0.03 m/s, the
             size of the odometry's noise at the training resolution, and every reversal of a
