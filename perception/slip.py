@@ -211,6 +211,8 @@ class SlipConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"SlipConfig.{name}: {v!r} must be finite and >= 0")
+        if not (math.isfinite(self.event_sure) and self.event_sure >= 0):
+            raise ValueError(f"SlipConfig.event_sure: {self.event_sure!r} must be finite and >= 0 (0: off)")
         if not self.event_hold >= 0:
             raise ValueError(f"SlipConfig.event_hold: {self.event_hold!r} s must be >= 0")
         if not 0 < self.event_off < self.event_on <= 1:

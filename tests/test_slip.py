@@ -528,3 +528,8 @@ def test_a_sure_rise_starts_an_event_in_its_first_frame_above_the_threshold():
     assert std[3] < (0.371 - 0.2) / 4.5 and sharp == [False, False, False, True, True, False]
     # the wheel is not measured in the part-way frame (not valid), then found fast
     assert run(rise, lost=(2,))[0] == [False, False, False, False, True, False]
+    for bad in (-1.0, math.nan):
+        with pytest.raises(ValueError, match="event_sure"):
+            SlipConfig(event_sure=bad)
+    with pytest.raises(ValueError, match="rate_std_own"):
+        SlipConfig(rate_std_own=-0.5)
