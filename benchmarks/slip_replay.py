@@ -171,6 +171,10 @@ def main(argv=None) -> int:
     s.add_argument("--set", nargs="+", metavar="KEY=VALUE", help="SlipConfig fields to change")
     s.add_argument("--perfect-odometry", action="store_true", help="the truth's v_x for the odometry's")
     args = ap.parse_args(argv)
+    if args.cmd == "record" and args.camera_effects != "ideal" and not args.closed_loop:
+        ap.error(
+            "--camera-effects applies to --closed-loop missions only (the scripted drives use ideal cameras)"
+        )
     record(args) if args.cmd == "record" else score(args)
     return 0
 

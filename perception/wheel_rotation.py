@@ -149,6 +149,15 @@ class TreadConfig:
     ransac_tolerance: float = 0.01
     min_inliers: int = 4
 
+    def __post_init__(self) -> None:
+        b = self.boundary
+        if not (len(b) == 2 and all(isinstance(v, int) and v >= 0 for v in b)):
+            raise ValueError(f"TreadConfig.boundary: {b!r}; give (columns, rows), integers >= 0")
+        if not (math.isfinite(self.clip) and self.clip >= 0):
+            raise ValueError(f"TreadConfig.clip: {self.clip!r} must be finite and >= 0 (0: off)")
+        if not (math.isfinite(self.noise_cells) and self.noise_cells > 0):
+            raise ValueError(f"TreadConfig.noise_cells: {self.noise_cells!r} must be finite and > 0")
+
 
 def ray_cylinder(
     origin: np.ndarray, dirs: np.ndarray, R: np.ndarray, c: np.ndarray, radius: float, half_width: float
@@ -246,7 +255,8 @@ class TreadStrip:
         pixels: (rows, cols, 2) float32 image pixel of every cell (-1 where none).
         visible: (rows, cols) cells on the tread, facing the camera, in the image, not behind the
             rover's steering arms or tie-rod markers.
-        valid: ``visible`` and not on a shadow-edge band: the cells the rotation uses.
+        valid: ``visible`` less its outline (``TreadConfig.boundary``) and the shadow-edge
+            band: the cells the rotation uses.
         texture: (rows, cols) float32 band-passed grey level (0 where not valid).
     """
 
@@ -714,7 +724,8 @@ class RotationMeasurement:
 
         ``dphi * sqrt(1 - ncc^2) * cfg.noise_cells / overlap`` (``dphi`` the strips' column step
         [rad]): a correlation peak is as sharp as the texture, and moves with the part of the
-        strips that does not match.
+        strips that does not match. Where the tracked features outvoted the correlation, the
+        figures are still the correlation's: the deviation is then only a rough guide.
         """
         if not (self.valid and self.overlap > 0 and math.isfinite(self.ncc)):
             return math.inf

@@ -303,7 +303,7 @@ def test_slip_events_hysteresis():
 
 
 def test_one_frame_spike_is_no_event_but_two_frames_are():
-    est = SlipEstimator(XY, R_WHEEL, SlipConfig(event_sure=0.0))  # event_hold 0.03 s: two 30 Hz frames
+    est = SlipEstimator(XY, R_WHEEL)  # event_hold 0.03 s: two 30 Hz frames
     twist = np.array([0.5, 0.0, 0.0])
     seen = []
     for k, spin in enumerate([1.0, 1.0, 1.6, 1.0, 1.0, 1.6, 1.6, 1.6, 1.0, 1.0]):
@@ -452,6 +452,8 @@ def test_one_outlying_wheel_rate_held_over_a_missed_frame_is_not_an_event():
     assert any(run([slow, slow, rate]))
     assert any(run([slow, None, slow]))  # a newer measurement confirms it
     assert any(run([slow, None, rate], SlipConfig(event_confirm=False)))  # the outlier alone, held
+    # a reading half as fast (s = -1 for two frames) is surely above the threshold, held or not
+    assert not any(run([0.5 * rate, None, rate]))
 
 
 def test_a_rate_given_with_its_own_deviation_weighs_less_and_starts_no_event():
@@ -505,11 +507,11 @@ def test_a_sure_rise_starts_an_event_in_its_first_frame_above_the_threshold():
         seen, std = [], []
         for k, spin in enumerate(spins):
             t = k / 30
+            measured = np.array([k not in lost, True, True, True])  # FL missed in the lost frames
             for _ in range(20):
                 est.add_odometry(t, np.array([0.5, 0.0, 0.0]), 0.0, quality=quality)
-                if k not in lost:
-                    est.add_wheels(t, np.full(4, spin * 0.5 / R_WHEEL), 0.0)
-            e = est.estimate(t + (0.06 if k in lost else 0.0))  # a lost wheel's rate goes stale
+                est.add_wheels(t, np.full(4, spin * 0.5 / R_WHEEL), 0.0, measured)
+            e = est.estimate(t)
             seen.append(bool(e.events[0]))
             std.append(float(e.slip_ratio_std[0]))
         return seen, std
@@ -526,7 +528,7 @@ def test_a_sure_rise_starts_an_event_in_its_first_frame_above_the_threshold():
     # ... and with good odometry (+- 0.004) it is
     sharp, std = run(rise, config=strict)
     assert std[3] < (0.371 - 0.2) / 4.5 and sharp == [False, False, False, True, True, False]
-    # the wheel is not measured in the part-way frame (not valid), then found fast
+    # FL is missed in the part-way frame (it keeps its last rate, s near 0), then found fast
     assert run(rise, lost=(2,))[0] == [False, False, False, False, True, False]
     for bad in (-1.0, math.nan):
         with pytest.raises(ValueError, match="event_sure"):

@@ -401,3 +401,7 @@ def test_the_rotation_deviation_follows_the_error_of_noisy_treads():
         stds.append(np.mean(sd))
     assert stds[0] < stds[1] < stds[2]
     assert RotationMeasurement(math.nan, 0, 0, 0, False).std(0.03, cfg) == math.inf
+    assert RotationMeasurement(0.1, 0, 0, 0, True, 0.9, 0).std(0.03, cfg) == math.inf  # no cells compared
+    for bad in ({"boundary": (-1, 1)}, {"boundary": (1.5, 1)}, {"clip": math.nan}, {"noise_cells": 0.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            TreadConfig(**bad)
