@@ -110,6 +110,7 @@ class SlipConfig:
             still needs a second frame. In the replays named under ``rate_std_own`` it caught 9 of
             10 skids on flat ground and 18 of 18 on rough ground, against 5 and 16 without it, with
             1 and 1 more false events (7 and 5 in all); on the loose slope it changed nothing.
+        event_off: |s| below which it ends.
         event_min_speed: Events hold only while the wheel's tread or ground speed reaches this
             [m/s]. Below it a ratio of ``event_on`` is a speed difference of under 0.03 m/s, the
             size of the odometry's noise at the training resolution, and every reversal of a
@@ -351,10 +352,8 @@ class SlipEstimator:
         self._events = np.zeros(N_WHEELS, bool)
         self._above_since = np.full(N_WHEELS, math.nan)  # when |s| last rose to event_on [s]
         self._above_rate = np.full(N_WHEELS, math.nan)  # the wheel's last rate measurement then [s]
-        self._last_mag = (
-            -math.inf,
-            np.zeros(N_WHEELS),
-        )  # (time, |s| or 0 where not valid) of the last estimate
+        self._last_t = -math.inf  # time of the last estimate [s] ...
+        self._last_mag = np.zeros(N_WHEELS)  # ... and its |s| (0 where not valid or slow)
         self._mag_before = np.zeros(N_WHEELS)  # |s| at the estimate before that time
         self._seq = 0
         self.rejected = 0  # readings left out as impossible (see MAX_SPEED and the others)
@@ -695,15 +694,15 @@ class SlipEstimator:
                 # next frame misses the wheel, is not an event
                 start &= self._t_rate > self._above_rate
             if c.event_sure > 0:
-                if t > self._last_mag[0]:
-                    self._mag_before = self._last_mag[1]
+                if t > self._last_t:
+                    self._mag_before = self._last_mag
                 # in its first estimate above event_on, surely so, from at least event_off in the
                 # estimate before (a held outlier's second frame is not a first one)
                 first = above & (self._above_since == t)
                 sure = (mag - c.event_sure * s_std >= c.event_on) & (self._mag_before >= c.event_off)
                 start |= first & sure
-        if t >= self._last_mag[0]:  # a query back in time does not move the reference
-            self._last_mag = (t, np.where(valid & fast, mag, 0.0))
+        if t >= self._last_t:  # a query back in time does not move the reference
+            self._last_t, self._last_mag = t, np.where(valid & fast, mag, 0.0)
         self._events = np.where(valid & fast, np.where(self._events, mag >= c.event_off, start), False)
         return SlipEstimate(
             t=float(t),

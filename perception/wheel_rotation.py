@@ -474,9 +474,10 @@ def unwrap_treads(
         blk = np.s_[1 : rows + 1, x0 : x0 + c1 - c0]
         t_k = tex[blk]
         v_k = valid[blk]
-        if not shadow_robust and v_k.any():
+        seen = bool(v_k.any())
+        if not shadow_robust and seen:
             t_k = np.where(v_k, t_k - np.float32(t_k[v_k].mean()), np.float32(0.0))
-        if cfg.clip > 0 and v_k.any():
+        if cfg.clip > 0 and seen:
             lim = np.float32(cfg.clip * math.sqrt(float(np.mean(np.square(t_k[v_k], dtype=np.float64)))))
             t_k = np.clip(t_k, -lim, lim)
         strips[k] = TreadStrip(int(k0[k]) + c0, dphi, y, maps[blk], vis[blk], valid[blk], t_k)
