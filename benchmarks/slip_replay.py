@@ -7,6 +7,7 @@ inputs is the live run; it reproduces the live events exactly with the same sett
     python benchmarks/slip_replay.py score rec/ --perfect-odometry   # the truth's v_x instead
     python benchmarks/slip_replay.py record --closed-loop slip_unaware --camera-effects field \
         --envs Rover-v0 --seeds 100 101 102 103 104 --out rec/
+    python benchmarks/slip_replay.py window rec/FILE.pkl --run 0 --from 10.8 --to 11.9 --out w.npz
 
 ``record`` runs ``slip_accuracy.drive`` (train preset) on every mission and writes one pickle per
 mission and seed set (local files of your own: ``score`` unpickles them). With ``--closed-loop
@@ -15,6 +16,9 @@ a replay of the same inputs then gives the events of other event settings exactl
 no controller reads the events), and of other filter settings on the same drive (the slip-aware
 controller, which reads the slip, would have driven a little differently). ``score`` prints the
 slip metrics of ``rover_env.tools.estimator_metrics.slip_metrics`` per mission and in all.
+``window`` writes the filter's inputs of one recorded run between two times, with the truth's
+slip at each estimate, as plain arrays (``.npz``): the test fixtures of recorded skids
+(``tests/data/``) are made with it.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 
 import perception.slip as ps  # noqa: E402
+from rover_env.sim.geometry import RoverGeometry  # noqa: E402
 from rover_env.tools.estimator_metrics import slip_metrics  # noqa: E402
 
 METHODS = (
@@ -98,13 +103,15 @@ def closed_loop(env_id: str, seed: int, args) -> dict:
         env.close()
 
 
+def _wheel_xy() -> np.ndarray:
+    """The rover's wheel centres (FL, FR, RL, RR) in the body frame [m]."""
+    g = RoverGeometry()
+    return np.array([[s * g.wheelbase / 2, side * g.track / 2] for s in (1, -1) for side in (1, -1)])
+
+
 def replay(rec: dict, config, perfect_odometry: bool = False) -> dict:
     """The run of ``rec`` with its slip estimates and events from a fresh filter of ``config``."""
-    from rover_env.sim.geometry import RoverGeometry
-
-    g = RoverGeometry()  # the rover's wheel positions (FL, FR, RL, RR) and radius
-    xy = np.array([[s * g.wheelbase / 2, side * g.track / 2] for s in (1, -1) for side in (1, -1)])
-    est = ps.SlipEstimator(xy, g.wheel_radius, config)
+    est = ps.SlipEstimator(_wheel_xy(), RoverGeometry().wheel_radius, config)
     t_run, tru = rec["run"]["t"], rec["run"]["tru"]
     out = {}
     for name, a, k in rec["calls"]:
@@ -146,6 +153,40 @@ def score(args) -> None:
     _row("all", slip_metrics(every))
 
 
+def window(args) -> None:
+    """The inputs of run ``args.run`` of a recording between ``args.t0`` and ``args.t1`` as arrays."""
+    with open(args.recording, "rb") as fh:  # your own recording
+        rec = pickle.load(fh)[args.run]  # noqa: S301
+    names = ("add_odometry", "add_wheels", "add_gyro", "add_accel", "estimate")
+    inside = [(n, a, k) for n, a, k in rec["calls"] if n in names and args.t0 <= a[0] <= args.t1]
+    out: dict[str, list] = {"order": []}
+    for n, a, k in inside:
+        out["order"].append(names.index(n))
+        if n == "add_odometry":  # t, twist, dt, quality, covariance (NaN: none)
+            cov = k.get("cov")
+            cov = np.full(9, np.nan) if cov is None else np.asarray(cov, float).ravel()
+            out.setdefault("odometry", []).append([a[0], *a[1], a[2], a[3], *cov])
+        elif n == "add_wheels":  # t, rates, dt, valid, steering, own deviations (NaN: none)
+            std = a[5] if len(a) > 5 and a[5] is not None else np.full(4, np.nan)
+            out.setdefault("wheels", []).append([a[0], *a[1], a[2], *np.asarray(a[3], float), *a[4], *std])
+        elif n == "add_gyro":  # t, rate, dt, std
+            out.setdefault("gyro", []).append(list(a[:4]))
+        elif n == "add_accel":  # t, (a_x, a_y), dt
+            out.setdefault("accel", []).append([a[0], *a[1], a[2]])
+    t = rec["run"]["t"]
+    keep = (t >= args.t0) & (t <= args.t1)
+    np.savez_compressed(
+        args.out,
+        **{k: np.asarray(v, float) for k, v in out.items()},
+        t=t[keep],
+        slip_true=rec["run"]["tru"][keep, 7:11],
+        speed=rec["run"]["speed"][keep],
+        wheel_xy=_wheel_xy(),
+        wheel_radius=RoverGeometry().wheel_radius,
+    )
+    print(f"wrote {args.out}: {len(inside)} calls, {keep.sum()} estimates")
+
+
 def _row(name: str, m: dict) -> None:
     print(
         f"| {name} | {m['f1']:.3f} | {m['false']} | {m['missed']} | {m['events']} "
@@ -170,12 +211,18 @@ def main(argv=None) -> int:
     s.add_argument("folder")
     s.add_argument("--set", nargs="+", metavar="KEY=VALUE", help="SlipConfig fields to change")
     s.add_argument("--perfect-odometry", action="store_true", help="the truth's v_x for the odometry's")
+    w = sub.add_parser("window", help="one recorded run's inputs between two times, as arrays (.npz)")
+    w.add_argument("recording")
+    w.add_argument("--run", type=int, default=0, help="index of the run in the recording")
+    w.add_argument("--from", dest="t0", type=float, required=True, help="[s]")
+    w.add_argument("--to", dest="t1", type=float, required=True, help="[s]")
+    w.add_argument("--out", required=True)
     args = ap.parse_args(argv)
     if args.cmd == "record" and args.camera_effects != "ideal" and not args.closed_loop:
         ap.error(
             "--camera-effects applies to --closed-loop missions only (the scripted drives use ideal cameras)"
         )
-    record(args) if args.cmd == "record" else score(args)
+    {"record": record, "score": score, "window": window}[args.cmd](args)
     return 0
 
 

@@ -151,16 +151,29 @@ def test_an_estimated_event_on_true_slip_that_peaks_in_the_hysteresis_band_is_no
     events[12:16, 0] = True
     tru[40:50, 8] = 0.12  # FR below the band: an event there is a false alarm
     events[42:46, 1] = True
-    tru[60:70, 9] = 0.14  # RL: 0.25 for one frame only is no true event, and above the band
+    tru[60:70, 9] = 0.14  # RL: 0.25 for one frame only is no true event, and no false alarm either
     tru[65, 9] = 0.25
-    events[63:68, 2] = True
+    events[66:68, 2] = True  # called in the two frames after it (the detector confirms over two)
+    tru[75, 10] = 0.19  # RR: a one-frame band peak, called two frames after it: still the band's
+    events[77:79, 3] = True
+    events[85:87, 3] = True  # ... but not eight frames later
     run = {"t": t, "est": est, "tru": tru, "events": events, "speed": np.ones((90, 4)), "frame": 1 / 30}
     m = slip_metrics([run])
-    assert (m["events"], m["matched"], m["in_band"], m["false"]) == (0, 0, 1, 2), m
+    assert (m["events"], m["matched"], m["in_band"], m["false"]) == (0, 0, 3, 2), m
     tru[10:20, 7] = 0.21  # a true event: matched, with no false alarm on that wheel
     m = slip_metrics([dict(run, tru=tru)])
-    assert (m["events"], m["matched"], m["in_band"], m["false"]) == (1, 1, 0, 2), m
+    assert (m["events"], m["matched"], m["in_band"], m["false"]) == (1, 1, 2, 2), m
     assert m["precision"] == 1 / 3
+    late = tru.copy()
+    late[10:20, 7] = 0.0
+    late[9:11, 7] = 0.3  # a true event (frames 9, 10) whose last frame is two before the call (12)
+    m = slip_metrics([dict(run, tru=late)])
+    assert (m["events"], m["matched"], m["false"]) == (1, 1, 2), m
+    assert m["latency_max"] == pytest.approx(3)  # from the truth's first frame at 0.2 (9) to the call (12)
+    late[9:11, 7] = 0.0
+    late[8:10, 7] = 0.3  # three frames before the call: missed, and the call is a false alarm
+    m = slip_metrics([dict(run, tru=late)])
+    assert (m["events"], m["matched"], m["false"]) == (1, 0, 3), m
 
 
 def test_a_sweep_runs_field_cameras_in_a_randomised_world(tiny_scenario, tmp_path):

@@ -21,7 +21,7 @@ import numpy as np
 
 from perception.drive_geometry import AXLES, WHEELS
 from perception.observation import OBS_FIELDS, field_index
-from perception.slip import SLIP_EVENT, SlipConfig, slip_events
+from perception.slip import SlipConfig, slip_events
 from perception.trajectory import path_segment_errors
 from rover_env.sim.simulation import quat_to_yaw
 
@@ -44,8 +44,9 @@ TRUTH: tuple[tuple[str, int], ...] = tuple(_TRUTH_OF[n] for n in FIELDS)
 _OBS_INDEX = np.array([field_index(OBS_FIELDS, n) for n in FIELDS])
 EVENT_FRAMES = 2  # frames in a row with |s| >= SLIP_EVENT that make a true event (SlipConfig.event_hold)
 EVENT_SPEED = SlipConfig().event_min_speed  # [m/s] no event on a slower wheel
-#: |s| of the hysteresis band's floor: true slip that peaks between this and the event threshold
-#: (0.2) is neither an event nor, when the estimator calls one there, a false alarm.
+#: |s| of the hysteresis band's floor: true slip that rises above this but makes no true event
+#: (it peaks below the threshold, 0.2, or stays above it for one frame) is neither an event nor,
+#: when the estimator calls one there, a false alarm.
 BAND_FLOOR = 0.15
 START_UP = 1.0  # [s] left out at the start of an episode
 
@@ -112,14 +113,18 @@ def slip_metrics(runs: list[dict]) -> dict:
     wheel's tread or ground speed is at least 5 cm/s. Events: the slip filter's own
     (``info["slip"]["events"]``) against the truth labelled by the same rule
     (:func:`perception.slip.slip_events`: |s| >= 0.2 for two frames in a row on a wheel at 0.15 m/s
-    or more, ending below 0.1); an estimated event matches a true one it overlaps (F1 is NaN
-    when neither side has one). The scoring has a hysteresis band: an estimated event that
-    matches no true one but overlaps a true excursion whose |s| peaks in [``BAND_FLOOR``, 0.2)
-    is neither a match nor a false alarm (``in_band`` counts them). Latency runs from the
-    truth's first frame at 0.2 and is counted in fisheye frames.
+    or more, ending below 0.1); an estimated event matches a true one it overlaps or that ended
+    at most ``EVENT_FRAMES`` fisheye frames before it starts (the detector needs that long to
+    confirm; F1 is NaN when neither side has one). The scoring has a hysteresis band: an
+    estimated event that matches no true one but meets, in the same way, a true excursion to
+    ``BAND_FLOOR`` or more that made no true event (its |s| peaked below 0.2, or stayed above
+    0.2 for a single frame) is neither a match nor a false alarm (``in_band`` counts them).
+    Latency runs from the truth's first frame at 0.2 and is counted in fisheye frames.
     """
     err_slip, err_calm, tp, fp, fn, band, lat = [], [], 0, 0, 0, 0, []
     for rr in runs:
+        step_s = float(np.median(np.diff(rr["t"]))) if len(rr["t"]) > 1 else rr["frame"]
+        grace = max(1, round(EVENT_FRAMES * rr["frame"] / step_s))  # steps a detection may trail by
         keep = rr["t"] >= START_UP
         s_est, s_true = rr["est"][keep, 7:11], rr["tru"][keep, 7:11]
         moving = rr["speed"][keep] >= 0.05
@@ -134,22 +139,22 @@ def slip_metrics(runs: list[dict]) -> dict:
             e_runs, t_runs = _runs_of(ev_est[:, w]), _runs_of(ev_true[:, w])
             matched = set()
             for a0, a1 in t_runs:
-                hit = [k for k, (b0, b1) in enumerate(e_runs) if b0 < a1 and a0 < b1]
+                hit = [k for k, (b0, b1) in enumerate(e_runs) if b0 < a1 + grace and a0 < b1]
                 if hit:
                     tp += 1
                     matched.update(hit)
                     lat.append(max(0, e_runs[hit[0]][0] - (a0 - (EVENT_FRAMES - 1))))
                 else:
                     fn += 1
-            # true excursions above the band's floor that peak below the event threshold
+            # true excursions above the band's floor that made no true event
             near = [
                 (a0, a1)
                 for a0, a1 in _runs_of(s_abs[:, w] >= BAND_FLOOR)
-                if s_abs[a0:a1, w].max() < SLIP_EVENT
+                if not ev_true[a0:a1, w].any()
             ]
             for k, (b0, b1) in enumerate(e_runs):
                 if k not in matched:
-                    if any(b0 < a1 and a0 < b1 for a0, a1 in near):
+                    if any(b0 < a1 + grace and a0 < b1 for a0, a1 in near):
                         band += 1
                     else:
                         fp += 1
