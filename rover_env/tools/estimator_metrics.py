@@ -147,11 +147,7 @@ def slip_metrics(runs: list[dict]) -> dict:
                 else:
                     fn += 1
             # true excursions above the band's floor that made no true event
-            near = [
-                (a0, a1)
-                for a0, a1 in _runs_of(s_abs[:, w] >= BAND_FLOOR)
-                if not ev_true[a0:a1, w].any()
-            ]
+            near = [(a0, a1) for a0, a1 in _runs_of(s_abs[:, w] >= BAND_FLOOR) if not ev_true[a0:a1, w].any()]
             for k, (b0, b1) in enumerate(e_runs):
                 if k not in matched:
                     if any(b0 < a1 + grace and a0 < b1 for a0, a1 in near):
