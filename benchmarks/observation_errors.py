@@ -9,7 +9,8 @@ fields are compared with the simulator's ground truth of the same fields. Prints
 - slip: per-wheel slip-ratio MAE while |s_true| > 0.1 and otherwise (steps where the truth's
   tread or ground speed is at least 5 cm/s), and slip-event detection (hysteresis on |s|:
   on after two frames in a row at 0.2 or more, off below 0.1, labelled alike on both sides):
-  precision, recall, F1 over events (an estimated event matches a true one it overlaps) and the
+  precision, recall, F1 over events (an estimated event matches a true one it overlaps or starts
+  within two frames of its end) and the
   median and largest onset latency in camera frames, from the truth's first frame at 0.2.
 
 With ``--camera-effects ideal field`` the same seeds run with both camera models and the table

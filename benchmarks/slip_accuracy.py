@@ -10,7 +10,9 @@ otherwise, F1 and onset latency in fisheye frames of the filter's slip-event det
 ``info["slip"]["events"]``). An event is |s| >= 0.2 for two frames in a row, ending below 0.1, on
 a wheel whose tread or ground speed is at least 0.15 m/s (``SlipConfig.event_min_speed``): the
 filter's rule, applied to the true slip to label the truth. An estimated event on true slip that
-peaks between 0.15 and 0.2 is neither a match nor a false alarm ("in band").
+rises above 0.15 but makes no true event (it peaks below 0.2, or stays above it for a single
+frame) is neither a match nor a false alarm ("in band"); an estimated event may start up to two
+frames after the true excursion it answers has ended (the detector confirms over two frames).
 
 Run: python benchmarks/slip_accuracy.py [--preset eval] [--seeds 201 202 203] [--ramp 0.05]
 [--envs Rover-v0 ...] [--camera-effects ideal field] (seeds the tests never use); one row per
