@@ -244,3 +244,24 @@ def test_an_unknown_residual_base_is_refused_with_the_choices():
         TrainConfig(base="torque")
     with pytest.raises(ValueError, match="'torque'"):
         make_env("Rover-v0", base="torque")
+
+
+def test_training_with_an_imu_puts_one_on_the_rover_and_a_bad_preset_is_refused(tiny_scenario):
+    """``rover train --imu PRESET``: every training environment has that IMU (its gyro then feeds
+    the observation's yaw rate, roll and pitch); an unknown preset is named."""
+    env = make_env(tiny_scenario, imu="bmi088")
+    try:
+        env.reset(seed=0)
+        assert env.unwrapped.pipeline.imu is not None
+        obs = env.step(np.zeros(env.action_space.shape, np.float32))[0]
+        assert np.all(np.isfinite(obs))
+    finally:
+        env.close()
+    env = make_env(tiny_scenario)
+    try:
+        assert env.unwrapped.pipeline.imu is None
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="imu 'bmi99'"):
+        TrainConfig(imu="bmi99")
+    assert TrainConfig(imu="bmi088").imu == "bmi088"

@@ -263,6 +263,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         camera_effects=args.camera_effects,
         randomize=args.randomize,
         episode_seeds=args.episode_seeds,
+        imu=args.imu,
     )
     outputs = ("policy.zip", "policy.json", "obs_stats.npz", "checkpoints", "episodes.csv")
     _prepare_out(args.out, outputs, args.overwrite)
@@ -549,6 +550,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--randomize", default=None, choices=("off", "on"),
                    help="domain randomisation, each episode's world drawn from its seed "
                         "(default: each scenario's randomize key)")  # fmt: skip
+    t.add_argument("--imu", default=None, metavar="PRESET",
+                   help="an IMU on the rover (e.g. bmi088; default: none); evaluate the policy with "
+                        "the same one: rover eval --controllers policy:OUT@imu:PRESET")  # fmt: skip
     t.add_argument("--residual", type=float, nargs=3, default=[0.5, 0.3, 0.3],
                    help="residual range on the drive command (speed, lam_F, lam_R)")  # fmt: skip
     t.add_argument("--base", default="traction", choices=("traction", "follower"),

@@ -213,6 +213,7 @@ def make_env(
     camera_effects: str = "ideal",
     randomize: str | None = None,
     episode_seeds: tuple[int, int] | None = None,
+    imu: str | None = None,
 ) -> gym.Env:
     """A training or evaluation environment: Monitor(EpisodeStats(ResidualDrive(env))).
 
@@ -229,6 +230,7 @@ def make_env(
         randomize: Domain randomisation (``"off"``, ``"on"`` or None: the scenario's).
         episode_seeds: (first, stride): seed the episodes first, first + stride, ...
             (:class:`EpisodeSeeds`); None: as ``reset`` is called.
+        imu: An IMU preset on the rover (``rover_env.config.imu.IMU_PRESETS``; None: none).
     """
     check_base(base)
     from stable_baselines3.common.monitor import Monitor
@@ -247,6 +249,7 @@ def make_env(
                 reward=weights,
                 camera_effects=camera_effects,
                 randomize=randomize,
+                **({"imu": imu} if imu else {}),
             )
             if residual is not None:
                 env = ResidualDrive(env, residual)
@@ -292,6 +295,8 @@ class TrainConfig:
             the evaluation's (``seed + 1000`` on).
         randomize: Domain randomisation of each episode's world (``"off"``, ``"on"`` or None:
             each scenario's ``randomize`` key).
+        imu: An IMU preset on the rover (None: none); evaluate the policy with the same one
+            (``rover eval --controllers policy:FOLDER@imu:PRESET``).
     """
 
     algo: str = "ppo"
@@ -311,6 +316,7 @@ class TrainConfig:
     camera_effects: str = "ideal"
     randomize: str | None = None
     episode_seeds: int = 10_000
+    imu: str | None = None
 
     def __post_init__(self) -> None:
         if self.episode_seeds < 0:
@@ -324,6 +330,11 @@ class TrainConfig:
             raise ValueError(f"camera_effects {self.camera_effects!r}: use 'ideal' or 'field'")
         if self.randomize not in (None, "off", "on"):
             raise ValueError(f"randomize {self.randomize!r}: use 'off', 'on' or None (the scenario's)")
+        if self.imu is not None:
+            from rover_env.config.imu import IMU_PRESETS
+
+            if self.imu not in IMU_PRESETS:
+                raise ValueError(f"imu {self.imu!r}: use one of {sorted(IMU_PRESETS)} or None (no IMU)")
 
 
 PPO_DEFAULTS = dict(
@@ -494,6 +505,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
             cfg.camera_effects,
             cfg.randomize,
             episode_seeds,
+            cfg.imu,
         )
 
     # every process cycles through all missions, each from its own starting point
