@@ -616,7 +616,8 @@ class SlipEstimator:
             if idx is not None and idx[0] >= 3:  # wheel rates
                 if self.config.grip_std > 0:
                     self._grip(idx - 3)
-                self._at_rates = (self._t, self._x.copy(), self._P.copy())
+                if self._accel_used:  # the slip's state with an accelerometer (see estimate)
+                    self._at_rates = (self._t, self._x.copy(), self._P.copy())
         if self._inputs and self._t is not None:  # inputs a second older than the filter are done
             self._inputs = [u for u in self._inputs if u[1] > self._t - 1.0]
 

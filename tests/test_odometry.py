@@ -2,6 +2,8 @@
 known planar motions, with and without a shadow fixed to the camera. No simulator."""
 
 import math
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -21,17 +23,9 @@ from perception.odometry import (
     velocity_from_points,
 )
 
-MM = 0.001  # texture resolution [m/px]
-
-
-def mast_camera(size=(640, 480)) -> PinholeCamera:
-    """The rover's mast camera: 0.8 m above flat ground, looking down, image up = body forward."""
-    T = np.eye(4)
-    T[:3, :3] = [[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]
-    T[:3, 3] = (0.95, 0.0, 0.535)
-    return PinholeCamera.from_fov(
-        size, math.radians(77.0), math.radians(57.0), T_body_cam=T, ground_plane=(0.0, 0.0, -0.265)
-    )
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+# the rover's mast camera and its body shadow, shared with the low-texture benchmark
+from odometry_low_texture import MM, body_shadow, mast_camera  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -69,18 +63,6 @@ def render(cam, texture, pose, shadow=None, noise=1.0, rng=None):
     if noise:
         img = img + (rng or np.random.default_rng(0)).normal(scale=noise, size=img.shape)
     return np.clip(img, 0, 255).astype(np.uint8)
-
-
-def body_shadow(size=(640, 480)):
-    """A sharp-edged dark region fixed in the image: the rover's body and mast, from the bottom edge."""
-    w, h = size
-    m = np.zeros((h, w), np.uint8)
-    cv2.rectangle(m, (int(0.3 * w), int(0.45 * h)), (int(0.7 * w), h), 1, -1)  # body
-    cv2.rectangle(m, (int(0.47 * w), 0), (int(0.53 * w), h), 1, -1)  # mast and boom
-    cv2.fillPoly(
-        m, [np.array([[0, int(0.7 * h)], [int(0.3 * w), int(0.55 * h)], [int(0.3 * w), h], [0, h]])], 1
-    )
-    return m.astype(bool)
 
 
 def pose_after(pose, twist, dt):
