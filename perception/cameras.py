@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from perception.calib_io import (
@@ -176,12 +177,15 @@ class PinholeCamera:
         K = self.K
         yd = (p[:, 1] - K[1, 2]) / K[1, 1]
         xd = (p[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
-        x, y = xd.copy(), yd.copy()
-        # Gauss-Newton on distort(x, y) = (xd, yd) with the analytic 2x2 Jacobian
+        x, y = self._undistort_guess(p, xd, yd)
+        # Gauss-Newton on distort(x, y) = (xd, yd) with the analytic 2x2 Jacobian (from OpenCV's
+        # fixed-point solution it ends in one or two steps)
         p1, p2 = self.distortion[2], self.distortion[3]
         for _ in range(20):
             fx, fy = self._distort(x, y)
             ex, ey = fx - xd, fy - yd
+            if not np.nanmax(np.abs(ex) + np.abs(ey), initial=0.0) >= 1e-12:  # ~1e-10 px
+                break
             radial, dr2 = self._radial(x * x + y * y)
             drad = 2 * dr2  # d(radial)/d(r2) * 2
             jxx = radial + x * x * drad + 2 * p1 * y + 6 * p2 * x
@@ -191,9 +195,19 @@ class PinholeCamera:
             det = jxx * jyy - jxy * jyx
             x = x - (jyy * ex - jxy * ey) / det
             y = y - (-jyx * ex + jxx * ey) / det
-            if max(np.abs(ex).max(initial=0.0), np.abs(ey).max(initial=0.0)) < 1e-14:
-                break
         return np.stack([x, y], -1).reshape(*lead, 2)
+
+    def _undistort_guess(self, p: np.ndarray, xd: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, ...]:
+        """A start for :meth:`normalized`'s Newton steps: OpenCV's iterative undistortion where it applies.
+
+        OpenCV's model is this one without skew; elsewhere the start is the distorted point.
+        """
+        if self.K[0, 1] != 0.0 or len(p) < 8 or len(self.distortion) not in (4, 5, 8):
+            return xd.copy(), yd.copy()
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-8)
+        und = cv2.undistortPoints(p.reshape(-1, 1, 2), self.K, self.distortion, criteria=crit).reshape(-1, 2)
+        ok = np.all(np.isfinite(und), axis=1)
+        return np.where(ok, und[:, 0], xd), np.where(ok, und[:, 1], yd)
 
     def unproject(self, pixels) -> np.ndarray:
         """Unit rays (..., 3) in the camera frame through pixels (..., 2)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -376,8 +377,13 @@ class KinematicStateEstimator:
         valid.update({f"lam_{a}": bool(np.isfinite(meas.lam[i])) for i, a in enumerate(AXLES)})
         # the treads' band-pass divides light levels: linear ones, without the colour-filter
         # array's checker (fixed to the sensor, it would be found at zero rotation)
+        gray: np.ndarray | Callable[[int, int, int, int], np.ndarray]
         if self.bayer is not None:
-            gray = cfa_luminance(img, self.bayer, self.gamma)
+            # only about the treads (the image is mostly other things)
+            pattern, gamma = self.bayer, self.gamma
+
+            def gray(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+                return cfa_luminance(img, pattern, gamma, rect=(x0, y0, x1, y1))
         else:
             gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
             if self.gamma != 1.0:

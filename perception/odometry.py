@@ -769,18 +769,21 @@ class FlowOdometry:
         for which, plane in (("this", plane_curr), ("the last", selection.ground_plane)):
             if plane is not None and (problem := self.camera.ground_view_error(plane)):
                 return invalid(f"the ground is not in view in {which} frame: {problem}", n_tracked=n_tr)
+        # both frames' features undistorted at once
+        und = self.camera.undistort_points(np.concatenate([prev_px, curr_px]))
+        und_prev, und_curr = und[:n_tr], und[n_tr:]
         if plane_curr is not None and selection.ground_plane is not None:
             # each frame on its own ground plane, as 3-D body-frame points
-            P = self._to_ground_3d(prev_px, selection.ground_plane)
-            C = self._to_ground_3d(curr_px, plane_curr)
+            P = self._to_ground_3d(und_prev, selection.ground_plane)
+            C = self._to_ground_3d(und_curr, plane_curr)
         else:
             H_inv = (
                 self._H_inv
                 if plane_curr is None
                 else np.linalg.inv(self.camera.ground_homography(plane_curr))
             )
-            P = self._to_ground(prev_px, H_inv)
-            C = self._to_ground(curr_px, H_inv)
+            P = self._to_ground(und_prev, H_inv)
+            C = self._to_ground(und_curr, H_inv)
         if cfg.use_ransac:
             inl = rigid_ransac(P[:, :2], C[:, :2], cfg.ransac_threshold, cfg.ransac_iterations, self._rng)
         else:
@@ -821,14 +824,15 @@ class FlowOdometry:
             **common,
         )
 
-    def _to_ground(self, px: np.ndarray, H_inv: np.ndarray) -> np.ndarray:
-        und = self.camera.undistort_points(px)
+    @staticmethod
+    def _to_ground(und: np.ndarray, H_inv: np.ndarray) -> np.ndarray:
+        """(n, 2) body-frame ground points (x, y) [m] of undistorted pixels ``und`` via ``H_inv``."""
         q = np.column_stack([und, np.ones(len(und))]) @ H_inv.T
         return q[:, :2] / q[:, 2:3]
 
-    def _to_ground_3d(self, px: np.ndarray, plane: tuple[float, float, float]) -> np.ndarray:
-        """(n, 3) body-frame points of pixels on the ground z = a x + b y + c [m]."""
-        xy = self._to_ground(px, np.linalg.inv(self.camera.ground_homography(plane)))
+    def _to_ground_3d(self, und: np.ndarray, plane: tuple[float, float, float]) -> np.ndarray:
+        """(n, 3) body-frame points of undistorted pixels on the ground z = a x + b y + c [m]."""
+        xy = self._to_ground(und, np.linalg.inv(self.camera.ground_homography(plane)))
         a, b, c = plane
         return np.column_stack([xy, a * xy[:, 0] + b * xy[:, 1] + c])
 

@@ -15,6 +15,7 @@ keeps its own reading.
 from __future__ import annotations
 
 import functools
+import math
 
 import cv2
 import numpy as np
@@ -45,10 +46,20 @@ def linear_gray(gray: np.ndarray, gamma: float) -> np.ndarray:
     light level and finds shadow edges by the step of its log, both of which hold only for
     linear levels (gamma 2.2 shrinks a shadow's light ratio of 3 to 1.65).
     """
-    return _linear_lut(float(gamma))[np.asarray(gray, dtype=np.uint8)]
+    img = np.asarray(gray, dtype=np.uint8)
+    lut = _linear_lut(float(gamma))
+    if img.size and (img.ndim == 2 or (img.ndim == 3 and img.shape[2] <= 4)):
+        return cv2.LUT(img, lut).reshape(img.shape)  # the same table in a quarter of the time
+    return lut[img]
 
 
-def cfa_luminance(rgb: np.ndarray, pattern: str, gamma: float = 1.0, sigma: float = 1.5) -> np.ndarray:
+def cfa_luminance(
+    rgb: np.ndarray,
+    pattern: str,
+    gamma: float = 1.0,
+    sigma: float = 1.5,
+    rect: tuple[int, int, int, int] | None = None,
+) -> np.ndarray:
     """Linear luminance (H, W) float32 of a demosaiced colour image, from each pixel's own sample.
 
     Each pixel's sample of its own colour (``pattern``: the camera's CFA, :data:`CFA_PATTERNS`)
@@ -63,6 +74,8 @@ def cfa_luminance(rgb: np.ndarray, pattern: str, gamma: float = 1.0, sigma: floa
         pattern: The CFA, a key of :data:`CFA_PATTERNS`.
         gamma: The camera's output gamma (1: linear images).
         sigma: Width of the local levels [pixels of a colour plane, i.e. 2 image pixels].
+        rect: (x0, y0, x1, y1) [px, end exclusive]: only this part of the result, computed from
+            the image about it (the Gaussians' reach): the same values as the whole image's.
 
     Raises:
         ValueError: An unknown pattern, an image that is not (H, W, 3) uint8 of even size.
@@ -72,6 +85,18 @@ def cfa_luminance(rgb: np.ndarray, pattern: str, gamma: float = 1.0, sigma: floa
     img = np.asarray(rgb)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3 or img.shape[0] % 2 or img.shape[1] % 2:
         raise ValueError(f"rgb: {img.dtype} {img.shape}; expected (H, W, 3) uint8 with H and W even")
+    if rect is not None:
+        h, w = img.shape[:2]
+        x0, y0, x1, y1 = (int(v) for v in rect)
+        if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+            raise ValueError(f"rect: {rect}; use 0 <= x0 < x1 <= {w}, 0 <= y0 < y1 <= {h}")
+        # both Gaussians reach 4 of their sigmas, 8 sigma image pixels (cv2's kernels), and
+        # an even origin keeps the colour-filter array's phase
+        pad = 2 * math.ceil(4.0 * sigma) + 2
+        px0, py0 = max(0, (x0 - pad) & ~1), max(0, (y0 - pad) & ~1)
+        px1, py1 = min(w, (x1 + pad + 1) & ~1), min(h, (y1 + pad + 1) & ~1)
+        out = cfa_luminance(img[py0:py1, px0:px1], pattern, gamma, sigma)
+        return out[y0 - py0 : y1 - py0, x0 - px0 : x1 - px0]
     lin = linear_gray(img, gamma) if gamma != 1.0 else img.astype(np.float32)
     level = cv2.GaussianBlur(cv2.cvtColor(lin, cv2.COLOR_RGB2GRAY), (0, 0), 2.0 * sigma)
     out = np.empty(img.shape[:2], np.float32)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -361,7 +362,7 @@ def facing_columns(dphi: float, cfg: TreadConfig) -> int:
 
 
 def unwrap_treads(
-    gray: np.ndarray,
+    gray: np.ndarray | Callable[[int, int, int, int], np.ndarray],
     model: RoverKinematicModel,
     camera: OmniCamera,
     frames: list[tuple[np.ndarray, np.ndarray]],
@@ -377,7 +378,9 @@ def unwrap_treads(
     gaps wider than the band-pass's reach between them.
 
     Args:
-        gray: (H, W) grey frame: uint8, or float32 linear levels (:func:`linear_gray`).
+        gray: (H, W) grey frame: uint8, or float32 linear levels (:func:`linear_gray`); or a
+            function of a rectangle (x0, y0, x1, y1) [px, end exclusive] that returns the
+            frame's levels there (each strip is sampled from the rectangle that holds it).
         model: Rover geometry.
         camera: The fisheye model.
         frames: (R, c) of each wheel's knuckle frame in the body frame (rotation, centre [m]).
@@ -454,7 +457,8 @@ def unwrap_treads(
     for x0, (k, c0, c1) in zip(starts, keep, strict=True):
         vis[1 : rows + 1, x0 : x0 + c1 - c0] = visible[k, :, c0:c1]
         maps[1 : rows + 1, x0 : x0 + c1 - c0] = grid[k, :, c0:c1]
-    raw = cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR).astype(np.float32)
+    blocks = [(x0, x0 + c1 - c0) for x0, (_, c0, c1) in zip(starts, keep, strict=True)]
+    raw = _sample_strips(gray, maps, blocks, camera.image_size)
     if any(cfg.boundary):
         # cells whose samples reach past the visible tread (the empty rows around the strips
         # count as its edge)
@@ -482,6 +486,33 @@ def unwrap_treads(
             t_k = np.clip(t_k, -lim, lim)
         strips[k] = TreadStrip(int(k0[k]) + c0, dphi, y, maps[blk], vis[blk], valid[blk], t_k)
     return strips
+
+
+def _sample_strips(gray, maps: np.ndarray, blocks: list[tuple[int, int]], size: tuple) -> np.ndarray:
+    """The grey frame at the strips' cells (-1: none), bilinear, as float32.
+
+    ``gray``: the frame, or a function of a rectangle (x0, y0, x1, y1) [px, end exclusive]
+    that returns the frame's grey levels there (each block of columns, one strip, is then
+    sampled from the rectangle that holds its cells: cheaper when the levels cost time).
+    """
+    if not callable(gray):
+        return cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR).astype(np.float32)
+    w, h = size
+    raw = np.zeros(maps.shape[:2], np.float32)
+    for x0, x1 in blocks:
+        m = maps[:, x0:x1]
+        ok = m[..., 0] >= 0
+        if not ok.any():
+            continue
+        u, v = m[..., 0][ok], m[..., 1][ok]
+        # the bilinear samples' pixels (floor and floor + 1), within the frame
+        u0, v0 = max(int(u.min()), 0), max(int(v.min()), 0)
+        u1, v1 = min(int(u.max()) + 2, w), min(int(v.max()) + 2, h)
+        crop = np.asarray(gray(u0, v0, u1, v1), dtype=np.float32)
+        mx = np.where(ok, m[..., 0] - np.float32(u0), np.float32(-1.0))
+        my = np.where(ok, m[..., 1] - np.float32(v0), np.float32(-1.0))
+        raw[:, x0:x1] = cv2.remap(crop, mx, my, cv2.INTER_LINEAR)
+    return raw
 
 
 def _occluded(model, camera, frames, wheels, dist2: np.ndarray, grid: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from rover_env.config.cameras import DownwardCameraConfig
 from rover_env.rendering import focus_on_rover
 from rover_env.rendering.base import MotionSpec
 from rover_env.rendering.gl import gl_status
-from rover_env.sensors.cameras import DownwardCamera
+from rover_env.sensors.cameras import DownwardCamera, FisheyeCamera
 from rover_env.sensors.motion_blur import MotionField, blur
 from rover_env.sim.simulation import RoverSim
 
@@ -75,6 +76,52 @@ def test_blur_of_an_edge_spans_speed_times_exposure_over_the_ground_sample_dista
     assert measured == pytest.approx(expected, rel=0.1), (measured, expected)
 
 
+def test_a_rolling_shutter_shifts_each_sensor_row_by_its_velocity_times_its_readout_delay():
+    """Rows given as the sensor's row fractions: the image's own rows repeat the default; all
+    at the last row read (fraction 1) is a global shutter; the first row lags by the readout."""
+    rng = np.random.default_rng(3)
+    image = cv2.GaussianBlur(rng.integers(0, 255, (40, 120, 3), dtype=np.uint8), (0, 0), 2.0)
+    vel = np.zeros((40, 120, 2), np.float32)
+    vel[..., 0] = 400.0  # [px/s]
+    exposure, readout = 0.002, 0.01
+    own = blur(image, vel, exposure, 8, readout)
+    ys = np.repeat((np.arange(40, dtype=np.float32) / 39)[:, None], 120, axis=1)
+    np.testing.assert_array_equal(blur(image, vel, exposure, 8, readout, rows=ys), own)
+    last = np.ones((40, 120), np.float32)  # (as few samples as the global shutter's path needs)
+    np.testing.assert_array_equal(
+        blur(image, vel, exposure, 2, readout, rows=last), blur(image, vel, exposure, 2)
+    )
+    # the first row saw, on average, what is now (400 px/s) x (readout + exposure / 2) = 4.4 px on
+    first = np.zeros((40, 120), np.float32)
+    out = blur(image, vel, exposure, 8, readout, rows=first).astype(float)[20, :, 0]
+    ref = image.astype(float)[20, :, 0]
+    shifts = np.arange(0.0, 8.0, 0.05)
+    errors = [
+        np.abs(np.interp(np.arange(20, 100) + d, np.arange(120), ref) - out[20:100]).mean() for d in shifts
+    ]
+    assert shifts[int(np.argmin(errors))] == pytest.approx(4.4, abs=0.15)
+
+
+def test_the_fisheye_atlas_rows_are_the_sensor_rows_of_its_pixels():
+    """What a rolling shutter reads on the cube faces: at each fisheye pixel's atlas position,
+    the atlas holds that pixel's own row."""
+    from rover_env.config.cameras import FisheyeCameraConfig
+    from rover_env.rendering.cubemap import CubemapRemap
+
+    model = FisheyeCameraConfig().model(np.eye(4))
+    remapper = CubemapRemap(model)
+    mx, my = remapper.maps
+    assert np.isfinite(remapper.atlas_rows).all()
+    rows = cv2.remap(remapper.atlas_rows, mx, my, cv2.INTER_LINEAR)
+    w, h = model.image_size
+    ys = np.repeat(np.arange(h, dtype=np.float32)[:, None], w, axis=1)
+    inside = remapper.face_index >= 0
+    assert inside.mean() > 0.5
+    err = np.abs(rows - ys)[inside]
+    # (at the edge of the field of view, the face margin's rows are their nearest pixel's)
+    assert np.percentile(err, 99.9) < 0.1 and err.max() < 1.5
+
+
 def test_the_downward_cameras_motion_field_follows_the_rovers_true_speed():
     sim = RoverSim(flat_scenario(mu=1.0), renderer="tiny")
     try:
@@ -109,7 +156,10 @@ def test_the_downward_cameras_motion_field_follows_the_rovers_true_speed():
 def test_the_gl_velocity_buffer_equals_the_motion_field_of_a_labelled_render():
     """The renderer's velocity buffer (per-link velocities drawn in the colour pass) against the
     field computed from a labelled render's points and bodies, on a turning, steering rover
-    (downward camera: 0.000 px/s median; fisheye: 2.0 px/s median, 12 px/s p95 of 272)."""
+    (downward camera: 0.009 px/s median; fisheye: 2.0 px/s median, 12 px/s p95 of 271).
+
+    The fisheye's buffer is drawn on its cube faces (atlas pixels per second): it is carried to
+    the fisheye's pixels through the remap's Jacobian, d(atlas)/d(fisheye pixel)."""
     env = gym.make("RoverShadows-v0", renderer="gl", camera_effects="field")
     try:
         env.reset(seed=2)
@@ -125,8 +175,37 @@ def test_the_gl_velocity_buffer_equals_the_motion_field_of_a_labelled_render():
                 cam._points_cam(view), view.segmentation, T, links, sim.rover.body_id
             )
             com, v, w = links[-1]
-            spec = MotionSpec(sim.rover.body_id, links, T, v + np.cross(w, T[:3, 3] - com), w)
-            drawn = cam._motion.image_velocity(cam._render(labels=False, motion=spec).motion)
+            buffers: list[tuple] = []
+
+            def keep(image, velocity, origin, buffers=buffers):
+                buffers.append((origin, velocity.copy()))
+                return image
+
+            spec = MotionSpec(sim.rover.body_id, links, v + np.cross(w, T[:3, 3] - com), w, keep)
+            cam._render(labels=False, motion=spec)
+            if not isinstance(cam, FisheyeCamera):
+                ((origin, drawn),) = buffers
+                assert origin == (0, 0)
+            else:  # a buffer per face, placed in the atlas
+                aw, ah = cam.remapper.atlas_size
+                drawn = np.zeros((ah, aw, 2), np.float32)
+                assert len(buffers) == len(cam.remapper.faces)
+                for (x0, y0), buf in buffers:
+                    drawn[y0 : y0 + buf.shape[0], x0 : x0 + buf.shape[1]] = buf
+                remapper = cam.remapper
+                mx, my = remapper.maps
+                at = cv2.remap(drawn, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+                # the remap's Jacobian by central differences, within one face
+                J = np.stack([np.stack(np.gradient(m)[::-1], -1) for m in (mx, my)], -2)  # (H, W, 2, 2)
+                face = remapper.face_index
+                same = np.ones_like(face, bool)
+                for ax in (0, 1):
+                    for step in (1, -1):
+                        same &= np.roll(face, step, axis=ax) == face
+                ok = same & (face >= 0) & (np.abs(np.linalg.det(J)) > 1e-6)
+                drawn = np.zeros_like(expected)
+                drawn[ok] = np.linalg.solve(J[ok], at[ok][..., None])[..., 0]
+                expected = np.where(ok[..., None], expected, 0.0)
             speed = np.linalg.norm(expected, axis=-1)
             err = np.linalg.norm(drawn - expected, axis=-1)[speed > 0]
             rover = ((view.segmentation & ((1 << 24) - 1)) == sim.rover.body_id)[speed > 0]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from test_markers import fisheye, rover_model
 
-from perception.photometry import linear_gray
+from perception.photometry import cfa_luminance, linear_gray
 from perception.wheel_rotation import (
     RotationMeasurement,
     TreadConfig,
@@ -280,6 +280,22 @@ def test_strips_of_all_wheels_together_equal_each_wheel_alone():
         np.testing.assert_array_equal(strip.pixels, alone.pixels)
         np.testing.assert_array_equal(strip.valid, alone.valid)
         np.testing.assert_allclose(strip.texture, alone.texture, atol=1e-6)
+    # grey levels asked for by rectangle (the colour-filter array's luminance about the treads
+    # only) give the strips of the whole frame's
+    rgb = np.clip(rng.normal(120, 40, (480, 640, 3)), 0, 255).astype(np.uint8)
+    rgb = cv2.GaussianBlur(rgb, (0, 0), 1.0)
+    whole = unwrap_treads(cfa_luminance(rgb, "RGGB", 2.2), model, cam, frames, dphi, cfg)
+    asked = []
+
+    def region(x0, y0, x1, y1):
+        asked.append((x1 - x0) * (y1 - y0))
+        return cfa_luminance(rgb, "RGGB", 2.2, rect=(x0, y0, x1, y1))
+
+    by_region = unwrap_treads(region, model, cam, frames, dphi, cfg)
+    assert len(asked) == 4 and sum(asked) < 0.5 * 640 * 480
+    for a, b in zip(whole, by_region, strict=True):
+        np.testing.assert_array_equal(a.valid, b.valid)
+        np.testing.assert_allclose(a.texture, b.texture, atol=1e-4 * np.abs(a.texture).max())
     # the band-pass's blur is OpenCV's Gaussian blur, normalised over the mask
     img = rng.random((40, 70)).astype(np.float32)
     mask = rng.random((40, 70)) > 0.3

@@ -10,6 +10,7 @@ that of its optical frame (x right, y down, z forward) in the world [m].
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -99,8 +100,8 @@ class RenderedView:
     K: np.ndarray
     T_world_cam: np.ndarray
     _points: np.ndarray | None = field(default=None, repr=False)
-    #: (H, W, 3) float32 each pixel's ray velocity [rad/s] in the ``motion`` camera's optical frame
-    #: (:class:`MotionSpec`), 0 where nothing was drawn; None unless asked for.
+    #: (H, W, 2) float32 each pixel's image velocity [px/s] in this view (:class:`MotionSpec`), 0
+    #: where nothing was drawn; None unless asked for.
     motion: np.ndarray | None = None
 
     @property
@@ -138,8 +139,6 @@ class FisheyeView:
     segmentation: np.ndarray | None = None
     shadow: np.ndarray | None = None
     points_world: np.ndarray | None = None
-    #: As :attr:`RenderedView.motion` (the fisheye's optical frame), or None.
-    motion: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -148,18 +147,23 @@ class MotionSpec:
 
     A surface point ``p`` of body ``body``'s link ``k`` moves at ``v + w x (p - c)`` with
     ``(c, v, w) = links[k]`` (world frame; ``k = -1``: the base); every other body is still. The
-    camera's optical frame is at ``T_world_cam`` and moves at ``v_cam`` with ``w_cam``. The
-    buffer holds, per pixel, the velocity of its ray's direction, ``(I - r r^T) p_dot / |p|``
-    in the optical frame, where ``p`` is the point relative to the camera and ``p_dot`` its
-    velocity relative to the camera; the camera model's Jacobian turns it into pixels per
-    second (:class:`rover_env.sensors.motion_blur.MotionField`).
+    camera's optical centre moves at ``v_cam`` and turns at ``w_cam`` (world frame). The buffer
+    holds, per pixel of each pinhole view drawn (a pinhole camera's view; a fisheye's cube
+    faces), the image velocity [px/s] of its surface point relative to the camera, exact in the
+    colour pass: the point and its relative velocity are affine over a rigid triangle.
+
+    ``expose(image, velocity, origin) -> image``: applied to each drawn view's (H, W, 3) uint8
+    colour with its (H, W, 2) buffer before any resampling (a fisheye's faces, window by
+    window, before their remap), as a sensor integrates its exposure; ``origin`` (x, y) [px]
+    is the image's corner in the renderer's grid (a fisheye's face atlas; (0, 0) for a pinhole
+    view). None: the views are returned as drawn.
     """
 
     body: int
     links: dict
-    T_world_cam: np.ndarray
     v_cam: np.ndarray
     w_cam: np.ndarray
+    expose: Callable[[np.ndarray, np.ndarray, tuple[int, int]], np.ndarray] | None = None
 
 
 class Renderer(ABC):

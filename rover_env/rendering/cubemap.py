@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from perception.cameras import OmniCamera
 
@@ -185,6 +186,32 @@ class CubemapRemap:
         near_x = np.clip(np.rint(map_x).astype(np.int64), 0, width - 1)
         near_y = np.clip(np.rint(map_y).astype(np.int64), 0, row - 1)
         self._nearest = np.where(face_of >= 0, near_y * width + near_x, -1).reshape(h, w)
+
+    @functools.cached_property
+    def atlas_rows(self) -> np.ndarray:
+        """(H, W) float32 the fisheye image row [px] of each atlas pixel's ray.
+
+        What a rolling shutter needs to expose the atlas (:func:`rover_env.sensors.motion_blur.blur`).
+        A ray outside the fisheye's field of view (a face's margin) and a pixel of no face take
+        the nearest one's row.
+        """
+        aw, ah = self.atlas_size
+        out = np.full((ah, aw), np.nan, np.float32)
+        for fc in self.faces:
+            fw, fh = fc.size
+            u, v = np.meshgrid(np.arange(fw, dtype=np.float64), np.arange(fh, dtype=np.float64))
+            x, y = (u - fc.K[0, 2]) / fc.K[0, 0], (v - fc.K[1, 2]) / fc.K[1, 1]
+            rays = np.stack([x, y, np.ones_like(u)], -1)
+            px = self.model.world2cam((rays @ fc.R_cam_face.T).reshape(-1, 3)).reshape(fh, fw, 2)
+            out[fc.atlas_row : fc.atlas_row + fh, :fw] = px[..., 1]
+        none = ~np.isfinite(out)
+        if none.all():
+            out[:] = 0.0
+        elif none.any():
+            _, (iy, ix) = ndimage.distance_transform_edt(none, return_indices=True)
+            out = out[iy, ix]
+        out.flags.writeable = False
+        return out
 
     @property
     def face_pixels(self) -> int:

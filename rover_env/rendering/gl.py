@@ -85,8 +85,12 @@ uniform vec3 u_com[MOTION_LINKS];
 uniform vec3 u_lin[MOTION_LINKS];
 uniform vec3 u_ang[MOTION_LINKS];
 uniform bool u_moving;
-out vec3 v_pos;
-out vec3 v_vel;
+uniform mat3 u_cam_R;  // world -> the view's optical frame
+uniform vec3 u_cam_c;  // its origin [m]
+uniform vec3 u_cam_v;  // its velocity [m/s]
+uniform vec3 u_cam_w;  // its angular velocity [rad/s]
+out vec3 v_p;  // the point relative to the camera, optical frame [m]
+out vec3 v_q;  // its velocity relative to the camera, optical frame [m/s]
 #endif
 void main() {
     vec4 w = vec4(in_pos, 1.0);
@@ -100,14 +104,16 @@ void main() {
     v_uv = in_uv;
     v_light = (u_light * vec4(w.xyz + u_normal_offset * n, 1.0)).xyz * 0.5 + 0.5;
 #ifdef MOTION
-    // a rigid link's velocity is affine in position: exact when interpolated over a triangle
-    v_pos = w.xyz;
+    // both are affine in position over a rigid triangle: exact when interpolated
 #ifdef GROUND
-    v_vel = vec3(0.0);
+    vec3 vel = vec3(0.0);
 #else
     int k = int(in_link + 0.5);
-    v_vel = u_moving ? u_lin[k] + cross(u_ang[k], w.xyz - u_com[k]) : vec3(0.0);
+    vec3 vel = u_moving ? u_lin[k] + cross(u_ang[k], w.xyz - u_com[k]) : vec3(0.0);
 #endif
+    vec3 d = w.xyz - u_cam_c;
+    v_p = u_cam_R * d;
+    v_q = u_cam_R * (vel - u_cam_v - cross(u_cam_w, d));
 #endif
 #ifdef LABELS
     v_world = w.xyz;
@@ -158,13 +164,10 @@ layout(location = 2) out float f_depth;
 layout(location = 3) out vec4 f_world;
 #endif
 #ifdef MOTION
-uniform mat3 u_cam_R;  // world -> the camera's optical frame
-uniform vec3 u_cam_c;  // its origin [m]
-uniform vec3 u_cam_v;  // its velocity [m/s]
-uniform vec3 u_cam_w;  // its angular velocity [rad/s]
-in vec3 v_pos;
-in vec3 v_vel;
-layout(location = 1) out vec4 f_motion;
+uniform vec3 u_focal;  // the view's fx, skew and fy [px]
+in vec3 v_p;
+in vec3 v_q;
+layout(location = 1) out vec2 f_motion;
 #endif
 void main() {
 #ifdef GROUND
@@ -186,12 +189,10 @@ void main() {
     float shade = u_ambient + u_diffuse * sky * cos_i * lit;
     f_color = vec4(min(albedo.rgb * shade, vec3(1.0)), lit < 0.5 ? 1.0 : 0.0);
 #ifdef MOTION
-    // the ray's velocity, (I - r r^T) p_dot / |p|, in the optical frame
-    vec3 p = u_cam_R * (v_pos - u_cam_c);
-    vec3 q = u_cam_R * (v_vel - u_cam_v - cross(u_cam_w, v_pos - u_cam_c));
-    float rho = max(length(p), 1e-6);
-    vec3 r = p / rho;
-    f_motion = vec4((q - r * dot(r, q)) / rho, 1.0);
+    // the pixel's velocity: K's rows times d(p.xy / p.z)/dt
+    float iz = 1.0 / v_p.z;
+    vec2 n_dot = (v_q.xy - v_p.xy * (v_q.z * iz)) * iz;
+    f_motion = vec2(u_focal.x * n_dot.x + u_focal.y * n_dot.y, u_focal.z * n_dot.y);
 #endif
 #ifdef LABELS
     f_id = u_body + (v_link << 24);
@@ -715,6 +716,7 @@ class GLRenderer(Renderer):
             self._body_radius: dict[int, np.ndarray] = {}  # body -> (links + 1,) bounding radius [m]
             self._fbos: dict[tuple, tuple] = {}
             self._fisheye: dict[int, tuple] = {}
+            self._link_motion: tuple = (None, None)  # (MotionSpec, its _link_arrays)
             #: Largest shadow-map edge [texels].
             self.shadow_px = int(shadow_px)
             self._shadow_maps: dict[int, dict] = {}
@@ -1091,7 +1093,7 @@ class GLRenderer(Renderer):
             ctx = self.ctx
             color = [self._own(ctx.texture(size, 4))]
             if labels == "motion":
-                color.append(self._own(ctx.texture(size, 4, dtype="f4")))
+                color.append(self._own(ctx.texture(size, 2, dtype="f4")))
             elif labels:
                 color += [
                     self._own(ctx.texture(size, 1, dtype="i4")),
@@ -1125,10 +1127,12 @@ class GLRenderer(Renderer):
         labels: bool | str,
         smap,
         motion: MotionSpec | None = None,
+        K: np.ndarray | None = None,
     ) -> None:
         """Draw the scene into the bound framebuffer's viewport, with shadow map ``smap`` (or None).
 
-        ``labels``: the program mode (False, True or ``"motion"``, which needs ``motion``).
+        ``labels``: the program mode (False, True or ``"motion"``, which needs ``motion`` and the
+        view's intrinsics ``K`` [px]).
         """
         mgl = self._mgl
         ctx = self.ctx
@@ -1158,14 +1162,18 @@ class GLRenderer(Renderer):
             _set(p, "u_view", view)
         link_motion = None
         if labels == "motion":
-            assert motion is not None
-            R = np.asarray(motion.T_world_cam, dtype=np.float64)[:3, :3]
+            assert motion is not None and K is not None
+            T = np.asarray(T_world_cam, dtype=np.float64)
+            focal = (float(K[0, 0]), float(K[0, 1]), float(K[1, 1]))
             for p in progs:
-                _set(p, "u_cam_R", np.asarray(R.T, dtype=np.float32).T.tobytes())  # column-major
-                _set(p, "u_cam_c", tuple(float(v) for v in motion.T_world_cam[:3, 3]))
+                _set(p, "u_cam_R", _gl(T[:3, :3].T))
+                _set(p, "u_cam_c", tuple(float(v) for v in T[:3, 3]))
+                _set(p, "u_focal", focal)
                 _set(p, "u_cam_v", tuple(float(v) for v in motion.v_cam))
                 _set(p, "u_cam_w", tuple(float(v) for v in motion.w_cam))
-            link_motion = _link_arrays(motion.links)
+            if self._link_motion[0] is not motion:  # once per render (a fisheye draws several views)
+                self._link_motion = (motion, _link_arrays(motion.links))
+            link_motion = self._link_motion[1]
         ctx.enable(mgl.DEPTH_TEST)
         if self._terrain is not None:
             t = self._terrain
@@ -1223,7 +1231,7 @@ class GLRenderer(Renderer):
         """See :meth:`Renderer.render_K` (this context is made current for it).
 
         ``motion``: also draw the velocity buffer (:attr:`RenderedView.motion`) in the colour
-        pass (not with ``segmentation``).
+        pass (not with ``segmentation``); the colour returned is ``motion.expose``'s, if given.
         """
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
@@ -1247,7 +1255,8 @@ class GLRenderer(Renderer):
     ) -> FisheyeView:
         """See :meth:`Renderer.render_fisheye` (this context is made current for it).
 
-        ``motion``: also draw the velocity buffer (:attr:`FisheyeView.motion`; not with ``labels``).
+        ``motion``: also draw the velocity buffer on the cube faces (not with ``labels``) and
+        remap ``motion.expose``'s image of them.
         """
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
@@ -1283,12 +1292,14 @@ class GLRenderer(Renderer):
         fbo.use()
         fbo.viewport = (0, 0, w, h)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        self._draw(planes, T_world_cam, P, lighting, poses, mode, smap, motion)
+        self._draw(planes, T_world_cam, P, lighting, poses, mode, smap, motion, K)
         rgba = np.frombuffer(fbo.read(components=4, attachment=0), np.uint8).reshape(h, w, 4)
         rgb = np.ascontiguousarray(rgba[..., :3])
         shadow = rgba[..., 3] > 127
         if motion is not None:
-            vel = np.frombuffer(fbo.read(components=3, attachment=1, dtype="f4"), np.float32).reshape(h, w, 3)
+            vel = np.frombuffer(fbo.read(components=2, attachment=1, dtype="f4"), np.float32).reshape(h, w, 2)
+            if motion.expose is not None:
+                rgb = motion.expose(rgb, vel, (0, 0))
             view = RenderedView(rgb, None, None, shadow, np.asarray(K, float), np.asarray(T_world_cam, float))
             view.motion = vel
             return view
@@ -1329,7 +1340,7 @@ class GLRenderer(Renderer):
         depth = self._own(ctx.depth_renderbuffer((aw, ah)))
         fbo_color = self._own(ctx.framebuffer(color_attachments=atlas[:1], depth_attachment=depth))
         fbo_labels = self._own(ctx.framebuffer(color_attachments=atlas, depth_attachment=depth))
-        motion = self._own(ctx.texture((aw, ah), 4, dtype="f4"))
+        motion = self._own(ctx.texture((aw, ah), 2, dtype="f4"))
         fbo_motion = self._own(ctx.framebuffer(color_attachments=[atlas[0], motion], depth_attachment=depth))
         entry = (remapper, (aw, ah), fbo_color, fbo_labels, fbo_motion)
         self._fisheye[key] = entry
@@ -1356,28 +1367,33 @@ class GLRenderer(Renderer):
         fbo.viewport = (0, 0, aw, ah)
         fbo.scissor = None
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        drawn = False
+        drawn = []  # the atlas rectangles drawn, (x0, y0, x1, y1) [px, end exclusive]
         for k, fc in enumerate(remapper.faces):
             view = fc.view(T_world_cam, None if windows is None else windows[k])
             if view is None:
                 continue
-            drawn = True
             fw, fh = fc.size
             K, size, T_face, (u0, v0, u1, v1) = view
+            drawn.append((u0, fc.atlas_row + v0, u1, fc.atlas_row + v1))
             planes = view_planes(K, size, T_face, near)
             fbo.viewport = (0, fc.atlas_row, fw, fh)
             fbo.scissor = (u0, fc.atlas_row + v0, u1 - u0, v1 - v0)
             P = projection_from_K(fc.K, (fw, fh), near, far)
-            self._draw(planes, T_face, P, lighting, poses, mode, smap, motion)
+            self._draw(planes, T_face, P, lighting, poses, mode, smap, motion, fc.K)
         fbo.scissor = None
         w, h = remapper.model.image_size
         if motion is not None:
             if not drawn:
-                return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8), motion=np.zeros((h, w, 3), np.float32))
+                return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8))
             atlas_rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(ah, aw, 3)
-            raw = fbo.read(components=3, attachment=1, dtype="f4")
-            vel = np.frombuffer(raw, np.float32).reshape(ah, aw, 3)
-            return FisheyeView(rgb=remapper.remap(atlas_rgb), motion=remapper.remap(vel))
+            if motion.expose is not None:
+                vel = np.frombuffer(fbo.read(components=2, attachment=1, dtype="f4"), np.float32)
+                vel = vel.reshape(ah, aw, 2)
+                atlas_rgb = atlas_rgb.copy()
+                for x0, y0, x1, y1 in drawn:  # each view drawn (a window of a face) on its own
+                    blk = np.s_[y0:y1, x0:x1]
+                    atlas_rgb[blk] = motion.expose(atlas_rgb[blk], vel[blk], (x0, y0))
+            return FisheyeView(rgb=remapper.remap(atlas_rgb))
         if not labels:
             if not drawn:
                 return FisheyeView(rgb=np.zeros((h, w, 3), np.uint8))

@@ -179,7 +179,7 @@ class _RoverCamera(ABC):
         if size[0] % 2 or size[1] % 2:
             raise ConfigError(f"width, height: {size}; an image sensor with a Bayer pattern needs even sizes")
         try:
-            self.image_sensor = ImageSensor(self.config.sensor, size, self.period, seed)
+            self.image_sensor = ImageSensor(self.config.sensor, size, self.period, seed, self._readout())
         except ConfigError as exc:
             raise ConfigError(f"sensor.{exc}") from None
         s = self.config.sensor
@@ -187,6 +187,10 @@ class _RoverCamera(ABC):
             self._motion = MotionField(*self._rays_and_model())
         else:
             self._motion = None
+
+    def _readout(self) -> np.ndarray | None:
+        """(H, W) bool the pixels the image sensor reads (its region of interest); None: all."""
+        return None
 
     def reset_effects(self, seed: int | None, sensor=None) -> None:
         """A new episode of the image sensor (its fixed pattern, noise and exposure), if it has one.
@@ -203,14 +207,25 @@ class _RoverCamera(ABC):
         assert sensor is not None
         renderer = focus_on_rover(self.sim, self.config.ground_range)
         motion = self._motion
+        s = self.config.sensor
         if motion is not None and renderer.draws_motion:
-            # the renderer draws each pixel's ray velocity in the colour pass (a velocity buffer)
+            # the renderer draws each pixel's velocity in the colour pass (a velocity buffer) and
+            # hands each view drawn to the exposure before any resampling
             T = self.T_world_cam()
             links = self.sim.link_motion()
             com, v_l, w_l = links[-1]
-            spec = MotionSpec(self.sim.rover.body_id, links, T, v_l + np.cross(w_l, T[:3, 3] - com), w_l)
+            rows = self._blur_rows(drawn=True)
+
+            def expose(image: np.ndarray, velocity: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+                r = None
+                if rows is not None:
+                    (x0, y0), (h, w) = origin, image.shape[:2]
+                    r = rows[y0 : y0 + h, x0 : x0 + w]
+                return blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s, r)
+
+            spec = MotionSpec(self.sim.rover.body_id, links, v_l + np.cross(w_l, T[:3, 3] - com), w_l, expose)
             view = self._render(labels=False, parts=parts, motion=spec)
-            velocity = motion.image_velocity(view.motion)
+            image = view.rgb
         elif motion is not None:  # from a labelled render: each pixel's point and body
             view = self._render(labels=True, parts=parts)
             velocity = motion.velocity(
@@ -220,14 +235,21 @@ class _RoverCamera(ABC):
                 self.sim.link_motion(),
                 self.sim.rover.body_id,
             )
+            rows = self._blur_rows(drawn=False)
+            image = blur(view.rgb, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s, rows)
         else:
             view = self._render(labels=False, parts=parts)
+            image = view.rgb
         self._keep(view)
-        image = view.rgb
-        if motion is not None:
-            s = self.config.sensor
-            image = blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s)
         return sensor.capture(self._lens(image), meter="rendered")
+
+    def _blur_rows(self, drawn: bool) -> np.ndarray | None:
+        """The sensor row fraction of each pixel of the image that is blurred (None: its own rows).
+
+        ``drawn``: the renderer's own views (a velocity buffer), else the camera's image grid.
+        Only a rolling shutter needs it.
+        """
+        return None
 
     def _lens(self, image: np.ndarray) -> np.ndarray:
         """The rendered (ideal) image as the lens forms it on the sensor (a fisheye's model has its lens)."""
@@ -308,6 +330,7 @@ class DownwardCamera(_RoverCamera):
         # the ideal view that is rendered, and the lens's remap from it (None: no distortion)
         self._render_model = self.model
         self._lens_maps: tuple[np.ndarray, np.ndarray] | None = None
+        self._rows: tuple[PinholeCamera, np.ndarray] | None = None  # (model, _blur_rows)
 
     def set_effects(self, on: bool, seed: int | None = None) -> None:
         """As :meth:`_RoverCamera.set_effects`; a field lens also distorts (``sensor.distortion``).
@@ -344,6 +367,17 @@ class DownwardCamera(_RoverCamera):
             )
             self.model = model
         super().set_effects(on, seed)
+
+    def _blur_rows(self, drawn: bool) -> np.ndarray | None:
+        # the ideal view is blurred in both paths; with distortion its rows are not the sensor's
+        if self._lens_maps is None or not self.config.sensor.rolling_shutter_s > 0:
+            return None
+        if self._rows is None or self._rows[0] is not self.model:
+            w, h = self._render_model.image_size
+            rays = self._render_model.unproject(_pixels(w, h))
+            rows = self.model.project(rays)[..., 1] / max(self.model.image_size[1] - 1, 1)
+            self._rows = (self.model, rows.astype(np.float32))
+        return self._rows[1]
 
     def _lens(self, image: np.ndarray) -> np.ndarray:
         if self._lens_maps is None:
@@ -531,6 +565,16 @@ class FisheyeCamera(_RoverCamera):
     def _rays_and_model(self):
         w, h = self.model.image_size
         return self.model.cam2world(_pixels(w, h)), self.model.world2cam
+
+    def _readout(self) -> np.ndarray | None:
+        # with a region of interest, the sensor reads it (the rest is not rendered either)
+        return self.remapper.rendered if self.config.roi else None
+
+    def _blur_rows(self, drawn: bool) -> np.ndarray | None:
+        # the GL renderer's views are the cube faces' atlas; a labelled render is blurred as remapped
+        if not drawn or not self.config.sensor.rolling_shutter_s > 0:
+            return None
+        return self.remapper.atlas_rows / np.float32(max(self.model.image_size[1] - 1, 1))
 
     def _points_cam(self, view) -> np.ndarray:
         T = (self._T_cam_body @ np.linalg.inv(self.sim.base_matrix())).astype(np.float32)

@@ -43,6 +43,10 @@ def vignetting_map(size: tuple[int, int], corner: float) -> np.ndarray:
     return (1.0 / (1.0 + a * r2) ** 2).astype(np.float32)
 
 
+#: The RGB channel each pixel of the 2 x 2 RGGB tile samples, by (row, column) parity.
+_CFA_CHANNEL = np.array([[0, 1], [1, 2]])
+
+
 def mosaic(rgb: np.ndarray) -> np.ndarray:
     """The (H, W) Bayer (RGGB) samples of an (H, W, 3) image."""
     out = np.empty(rgb.shape[:2], dtype=rgb.dtype)
@@ -61,6 +65,8 @@ class ImageSensor:
         size: Image (width, height) [px]; both even (a whole Bayer pattern).
         frame_period: Time between frames [s]; the longest exposure must fit in it.
         seed: Seeds the fixed pattern (PRNU, DSNU) and the per-frame noise.
+        readout: (H, W) bool the pixels read out (a region-of-interest readout, grown to whole
+            2 x 2 Bayer tiles); the others are delivered black (0) and cost nothing. None: all.
 
     Attributes:
         exposure_s: The exposure of the next frame [s].
@@ -68,11 +74,27 @@ class ImageSensor:
     """
 
     def __init__(
-        self, config: ImageSensorConfig, size: tuple[int, int], frame_period: float, seed: int | None = None
+        self,
+        config: ImageSensorConfig,
+        size: tuple[int, int],
+        frame_period: float,
+        seed: int | None = None,
+        readout: np.ndarray | None = None,
     ) -> None:
         w, h = size
         if w % 2 or h % 2:
             raise ValueError(f"size: {size}; a Bayer sensor needs an even width and height")
+        # the read pixels (flat indices) and their own colour's index into a flat RGB image
+        self._read: np.ndarray | None = None
+        if readout is not None:
+            mask = np.asarray(readout, dtype=bool)
+            if mask.shape != (h, w):
+                raise ValueError(f"readout: shape {mask.shape}; this sensor is {w} x {h} px")
+            tiles = mask.reshape(h // 2, 2, w // 2, 2).any(axis=(1, 3))
+            mask = np.repeat(np.repeat(tiles, 2, axis=0), 2, axis=1)
+            self._read = np.flatnonzero(mask)
+            ys, xs = np.divmod(self._read, w)
+            self._read_rgb = self._read * 3 + _CFA_CHANNEL[ys % 2, xs % 2]
         config.check_frame_period(frame_period)
         self.config = config
         self.size = (int(w), int(h))
@@ -104,8 +126,11 @@ class ImageSensor:
         w, h = self.size
         # each pixel's response: the lens's vignetting times its fixed gain (PRNU)
         prnu = 1.0 + c.prnu * rng.standard_normal((h, w))
-        self._response = (self._vignetting * prnu).astype(np.float32)
-        self._offset_e = (c.dsnu_e * rng.standard_normal((h, w))).astype(np.float32)
+        self._response = (self._vignetting * prnu).astype(np.float32).reshape(-1)
+        self._offset_e = (c.dsnu_e * rng.standard_normal((h, w))).astype(np.float32).reshape(-1)
+        if self._read is not None:
+            self._response = self._response[self._read]
+            self._offset_e = self._offset_e[self._read]
         self._rng = rng
         self.exposure_s = c.exposure_s
         self.gain_db = c.gain_db
@@ -134,25 +159,48 @@ class ImageSensor:
         """
         c = self.config
         t = self.exposure_s if exposure_s is None else float(exposure_s)
-        bayer = mosaic(image)
-        self._rendered = bayer > 0
-        if bayer.shape != self._response.shape:
-            w, h = self.size
-            raise ValueError(f"image: shape {image.shape}; this sensor is {w} x {h} px")
+        w, h = self.size
+        if image.shape != (h, w, 3):
+            raise ValueError(f"image: shape {image.shape}; this sensor is {w} x {h} px (H, W, 3)")
+        # each read pixel's sample of its own colour
+        bayer = mosaic(image).reshape(-1) if self._read is None else image.reshape(-1)[self._read_rgb]
         scale = np.float32(light * c.sun_e_per_s * t / 255.0)
         mean = bayer * (self._response * scale)
         mean += self._offset_e + np.float32(c.dark_current_e_s * t)
         np.maximum(mean, 0.0, out=mean)
         sd = np.sqrt(mean + np.float32(c.read_noise_e**2))
-        e = mean + sd * self._rng.standard_normal(mean.shape, dtype=np.float32)
+        e = mean + sd * self._normal(mean.shape)
         np.minimum(e, np.float32(c.full_well_e), out=e)
         k = c.system_gain(self.gain_db if gain_db is None else gain_db)
-        dn = np.rint(e * np.float32(k) + np.float32(c.black_level_dn))
-        return np.clip(dn, 0, c.dn_max).astype(np.uint16)
+        dn = np.clip(np.rint(e * np.float32(k) + np.float32(c.black_level_dn)), 0, c.dn_max).astype(np.uint16)
+        if self._read is None:
+            self._rendered = (bayer > 0).reshape(h, w)
+            return dn.reshape(h, w)
+        out = np.zeros(h * w, np.uint16)
+        out[self._read] = dn
+        rendered = np.zeros(h * w, bool)
+        rendered[self._read] = bayer > 0
+        self._rendered = rendered.reshape(h, w)
+        return out.reshape(h, w)
+
+    def _normal(self, shape: tuple[int, ...]) -> np.ndarray:
+        """Standard normal draws (float32), from this sensor's seeded generator.
+
+        OpenCV's generator draws them (a quarter of NumPy's time), seeded each frame from the
+        sensor's own generator: the same seed repeats the same frames.
+        """
+        out = np.empty(shape, np.float32)
+        cv2.setRNGSeed(int(self._rng.integers(1, 2**31)))
+        cv2.randn(out, 0.0, 1.0)  # type: ignore[call-overload]  # (the stubs take only sequences)
+        return out
 
     def develop(self, raw: np.ndarray) -> np.ndarray:
         """The delivered (H, W, 3) uint8 RGB image of raw Bayer values: gamma-encoded, demosaiced, JPEG."""
-        rgb = cv2.cvtColor(self._lut[raw], _DEMOSAIC)
+        return self._develop_encoded(self._lut[raw])
+
+    def _develop_encoded(self, encoded: np.ndarray) -> np.ndarray:
+        """:meth:`develop` of the gamma-encoded Bayer values (H, W) uint8."""
+        rgb = cv2.cvtColor(encoded, _DEMOSAIC)
         q = self.config.jpeg_quality
         if q is not None:
             ok, buf = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(q)])
@@ -173,10 +221,10 @@ class ImageSensor:
         """
         if isinstance(meter, str) and meter != "rendered":
             raise ValueError(f"meter={meter!r}: use a mask, 'rendered' or None")
-        raw = self.raw(image, light=light)
-        out = self.develop(raw)
+        encoded = self._lut[self.raw(image, light=light)]
+        out = self._develop_encoded(encoded)
         if self.config.auto_exposure:
-            self._meter(self._lut[raw], self._rendered if isinstance(meter, str) else meter)
+            self._meter(encoded, self._rendered if isinstance(meter, str) else meter)
         return out
 
     # ------------------------------------------------------------------ auto-exposure

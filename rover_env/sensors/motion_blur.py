@@ -4,10 +4,11 @@ A camera exposes each row over ``exposure`` seconds ending at its readout; whate
 across the image meanwhile is smeared along its path. :class:`MotionField` computes, from a
 rendered view's per-pixel 3-D points and body labels and the simulator's link velocities, the
 image velocity of every pixel [px/s]: the ground is still, the rover's links move rigidly (the
-wheels turn, the body carries the camera). :func:`blur` then averages the rendered image
-along those paths (a gather along each pixel's motion vector, as renderers' velocity-buffer
-motion blur does), and a rolling shutter shifts each row by its velocity times its readout
-delay.
+wheels turn, the body carries the camera); the GL renderer draws the same field in its colour
+pass instead (a velocity buffer, :class:`rover_env.rendering.base.MotionSpec`). :func:`blur`
+then averages the rendered image along those paths (a gather along each pixel's motion
+vector, as renderers' velocity-buffer motion blur does), and a rolling shutter shifts each
+row by its velocity times its readout delay.
 
 The image velocity is the camera model's exact derivative at each pixel: for a point at
 distance ``rho`` along the pixel's ray ``r`` moving at ``p_dot`` in the camera frame,
@@ -58,20 +59,6 @@ class MotionField:
         self.rays = rays.astype(np.float32)
         self.jacobian = np.nan_to_num(jac).reshape(h, w, 2, 3).astype(np.float32)
         self.size = (w, h)
-        # the six (H, W) planes of the Jacobian, contiguous (image_velocity's hot path)
-        self._planes = [np.ascontiguousarray(self.jacobian[..., i, k]) for i in range(2) for k in range(3)]
-
-    def image_velocity(self, ray_velocity: np.ndarray) -> np.ndarray:
-        """Image velocity (H, W, 2) [px/s] of each pixel's ray velocity (H, W, 3) [rad/s], optical frame.
-
-        ``ray_velocity``: a renderer's velocity buffer (:class:`rover_env.rendering.base.MotionSpec`).
-        """
-        a, b, c = (np.ascontiguousarray(ray_velocity[..., k]) for k in range(3))
-        j = self._planes
-        out = np.empty(a.shape + (2,), np.float32)
-        out[..., 0] = j[0] * a + j[1] * b + j[2] * c
-        out[..., 1] = j[3] * a + j[4] * b + j[5] * c
-        return out
 
     def velocity(
         self,
@@ -142,18 +129,24 @@ def blur(
     exposure_s: float,
     samples: int,
     rolling_shutter_s: float = 0.0,
+    rows: np.ndarray | None = None,
 ) -> np.ndarray:
     """``image`` (the scene at the end of the exposure) integrated over the exposure along ``velocity``.
 
     Args:
         image: (H, W, C) uint8 rendered at the readout of the frame (the last row's, with a
             rolling shutter).
-        velocity: (H, W, 2) image velocity [px/s] (:meth:`MotionField.velocity`).
+        velocity: (H, W, 2) image velocity [px/s] (:meth:`MotionField.velocity`, or a renderer's
+            velocity buffer).
         exposure_s: Exposure [s].
         samples: Most samples along a path; fewer when the longest path is shorter (at most a
             pixel apart along it, interpolated bilinearly).
-        rolling_shutter_s: Readout time from the first row to the last [s]: row y ends its
-            exposure ``rolling_shutter_s * (1 - y / (H - 1))`` before the last.
+        rolling_shutter_s: Readout time from the first row to the last [s]: a pixel on the
+            sensor's row fraction ``y`` (0: first row, 1: last) ends its exposure
+            ``rolling_shutter_s * (1 - y)`` before the last row.
+        rows: (H, W) float32 each pixel's sensor row fraction, where ``image`` is not the
+            sensor's own grid (a wider ideal view, a fisheye's cube faces); None: ``image``'s
+            rows.
 
     Returns:
         (H, W, C) uint8.
@@ -169,8 +162,8 @@ def blur(
     xs, ys = _grid(w, h)
     acc = np.zeros(image.shape[:2] + (image.shape[2],), np.float32)
     if rolling_shutter_s > 0:
-        # row y ends its exposure rolling_shutter_s * (1 - y / (H - 1)) before the last row
-        lag = np.float32(rolling_shutter_s) * (1.0 - ys / max(h - 1, 1))
+        frac = ys / max(h - 1, 1) if rows is None else rows
+        lag = np.float32(rolling_shutter_s) * (1.0 - frac)
     for k in range(n):
         # a pixel saw, s seconds before its readout, what is now (at the last readout) at x + v s
         s = float(exposure_s * (k + 0.5) / n)  # the midpoints of n equal parts
