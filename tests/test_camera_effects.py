@@ -102,6 +102,26 @@ def test_a_rolling_shutter_shifts_each_sensor_row_by_its_velocity_times_its_read
     assert shifts[int(np.argmin(errors))] == pytest.approx(4.4, abs=0.15)
 
 
+def test_blur_through_a_lens_samples_each_sensor_pixels_path_in_the_ideal_view_at_once():
+    """With a lens's maps, the blur's output is the sensor's grid: at rest exactly the lens's
+    remap; in motion the blurred ideal view seen through the lens, one resampling sharper."""
+    rng = np.random.default_rng(5)
+    image = cv2.GaussianBlur(rng.integers(0, 255, (60, 90, 3), dtype=np.uint8), (0, 0), 1.5)
+    ys, xs = np.mgrid[0:40, 0:64].astype(np.float32)
+    r2 = ((xs - 32) ** 2 + (ys - 20) ** 2) / 32.0**2
+    maps = ((xs - 32) * (1 + 0.2 * r2) + 45, (ys - 20) * (1 + 0.2 * r2) + 30)  # a barrel lens
+    lens = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    still = np.zeros((60, 90, 2), np.float32)
+    np.testing.assert_array_equal(blur(image, still, 0.004, 8, maps=maps), lens)
+    moving = np.zeros((60, 90, 2), np.float32)
+    moving[..., 0] = 800.0  # [px/s]: 3.2 px over 4 ms
+    once = blur(image, moving, 0.004, 8, maps=maps).astype(float)
+    twice = cv2.remap(blur(image, moving, 0.004, 8), *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inner = np.s_[4:-4, 8:-8]
+    assert np.abs(once - twice)[inner].mean() < 1.0
+    assert np.abs(once - lens)[inner].mean() > 5.0  # it did blur
+
+
 def test_the_fisheye_atlas_rows_are_the_sensor_rows_of_its_pixels():
     """What a rolling shutter reads on the cube faces: at each fisheye pixel's atlas position,
     the atlas holds that pixel's own row."""

@@ -207,25 +207,19 @@ class _RoverCamera(ABC):
         assert sensor is not None
         renderer = focus_on_rover(self.sim, self.config.ground_range)
         motion = self._motion
-        s = self.config.sensor
         if motion is not None and renderer.draws_motion:
-            # the renderer draws each pixel's velocity in the colour pass (a velocity buffer) and
-            # hands each view drawn to the exposure before any resampling
+            # the renderer draws each pixel's velocity in the colour pass (a velocity buffer)
             T = self.T_world_cam()
             links = self.sim.link_motion()
             com, v_l, w_l = links[-1]
-            rows = self._blur_rows(drawn=True)
-
-            def expose(image: np.ndarray, velocity: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
-                r = None
-                if rows is not None:
-                    (x0, y0), (h, w) = origin, image.shape[:2]
-                    r = rows[y0 : y0 + h, x0 : x0 + w]
-                return blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s, r)
-
-            spec = MotionSpec(self.sim.rover.body_id, links, v_l + np.cross(w_l, T[:3, 3] - com), w_l, expose)
-            view = self._render(labels=False, parts=parts, motion=spec)
-            image = view.rgb
+            v_cam = v_l + np.cross(w_l, T[:3, 3] - com)
+            expose = self._expose_drawn()
+            view = self._render(
+                labels=False,
+                parts=parts,
+                motion=MotionSpec(self.sim.rover.body_id, links, v_cam, w_l, expose),
+            )
+            image = self._lens(view.rgb) if expose is not None else self._exposed(view.rgb, view.motion)
         elif motion is not None:  # from a labelled render: each pixel's point and body
             view = self._render(labels=True, parts=parts)
             velocity = motion.velocity(
@@ -235,19 +229,23 @@ class _RoverCamera(ABC):
                 self.sim.link_motion(),
                 self.sim.rover.body_id,
             )
-            rows = self._blur_rows(drawn=False)
-            image = blur(view.rgb, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s, rows)
+            image = self._exposed(view.rgb, velocity)
         else:
             view = self._render(labels=False, parts=parts)
-            image = view.rgb
+            image = self._lens(view.rgb)
         self._keep(view)
-        return sensor.capture(self._lens(image), meter="rendered")
+        return sensor.capture(image, meter="rendered")
 
-    def _blur_rows(self, drawn: bool) -> np.ndarray | None:
-        """The sensor row fraction of each pixel of the image that is blurred (None: its own rows).
+    def _exposed(self, image: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """The rendered ``image`` integrated over the exposure along ``velocity`` [px/s], through the lens."""
+        sensor, s = self.image_sensor, self.config.sensor
+        assert sensor is not None
+        return self._lens(blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s))
 
-        ``drawn``: the renderer's own views (a velocity buffer), else the camera's image grid.
-        Only a rolling shutter needs it.
+    def _expose_drawn(self) -> Callable | None:
+        """The exposure the renderer applies to each view it draws (:attr:`MotionSpec.expose`).
+
+        None: the camera exposes the whole drawn image with its velocity buffer (:meth:`_exposed`).
         """
         return None
 
@@ -330,7 +328,6 @@ class DownwardCamera(_RoverCamera):
         # the ideal view that is rendered, and the lens's remap from it (None: no distortion)
         self._render_model = self.model
         self._lens_maps: tuple[np.ndarray, np.ndarray] | None = None
-        self._rows: tuple[PinholeCamera, np.ndarray] | None = None  # (model, _blur_rows)
 
     def set_effects(self, on: bool, seed: int | None = None) -> None:
         """As :meth:`_RoverCamera.set_effects`; a field lens also distorts (``sensor.distortion``).
@@ -368,16 +365,16 @@ class DownwardCamera(_RoverCamera):
             self.model = model
         super().set_effects(on, seed)
 
-    def _blur_rows(self, drawn: bool) -> np.ndarray | None:
-        # the ideal view is blurred in both paths; with distortion its rows are not the sensor's
-        if self._lens_maps is None or not self.config.sensor.rolling_shutter_s > 0:
-            return None
-        if self._rows is None or self._rows[0] is not self.model:
-            w, h = self._render_model.image_size
-            rays = self._render_model.unproject(_pixels(w, h))
-            rows = self.model.project(rays)[..., 1] / max(self.model.image_size[1] - 1, 1)
-            self._rows = (self.model, rows.astype(np.float32))
-        return self._rows[1]
+    def _exposed(self, image: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        # with a lens, each sensor pixel's path is sampled in the ideal view at once (one
+        # resampling, not the blur's and then the lens's)
+        if self._lens_maps is None:
+            return super()._exposed(image, velocity)
+        sensor, s = self.image_sensor, self.config.sensor
+        assert sensor is not None
+        return blur(
+            image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s, maps=self._lens_maps
+        )
 
     def _lens(self, image: np.ndarray) -> np.ndarray:
         if self._lens_maps is None:
@@ -570,11 +567,22 @@ class FisheyeCamera(_RoverCamera):
         # with a region of interest, the sensor reads it (the rest is not rendered either)
         return self.remapper.rendered if self.config.roi else None
 
-    def _blur_rows(self, drawn: bool) -> np.ndarray | None:
-        # the GL renderer's views are the cube faces' atlas; a labelled render is blurred as remapped
-        if not drawn or not self.config.sensor.rolling_shutter_s > 0:
-            return None
-        return self.remapper.atlas_rows / np.float32(max(self.model.image_size[1] - 1, 1))
+    def _expose_drawn(self) -> Callable | None:
+        # each cube-face window is blurred as drawn, before the remap to the fisheye
+        sensor, s = self.image_sensor, self.config.sensor
+        assert sensor is not None
+        rows = None
+        if s.rolling_shutter_s > 0:  # each atlas pixel's sensor row
+            rows = self.remapper.atlas_rows / np.float32(max(self.model.image_size[1] - 1, 1))
+
+        def expose(image: np.ndarray, velocity: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
+            r = None
+            if rows is not None:
+                (x0, y0), (h, w) = origin, image.shape[:2]
+                r = rows[y0 : y0 + h, x0 : x0 + w]
+            return blur(image, velocity, sensor.exposure_s, s.blur_samples, s.rolling_shutter_s, r)
+
+        return expose
 
     def _points_cam(self, view) -> np.ndarray:
         T = (self._T_cam_body @ np.linalg.inv(self.sim.base_matrix())).astype(np.float32)

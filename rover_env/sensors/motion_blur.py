@@ -130,6 +130,7 @@ def blur(
     samples: int,
     rolling_shutter_s: float = 0.0,
     rows: np.ndarray | None = None,
+    maps: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """``image`` (the scene at the end of the exposure) integrated over the exposure along ``velocity``.
 
@@ -143,26 +144,36 @@ def blur(
             pixel apart along it, interpolated bilinearly).
         rolling_shutter_s: Readout time from the first row to the last [s]: a pixel on the
             sensor's row fraction ``y`` (0: first row, 1: last) ends its exposure
-            ``rolling_shutter_s * (1 - y)`` before the last row.
-        rows: (H, W) float32 each pixel's sensor row fraction, where ``image`` is not the
-            sensor's own grid (a wider ideal view, a fisheye's cube faces); None: ``image``'s
-            rows.
+            ``rolling_shutter_s * (1 - y)`` before the last.
+        rows: (H, W) float32 each output pixel's sensor row fraction, where the output is not
+            the sensor's own grid (a fisheye's cube faces); None: the output's rows.
+        maps: (x, y) float32 (H', W') each output pixel's position in ``image`` [px] (a lens's
+            remap, :meth:`cv2.remap`'s maps): the output is the sensor's grid, each pixel's path
+            sampled in ``image`` about its position there, in one resampling. None: the output
+            is ``image``'s grid.
 
     Returns:
-        (H, W, C) uint8.
+        (H, W, C) uint8, or (H', W', C) with ``maps``.
     """
-    h, w = image.shape[:2]
+    if maps is not None:
+        xs, ys = maps
+        velocity = cv2.remap(velocity, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        h, w = xs.shape
+    else:
+        h, w = image.shape[:2]
+        xs, ys = _grid(w, h)
     vx, vy = np.ascontiguousarray(velocity[..., 0]), np.ascontiguousarray(velocity[..., 1])
     span = float(max(-vx.min(), vx.max(), -vy.min(), vy.max())) if velocity.size else 0.0
     longest = span * (exposure_s + rolling_shutter_s)
     if longest < 0.25:
-        return image
+        if maps is None:
+            return image
+        return cv2.remap(image, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     # samples at most a pixel apart along the longest path (bilinear between them)
     n = int(min(samples, max(2, math.ceil(longest) + 1)))
-    xs, ys = _grid(w, h)
-    acc = np.zeros(image.shape[:2] + (image.shape[2],), np.float32)
+    acc = np.zeros((h, w, image.shape[2]), np.float32)
     if rolling_shutter_s > 0:
-        frac = ys / max(h - 1, 1) if rows is None else rows
+        frac = _grid(w, h)[1] / max(h - 1, 1) if rows is None else rows
         lag = np.float32(rolling_shutter_s) * (1.0 - frac)
     for k in range(n):
         # a pixel saw, s seconds before its readout, what is now (at the last readout) at x + v s
