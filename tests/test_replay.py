@@ -91,15 +91,15 @@ def test_a_rig_file_round_trips_the_simulation_s_rig(recorded):
     with pytest.raises(FileExistsError, match="rig.yaml"):
         save_rig(lr.rig, rig_file.parent)
     assert {p.name: p.read_bytes() for p in rig_file.parent.iterdir()} == before
-    assert (lr.rig["fisheye"].gamma, lr.rig["fisheye"].bayer) == (1.0, None)  # ideal cameras
-    # a field camera's photometry (its output gamma and colour-filter array) is kept
+    assert (lr.rig["fisheye"].gamma, lr.rig["fisheye"].bayer) == (2.2, "RGGB")  # field cameras
+    # a camera's photometry (its output gamma and colour-filter array) is kept: an ideal one's too
     from perception.rig import Rig, SensorSpec
 
     specs = [
-        dataclasses.replace(s_, gamma=2.2, bayer="RGGB") if s_.kind != "imu" else s_ for s_ in lr.rig.values()
+        dataclasses.replace(s_, gamma=1.0, bayer=None) if s_.kind != "imu" else s_ for s_ in lr.rig.values()
     ]
-    again = load_rig(save_rig(Rig(specs, lr.rig.vehicle, lr.rig.steer_max_rate), rig_file.parent / "field"))
-    assert [(s_.gamma, s_.bayer) for s_ in again.rig.values()] == [(2.2, "RGGB"), (2.2, "RGGB"), (1.0, None)]
+    again = load_rig(save_rig(Rig(specs, lr.rig.vehicle, lr.rig.steer_max_rate), rig_file.parent / "ideal"))
+    assert [(s_.gamma, s_.bayer) for s_ in again.rig.values()] == [(1.0, None), (1.0, None), (1.0, None)]
     assert isinstance(again.rig["imu"], SensorSpec)
 
 

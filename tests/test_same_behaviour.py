@@ -49,7 +49,11 @@ def rollout(env_id: str, source: str, imu: str | None) -> dict[str, np.ndarray]:
 
     import rover_env  # noqa: F401
 
-    kwargs = {"obs_source": source, "renderer": "tiny"}  # TinyRenderer: the same bits on any CPU
+    # TinyRenderer: the same bits on any CPU; the images as rendered (the baseline predates the
+    # field cameras' default; their chain has its own tests in test_camera_effects.py)
+    kwargs = {"obs_source": source, "renderer": "tiny"}
+    if source == "estimated":
+        kwargs["camera_effects"] = "ideal"
     if imu:
         kwargs["imu"] = imu
     env = gym.make(env_id, **kwargs)

@@ -193,10 +193,11 @@ class RoverEnv(gym.Env):
             (:mod:`perception.estimator`: ``reset(start_fix)``, ``update(messages, t)``); the
             observation's state fields and ``info["estimate"]`` are what it returns. None: the
             built-in :class:`perception.RoverEstimator`. See docs/own_estimator.md.
-        camera_effects: With ``obs_source="estimated"``: ``"field"`` delivers each camera's
-            images through its image sensor and lens (noise, auto-exposure, vignetting, gamma;
-            the camera configuration's ``sensor``), drawn per episode from the reset's seed;
-            ``"ideal"`` (default) delivers them as rendered.
+        camera_effects: With ``obs_source="estimated"``: ``"field"`` (default) delivers each
+            camera's images through its image sensor and lens (motion blur, noise,
+            auto-exposure, vignetting, distortion, gamma; the camera configuration's
+            ``sensor``), drawn per episode from the reset's seed; ``"ideal"`` delivers them as
+            rendered (for ablations, and faster with TinyRenderer, which has no velocity buffer).
         randomize: Domain randomisation (:mod:`rover_env.config.randomize`): ``"on"`` draws each
             episode's sun, sky light, ground texture, albedo and contrast, camera mount errors,
             camera and IMU figures and friction factor from the reset's seed, within the default
@@ -225,7 +226,7 @@ class RoverEnv(gym.Env):
         renderer: str = "auto",
         imu: str | dict | ImuConfig | None = None,
         estimator: EstimatorFactory | None = None,
-        camera_effects: CameraEffectsName = "ideal",
+        camera_effects: CameraEffectsName = "field",
         randomize: str | dict | RandomizeConfig | None = None,
     ) -> None:
         super().__init__()

@@ -500,7 +500,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--seeds", nargs="+", type=_seeds, default=[[0, 1, 2]], help="seeds: N or N-M (default: 0-2)"
     )
     e.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
-    e.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"),
+    e.add_argument("--camera-effects", default="field", choices=("ideal", "field"),
                    help="estimated runs' cameras: as rendered, or through their image sensors")  # fmt: skip
     e.add_argument("--randomize", default=None, choices=("off", "on"),
                    help="domain randomisation, each run's world drawn from its seed "
@@ -545,7 +545,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train on perception's estimates or on the simulator's state")  # fmt: skip
     t.add_argument("--preset", default="train", choices=("train", "eval"),
                    help="camera preset (train: 160x120, 30 Hz; eval: 640x480, 60 Hz)")  # fmt: skip
-    t.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"),
+    t.add_argument("--camera-effects", default="field", choices=("ideal", "field"),
                    help="the cameras: as rendered, or through their image sensors")  # fmt: skip
     t.add_argument("--randomize", default=None, choices=("off", "on"),
                    help="domain randomisation, each episode's world drawn from its seed "

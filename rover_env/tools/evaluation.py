@@ -78,7 +78,7 @@ class EvalJob:
     video: bool = False
     rerun: bool = False
     estimator: str | None = None
-    camera_effects: str = "ideal"
+    camera_effects: str = "field"
     randomize: str | None = None
 
     @property
@@ -316,7 +316,7 @@ def jobs_for(
     video: bool = False,
     rerun: bool = False,
     estimator: str | None = None,
-    camera_effects: str = "ideal",
+    camera_effects: str = "field",
     randomize: str | None = None,
 ) -> list[EvalJob]:
     """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""

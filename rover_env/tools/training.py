@@ -210,7 +210,7 @@ def make_env(
     seed: int | None = None,
     reward: dict | None = None,
     base: str = "traction",
-    camera_effects: str = "ideal",
+    camera_effects: str = "field",
     randomize: str | None = None,
     episode_seeds: tuple[int, int] | None = None,
     imu: str | None = None,
@@ -313,7 +313,7 @@ class TrainConfig:
     checkpoint_every: int = 20_000
     hyper: dict = field(default_factory=dict)
     reward: dict = field(default_factory=dict)
-    camera_effects: str = "ideal"
+    camera_effects: str = "field"
     randomize: str | None = None
     episode_seeds: int = 10_000
     imu: str | None = None
