@@ -71,7 +71,7 @@ def record(args) -> None:
                 run = sa.drive(seed, "train", env_id, span, 20.0, 0.05, args.renderer, args.imu, make)
             runs.append({"seed": seed, "run": run, "calls": list(calls)})
         tag = f"_{args.closed_loop}" if args.closed_loop else ""
-        path = out / f"{env_id}{tag}_{args.imu}_{args.seeds[0]}.pkl"
+        path = out / f"{env_id}{tag}_{args.imu}_{args.camera_effects}_{args.seeds[0]}.pkl"
         with open(path, "wb") as fh:
             pickle.dump(runs, fh)
         print(f"recorded {env_id}, seeds {args.seeds}: {path}", flush=True)

@@ -75,7 +75,8 @@ def cfa_luminance(
         gamma: The camera's output gamma (1: linear images).
         sigma: Width of the local levels [pixels of a colour plane, i.e. 2 image pixels].
         rect: (x0, y0, x1, y1) [px, end exclusive]: only this part of the result, computed from
-            the image about it (the Gaussians' reach): the same values as the whole image's.
+            the image about it (the Gaussians' reach): the whole image's values, to float
+            rounding (about 1e-7 of the range).
 
     Raises:
         ValueError: An unknown pattern, an image that is not (H, W, 3) uint8 of even size.

@@ -492,8 +492,9 @@ def _sample_strips(gray, maps: np.ndarray, blocks: list[tuple[int, int]], size: 
     """The grey frame at the strips' cells (-1: none), bilinear, as float32.
 
     ``gray``: the frame, or a function of a rectangle (x0, y0, x1, y1) [px, end exclusive]
-    that returns the frame's grey levels there (each block of columns, one strip, is then
-    sampled from the rectangle that holds its cells: cheaper when the levels cost time).
+    that returns the frame's grey levels there, sampled as float32 (each block of columns, one
+    strip, is then sampled from the rectangle that holds its cells: cheaper when the levels
+    cost time).
     """
     if not callable(gray):
         return cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR).astype(np.float32)

@@ -361,11 +361,21 @@ def test_a_scenario_sets_a_cameras_sensor_figures_and_bad_ones_name_the_key():
         SensorConfig("downward", "pinhole", camera={"sensor": {"gamma": 0.0}})
     with pytest.raises(ConfigError, match=r"unknown key 'camera\.sensor\.iso'"):
         SensorConfig("downward", "pinhole", camera={"sensor": {"iso": 100}})
-    long = SensorConfig("downward", "pinhole", rate_hz=120.0, camera={"sensor": {"exposure_max_s": 0.01}})
-    with pytest.raises(ConfigError, match="exposure_max_s: 10 ms is longer than the frame period 8.33333 ms"):
+    # (the preset's own 10 ms is capped at a faster camera's frame period; one set otherwise is not)
+    long = SensorConfig("downward", "pinhole", rate_hz=120.0, camera={"sensor": {"exposure_max_s": 0.012}})
+    with pytest.raises(ConfigError, match="exposure_max_s: 12 ms is longer than the frame period 8.33333 ms"):
         gym.make(
             "Rover-v0", scenario=dataclasses.replace(scenario, rig=(rig[0], long)), camera_effects="field"
         )
+    fast = SensorConfig("downward", "pinhole", rate_hz=120.0)
+    env = gym.make(
+        "Rover-v0", scenario=dataclasses.replace(scenario, rig=(rig[0], fast)), camera_effects="field"
+    )
+    try:
+        env.reset(seed=0)
+        assert env.unwrapped.pipeline.downward.image_sensor.config.exposure_max_s == pytest.approx(1 / 120)
+    finally:
+        env.close()
 
 
 def test_the_sun_moves_and_clouds_dim_it_and_auto_exposure_follows():

@@ -200,3 +200,26 @@ def test_a_sweep_runs_field_cameras_in_a_randomised_world(tiny_scenario, tmp_pat
     with pytest.raises(SystemExit):
         main(argv[:-2] + ["--out", str(tmp_path / "x"), "--randomize", "maybe"])
     assert not (tmp_path / "x").exists()
+
+
+def test_resume_takes_a_finished_run_only_for_the_same_cameras_estimator_and_world(tmp_path):
+    """A folder started with other cameras (the default was once ``ideal``), another estimator
+    or another randomisation is not resumed as if it were this job's; ground-truth runs are."""
+    from rover_env.tools.evaluation import finished_row
+
+    def write(row):
+        (tmp_path / "row.json").write_text(json.dumps(row))
+
+    base = {"controller": "slip_aware@imu", "mission": "Rover-v0", "seed": 3, "preset": "train"}
+    job = EvalJob("slip_aware@imu", "Rover-v0", 3, out=str(tmp_path), randomize="on")
+    write({**base, "camera_effects": "field", "estimator": "built-in", "randomize": "on"})
+    assert finished_row(job) is not None
+    for change in ({"camera_effects": "ideal"}, {"estimator": "mine.py:make"}, {"randomize": "off"}):
+        write({**base, "camera_effects": "field", "estimator": "built-in", "randomize": "on", **change})
+        assert finished_row(job) is None, change
+    # the scenario's own randomisation (None) takes the row's
+    write({**base, "camera_effects": "field", "estimator": "built-in", "randomize": "off"})
+    assert finished_row(EvalJob("slip_aware@imu", "Rover-v0", 3, out=str(tmp_path))) is not None
+    gt = {**base, "controller": "slip_aware@ground_truth", "camera_effects": "none", "estimator": "none"}
+    write({**gt, "randomize": "on"})
+    assert finished_row(EvalJob("slip_aware@ground_truth", "Rover-v0", 3, out=str(tmp_path), randomize="on"))

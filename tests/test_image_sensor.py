@@ -132,3 +132,53 @@ def test_an_exposure_longer_than_the_frame_period_is_refused():
         ImageSensorConfig.from_dict({"exposure": 0.01})
     with pytest.raises(ConfigError, match="sensor.preset"):
         ImageSensorConfig.from_dict({"preset": "nikon"})
+
+
+def test_the_per_frame_noise_is_unbiased_from_the_first_pixel_and_repeats_with_the_seed():
+    """The first draws after seeding OpenCV's generator are biased; the sensor drops them."""
+    first = np.array(
+        [ImageSensor(ImageSensorConfig(), (64, 48), PERIOD, seed=s)._normal((4,)) for s in range(2000)]
+    )
+    assert np.abs(first.mean(axis=0)).max() < 0.08  # 3.5 standard errors
+    assert np.abs((first > 0).mean(axis=0) - 0.5).max() < 0.04
+    frames = ImageSensor(ImageSensorConfig(), (64, 48), PERIOD, seed=3)._normal((48, 64))
+    assert frames.std() == pytest.approx(1.0, abs=0.03) and abs(float(frames.mean())) < 0.03
+    again = ImageSensor(ImageSensorConfig(), (64, 48), PERIOD, seed=3)._normal((48, 64))
+    np.testing.assert_array_equal(frames, again)
+
+
+def test_a_region_of_interest_readout_reads_its_own_bayer_sites_and_nothing_else():
+    """Only the region (grown to whole 2 x 2 tiles) is read, each pixel through its own colour."""
+    cfg = ImageSensorConfig(auto_exposure=False, vignetting=1.0, prnu=0.0, dsnu_e=0.0)
+    roi = np.zeros((48, 64), bool)
+    roi[11:30, 21:40] = True  # odd corners: the tiles it touches are read
+    red = np.zeros((48, 64, 3), np.uint8)
+    red[..., 0] = 200
+    full = ImageSensor(cfg, (64, 48), PERIOD, seed=1).raw(red).astype(float)
+    part = ImageSensor(cfg, (64, 48), PERIOD, seed=1, readout=roi).raw(red).astype(float)
+    read = np.zeros_like(roi)
+    read[10:30, 20:40] = True
+    assert np.all(part[~read] == 0)
+    r_sites = np.zeros_like(roi)
+    r_sites[0::2, 0::2] = True
+    # the same signal inside: red sites bright, the others at the black level
+    for sites in (r_sites, ~r_sites):
+        a, b = full[read & sites], part[read & sites]
+        assert abs(a.mean() - b.mean()) < 4.0 * a.std() / math.sqrt(a.size) + 0.5
+    assert part[read & r_sites].mean() > 10 * part[read & ~r_sites].mean()
+    with pytest.raises(ValueError, match="readout: no pixel"):
+        ImageSensor(cfg, (64, 48), PERIOD, readout=np.zeros((48, 64), bool))
+    with pytest.raises(ValueError, match="readout: shape"):
+        ImageSensor(cfg, (64, 48), PERIOD, readout=np.ones((64, 48), bool))
+
+
+def test_a_presets_longest_exposure_fits_a_faster_camera_and_one_set_by_hand_must_fit():
+    preset = ImageSensorConfig()
+    fast = preset.for_frame_period(1 / 120)
+    assert fast.exposure_max_s == pytest.approx(1 / 120) and fast.exposure_s <= 1 / 120
+    ImageSensor(fast, (64, 48), 1 / 120)  # no error
+    assert preset.for_frame_period(1 / 30) is preset
+    by_hand = ImageSensorConfig.from_dict({"exposure_max_s": 0.01})
+    assert by_hand.for_frame_period(1 / 120) is by_hand
+    with pytest.raises(ConfigError, match="exposure_max_s: 10 ms is longer than the frame period"):
+        ImageSensor(by_hand, (64, 48), 1 / 120)

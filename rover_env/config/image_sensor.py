@@ -142,6 +142,19 @@ class ImageSensorConfig:
                 f"{period * 1e3:g} ms"
             )
 
+    def for_frame_period(self, period: float) -> ImageSensorConfig:
+        """These figures on a camera of frame period ``period`` [s].
+
+        A preset's longest exposure is the preset's choice for its usual rate; on a faster
+        camera a preset left as it is gets it capped at the frame period (and the starting
+        exposure with it), as an exposure control must. Figures set by hand are kept, for
+        :meth:`check_frame_period` to judge.
+        """
+        if self != IMAGE_SENSOR_PRESETS.get(self.name) or self.exposure_max_s <= period:
+            return self
+        top = max(float(period), self.exposure_min_s)
+        return replace(self, exposure_max_s=top, exposure_s=min(self.exposure_s, top))
+
     @property
     def dn_max(self) -> int:
         """Largest raw value [DN]."""

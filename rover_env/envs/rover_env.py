@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import logging
 import math
 from pathlib import Path
 from typing import Any, Literal
@@ -28,6 +29,8 @@ from rover_env.sim.ground_truth import GroundTruth
 from rover_env.sim.simulation import RoverSim, quat_to_yaw, yaw_to_quat
 from rover_env.task.course import WaypointCourse
 from rover_env.task.judge import Judge, RewardConfig, StepFacts, wheel_power
+
+log = logging.getLogger(__name__)
 
 
 def _imu_unit(config: ImuConfig, world: WorldDraw | None) -> ImuConfig | None:
@@ -309,6 +312,11 @@ class RoverEnv(gym.Env):
             except BaseException:  # a bad rig or estimator: release the physics client
                 self.sim.close()
                 raise
+            if camera_effects == "field" and self.sim.renderer == "tiny" and self.pipeline.cameras:
+                log.info(
+                    "field cameras with TinyRenderer: the motion blur needs a labelled render of each "
+                    "view (slower); camera_effects='ideal' delivers the images as rendered"
+                )
         self._est: dict[str, Any] | None = None  # the estimator's last (checked) estimate
         n_act = 3 if self.action_mode is ActionMode.DRIVE else 6
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
@@ -372,7 +380,7 @@ class RoverEnv(gym.Env):
             if self.camera_effects == "field":  # each image sensor's fixed pattern and noise
                 for i, cam in enumerate(cams):
                     cam.reset_effects(
-                        int(rng.integers(2**63 - 1)), _sensor_unit(cam.config.sensor, self.world, i)
+                        int(rng.integers(2**63 - 1)), _sensor_unit(cam.sensor_config, self.world, i)
                     )
         self._gt = self.sim.reset(x, y, yaw)
         messages = self.sim.take_messages()

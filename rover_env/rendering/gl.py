@@ -1240,7 +1240,10 @@ class GLRenderer(Renderer):
                 "motion: a velocity buffer is drawn without segmentation; pass segmentation=False"
             )
         with self.ctx:
-            return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation, motion)
+            try:
+                return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation, motion)
+            finally:
+                self._link_motion = (None, None)  # (holds the spec and its expose: not past the render)
 
     def render_fisheye(
         self,
@@ -1263,7 +1266,12 @@ class GLRenderer(Renderer):
         if motion is not None and labels:
             raise ValueError("motion: a velocity buffer is drawn without labels; pass labels=False")
         with self.ctx:
-            return self._render_fisheye(remapper, T_world_cam, lighting, labels, near, far, windows, motion)
+            try:
+                return self._render_fisheye(
+                    remapper, T_world_cam, lighting, labels, near, far, windows, motion
+                )
+            finally:
+                self._link_motion = (None, None)
 
     def _render_K(
         self,

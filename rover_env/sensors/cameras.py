@@ -90,6 +90,10 @@ class _RoverCamera(ABC):
         #: The image sensor between the renderer and the estimator (``camera_effects="field"``),
         #: or None: the rendered image is delivered as it is.
         self.image_sensor: ImageSensor | None = None
+        #: The image sensor's figures on this camera: the configured ones, a preset's longest
+        #: exposure capped at a faster camera's frame period
+        #: (:meth:`~rover_env.config.image_sensor.ImageSensorConfig.for_frame_period`).
+        self.sensor_config = config.sensor.for_frame_period(self.period)
         self._motion: MotionField | None = None
         #: (t0, t1) windows of simulation time [s] in which :meth:`sample` delivers black frames
         #: (a camera fault: the estimator sees only the images).
@@ -177,9 +181,13 @@ class _RoverCamera(ABC):
             return
         size = (self.config.width, self.config.height)
         if size[0] % 2 or size[1] % 2:
-            raise ConfigError(f"width, height: {size}; an image sensor with a Bayer pattern needs even sizes")
+            raise ConfigError(
+                f"width, height: {size}; an image sensor with a Bayer pattern needs even sizes "
+                "(or camera_effects='ideal')"
+            )
         try:
-            self.image_sensor = ImageSensor(self.config.sensor, size, self.period, seed, self._readout())
+            self.sensor_config = self.config.sensor.for_frame_period(self.period)
+            self.image_sensor = ImageSensor(self.sensor_config, size, self.period, seed, self._readout())
         except ConfigError as exc:
             raise ConfigError(f"sensor.{exc}") from None
         s = self.config.sensor
@@ -199,7 +207,7 @@ class _RoverCamera(ABC):
         (domain randomisation); None: the configured one.
         """
         if self.image_sensor is not None:
-            self.image_sensor.reset(seed, self.config.sensor if sensor is None else sensor)
+            self.image_sensor.reset(seed, self.sensor_config if sensor is None else sensor)
 
     def _field_frame(self, parts: np.ndarray | None = None) -> np.ndarray:
         """A frame through the image sensor: rendered, blurred along each pixel's motion, exposed."""
@@ -233,7 +241,6 @@ class _RoverCamera(ABC):
         else:
             view = self._render(labels=False, parts=parts)
             image = self._lens(view.rgb)
-        self._keep(view)
         return sensor.capture(image, meter="rendered")
 
     def _exposed(self, image: np.ndarray, velocity: np.ndarray) -> np.ndarray:

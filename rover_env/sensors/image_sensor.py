@@ -43,6 +43,8 @@ def vignetting_map(size: tuple[int, int], corner: float) -> np.ndarray:
     return (1.0 / (1.0 + a * r2) ** 2).astype(np.float32)
 
 
+#: Draws of OpenCV's generator dropped after each seed (its first is biased, see ImageSensor._normal).
+_NORMAL_SKIP = 4
 #: The RGB channel each pixel of the 2 x 2 RGGB tile samples, by (row, column) parity.
 _CFA_CHANNEL = np.array([[0, 1], [1, 2]])
 
@@ -66,7 +68,8 @@ class ImageSensor:
         frame_period: Time between frames [s]; the longest exposure must fit in it.
         seed: Seeds the fixed pattern (PRNU, DSNU) and the per-frame noise.
         readout: (H, W) bool the pixels read out (a region-of-interest readout, grown to whole
-            2 x 2 Bayer tiles); the others are delivered black (0) and cost nothing. None: all.
+            2 x 2 Bayer tiles); the others read 0 DN and cost nothing (black, but for the one
+            pixel the demosaic's interpolation reaches past the region). None: all.
 
     Attributes:
         exposure_s: The exposure of the next frame [s].
@@ -90,6 +93,8 @@ class ImageSensor:
             mask = np.asarray(readout, dtype=bool)
             if mask.shape != (h, w):
                 raise ValueError(f"readout: shape {mask.shape}; this sensor is {w} x {h} px")
+            if not mask.any():
+                raise ValueError("readout: no pixel is read; give a mask with some True, or None (all)")
             tiles = mask.reshape(h // 2, 2, w // 2, 2).any(axis=(1, 3))
             mask = np.repeat(np.repeat(tiles, 2, axis=0), 2, axis=1)
             self._read = np.flatnonzero(mask)
@@ -187,12 +192,14 @@ class ImageSensor:
         """Standard normal draws (float32), from this sensor's seeded generator.
 
         OpenCV's generator draws them (a quarter of NumPy's time), seeded each frame from the
-        sensor's own generator: the same seed repeats the same frames.
+        sensor's own generator: the same seed repeats the same frames. Its first draws after a
+        32-bit seed are biased (the first is positive 99 % of the time), so a few are dropped.
         """
-        out = np.empty(shape, np.float32)
+        n = int(np.prod(shape))
+        out = np.empty(n + _NORMAL_SKIP, np.float32)
         cv2.setRNGSeed(int(self._rng.integers(1, 2**31)))
         cv2.randn(out, 0.0, 1.0)  # type: ignore[call-overload]  # (the stubs take only sequences)
-        return out
+        return out[_NORMAL_SKIP:].reshape(shape)
 
     def develop(self, raw: np.ndarray) -> np.ndarray:
         """The delivered (H, W, 3) uint8 RGB image of raw Bayer values: gamma-encoded, demosaiced, JPEG."""

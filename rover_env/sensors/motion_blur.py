@@ -145,8 +145,9 @@ def blur(
         rolling_shutter_s: Readout time from the first row to the last [s]: a pixel on the
             sensor's row fraction ``y`` (0: first row, 1: last) ends its exposure
             ``rolling_shutter_s * (1 - y)`` before the last.
-        rows: (H, W) float32 each output pixel's sensor row fraction, where the output is not
-            the sensor's own grid (a fisheye's cube faces); None: the output's rows.
+        rows: float32 each output pixel's sensor row fraction ((H, W), or (H', W') with
+            ``maps``), where the output is not the sensor's own grid (a fisheye's cube faces);
+            None: the output's rows.
         maps: (x, y) float32 (H', W') each output pixel's position in ``image`` [px] (a lens's
             remap, :meth:`cv2.remap`'s maps): the output is the sensor's grid, each pixel's path
             sampled in ``image`` about its position there, in one resampling. None: the output

@@ -204,7 +204,11 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
 
 
 def finished_row(job: EvalJob) -> dict | None:
-    """The row a finished run of ``job`` wrote into its folder (None: not run, or another job's)."""
+    """The row a finished run of ``job`` wrote into its folder (None: not run, or another job's).
+
+    Another job's: another controller, mission, seed or preset, or an estimated run with other
+    cameras, another estimator or (where ``job`` sets it) another randomisation.
+    """
     if job.out is None:
         return None
     path = Path(job.out) / ROW_FILE
@@ -215,6 +219,14 @@ def finished_row(job: EvalJob) -> dict | None:
     same = isinstance(row, dict) and all(
         row.get(k) == getattr(job, k) for k in ("controller", "mission", "seed", "preset")
     )
+    if same:
+        # the run's cameras, estimator and world ("none": a ground-truth run, which has neither)
+        same = row.get("camera_effects") in ("none", job.camera_effects) and row.get("estimator") in (
+            "none",
+            job.estimator or "built-in",
+        )
+        if job.randomize is not None:
+            same = same and row.get("randomize") == job.randomize
     return row if same else None
 
 
