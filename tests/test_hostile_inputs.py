@@ -403,7 +403,8 @@ def _fake_run_job(calls, stop_after=None):
         calls.append(job.name)
         return {
             "controller": job.controller, "mission": job.mission, "seed": job.seed, "preset": job.preset,
-            "obs_source": "ground_truth", "success": True, "termination": "success", "time": 10.0 + job.seed,
+            "obs_source": "ground_truth", "estimator": "none", "camera_effects": "none", "randomize": "off",
+            "success": True, "termination": "success", "time": 10.0 + job.seed,
         }  # fmt: skip
 
     return run
