@@ -716,7 +716,6 @@ class GLRenderer(Renderer):
             self._body_radius: dict[int, np.ndarray] = {}  # body -> (links + 1,) bounding radius [m]
             self._fbos: dict[tuple, tuple] = {}
             self._fisheye: dict[int, tuple] = {}
-            self._link_motion: tuple = (None, None)  # (MotionSpec, its _link_arrays)
             #: Largest shadow-map edge [texels].
             self.shadow_px = int(shadow_px)
             self._shadow_maps: dict[int, dict] = {}
@@ -1128,11 +1127,12 @@ class GLRenderer(Renderer):
         smap,
         motion: MotionSpec | None = None,
         K: np.ndarray | None = None,
+        links: tuple[bytes, bytes, bytes] | None = None,
     ) -> None:
         """Draw the scene into the bound framebuffer's viewport, with shadow map ``smap`` (or None).
 
-        ``labels``: the program mode (False, True or ``"motion"``, which needs ``motion`` and the
-        view's intrinsics ``K`` [px]).
+        ``labels``: the program mode (False, True or ``"motion"``, which needs ``motion``, the
+        view's intrinsics ``K`` [px] and ``links``, :func:`_link_arrays` of ``motion.links``).
         """
         mgl = self._mgl
         ctx = self.ctx
@@ -1162,7 +1162,7 @@ class GLRenderer(Renderer):
             _set(p, "u_view", view)
         link_motion = None
         if labels == "motion":
-            assert motion is not None and K is not None
+            assert motion is not None and K is not None and links is not None
             T = np.asarray(T_world_cam, dtype=np.float64)
             focal = (float(K[0, 0]), float(K[0, 1]), float(K[1, 1]))
             for p in progs:
@@ -1171,9 +1171,7 @@ class GLRenderer(Renderer):
                 _set(p, "u_focal", focal)
                 _set(p, "u_cam_v", tuple(float(v) for v in motion.v_cam))
                 _set(p, "u_cam_w", tuple(float(v) for v in motion.w_cam))
-            if self._link_motion[0] is not motion:  # once per render (a fisheye draws several views)
-                self._link_motion = (motion, _link_arrays(motion.links))
-            link_motion = self._link_motion[1]
+            link_motion = links
         ctx.enable(mgl.DEPTH_TEST)
         if self._terrain is not None:
             t = self._terrain
@@ -1240,10 +1238,7 @@ class GLRenderer(Renderer):
                 "motion: a velocity buffer is drawn without segmentation; pass segmentation=False"
             )
         with self.ctx:
-            try:
-                return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation, motion)
-            finally:
-                self._link_motion = (None, None)  # (holds the spec and its expose: not past the render)
+            return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation, motion)
 
     def render_fisheye(
         self,
@@ -1266,12 +1261,7 @@ class GLRenderer(Renderer):
         if motion is not None and labels:
             raise ValueError("motion: a velocity buffer is drawn without labels; pass labels=False")
         with self.ctx:
-            try:
-                return self._render_fisheye(
-                    remapper, T_world_cam, lighting, labels, near, far, windows, motion
-                )
-            finally:
-                self._link_motion = (None, None)
+            return self._render_fisheye(remapper, T_world_cam, lighting, labels, near, far, windows, motion)
 
     def _render_K(
         self,
@@ -1300,7 +1290,8 @@ class GLRenderer(Renderer):
         fbo.use()
         fbo.viewport = (0, 0, w, h)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        self._draw(planes, T_world_cam, P, lighting, poses, mode, smap, motion, K)
+        links = None if motion is None else _link_arrays(motion.links)
+        self._draw(planes, T_world_cam, P, lighting, poses, mode, smap, motion, K, links)
         rgba = np.frombuffer(fbo.read(components=4, attachment=0), np.uint8).reshape(h, w, 4)
         rgb = np.ascontiguousarray(rgba[..., :3])
         shadow = rgba[..., 3] > 127
@@ -1375,6 +1366,7 @@ class GLRenderer(Renderer):
         fbo.viewport = (0, 0, aw, ah)
         fbo.scissor = None
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        links = None if motion is None else _link_arrays(motion.links)  # once for every face
         drawn = []  # the atlas rectangles drawn, (x0, y0, x1, y1) [px, end exclusive]
         for k, fc in enumerate(remapper.faces):
             view = fc.view(T_world_cam, None if windows is None else windows[k])
@@ -1387,7 +1379,7 @@ class GLRenderer(Renderer):
             fbo.viewport = (0, fc.atlas_row, fw, fh)
             fbo.scissor = (u0, fc.atlas_row + v0, u1 - u0, v1 - v0)
             P = projection_from_K(fc.K, (fw, fh), near, far)
-            self._draw(planes, T_face, P, lighting, poses, mode, smap, motion, fc.K)
+            self._draw(planes, T_face, P, lighting, poses, mode, smap, motion, fc.K, links)
         fbo.scissor = None
         w, h = remapper.model.image_size
         if motion is not None:

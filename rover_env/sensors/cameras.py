@@ -186,7 +186,6 @@ class _RoverCamera(ABC):
                 "(or camera_effects='ideal')"
             )
         try:
-            self.sensor_config = self.config.sensor.for_frame_period(self.period)
             self.image_sensor = ImageSensor(self.sensor_config, size, self.period, seed, self._readout())
         except ConfigError as exc:
             raise ConfigError(f"sensor.{exc}") from None
@@ -574,13 +573,16 @@ class FisheyeCamera(_RoverCamera):
         # with a region of interest, the sensor reads it (the rest is not rendered either)
         return self.remapper.rendered if self.config.roi else None
 
+    @functools.cached_property
+    def _atlas_row_fraction(self) -> np.ndarray:
+        """Each atlas pixel's sensor row fraction (0: first row, 1: last), for a rolling shutter."""
+        return self.remapper.atlas_rows / np.float32(max(self.model.image_size[1] - 1, 1))
+
     def _expose_drawn(self) -> Callable | None:
         # each cube-face window is blurred as drawn, before the remap to the fisheye
         sensor, s = self.image_sensor, self.config.sensor
         assert sensor is not None
-        rows = None
-        if s.rolling_shutter_s > 0:  # each atlas pixel's sensor row
-            rows = self.remapper.atlas_rows / np.float32(max(self.model.image_size[1] - 1, 1))
+        rows = self._atlas_row_fraction if s.rolling_shutter_s > 0 else None
 
         def expose(image: np.ndarray, velocity: np.ndarray, origin: tuple[int, int]) -> np.ndarray:
             r = None

@@ -198,7 +198,7 @@ class ImageSensor:
         n = int(np.prod(shape))
         out = np.empty(n + _NORMAL_SKIP, np.float32)
         cv2.setRNGSeed(int(self._rng.integers(1, 2**31)))
-        cv2.randn(out, 0.0, 1.0)  # type: ignore[call-overload]  # (the stubs take only sequences)
+        cv2.randn(out, 0.0, 1.0)  # type: ignore[call-overload]  # (OpenCV's type hints take sequences)
         return out[_NORMAL_SKIP:].reshape(shape)
 
     def develop(self, raw: np.ndarray) -> np.ndarray:
