@@ -24,7 +24,7 @@ from rover_env.rendering import focus_on_rover, renderer_for
 from rover_env.rendering.base import FisheyeView, Lighting, MotionSpec, RenderedView
 from rover_env.rendering.cubemap import CubemapRemap
 from rover_env.sensors.image_sensor import ImageSensor
-from rover_env.sensors.motion_blur import MotionField, blur
+from rover_env.sensors.motion_blur import MotionField, blur, remap_image
 from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.simulation import RoverSim
 
@@ -385,7 +385,7 @@ class DownwardCamera(_RoverCamera):
     def _lens(self, image: np.ndarray) -> np.ndarray:
         if self._lens_maps is None:
             return image
-        return cv2.remap(image, *self._lens_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return remap_image(image, *self._lens_maps)
 
     def render_view(self) -> RenderedView:
         """Render now, with depth and segmentation (for tests and evaluation)."""

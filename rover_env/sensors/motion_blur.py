@@ -123,6 +123,19 @@ def _grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
+def remap_image(image: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """``cv2.remap`` (bilinear, edges replicated) of an image, an RGB uint8 one through four channels.
+
+    OpenCV's remap has a vector path for four channels, about 2.5 times faster than for three.
+    """
+    if image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8:
+        out = cv2.remap(
+            cv2.cvtColor(image, cv2.COLOR_RGB2RGBA), xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        )
+        return cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)
+    return cv2.remap(image, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
 def blur(
     image: np.ndarray,
     velocity: np.ndarray,
@@ -167,11 +180,12 @@ def blur(
     span = float(max(-vx.min(), vx.max(), -vy.min(), vy.max())) if velocity.size else 0.0
     longest = span * (exposure_s + rolling_shutter_s)
     if longest < 0.25:
-        if maps is None:
-            return image
-        return cv2.remap(image, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return image if maps is None else remap_image(image, xs, ys)
     # samples at most a pixel apart along the longest path (bilinear between them)
     n = int(min(samples, max(2, math.ceil(longest) + 1)))
+    rgb = image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8
+    if rgb:  # through four channels (see remap_image)
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2RGBA)
     acc = np.zeros((h, w, image.shape[2]), np.float32)
     if rolling_shutter_s > 0:
         frac = _grid(w, h)[1] / max(h - 1, 1) if rows is None else rows
@@ -185,4 +199,5 @@ def blur(
         else:
             mx, my = cv2.scaleAdd(vx, s, xs), cv2.scaleAdd(vy, s, ys)
         cv2.accumulate(cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), acc)
-    return cv2.convertScaleAbs(acc, alpha=1.0 / n)
+    out = cv2.convertScaleAbs(acc, alpha=1.0 / n)
+    return cv2.cvtColor(out, cv2.COLOR_RGBA2RGB) if rgb else out
