@@ -162,6 +162,21 @@ class ImageSensor:
         Gaussian draw, clips at the full well, and is digitised: times the system gain, plus the
         black level, rounded and clipped to the ADC's range.
         """
+        return self._frame(self._dn(image, exposure_s, gain_db, light), np.uint16)
+
+    def _frame(self, values: np.ndarray, dtype) -> np.ndarray:
+        """The (H, W) frame of the read pixels' ``values`` (:meth:`_dn`'s order), 0 elsewhere."""
+        w, h = self.size
+        if self._read is None:
+            return values.astype(dtype, copy=False).reshape(h, w)
+        out = np.zeros(h * w, dtype)
+        out[self._read] = values
+        return out.reshape(h, w)
+
+    def _dn(
+        self, image: np.ndarray, exposure_s: float | None, gain_db: float | None, light: float
+    ) -> np.ndarray:
+        """:meth:`raw`'s values of the read pixels only, flat uint16 [DN]; sets :attr:`_rendered`."""
         c = self.config
         t = self.exposure_s if exposure_s is None else float(exposure_s)
         w, h = self.size
@@ -178,15 +193,8 @@ class ImageSensor:
         np.minimum(e, np.float32(c.full_well_e), out=e)
         k = c.system_gain(self.gain_db if gain_db is None else gain_db)
         dn = np.clip(np.rint(e * np.float32(k) + np.float32(c.black_level_dn)), 0, c.dn_max).astype(np.uint16)
-        if self._read is None:
-            self._rendered = (bayer > 0).reshape(h, w)
-            return dn.reshape(h, w)
-        out = np.zeros(h * w, np.uint16)
-        out[self._read] = dn
-        rendered = np.zeros(h * w, bool)
-        rendered[self._read] = bayer > 0
-        self._rendered = rendered.reshape(h, w)
-        return out.reshape(h, w)
+        self._rendered = self._frame(bayer > 0, bool)
+        return dn
 
     def _normal(self, shape: tuple[int, ...]) -> np.ndarray:
         """Standard normal draws (float32), from this sensor's seeded generator.
@@ -228,7 +236,8 @@ class ImageSensor:
         """
         if isinstance(meter, str) and meter != "rendered":
             raise ValueError(f"meter={meter!r}: use a mask, 'rendered' or None")
-        encoded = self._lut[self.raw(image, light=light)]
+        # the gamma table on the read pixels only, before a region of interest is placed in the frame
+        encoded = self._frame(np.take(self._lut, self._dn(image, None, None, light)), np.uint8)
         out = self._develop_encoded(encoded)
         if self.config.auto_exposure:
             self._meter(encoded, self._rendered if isinstance(meter, str) else meter)
