@@ -179,7 +179,7 @@ class PinholeCamera:
         xd = (p[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
         x, y = self._undistort_guess(p, xd, yd)
         # Gauss-Newton on distort(x, y) = (xd, yd) with the analytic 2x2 Jacobian (from OpenCV's
-        # fixed-point solution it ends in one or two steps)
+        # fixed-point solution it is usually met at once)
         p1, p2 = self.distortion[2], self.distortion[3]
         for _ in range(20):
             fx, fy = self._distort(x, y)
@@ -204,7 +204,8 @@ class PinholeCamera:
         """
         if self.K[0, 1] != 0.0 or len(p) < 8 or len(self.distortion) not in (4, 5, 8):
             return xd.copy(), yd.copy()
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-8)
+        # to 1e-11 px (OpenCV's reprojection error): the Newton steps then only check it
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-11)
         und = cv2.undistortPoints(p.reshape(-1, 1, 2), self.K, self.distortion, criteria=crit).reshape(-1, 2)
         ok = np.all(np.isfinite(und), axis=1)
         return np.where(ok, und[:, 0], xd), np.where(ok, und[:, 1], yd)

@@ -100,9 +100,15 @@ def cfa_luminance(
         return out[y0 - py0 : y1 - py0, x0 - px0 : x1 - px0]
     lin = linear_gray(img, gamma) if gamma != 1.0 else img.astype(np.float32)
     level = cv2.GaussianBlur(cv2.cvtColor(lin, cv2.COLOR_RGB2GRAY), (0, 0), 2.0 * sigma)
-    out = np.empty(img.shape[:2], np.float32)
-    for (dy, dx), c in zip(_SITES, CFA_PATTERNS[pattern], strict=True):
-        plane = np.ascontiguousarray(lin[dy::2, dx::2, c])
-        mean = cv2.GaussianBlur(plane, (0, 0), sigma)
-        out[dy::2, dx::2] = plane * level[dy::2, dx::2] / np.maximum(mean, np.float32(1e-3))
+    # the four sites' own samples, one colour plane each, blurred in one call (as four channels)
+    h, w = img.shape[:2]
+    planes = np.empty((h // 2, w // 2, 4), np.float32)
+    sites = list(enumerate(zip(_SITES, CFA_PATTERNS[pattern], strict=True)))
+    for k, ((dy, dx), c) in sites:
+        planes[..., k] = lin[dy::2, dx::2, c]
+    means = cv2.GaussianBlur(planes, (0, 0), sigma)
+    np.maximum(means, np.float32(1e-3), out=means)
+    out = np.empty((h, w), np.float32)
+    for k, ((dy, dx), _) in sites:
+        out[dy::2, dx::2] = planes[..., k] * level[dy::2, dx::2] / means[..., k]
     return out

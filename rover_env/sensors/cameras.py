@@ -219,7 +219,12 @@ class _RoverCamera(ABC):
             T = self.T_world_cam()
             links = self.sim.link_motion()
             com, v_l, w_l = links[-1]
-            v_cam = v_l + np.cross(w_l, T[:3, 3] - com)
+            r = T[:3, 3] - com
+            v_cam = v_l + (
+                w_l[1] * r[2] - w_l[2] * r[1],
+                w_l[2] * r[0] - w_l[0] * r[2],
+                w_l[0] * r[1] - w_l[1] * r[0],
+            )
             expose = self._expose_drawn()
             view = self._render(
                 labels=False,

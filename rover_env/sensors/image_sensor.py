@@ -176,7 +176,7 @@ class ImageSensor:
     def _dn(
         self, image: np.ndarray, exposure_s: float | None, gain_db: float | None, light: float
     ) -> np.ndarray:
-        """:meth:`raw`'s values of the read pixels only, flat uint16 [DN]; sets :attr:`_rendered`."""
+        """:meth:`raw`'s values of the read pixels only, flat uint16 [DN]; sets :attr:`_drawn`."""
         c = self.config
         t = self.exposure_s if exposure_s is None else float(exposure_s)
         w, h = self.size
@@ -193,7 +193,7 @@ class ImageSensor:
         np.minimum(e, np.float32(c.full_well_e), out=e)
         k = c.system_gain(self.gain_db if gain_db is None else gain_db)
         dn = np.clip(np.rint(e * np.float32(k) + np.float32(c.black_level_dn)), 0, c.dn_max).astype(np.uint16)
-        self._rendered = self._frame(bayer > 0, bool)
+        self._drawn = bayer > 0  # which read pixels the renderer drew (not black)
         return dn
 
     def _normal(self, shape: tuple[int, ...]) -> np.ndarray:
@@ -237,20 +237,23 @@ class ImageSensor:
         if isinstance(meter, str) and meter != "rendered":
             raise ValueError(f"meter={meter!r}: use a mask, 'rendered' or None")
         # the gamma table on the read pixels only, before a region of interest is placed in the frame
-        encoded = self._frame(np.take(self._lut, self._dn(image, None, None, light)), np.uint8)
+        values = np.take(self._lut, self._dn(image, None, None, light))
+        encoded = self._frame(values, np.uint8)
         out = self._develop_encoded(encoded)
         if self.config.auto_exposure:
-            self._meter(encoded, self._rendered if isinstance(meter, str) else meter)
+            if isinstance(meter, str):
+                self._meter(values[self._drawn])
+            else:
+                self._meter(encoded.reshape(-1) if meter is None else encoded[meter])
         return out
 
     # ------------------------------------------------------------------ auto-exposure
-    def _meter(self, encoded: np.ndarray, mask: np.ndarray | None) -> None:
+    def _meter(self, values: np.ndarray) -> None:
         """Move exposure, then gain, toward the level at which the output's mean is the target.
 
-        ``encoded``: the frame's (H, W) gamma-encoded Bayer values (all colours alike).
+        ``values``: the metered pixels' gamma-encoded Bayer values (all colours alike).
         """
         c = self.config
-        values = encoded if mask is None else encoded[mask]
         level = float(values.mean()) / 255.0 if values.size else 0.0
         # the linear change that brings the mean to the target (at most 16x a frame when black or white)
         ratio = (c.ae_target / level) ** c.gamma if level > 1e-3 else 16.0
