@@ -256,7 +256,9 @@ def test_the_odometry_covariance_sets_the_weight_of_a_noisy_yaw_rate():
                     e.append(np.abs(s.slip_ratio - truth(t)[2]))
         errs[tell] = float(np.mean(e))
     print(f"slip MAE, covariance not told {errs[False]:.4f}, told {errs[True]:.4f}")
-    assert errs[True] < 0.7 * errs[False]
+    # (0.0150 and 0.0120; before the wheels' angular accelerations and the measured grip gate,
+    # 0.0211 and 0.0138)
+    assert errs[True] < 0.85 * errs[False] and errs[True] < 0.013
     with pytest.raises(ValueError, match="cov"):
         SlipEstimator(XY, R_WHEEL).add_odometry(0.1, [0.5, 0.0, 0.0], 1 / 60, cov=np.eye(2))
 
@@ -281,19 +283,26 @@ def test_blackout_gives_invalid_finite_slip_and_recovers():
     assert all(e.valid.all() for e in after)
 
 
-def test_a_wheel_lost_while_it_spins_up_is_not_reported_with_a_stale_rate():
-    """FL's rate goes unmeasured from 2.05 s, while its slip ramps from 0.08 to 0.5 (until 2.3 s)."""
+def test_a_wheel_lost_while_it_spins_up_is_carried_two_frames_then_not_reported():
+    """FL's rate goes unmeasured from 2.05 s, while its slip ramps from 0.08 to 0.5 (until 2.3 s).
+
+    Its angular acceleration carries its rate through two missed frames, the slip's deviation
+    growing with the gap so that the error stays within 2.5 of them; from the third missed
+    frame on it is not valid (``max_age``): no stale rate is reported."""
     out = run_stream(seconds=2.6, noise=True, seed=4, lost=(0, 2.05, 2.6))
     period = 1 / 30
+    seen = 0
     for t, e in out:
         if not 2.05 <= t < 2.6:
             continue
         err = abs(e.slip_ratio[0] - truth(t)[2][0])
-        if t >= 2.05 + period:  # the second frame missing: no longer valid
+        if t >= 2.05 + 2 * period:  # the third frame missing: no longer valid
             assert not e.valid[0] and e.slip_ratio[0] == 0.0, t
-        else:  # one frame missing: still valid, behind the ramp (0.056 per frame) by about 2 frames
-            assert e.valid[0] and err <= 0.15, (t, err)
+        else:  # one or two missing: valid, behind the ramp (0.056 per frame) within its deviation
+            assert e.valid[0] and err <= min(0.15, 2.5 * e.slip_ratio_std[0]), (t, err, e.slip_ratio_std[0])
+            seen += 1
         assert e.valid[1:].all()  # the other wheels carry on
+    assert seen == 2
 
 
 def test_slip_events_hysteresis():
