@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     for variant, (wall, err) in results.items():
         print(f"| {variant} | {1e3 * wall:.1f} | " + " | ".join(f"{err[f]:.4f}" for f in FIELDS) + " |")
     ideal = results["ideal"][0]
-    print(f"\nfield against ideal: {100 * (results['field'][0] / ideal - 1):+.0f} % a step")
+    print(f"\nfield against ideal: {100 * (results['field'][0] / ideal - 1):+.1f} % a step")
     return 0
 
 
