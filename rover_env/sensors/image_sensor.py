@@ -185,14 +185,21 @@ class ImageSensor:
         # each read pixel's sample of its own colour
         bayer = mosaic(image).reshape(-1) if self._read is None else image.reshape(-1)[self._read_rgb]
         scale = np.float32(light * c.sun_e_per_s * t / 255.0)
-        mean = bayer * (self._response * scale)
+        # (in place where it can be: the same operations in the same order as written out)
+        mean = self._response * scale
+        mean *= bayer
         mean += self._offset_e + np.float32(c.dark_current_e_s * t)
         np.maximum(mean, 0.0, out=mean)
-        sd = np.sqrt(mean + np.float32(c.read_noise_e**2))
-        e = mean + sd * self._normal(mean.shape)
+        e = mean + np.float32(c.read_noise_e**2)
+        np.sqrt(e, out=e)  # the deviation of shot and read noise
+        e *= self._normal(mean.shape)
+        e += mean
         np.minimum(e, np.float32(c.full_well_e), out=e)
         k = c.system_gain(self.gain_db if gain_db is None else gain_db)
-        dn = np.clip(np.rint(e * np.float32(k) + np.float32(c.black_level_dn)), 0, c.dn_max).astype(np.uint16)
+        e *= np.float32(k)
+        e += np.float32(c.black_level_dn)
+        np.rint(e, out=e)
+        dn = np.clip(e, 0, c.dn_max, out=e).astype(np.uint16)
         self._drawn = bayer > 0  # which read pixels the renderer drew (not black)
         return dn
 

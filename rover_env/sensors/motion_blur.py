@@ -115,7 +115,7 @@ class MotionField:
         return out
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=64)  # a fisheye's windows change size from frame to frame
 def _grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     """Pixel x and y coordinates (H, W) float32 of an image, made once per size (read-only)."""
     xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
