@@ -57,7 +57,7 @@ MAX_SPEED, MAX_YAW_RATE, MAX_WHEEL_RATE, MAX_ACCEL = 50.0, 50.0, 500.0, 1000.0
 _BIAS = 3 + N_WHEELS  # index of the gyro's yaw-rate bias in the state
 _ODOM_BIAS = _BIAS + 1  # index of the odometry's yaw-rate bias (estimated only with a gyro)
 _ACC_BIAS = _ODOM_BIAS + 1  # the accelerometer's x and y bias (estimated only with one)
-_WHEEL_ACC = _ACC_BIAS + 2  # the wheels' angular accelerations (estimated only with an accelerometer)
+_WHEEL_ACC = _ACC_BIAS + 2  # the wheels' angular accelerations
 _N_STATE = _WHEEL_ACC + N_WHEELS
 
 
@@ -540,8 +540,8 @@ class SlipEstimator:
         ``accel_xy``: (a_x, a_y) [m/s^2] in the body frame: the specific force less gravity
         (through the attitude), plus the transport terms (omega v_y, -omega v_x), so that it is
         the rate of the body-frame velocity (v_x, v_y). From the first call on, the velocity is
-        predicted with it, its bias estimated, and the wheels with their angular accelerations
-        (``accel_velocity_rw`` and the parameters after it). Non-finite values are left out.
+        predicted with it and its bias estimated (``accel_velocity_rw`` and the parameters after
+        it). Non-finite values are left out.
         """
         a = np.asarray(accel_xy, dtype=np.float64).reshape(-1)
         if a.shape != (2,):
