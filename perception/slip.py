@@ -666,10 +666,12 @@ class SlipEstimator:
                 H = np.zeros((len(idx), len(self._x)))
                 H[np.arange(len(idx)), idx] = 1.0
             rates = idx is not None and idx[0] >= 3
-            # the wheels whose new rate alone shows them slipping (gated before the update)
-            gripping = (idx - 3)[~self._slipping(idx - 3, z, R)] if rates else None
+            gripping = None
+            if rates and self.config.grip_std > 0:
+                # the wheels whose new rate alone does not show them slipping (gated before the update)
+                gripping = (idx - 3)[~self._slipping(idx - 3, z, R)]
             self._update(H, z, R)
-            if gripping is not None and self.config.grip_std > 0:
+            if gripping is not None:
                 self._grip(gripping)
             same_time = self._at_rates is not None and abs(self._at_rates[0] - self._t) < 1e-6
             if rates or (same_time and not self._accel_used):
@@ -767,7 +769,8 @@ class SlipEstimator:
                     var = (r0 + r1) / (t1 - t0) ** 2
                     if acc * x[0] > 0 and acc * acc > 4.0 * var:
                         x[0] += acc * (1.0 - 4.0 * var / (acc * acc)) * max(t - t_r, 0.0)
-        x = x.copy()
+        else:
+            x = x.copy()
         rates = x[3:_BIAS]
         v_long, v_lat = wheel_ground_velocity(x[:3], self.wheel_xy, self._steer)
         a = rates * self.wheel_radius

@@ -123,12 +123,17 @@ def _grid(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
+def _rgb8(image: np.ndarray) -> bool:
+    """Whether ``image`` is (H, W, 3) uint8: resampled through four channels (see :func:`remap_image`)."""
+    return image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8
+
+
 def remap_image(image: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     """``cv2.remap`` (bilinear, edges replicated) of an image, an RGB uint8 one through four channels.
 
     OpenCV's remap has a vector path for four channels, about 2.5 times faster than for three.
     """
-    if image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8:
+    if _rgb8(image):
         out = cv2.remap(
             cv2.cvtColor(image, cv2.COLOR_RGB2RGBA), xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
         )
@@ -183,7 +188,7 @@ def blur(
         return image if maps is None else remap_image(image, xs, ys)
     # samples at most a pixel apart along the longest path (bilinear between them)
     n = int(min(samples, max(2, math.ceil(longest) + 1)))
-    rgb = image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8
+    rgb = _rgb8(image)
     if rgb:  # through four channels (see remap_image)
         image = cv2.cvtColor(image, cv2.COLOR_RGB2RGBA)
     acc = np.zeros((h, w, image.shape[2]), np.float32)
