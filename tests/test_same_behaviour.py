@@ -1,10 +1,15 @@
-"""The environments behave as they did when the baseline was recorded: bit-identical rollouts.
+"""The environments behave as they did when the baseline was recorded: the same rollouts.
 
 For every registered id, in both observation sources, and with an IMU on the estimated one, a
 60-step rollout from a fixed seed and fixed actions gives the same observations, rewards,
 ground truth and estimates as the recorded baseline (``tests/data/rollouts_baseline.npz``).
-Refactoring the package must not move a bit of them. The cameras are drawn with PyBullet's
-TinyRenderer (compiled code, the same bits on any CPU; llvmpipe's JIT may differ between CPUs).
+Refactoring the package must not move them by more than the last bits that the float libraries
+below it leave to their versions: within 1e-6 (absolute and relative). A fresh install with
+NumPy 2.4 and OpenCV 5.0 moved the true state by at most 6e-16 from the values recorded with
+earlier versions, and the estimates, whose filters amplify it, by at most 1.1e-7; a change of
+behaviour moves them by orders of magnitude more. The
+cameras are drawn with PyBullet's TinyRenderer (compiled code, the same on any CPU; llvmpipe's
+JIT may differ between CPUs).
 
 Re-record (only when a behaviour change is intended and explained):
 
@@ -21,6 +26,7 @@ import pytest
 
 BASELINE = Path(__file__).parent / "data" / "rollouts_baseline.npz"
 STEPS = 60
+TOL = 1e-6  # float libraries' last bits, amplified by the filters (see the module's docstring)
 CASES = [
     (env_id, source, imu)
     for env_id in ("Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0", "RoverSlopeLoose-v0")
@@ -104,7 +110,7 @@ def record() -> None:
 
 
 @pytest.mark.parametrize(("env_id", "source", "imu"), CASES)
-def test_a_fixed_rollout_is_bit_identical_to_the_baseline(env_id, source, imu):
+def test_a_fixed_rollout_matches_the_baseline(env_id, source, imu):
     if not BASELINE.exists():
         pytest.fail(f"{BASELINE} is missing; record it with: python {Path(__file__).name} --record")
     with np.load(BASELINE) as z:
@@ -114,7 +120,9 @@ def test_a_fixed_rollout_is_bit_identical_to_the_baseline(env_id, source, imu):
     assert want, f"no baseline for {prefix}"
     assert sorted(got) == sorted(want), set(got) ^ set(want)
     for k in sorted(want):
-        np.testing.assert_array_equal(got[k], want[k], err_msg=f"{env_id} {source} {imu}: {k}")
+        np.testing.assert_allclose(
+            got[k], want[k], rtol=TOL, atol=TOL, err_msg=f"{env_id} {source} {imu}: {k}"
+        )
 
 
 if __name__ == "__main__":
