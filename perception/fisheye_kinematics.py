@@ -32,6 +32,7 @@ from perception.markers import (
 from perception.photometry import cfa_luminance, linear_gray
 from perception.wheel_kinematics import rolling_speeds
 from perception.wheel_rotation import (
+    StaticPattern,
     TreadConfig,
     measure_pairs,
     strip_resolution,
@@ -107,6 +108,19 @@ class KinematicsConfig:
             ``max_correction`` while the marker was not seen).
         max_steering_zero: Largest steering offset :meth:`KinematicStateEstimator.zero_steering`
             takes out [rad]; a frame that measures more is not of centred steering.
+        static_rate: Weight of a frame in the learnt static pattern of each tread
+            (:class:`~perception.wheel_rotation.StaticPattern`), taken out of the strips before
+            they are aligned; 0: off. Chosen on recorded drives of the shadow mission (train
+            preset, field cameras, seeds 411-416): the frames that lost a wheel fell from 9.3 %
+            to 1.8 % (to 1.2 % from 8.9 % on seeds 221-226, not used to choose), the wheel
+            rates' error from 0.187 to 0.171 rad/s; weights of 0.2-0.5 did about as well, 0.05
+            half as well.
+        static_min_rotation: A frame feeds the pattern when the wheel turned at least this in
+            it [rad] (the tread's own texture then averages out).
+        static_min_frames: Frames a cell needs before its pattern is taken out.
+        static_shrink: The pattern is taken out where it stands this many times above the
+            texture left in its estimate (on the rough mission, where little is static, the
+            rates' error rose by 7 % with no shrinkage and by 2 % with it).
     """
 
     markers: MarkerConfig = field(default_factory=MarkerConfig)
@@ -128,6 +142,10 @@ class KinematicsConfig:
     roi_margin_frac: float = 0.03
     geometry_refresh: tuple[float, float] = (math.radians(2.0), 0.004)
     max_steering_zero: float = 0.1
+    static_rate: float = 0.25
+    static_min_rotation: float = 0.08
+    static_min_frames: int = 5
+    static_shrink: float = 2.0
 
 
 @dataclass
@@ -206,6 +224,15 @@ class KinematicStateEstimator:
         self._dphi = min(
             strip_resolution(model, camera, R, c, self.config.tread.column_px) for R, c in nominal
         )
+        cfg = self.config
+        self._static = (
+            StaticPattern(
+                4, cfg.tread.rows, math.ceil(2 * math.pi / self._dphi) + 1, cfg.static_rate,
+                cfg.static_min_rotation, cfg.static_min_frames, cfg.static_shrink,
+            )
+            if cfg.static_rate > 0
+            else None
+        )  # fmt: skip
         self.reset()
 
     def reset(self) -> None:
@@ -225,7 +252,9 @@ class KinematicStateEstimator:
         self._trend = np.zeros(4)  # its last change per frame [rad]
         self._missed = np.full(4, 1 << 30)  # frames since each wheel's last measurement
         self._measured = np.zeros(4, dtype=bool)  # measured since the reset
-        self._strips: list = [None] * 4  # the last frame's tread strips
+        self._strips: list = [None] * 4  # the last frame's tread strips (static pattern taken out)
+        if self._static is not None:
+            self._static.reset()
         self._geometry: tuple[np.ndarray, Any] | None = (
             None  # (state, (predicted marker pixels, centroid offsets))
         )
@@ -392,9 +421,11 @@ class KinematicStateEstimator:
         rate_std = np.full(4, np.inf)
         corrected = []
         curr_frames = self.model.wheel_frames(psi, depth, delta)
-        strips = unwrap_treads(
+        raw = unwrap_treads(
             gray, self.model, self.camera, curr_frames, self._dphi, cfg.tread, list(WHEELS), cfg.shadow_robust
         )
+        static = self._static
+        strips = raw if static is None else [static.remove(k, s_) for k, s_ in enumerate(raw)]
         if dt > 0:
             r = self.model.wheel_radius
             pairs = list(zip(self._strips, strips, strict=True))
@@ -454,6 +485,10 @@ class KinematicStateEstimator:
                         theta_dot[k] = float(np.median(good)) / dt
                     theta[k] += theta_dot[k] * dt
                 valid[f"theta_{wheel}"] = rot.valid
+                if static is not None:
+                    # a wheel not measured in this frame is taken to turn as predicted: the
+                    # pattern is often what lost it
+                    static.learn(k, raw[k], rot.alpha if rot.valid else prior[k])
         else:
             valid.update({f"theta_{w_}": False for w_ in WHEELS})
         for k, wheel in enumerate(WHEELS):

@@ -10,6 +10,7 @@ from test_markers import fisheye, rover_model
 from perception.photometry import cfa_luminance, linear_gray
 from perception.wheel_rotation import (
     RotationMeasurement,
+    StaticPattern,
     TreadConfig,
     align_strips,
     arc_angle,
@@ -421,3 +422,54 @@ def test_the_rotation_deviation_follows_the_error_of_noisy_treads():
     for bad in ({"boundary": (-1, 1)}, {"boundary": (1.5, 1)}, {"clip": math.nan}, {"noise_cells": 0.0}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             TreadConfig(**bad)
+
+
+def test_a_pattern_fixed_in_the_image_is_learnt_and_taken_out_of_a_turning_tread():
+    """A blotchy shade fixed in the image (struts' shadows, a smudge: 40 % RMS, 3 px across)
+    over a tread turning 0.23 rad per frame: every plain alignment is lost to it, and once the
+    static pattern has five frames, every one is found within 3 %; a tread that then stands
+    still is measured still (a standing wheel teaches the pattern nothing)."""
+    cfg = TreadConfig()
+    model = rover_model()
+    cam = fisheye(model)
+    frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[1]
+    dphi = strip_resolution(model, cam, *frame, cfg.column_px)
+    tex = tread_texture(np.random.default_rng(4))
+    rng = np.random.default_rng(1)
+    w, h = cam.image_size
+    shade = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), 3.0)
+    shade = 1 + 0.4 * shade / shade.std()
+    static = StaticPattern(1, cfg.rows, math.ceil(2 * math.pi / dphi) + 1)
+    assert static.min_frames == 5
+
+    def strip(theta):
+        img = render_wheel(model, cam, frame, theta, tex).astype(np.float32) * shade
+        noise = cv2.GaussianBlur(rng.normal(size=img.shape).astype(np.float32), (0, 0), 1.5)
+        return unwrap_tread(
+            np.clip(img + 10 * noise / noise.std(), 0, 255).astype(np.uint8), model, cam, *frame, dphi, cfg
+        )
+
+    alpha, r = 0.23, model.wheel_radius
+    plain, removed = [], []
+    prev_raw = prev_sub = None
+    for n in range(20):
+        raw = strip(alpha * n)
+        sub = static.remove(0, raw)
+        if prev_raw is not None:
+            plain.append(measure_pairs([(prev_raw, raw)], r, cfg, [alpha], [0.25], [0])[0])
+            removed.append(measure_pairs([(prev_sub, sub)], r, cfg, [alpha], [0.25], [0])[0])
+        static.learn(0, raw, alpha)
+        prev_raw, prev_sub = raw, sub
+    assert sum(m.valid for m in plain) == 0
+    late = removed[5:]  # both strips of the pair with the pattern taken out
+    assert all(m.valid and abs(m.alpha - alpha) <= 0.03 * alpha for m in late)
+    # standing still: measured at zero, and nothing learnt
+    before = static._n.copy()
+    raw = [strip(0.0), strip(0.0)]
+    for s_ in raw:
+        static.learn(0, s_, 0.0)
+    assert np.array_equal(static._n, before)
+    still = measure_pairs([(static.remove(0, raw[0]), static.remove(0, raw[1]))], r, cfg, [0.0], [0.25], [0])[
+        0
+    ]
+    assert still.valid and abs(still.alpha) <= 0.01
