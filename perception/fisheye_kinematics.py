@@ -113,7 +113,7 @@ class KinematicsConfig:
             they are aligned; 0: off. Chosen on recorded drives of the shadow mission (train
             preset, field cameras, seeds 411-416): the frames that lost a wheel fell from 9.3 %
             to 1.8 % (to 1.2 % from 8.9 % on seeds 221-226, not used to choose), the wheel
-            rates' error from 0.187 to 0.171 rad/s; weights of 0.2-0.5 did about as well, 0.05
+            rates' error from 0.187 to 0.169 rad/s; weights of 0.2-0.5 did about as well, 0.05
             half as well.
         static_min_rotation: A frame feeds the pattern when the wheel turned at least this in
             it [rad] (the tread's own texture then averages out).
@@ -485,9 +485,10 @@ class KinematicStateEstimator:
                         theta_dot[k] = float(np.median(good)) / dt
                     theta[k] += theta_dot[k] * dt
                 valid[f"theta_{wheel}"] = rot.valid
-                if static is not None:
+                if static is not None and good:
                     # a wheel not measured in this frame is taken to turn as predicted: the
-                    # pattern is often what lost it
+                    # pattern is often what lost it (a frame with no wheel measured, such as a
+                    # dark one, teaches nothing)
                     static.learn(k, raw[k], rot.alpha if rot.valid else prior[k])
         else:
             valid.update({f"theta_{w_}": False for w_ in WHEELS})

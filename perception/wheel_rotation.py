@@ -361,9 +361,12 @@ class StaticPattern:
     only from frames in which the wheel was measured turning by at least ``min_rotation``: the
     tread's own texture then averages out and what stays is the static pattern. Its estimate
     still holds a share ``rate / (2 - rate)`` of the texture's variance (an exponential mean of
-    weight ``rate``), so it is shrunk where it is not clearly above that: the pattern taken
-    out is ``g * mean`` with ``g = max(0, 1 - shrink * residual / mean^2)`` (both terms
-    averaged over ``box`` cells), zero until a cell has ``min_frames`` samples.
+    weight ``rate``), so it is shrunk where it is not clearly above that: the pattern is
+    ``g * mean`` with ``g = max(0, 1 - shrink * residual / mean^2)`` (both terms averaged over
+    ``box`` cells), zero until a cell has ``min_frames`` samples. It is taken out as strongly
+    as the strip shows it (its least-squares scale in the strip, 0 to 1.5): a black or flat
+    strip has none of it and keeps no texture, and light that dims or deepens the shadows
+    scales it.
 
     Args:
         n_wheels: Wheels (4).
@@ -392,6 +395,7 @@ class StaticPattern:
             raise ValueError(f"rate={rate!r}: use a weight in (0, 1]")
         self.rate, self.min_rotation, self.min_frames = float(rate), float(min_rotation), int(min_frames)
         self.shrink, self.box, self.columns = float(shrink), box, int(columns)
+        self.max_scale = 1.5
         self._mean = np.zeros((n_wheels, rows, columns), np.float32)
         self._sq = np.zeros_like(self._mean)
         self._n = np.zeros((n_wheels, rows, columns), np.int32)
@@ -419,7 +423,14 @@ class StaticPattern:
         e_mean = cv2.blur(mean * mean, self.box)
         e_resid = cv2.blur(resid, self.box)
         g = np.clip(1.0 - self.shrink * e_resid / np.maximum(e_mean, 1e-12), 0.0, 1.0)
-        tex = np.where(ready, strip.texture - g * mean, strip.texture).astype(np.float32)
+        pattern = np.where(ready, g * mean, 0.0)
+        # as strong as this strip shows it (least squares): a black or flat strip has none, and
+        # light that dims or deepens the shadows scales it
+        pp = float(np.sum(pattern * pattern))
+        if pp <= 0.0:
+            return strip
+        scale = min(max(float(np.sum(strip.texture * pattern)) / pp, 0.0), self.max_scale)
+        tex = (strip.texture - scale * pattern).astype(np.float32)
         return TreadStrip(strip.k0, strip.dphi, strip.y, strip.pixels, strip.visible, strip.valid, tex)
 
     def learn(self, k: int, strip: TreadStrip | None, rotation: float) -> None:

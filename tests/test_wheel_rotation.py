@@ -428,7 +428,8 @@ def test_a_pattern_fixed_in_the_image_is_learnt_and_taken_out_of_a_turning_tread
     """A blotchy shade fixed in the image (struts' shadows, a smudge: 40 % RMS, 3 px across)
     over a tread turning 0.23 rad per frame: every plain alignment is lost to it, and once the
     static pattern has five frames, every one is found within 3 %; a tread that then stands
-    still is measured still (a standing wheel teaches the pattern nothing)."""
+    still is measured still (a standing wheel teaches the pattern nothing), and a black one
+    stays without texture."""
     cfg = TreadConfig()
     model = rover_model()
     cam = fisheye(model)
@@ -473,3 +474,6 @@ def test_a_pattern_fixed_in_the_image_is_learnt_and_taken_out_of_a_turning_tread
         0
     ]
     assert still.valid and abs(still.alpha) <= 0.01
+    # a black frame has no texture, and none is made for it out of the pattern
+    black = unwrap_tread(np.zeros_like(shade, dtype=np.uint8), model, cam, *frame, dphi, cfg)
+    assert not np.any(static.remove(0, black).texture)
