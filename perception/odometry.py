@@ -356,6 +356,19 @@ class FlowOdometryConfig:
             camera or a repeated frame, and no motion is observable. ``"still"``: the camera is
             noise-free and renders every frame anew (the simulation's), so the rover stands
             still and the pair is tracked as any other (a valid zero).
+        static_rate: In a chained stream (:meth:`FlowOdometry.update`), the weight of a frame
+            in a running mean of the grey frames, the static image, which is taken out of each
+            frame (less its own mean level) before it is tracked; 0 (the default): off. It is
+            fed while the last valid estimate moved at ``static_min_speed`` or more, when the
+            ground's texture averages out and what stays is what does not move with it: a
+            sensor's fixed pattern, vignetting, the rover's own shadow and parts in view, which
+            on low-texture ground pull the tracks toward zero motion. On a randomised drive
+            over concrete in the rover's shadow (sun at 73 degrees, field cameras, 160 x 120)
+            with 0.1 the valid pairs rose from 57 to 99 % and the speed error from -0.057 m/s
+            (MAE 0.067) to -0.002 m/s (MAE 0.033). Not yet the default: the accuracy tables
+            have not been measured with it.
+        static_min_speed: See ``static_rate`` [m/s].
+        static_min_frames: Frames the static image needs before it is taken out.
     """
 
     min_level_size: tuple[int, int] = (80, 60)
@@ -381,6 +394,9 @@ class FlowOdometryConfig:
     use_mask: bool = True
     use_ransac: bool = True
     repeated_frames: str = "invalid"
+    static_rate: float = 0.0
+    static_min_speed: float = 0.05
+    static_min_frames: int = 10
 
     @classmethod
     def for_camera(cls, width: int, rate_hz: float, **overrides) -> FlowOdometryConfig:
@@ -440,6 +456,14 @@ class FlowOdometryConfig:
             raise ValueError(f"roi_margin: {self.roi_margin}; use a share in [0, 0.5)")
         if self.min_inliers < 2:
             raise ValueError("min_inliers: at least 2 features are needed for (v_x, v_y, omega)")
+        if not (
+            0.0 <= self.static_rate <= 1.0 and self.static_min_speed >= 0 and self.static_min_frames >= 1
+        ):
+            raise ValueError(
+                f"static_rate={self.static_rate!r}, static_min_speed={self.static_min_speed!r}, "
+                f"static_min_frames={self.static_min_frames!r}: use a weight in [0, 1], a speed >= 0 "
+                "[m/s] and at least 1 frame"
+            )
         if self.repeated_frames not in ("invalid", "still"):
             raise ValueError(f"repeated_frames: {self.repeated_frames!r}; use 'invalid' or 'still'")
 
@@ -611,6 +635,10 @@ class FlowOdometry:
         self._roi_box = (max(0, my_l - b), min(hl, hl - my_l + b), max(0, mx_l - b), min(wl, wl - mx_l + b))
         self._last: Selection | None = None
         self._rng = np.random.default_rng(0)
+        self._static: np.ndarray | None = None  # running mean of the grey frames (static_rate)
+        self._static_n = 0
+        self._moving = False  # the last valid estimate moved at static_min_speed or more
+        self._raw: tuple[np.ndarray, np.ndarray] | None = None  # (last grey frame, as tracked)
 
     # ------------------------------------------------------------------ Algorithm 1, lines 3-4
 
@@ -855,6 +883,9 @@ class FlowOdometry:
         """
         gray = to_gray(image, self.camera.image_size)  # converted once for both uses
         rates = _rates(rate_xy)
+        raw = gray
+        if self.config.static_rate > 0:
+            gray = self._without_static(raw)
         out = None
         if self._last is not None:
             dt = t - (math.nan if self._last.t is None else self._last.t)
@@ -862,12 +893,41 @@ class FlowOdometry:
                 raise ValueError(f"t: {t!r} s is not after the last frame's {self._last.t!r} s")
             out = self._track(self._last, gray, dt, t, ground_plane, rates)
         self._last = self._select(gray, t, ground_plane)
+        if self.config.static_rate > 0:
+            self._learn_static(raw, out)
         return out
+
+    def _without_static(self, raw: np.ndarray) -> np.ndarray:
+        """``raw`` less the static image (less its mean level), uint8; a repeated frame as before."""
+        if self._raw is not None and np.array_equal(raw, self._raw[0]):
+            return self._raw[1]  # the same frame tracks as the same image (a frozen camera shows)
+        if self._static is None or self._static_n < self.config.static_min_frames:
+            out = raw
+        else:
+            pattern = self._static - np.float32(self._static.mean())
+            out = np.clip(raw.astype(np.float32) - pattern + 0.5, 0, 255).astype(np.uint8)
+        self._raw = (raw, out)
+        return out
+
+    def _learn_static(self, raw: np.ndarray, est: OdometryEstimate | None) -> None:
+        """Feed ``raw`` to the static image while the rover moves (see ``static_rate``)."""
+        cfg = self.config
+        if est is not None and est.valid:
+            self._moving = math.hypot(est.v_x, est.v_y) >= cfg.static_min_speed
+        if not self._moving:
+            return
+        self._static_n += 1
+        w = np.float32(max(1.0 / self._static_n, cfg.static_rate))
+        if self._static is None:
+            self._static = raw.astype(np.float32)
+        else:
+            self._static += w * (raw.astype(np.float32) - self._static)
 
     def reset(self) -> None:
         """Forget the chained stream's last frame and restart RANSAC's random stream."""
         self._last = None
         self._rng = np.random.default_rng(0)
+        self._static, self._static_n, self._moving, self._raw = None, 0, False, None
 
 
 def _local_contrast(gray: np.ndarray, pts: np.ndarray) -> np.ndarray:
