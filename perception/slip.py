@@ -143,17 +143,6 @@ class SlipConfig:
             the relief under the camera into a yaw rate of the order of 0.01 rad/s, which would
             otherwise pass into the gyro's bias.
         odom_yaw_bias_rw: Random walk of that bias [rad/s per sqrt(s)].
-        lateral_std: With an accelerometer, through a gap of the odometry (its last estimate
-            older than ``max_age``), each frame of wheel rates brings a pseudo-measurement that
-            each wheel centre moves along its heading (no side slip), of this standard
-            deviation [m/s] (0: none), left out for a wheel whose lateral speed the filter puts
-            ``grip_gate`` deviations from zero (it slides sideways); and the zero-slip
-            pseudo-measurements of ``grip_std`` are taken also where the measurements alone do
-            not resolve the slip: the wheels carry the speed (wheel odometry; the slip is not
-            valid meanwhile). Otherwise the velocity integrates the measured acceleration, and
-            a tilt's gravity or a bias builds speed: on a randomised drive over shadowed,
-            low-texture sand (seed 8) the odometry failed for most frames over 25 s, and v_x
-            drifted by 0.02-0.07 m/s at 0.2 m/s and v_y to 0.05-0.08 m/s.
         accel_velocity_rw: With an accelerometer (:meth:`SlipEstimator.add_accel`), the body's
             velocity is predicted with its measured acceleration up to the query time, and only
             this is left of the velocity's random walk [m/s per sqrt(s)] (vibration, the lever
@@ -234,7 +223,6 @@ class SlipConfig:
     gyro_bias_rw: float = 1e-4
     odom_yaw_bias_std: float = 0.01
     odom_yaw_bias_rw: float = 1e-3
-    lateral_std: float = 0.15
     accel_velocity_rw: float = 0.05
     accel_bias_std: float = 0.2
     accel_bias_rw: float = 0.1
@@ -261,10 +249,6 @@ class SlipConfig:
             raise ValueError(
                 f"SlipConfig: odom_yaw_bias_std={self.odom_yaw_bias_std!r} must be > 0 and "
                 f"odom_yaw_bias_rw={self.odom_yaw_bias_rw!r} >= 0"
-            )
-        if not self.lateral_std >= 0:
-            raise ValueError(
-                f"SlipConfig.lateral_std: {self.lateral_std!r}; give a speed >= 0 [m/s] (0: off)"
             )
         if not (self.gyro_bias_std > 0 and self.gyro_bias_rw >= 0):
             raise ValueError(
@@ -689,8 +673,6 @@ class SlipEstimator:
             self._update(H, z, R)
             if gripping is not None:
                 self._grip(gripping)
-            if rates and self.config.lateral_std > 0 and self._odometry_gap():
-                self._no_side_slip()
             same_time = self._at_rates is not None and abs(self._at_rates[0] - self._t) < 1e-6
             if rates or (same_time and not self._accel_used):
                 # the slip's state: after the latest rates (and, without an accelerometer, every
@@ -740,31 +722,10 @@ class SlipEstimator:
         var = (c.grip_std * speed[w]) ** 2
         S = np.einsum("ij,jk,ik->i", H, P, H) + var
         innov = -(H @ x)
-        # only where the measurements alone resolve the slip to max_slip_std; with an
-        # accelerometer, also through a gap of the odometry (its slip is not valid meanwhile)
-        resolved = (S - var <= (c.max_slip_std * speed[w]) ** 2) | self._odometry_gap()
-        grip = (innov**2 <= c.grip_gate**2 * S) & resolved
+        # only where the measurements alone resolve the slip to max_slip_std
+        grip = (innov**2 <= c.grip_gate**2 * S) & (S - var <= (c.max_slip_std * speed[w]) ** 2)
         if grip.any():
             self._update(H[grip], np.zeros(int(grip.sum())), np.diag(var[grip]))
-
-    def _odometry_gap(self) -> bool:
-        """With an accelerometer: whether the odometry is older than ``max_age`` at the filter's time."""
-        return self._accel_used and self._t is not None and self._t - self._t_odom > self.config.max_age
-
-    def _no_side_slip(self) -> None:
-        """Pseudo-measurements v_i,lat = 0 of the wheels not sliding sideways (``lateral_std``)."""
-        c = self.config
-        x, P = self._x, self._P
-        cos, sin = np.cos(self._steer), np.sin(self._steer)
-        xy = self.wheel_xy
-        H = np.zeros((N_WHEELS, len(x)))
-        H[:, :3] = np.stack([-sin, cos, sin * xy[:, 1] + cos * xy[:, 0]], axis=1)  # v_lat = H @ twist
-        var = c.lateral_std**2
-        S = np.einsum("ij,jk,ik->i", H, P, H) + var
-        innov = -(H @ x)
-        keep = innov**2 <= c.grip_gate**2 * S
-        if keep.any():
-            self._update(H[keep], np.zeros(int(keep.sum())), np.eye(int(keep.sum())) * var)
 
     def twist_at(self, t: float) -> np.ndarray:
         """The filtered body twist (v_x, v_y, omega) at ``t`` [s] [m/s, m/s, rad/s], body frame.

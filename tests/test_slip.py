@@ -598,35 +598,3 @@ def test_a_recorded_skid_of_a_turns_inner_wheel_is_caught_with_and_without_the_i
     first = np.flatnonzero(events[:, 2])[0]
     assert 0 <= first - first_true <= 2, (t[first], t[first_true])
     assert not events[:, [0, 1, 3]].any()
-
-
-def gap_drive(config=None, seconds=12.0):
-    """0.5 m/s straight; the odometry stops at 2 s while the accelerometer, its bias learnt, then
-    reads a further (0.05, 0.05) m/s^2 (a tilt's gravity): (t, twist, slip valid) per frame."""
-    rng = np.random.default_rng(3)
-    est = SlipEstimator(XY, R_WHEEL, config)
-    ff = 1 / 30
-    rows = []
-    for k in range(1, int(seconds * 30) + 1):
-        t = k * ff
-        if t <= 2.0:
-            est.add_odometry(t, np.array([0.5, 0.0, 0.0]) + rng.normal(0, 0.01, 3), ff)
-        leak = 0.05 if t > 2.0 else 0.0
-        est.add_accel(t, (leak + rng.normal(0, 0.02), leak + rng.normal(0, 0.02)), ff)
-        est.add_wheels(t, np.full(4, 0.5 / R_WHEEL) + rng.normal(0, 0.03, 4), ff, steering=np.zeros(4))
-        e = est.estimate(t)
-        rows.append((t, *e.twist, e.valid.any()))
-    return np.array(rows)
-
-
-def test_through_a_gap_of_the_odometry_the_wheels_carry_the_speed_and_no_side_slip_holds_v_y():
-    """With an accelerometer, 10 s without odometry: the zero-slip and no-side-slip
-    pseudo-measurements hold the velocity within 0.03 m/s of the truth, while the integrated
-    acceleration alone (neither) drifts by 0.35-0.5 m/s; no slip is valid meanwhile."""
-    rows = gap_drive()
-    t, vx, vy, valid = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 4].astype(bool)
-    gap = t > 2.5
-    assert np.abs(vx[gap] - 0.5).max() <= 0.03 and np.abs(vy[gap]).max() <= 0.03
-    assert valid[(t > 1.0) & (t <= 2.0)].all() and not valid[gap].any()
-    drift = gap_drive(SlipConfig(grip_std=0.0, lateral_std=0.0))
-    assert abs(drift[-1, 1] - 0.5) >= 0.3 and abs(drift[-1, 2]) >= 0.3
