@@ -365,8 +365,8 @@ class FlowOdometryConfig:
             on low-texture ground pull the tracks toward zero motion. On a randomised drive
             over concrete in the rover's shadow (sun at 73 degrees, field cameras, 160 x 120)
             with 0.1 the valid pairs rose from 57 to 99 % and the speed error from -0.057 m/s
-            (MAE 0.067) to -0.002 m/s (MAE 0.033). Not yet the default: the accuracy tables
-            have not been measured with it.
+            (MAE 0.067) to -0.002 m/s (MAE 0.033). Not the default: in randomised closed
+            loop it helped on flat ground and hurt on rough ground (docs/odometry.md).
         static_min_speed: See ``static_rate`` [m/s].
         static_min_frames: Frames the static image needs before it is taken out.
     """
