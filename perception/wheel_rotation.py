@@ -380,6 +380,8 @@ class StaticPattern:
         box: (columns, rows) of the local averages of the shrinkage.
     """
 
+    MAX_SCALE = 1.5  # the largest least-squares scale of the pattern in a strip
+
     def __init__(
         self,
         n_wheels: int,
@@ -395,7 +397,6 @@ class StaticPattern:
             raise ValueError(f"rate={rate!r}: use a weight in (0, 1]")
         self.rate, self.min_rotation, self.min_frames = float(rate), float(min_rotation), int(min_frames)
         self.shrink, self.box, self.columns = float(shrink), box, int(columns)
-        self.max_scale = 1.5
         self._mean = np.zeros((n_wheels, rows, columns), np.float32)
         self._sq = np.zeros_like(self._mean)
         self._n = np.zeros((n_wheels, rows, columns), np.int32)
@@ -429,7 +430,7 @@ class StaticPattern:
         pp = float(np.sum(pattern * pattern))
         if pp <= 0.0:
             return strip
-        scale = min(max(float(np.sum(strip.texture * pattern)) / pp, 0.0), self.max_scale)
+        scale = min(max(float(np.sum(strip.texture * pattern)) / pp, 0.0), self.MAX_SCALE)
         tex = (strip.texture - scale * pattern).astype(np.float32)
         return TreadStrip(strip.k0, strip.dphi, strip.y, strip.pixels, strip.visible, strip.valid, tex)
 
