@@ -203,6 +203,8 @@ def test_the_gl_velocity_buffer_equals_the_motion_field_of_a_labelled_render():
             env.step(np.array([0.8, 0.4, 0.0], np.float32))
         sim = env.unwrapped.sim
         for cam in env.unwrapped.pipeline.cameras:
+            if isinstance(cam, DownwardCamera):
+                cam._lens_keep = None  # the whole view (see the lens footprint's own test)
             focus_on_rover(sim, cam.config.ground_range)
             view = cam._render(labels=True)
             links = sim.link_motion()
@@ -494,3 +496,56 @@ def test_a_cloud_shadow_sweeps_over_the_ground_with_the_wind(renderer):
         SunConfig(cloud_shadows=((1.0, 2.0, 0.0, 3.0, 0.2, 0.0),))
     with pytest.raises(ConfigError, match="cloud_shadows"):
         SunConfig(cloud_shadows=((1.0, 2.0, 0.0, 3.0),))
+
+
+def test_a_field_lens_draws_only_the_pixels_it_reads_and_its_frames_do_not_change():
+    """With a distorting lens the wider ideal view is drawn only within BLUR_REACH_PX of the
+    pixels the lens reads (88 % of it): those are bit-for-bit the full render's, the rest black
+    and still; a frame whose blur reaches farther is drawn in full; the delivered frames and the
+    observations are the same as with the whole view drawn."""
+    actions = [np.array([0.9, 0.5 * math.sin(k / 6), 0.0], np.float32) for k in range(40)]
+
+    def run(mask: bool):
+        env = gym.make("RoverShadows-v0", renderer="gl", camera_effects="field", preset="train")
+        try:
+            env.reset(seed=2)
+            (cam,) = [c for c in env.unwrapped.pipeline.cameras if isinstance(c, DownwardCamera)]
+            if not mask:
+                cam._lens_keep = None
+            frames, obs = [], []
+            for a in actions:
+                obs.append(env.step(a)[0])
+                frames.append(env.unwrapped.pipeline.last_images["downward"].copy())
+            if mask:  # the footprint against the full render, at this instant
+                kept = cam._lens_keep
+                assert kept is not None and kept.shape == cam._render_model.image_size[::-1]
+                assert 0.8 < kept.mean() < 0.95
+                sim = env.unwrapped.sim
+                focus_on_rover(sim, cam.config.ground_range)
+                links = sim.link_motion()
+                T = cam.T_world_cam()
+                com, v, w = links[-1]
+                spec = MotionSpec(sim.rover.body_id, links, v + np.cross(w, T[:3, 3] - com), w, None)
+                renderer = focus_on_rover(sim, cam.config.ground_range)
+                args = (cam._render_model, T, cam.lighting)
+                full = renderer.render_pinhole(*args, segmentation=False, motion=spec)
+                part = renderer.render_pinhole(*args, segmentation=False, motion=spec, keep=kept)
+                np.testing.assert_array_equal(part.rgb[kept], full.rgb[kept])
+                np.testing.assert_array_equal(part.motion[kept], full.motion[kept])
+                assert not part.rgb[~kept].any() and not part.motion[~kept].any()
+                assert full.rgb[~kept].mean() > 10  # the ground is there, and was left undrawn
+                # the camera's own choice: masked at a short exposure, whole at a long one
+                cam.image_sensor.exposure_s = 1e-4
+                assert not cam._render(labels=False, motion=spec).motion[~kept].any()
+                cam.image_sensor.exposure_s = 0.01
+                span = np.abs(full.motion).max()
+                assert span * 0.01 > cam.BLUR_REACH_PX
+                assert cam._render(labels=False, motion=spec).motion[~kept].any()
+        finally:
+            env.close()
+        return frames, np.array(obs)
+
+    f_mask, o_mask = run(True)
+    f_full, o_full = run(False)
+    assert all(np.array_equal(a, b) for a, b in zip(f_mask, f_full, strict=True))
+    np.testing.assert_array_equal(o_mask, o_full)

@@ -7,7 +7,7 @@ import pytest
 from conftest import flat_scenario, rough_scenario
 
 from rover_env.rendering import renderer_for
-from rover_env.rendering.gl import GLRenderer, gl_status, load_obj, projection_from_K
+from rover_env.rendering.gl import GLRenderer, gl_status, load_obj, projection_from_K, skip_rects
 from rover_env.sim.simulation import RoverSim
 
 pytestmark = pytest.mark.skipif(not gl_status()[0], reason=f"no OpenGL context here: {gl_status()[1]}")
@@ -31,6 +31,20 @@ def test_projection_maps_pixel_centres_to_the_model_pixels():
     assert np.all((z_ndc > -1) & (z_ndc < 1))
     near_pt = np.array([0.0, 0.0, near, 1.0]) @ P.T
     assert near_pt[2] / near_pt[3] == pytest.approx(-1.0)
+
+
+def test_the_rectangles_a_view_skips_cover_exactly_the_pixels_it_need_not_draw():
+    rng = np.random.default_rng(3)
+    keep = rng.random((37, 53)) < 0.6
+    keep[5] = True  # a row with nothing to skip
+    keep[9] = False  # and one with nothing to keep
+    rects = skip_rects(keep)
+    covered = np.zeros(keep.shape, int)
+    for x0, y0, x1, y1 in rects:
+        assert y1 == y0 + 1 and x1 > x0
+        covered[y0:y1, x0:x1] += 1
+    np.testing.assert_array_equal(covered, ~keep)  # each pixel not kept once, no kept one
+    assert skip_rects(np.ones((4, 6), bool)).shape == (0, 4)
 
 
 def test_obj_loader_triangulates_and_checks_indices(tmp_path):

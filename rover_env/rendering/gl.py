@@ -232,6 +232,41 @@ _DEPTH_FS = """
 void main() {}
 """
 
+# The pixels a view need not draw, at the near plane first: the scene's fragments there fail the
+# depth test before they are shaded (llvmpipe tests depth early), and they stay the clear colour.
+_SKIP_VS = """
+#version 330
+in vec2 in_pos;
+void main() {
+    gl_Position = vec4(in_pos, -1.0, 1.0);
+}
+"""
+
+_SKIP_FS = """
+#version 330
+layout(location = 0) out vec4 f_color;
+layout(location = 1) out vec2 f_motion;
+void main() {
+    f_color = vec4(0.0);
+    f_motion = vec2(0.0);
+}
+"""
+
+
+def skip_rects(keep: np.ndarray) -> np.ndarray:
+    """Rectangles (N, 4) int (x0, y0, x1, y1) [px, end exclusive] that cover every pixel not in ``keep``.
+
+    ``keep``: (H, W) bool, the pixels that must be drawn. One rectangle per row and run of
+    pixels not kept (a few hundred for a lens's outline: nothing to draw).
+    """
+    keep = np.asarray(keep, dtype=bool)
+    out = []
+    for y, row in enumerate(keep):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], (~row).view(np.int8), [0]])))
+        for x0, x1 in zip(edges[::2], edges[1::2], strict=True):
+            out.append((int(x0), y, int(x1), y + 1))
+    return np.array(out, dtype=np.int64).reshape(-1, 4)
+
 
 class GLUnavailableError(RuntimeError):
     """An OpenGL 3.3 context cannot be created on this machine (the message says why)."""
@@ -703,6 +738,8 @@ class GLRenderer(Renderer):
                 for defs in [(("GROUND",) if ground else ()) + _MODE_DEFINES[mode]]
             }
             self._prog_depth = self._own(ctx.program(vertex_shader=_DEPTH_VS, fragment_shader=_DEPTH_FS))
+            self._prog_skip = self._own(ctx.program(vertex_shader=_SKIP_VS, fragment_shader=_SKIP_FS))
+            self._skips: dict[int, tuple] = {}  # id(keep) -> (keep, its vertex array or None)
             for prog in self._progs.values():
                 _set(prog, "u_tex", 0)
                 _set(prog, "u_lod_bias", float(lod_bias))
@@ -745,6 +782,7 @@ class GLRenderer(Renderer):
         for prog in self._progs.values():
             _UNIFORMS.pop(id(prog), None)
         _UNIFORMS.pop(id(self._prog_depth), None)
+        self._skips.clear()
         with self.ctx:
             for obj in reversed(self._objects):
                 try:
@@ -1225,11 +1263,16 @@ class GLRenderer(Renderer):
         far: float = 20.0,
         segmentation: bool = True,
         motion: MotionSpec | None = None,
+        keep: np.ndarray | None = None,
     ) -> RenderedView:
         """See :meth:`Renderer.render_K` (this context is made current for it).
 
         ``motion``: also draw the velocity buffer (:attr:`RenderedView.motion`) in the colour
         pass (not with ``segmentation``); the colour returned is ``motion.expose``'s, if given.
+        ``keep``: (H, W) bool, the pixels that must be drawn; the others may be left black, with
+        zero velocity, unshaded (a lens's remap reads only part of the wider view it needs).
+        Every kept pixel is the same as without ``keep``. Pass the same array each frame: its
+        rectangles are made once per array. None: every pixel is drawn.
         """
         if self.released:
             raise RuntimeError("this GLRenderer is released; create a new one")
@@ -1237,8 +1280,10 @@ class GLRenderer(Renderer):
             raise ValueError(
                 "motion: a velocity buffer is drawn without segmentation; pass segmentation=False"
             )
+        if keep is not None and np.shape(keep) != (int(size[1]), int(size[0])):
+            raise ValueError(f"keep: shape {np.shape(keep)}; the view is {size[0]} x {size[1]} px (H, W)")
         with self.ctx:
-            return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation, motion)
+            return self._render_K(K, size, T_world_cam, lighting, near, far, segmentation, motion, keep)
 
     def render_fisheye(
         self,
@@ -1273,6 +1318,7 @@ class GLRenderer(Renderer):
         far: float = 20.0,
         segmentation: bool = True,
         motion: MotionSpec | None = None,
+        keep: np.ndarray | None = None,
     ) -> RenderedView:
         """Render the pinhole view ``K`` [px], ``size`` = (W, H) [px] from ``T_world_cam`` (optical frame).
 
@@ -1290,6 +1336,8 @@ class GLRenderer(Renderer):
         fbo.use()
         fbo.viewport = (0, 0, w, h)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        if keep is not None:
+            self._skip(keep)
         links = None if motion is None else _link_arrays(motion.links)
         self._draw(planes, T_world_cam, P, lighting, poses, mode, smap, motion, K, links)
         rgba = np.frombuffer(fbo.read(components=4, attachment=0), np.uint8).reshape(h, w, 4)
@@ -1320,6 +1368,27 @@ class GLRenderer(Renderer):
             depth[empty] = far
         view = RenderedView(rgb, depth, seg, shadow, np.asarray(K, float), np.asarray(T_world_cam, float))
         return view
+
+    def _skip(self, keep: np.ndarray) -> None:
+        """Put the pixels outside ``keep`` (H, W) at the near plane in the bound framebuffer's depth."""
+        entry = self._skips.get(id(keep))
+        if entry is None or entry[0] is not keep:
+            rects = skip_rects(keep).astype(np.float32)
+            vao = None
+            if len(rects):
+                h, w = keep.shape
+                x0, y0 = 2.0 * rects[:, 0] / w - 1.0, 2.0 * rects[:, 1] / h - 1.0
+                x1, y1 = 2.0 * rects[:, 2] / w - 1.0, 2.0 * rects[:, 3] / h - 1.0
+                tris = np.stack([x0, y0, x1, y0, x1, y1, x0, y0, x1, y1, x0, y1], axis=1)
+                vbo = self._own(self.ctx.buffer(np.ascontiguousarray(tris, np.float32).tobytes()))
+                vao = self._own(self.ctx.vertex_array(self._prog_skip, [(vbo, "2f", "in_pos")]))
+            if len(self._skips) >= 8:  # cameras pass one array each; a stray caller must not grow this
+                self._skips.clear()
+            entry = (keep, vao)
+            self._skips[id(keep)] = entry
+        if entry[1] is not None:
+            self.ctx.enable(self._mgl.DEPTH_TEST)
+            entry[1].render(self._mgl.TRIANGLES)
 
     # ------------------------------------------------------------------ fisheye
     def _fisheye_targets(self, remapper: CubemapRemap):

@@ -51,6 +51,25 @@ def blackout_windows(value, name: str = "blackout") -> list[tuple[float, float]]
     return out
 
 
+def _lens_footprint(xs: np.ndarray, ys: np.ndarray, size: tuple[int, int], reach: int) -> np.ndarray:
+    """The pixels (H, W) bool of a (W, H) = ``size`` view that a bilinear remap at ``xs``, ``ys`` reads.
+
+    ``xs``, ``ys``: the remap's positions [px]; the pixels they read are grown by ``reach`` [px]:
+    a path of at most ``reach`` pixels along each axis from any remap position stays in it
+    (:func:`rover_env.sensors.motion_blur.blur` with ``maps``).
+    """
+    w, h = size
+    read = np.zeros((h, w), np.uint8)
+    x0 = np.clip(np.floor(xs).astype(np.int64), 0, w - 1)
+    y0 = np.clip(np.floor(ys).astype(np.int64), 0, h - 1)
+    for dy in (0, 1):
+        for dx in (0, 1):
+            read[np.minimum(y0 + dy, h - 1), np.minimum(x0 + dx, w - 1)] = 1
+    if reach > 0:
+        return cv2.dilate(read, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)).astype(bool)
+    return read.astype(bool)
+
+
 @dataclass(frozen=True)
 class Frame:
     """A timestamped image.
@@ -311,6 +330,10 @@ class DownwardCamera(_RoverCamera):
             (:meth:`standard_mount`).
     """
 
+    #: With a distorting lens, the ideal view is drawn only within this reach [px] of the pixels
+    #: the lens reads; a frame whose motion blur reaches farther is drawn in full.
+    BLUR_REACH_PX = 2
+
     @staticmethod
     def standard_mount(g: RoverGeometry) -> np.ndarray:
         """(4, 4) body-from-camera pose on the mast, looking straight down, image up = forward."""
@@ -339,6 +362,8 @@ class DownwardCamera(_RoverCamera):
         # the ideal view that is rendered, and the lens's remap from it (None: no distortion)
         self._render_model = self.model
         self._lens_maps: tuple[np.ndarray, np.ndarray] | None = None
+        # the pixels of the ideal view that the lens and a blur of up to BLUR_REACH_PX read
+        self._lens_keep: np.ndarray | None = None
 
     def set_effects(self, on: bool, seed: int | None = None) -> None:
         """As :meth:`_RoverCamera.set_effects`; a field lens also distorts (``sensor.distortion``).
@@ -349,7 +374,7 @@ class DownwardCamera(_RoverCamera):
         dist = np.asarray(self.config.sensor.distortion, dtype=np.float64)
         ideal = self._ideal
         if not (on and np.any(dist)):
-            self.model, self._render_model, self._lens_maps = ideal, ideal, None
+            self.model, self._render_model, self._lens_maps, self._lens_keep = ideal, ideal, None, None
         else:
             model = PinholeCamera(
                 K=ideal.K,
@@ -373,6 +398,7 @@ class DownwardCamera(_RoverCamera):
                 (ideal_px[..., 0] - lo[0]).astype(np.float32),
                 (ideal_px[..., 1] - lo[1]).astype(np.float32),
             )
+            self._lens_keep = _lens_footprint(*self._lens_maps, size, self.BLUR_REACH_PX)
             self.model = model
         super().set_effects(on, seed)
 
@@ -414,9 +440,23 @@ class DownwardCamera(_RoverCamera):
             raise ValueError("parts: a pinhole camera renders whole frames")
         lighting = self.lighting
         renderer = renderer_for(self.sim)
-        extra = {} if motion is None else {"motion": motion}
         T = self.T_world_cam()
-        return renderer.render_pinhole(self._render_model, T, lighting, segmentation=labels, **extra)
+        if motion is None:
+            return renderer.render_pinhole(self._render_model, T, lighting, segmentation=labels)
+        if self._lens_keep is None:
+            return renderer.render_pinhole(self._render_model, T, lighting, segmentation=False, motion=motion)
+        # the ideal view's pixels that no sensor pixel reads are left undrawn: exact while no
+        # pixel's path over the exposure is longer than BLUR_REACH_PX (else drawn again in full)
+        view = renderer.render_pinhole(
+            self._render_model, T, lighting, segmentation=False, motion=motion, keep=self._lens_keep
+        )
+        sensor, s = self.image_sensor, self.config.sensor
+        vel = view.motion
+        assert sensor is not None and vel is not None
+        span = float(max(-vel.min(), vel.max())) if vel.size else 0.0
+        if span * (sensor.exposure_s + s.rolling_shutter_s) > self.BLUR_REACH_PX:
+            view = renderer.render_pinhole(self._render_model, T, lighting, segmentation=False, motion=motion)
+        return view
 
 
 def kinematics_roi(
