@@ -357,18 +357,22 @@ class FlowOdometryConfig:
             noise-free and renders every frame anew (the simulation's), so the rover stands
             still and the pair is tracked as any other (a valid zero).
         static_rate: In a chained stream (:meth:`FlowOdometry.update`), the weight of a frame
-            in a running mean of the grey frames, the static image, which is taken out of each
-            frame (less its own mean level) before it is tracked; 0 (the default): off. It is
-            fed while the last valid estimate moved at ``static_min_speed`` or more, when the
-            ground's texture averages out and what stays is what does not move with it: a
-            sensor's fixed pattern, vignetting, the rover's own shadow and parts in view, which
-            on low-texture ground pull the tracks toward zero motion. On a randomised drive
-            over concrete in the rover's shadow (sun at 73 degrees, field cameras, 160 x 120)
-            with 0.1 the valid pairs rose from 57 to 99 % and the speed error from -0.057 m/s
-            (MAE 0.067) to -0.002 m/s (MAE 0.033). Not the default: in randomised closed
-            loop it helped on flat ground and hurt on rough ground (docs/odometry.md).
-        static_min_speed: See ``static_rate`` [m/s].
-        static_min_frames: Frames the static image needs before it is taken out.
+            in the running means of the static image: each grey frame's fine texture (the frame
+            less its Gaussian blur of ``static_sigma``) and its square. They are fed while the
+            last valid estimate moved at ``static_min_speed`` or more, when the ground's
+            texture averages out and what stays is what does not move with it: a sensor's
+            fixed pattern, the edges of the rover's own shadow and parts in view, which on
+            low-texture ground pull the tracks toward zero motion. The mean still holds a share
+            ``rate / (2 - rate)`` of the texture's variance, and a shadow that moves across the
+            view varies far more than that: the pattern is shrunk to ``g * mean`` with
+            ``g = max(0, 1 - static_shrink * residual / mean^2)`` (both local means), so a
+            moving shadow's trail is not taken out (taking it out drew false edges that held
+            the tracks). The pattern is taken out of each frame at its least-squares strength
+            in the frame's fine texture (0 to 1.5). 0 (the default): off. Measured in
+            docs/odometry.md.        static_min_frames: Frames the static image needs before it is taken out.
+        static_sigma: Width of the blur that splits off the fine texture, as a share of the
+            image width (0.025: 4 px at 160 px).
+        static_shrink: Multiple of the mean's expected residual texture a pattern must exceed.
     """
 
     min_level_size: tuple[int, int] = (80, 60)
@@ -397,6 +401,8 @@ class FlowOdometryConfig:
     static_rate: float = 0.0
     static_min_speed: float = 0.05
     static_min_frames: int = 10
+    static_sigma: float = 0.025
+    static_shrink: float = 2.0
 
     @classmethod
     def for_camera(cls, width: int, rate_hz: float, **overrides) -> FlowOdometryConfig:
@@ -463,6 +469,11 @@ class FlowOdometryConfig:
                 f"static_rate={self.static_rate!r}, static_min_speed={self.static_min_speed!r}, "
                 f"static_min_frames={self.static_min_frames!r}: use a weight in [0, 1], a speed >= 0 "
                 "[m/s] and at least 1 frame"
+            )
+        if not (0.0 < self.static_sigma <= 0.25 and self.static_shrink >= 0.0):
+            raise ValueError(
+                f"static_sigma={self.static_sigma!r}, static_shrink={self.static_shrink!r}: use a share of "
+                "the image width in (0, 0.25] and a multiple >= 0"
             )
         if self.repeated_frames not in ("invalid", "still"):
             raise ValueError(f"repeated_frames: {self.repeated_frames!r}; use 'invalid' or 'still'")
@@ -635,8 +646,12 @@ class FlowOdometry:
         self._roi_box = (max(0, my_l - b), min(hl, hl - my_l + b), max(0, mx_l - b), min(wl, wl - mx_l + b))
         self._last: Selection | None = None
         self._rng = np.random.default_rng(0)
-        self._static: np.ndarray | None = None  # running mean of the grey frames (static_rate)
+        # running means of the grey frames' fine texture and its square (static_rate)
+        self._static: np.ndarray | None = None
+        self._static_sq: np.ndarray | None = None
         self._static_n = 0
+        self._static_sigma = cfg.static_sigma * w  # [px]
+        self._static_box = 2 * max(1, round(0.6 * self._static_sigma)) + 1  # the shrinkage's local means [px]
         self._moving = False  # the last valid estimate moved at static_min_speed or more
         self._raw: tuple[np.ndarray, np.ndarray] | None = None  # (last grey frame, as tracked)
 
@@ -897,15 +912,30 @@ class FlowOdometry:
             self._learn_static(raw, out)
         return out
 
+    def _fine(self, gray: np.ndarray) -> np.ndarray:
+        """The fine texture of a grey frame: less its Gaussian blur of ``static_sigma``, float32."""
+        g = gray.astype(np.float32)
+        return g - cv2.GaussianBlur(g, (0, 0), self._static_sigma)
+
     def _without_static(self, raw: np.ndarray) -> np.ndarray:
-        """``raw`` less the static image (less its mean level), uint8; a repeated frame as before."""
+        """``raw`` less the static pattern at its strength in ``raw``, uint8; a repeated frame as before."""
         if self._raw is not None and np.array_equal(raw, self._raw[0]):
             return self._raw[1]  # the same frame tracks as the same image (a frozen camera shows)
-        if self._static is None or self._static_n < self.config.static_min_frames:
-            out = raw
-        else:
-            pattern = self._static - np.float32(self._static.mean())
-            out = np.clip(raw.astype(np.float32) - pattern + 0.5, 0, 255).astype(np.uint8)
+        out = raw
+        cfg = self.config
+        mean, sq = self._static, self._static_sq
+        if mean is not None and sq is not None and self._static_n >= cfg.static_min_frames:
+            r = cfg.static_rate
+            resid = np.maximum(sq - mean * mean, 0.0) * np.float32(r / (2.0 - r))
+            box = (self._static_box, self._static_box)
+            e_mean = cv2.blur(mean * mean, box)
+            g = np.clip(1.0 - cfg.static_shrink * cv2.blur(resid, box) / np.maximum(e_mean, 1e-6), 0.0, 1.0)
+            pattern = g * mean
+            pp = float(np.sum(pattern * pattern))
+            if pp > 0.0:
+                # as strong as this frame shows it: a black or flat frame has none of it
+                scale = min(max(float(np.sum(self._fine(raw) * pattern)) / pp, 0.0), 1.5)
+                out = np.clip(raw.astype(np.float32) - scale * pattern + 0.5, 0, 255).astype(np.uint8)
         self._raw = (raw, out)
         return out
 
@@ -918,16 +948,18 @@ class FlowOdometry:
             return
         self._static_n += 1
         w = np.float32(max(1.0 / self._static_n, cfg.static_rate))
-        if self._static is None:
-            self._static = raw.astype(np.float32)
+        fine = self._fine(raw)
+        if self._static is None or self._static_sq is None:
+            self._static, self._static_sq = fine, fine * fine
         else:
-            self._static += w * (raw.astype(np.float32) - self._static)
+            self._static += w * (fine - self._static)
+            self._static_sq += w * (fine * fine - self._static_sq)
 
     def reset(self) -> None:
         """Forget the chained stream's last frame and restart RANSAC's random stream."""
         self._last = None
         self._rng = np.random.default_rng(0)
-        self._static, self._static_n, self._moving, self._raw = None, 0, False, None
+        self._static, self._static_sq, self._static_n, self._moving, self._raw = None, None, 0, False, None
 
 
 def _local_contrast(gray: np.ndarray, pts: np.ndarray) -> np.ndarray:
