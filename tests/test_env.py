@@ -200,7 +200,9 @@ def _make(env_id, obs_source):
 
 
 @pytest.mark.parametrize("env_id", rover_env.ENV_IDS)
-@pytest.mark.parametrize("obs_source", ["estimated", "ground_truth"])
+@pytest.mark.parametrize(
+    "obs_source", ["estimated", pytest.param("ground_truth", marks=pytest.mark.slow)]
+)  # the estimated source's workers run the whole pipeline; the truth's only its simpler part
 def test_subproc_vec_env(env_id, obs_source):
     import functools
 

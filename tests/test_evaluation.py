@@ -112,6 +112,7 @@ def _metrics(rows):
     )
 
 
+@pytest.mark.slow  # starts a Ray cluster: 33 s
 def test_ray_executor_gives_the_local_executor_s_metrics(tiny_scenario):
     pytest.importorskip("ray", reason="the ray extra is not installed: pip install 'rover-vision[ray]'")
     jobs = [EvalJob(c, tiny_scenario, s) for c in ("slip_unaware@ground_truth", "slip_aware") for s in (0, 1)]

@@ -196,6 +196,7 @@ def test_every_option_has_help_without_markup_and_pybullet_prints_no_banner():
     assert "pybullet build time" not in out.stdout + out.stderr and "argv[0]" not in out.stdout + out.stderr
 
 
+@pytest.mark.slow  # a second demo run: 14 s
 def test_rover_demo_logs_both_runs_to_rerun(tmp_path):
     pytest.importorskip("rerun", reason="the rerun extra is not installed: pip install 'rover-vision[rerun]'")
     import subprocess

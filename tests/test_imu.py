@@ -39,6 +39,7 @@ def ratios(cfg: ImuConfig, fits, attr_fit: str, attr_cfg: str) -> np.ndarray:
     )
 
 
+@pytest.mark.slow  # ten hours of samples: 24 s
 def test_allan_terms_of_the_tactical_unit_match_its_configuration_over_10_hours():
     cfg = ImuConfig.preset("tactical")
     fits = stationary_fit(cfg, 10.0, seed=7)
@@ -230,6 +231,7 @@ def drive_circle(imu, seconds: float, env_id: str = "RoverRoughSlippery-v0", see
         env.close()
 
 
+@pytest.mark.slow  # a 40 s drive on rough ground: 50 s
 def test_gyro_calibrated_at_standstill_and_heading_held_on_rough_ground():
     base, _, err_none, att_none, _ = drive_circle(None, 15.0)
     pipe, first, err_imu, att_imu, tilt = drive_circle("bmi088", 15.0)
