@@ -369,7 +369,9 @@ class FlowOdometryConfig:
             moving shadow's trail is not taken out (taking it out drew false edges that held
             the tracks). The pattern is taken out of each frame at its least-squares strength
             in the frame's fine texture (0 to 1.5). 0 (the default): off. Measured in
-            docs/odometry.md.        static_min_frames: Frames the static image needs before it is taken out.
+            docs/odometry.md.
+        static_min_speed: See ``static_rate`` [m/s].
+        static_min_frames: Frames the static image needs before it is taken out.
         static_sigma: Width of the blur that splits off the fine texture, as a share of the
             image width (0.025: 4 px at 160 px).
         static_shrink: Multiple of the mean's expected residual texture a pattern must exceed.
