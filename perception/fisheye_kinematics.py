@@ -108,6 +108,8 @@ class KinematicsConfig:
             ``max_correction`` while the marker was not seen).
         max_steering_zero: Largest steering offset :meth:`KinematicStateEstimator.zero_steering`
             takes out [rad]; a frame that measures more is not of centred steering.
+        max_depth_zero: Largest axle-depth offset :meth:`KinematicStateEstimator.zero_depth`
+            takes out [m]; a frame that measures more is not of the rover at rest.
         static_rate: Weight of a frame in the learnt static pattern of each tread
             (:class:`~perception.wheel_rotation.StaticPattern`), taken out of the strips before
             they are aligned; 0: off. Chosen on recorded drives of the shadow mission (train
@@ -142,6 +144,7 @@ class KinematicsConfig:
     roi_margin_frac: float = 0.03
     geometry_refresh: tuple[float, float] = (math.radians(2.0), 0.004)
     max_steering_zero: float = 0.1
+    max_depth_zero: float = 0.01
     static_rate: float = 0.25
     static_min_rotation: float = 0.08
     static_min_frames: int = 5
@@ -265,6 +268,7 @@ class KinematicStateEstimator:
         self._fixed_at = np.full(4, math.nan)  # theta at the last correction
         self._delta_zero = np.zeros(4)  # steering measured at rest, centred (zero_steering)
         self._lam_zero = np.zeros(2)
+        self._depth_zero = np.zeros(2)  # axle depths measured at rest less their rest depths
 
     @property
     def state(self) -> KinematicState:
@@ -275,6 +279,78 @@ class KinematicStateEstimator:
     def steering_zero(self) -> np.ndarray:
         """The per-wheel steering offsets (FL, FR, RL, RR) taken out of every frame [rad]."""
         return self._delta_zero.copy()
+
+    @property
+    def depth_zero(self) -> np.ndarray:
+        """The axle-depth offsets (F, R) taken out of every frame [m] (see :meth:`zero_depth`)."""
+        return self._depth_zero.copy()
+
+    def _rest_measurement(self, img: np.ndarray):
+        """The markers' axle measurement of a frame, linearised about the rest state."""
+        w, h = self.camera.image_size
+        if not self._usable(img):
+            raise ValueError(
+                f"image: {img.dtype} {img.shape}; give the fisheye's ({h}, {w}, 3) uint8 RGB frame"
+            )
+        m = self.model
+        rest = (np.zeros(2), np.full(2, m.nominal_depth))
+        predicted, offsets = marker_projection(m, self.camera, *rest, np.zeros(4))
+        cent, _, _ = segment_magenta(img, self.config.markers)
+        found = assign_markers(predicted, cent, self.config.markers.gate_frac * w)
+        meas = measure_axles(
+            m, self.camera, {k: cent[j] for k, j in found.items()}, *rest, self.calibration, offsets=offsets
+        )
+        return meas, len(found)
+
+    def zero_depth(self, image: np.ndarray, rest_depth=None) -> np.ndarray | None:
+        """Take the axle depths a frame of the rover at rest measures as its known rest depths.
+
+        A fisheye mount off its calibration by millimetres and tenths of a degree moves the
+        plate markers as the axles sinking or rising by 1-4 mm would, differently per axle. The
+        downward odometry's ground plane is drawn through the wheels and reaches the camera
+        ahead of the front axle, so such an error changes the camera's height over the ground,
+        the odometry's scale, by up to 2 % (randomised mounts of +-3 mm and +-0.5 degrees).
+        The depths measured here less ``rest_depth`` are subtracted from every later frame's
+        until :meth:`reset`.
+
+        Args:
+            image: (H, W, 3) uint8 RGB fisheye frame, the rover at rest on its wheels.
+            rest_depth: The axles' depths at rest (F, R) [m]: on level ground both are the
+                model's ``nominal_depth`` (the springs' preload carries the body there); on a
+                slope the load moves between the axles. None: only the mean of the two axles'
+                offsets is taken out (the mean rest depth hardly changes with the slope: by
+                0.3 mm at 10 degrees on the simulated rover).
+
+        Returns:
+            The offsets taken (F, R) [m], or None: a plate marker missing, or an offset above
+            ``max_depth_zero`` (then nothing is taken and a warning is logged).
+        """
+        meas, found = self._rest_measurement(np.asarray(image))
+        nominal = np.full(2, self.model.nominal_depth)
+        if rest_depth is None:
+            rest = nominal
+        else:
+            rest = np.asarray(rest_depth, dtype=np.float64).reshape(-1)
+            if rest.shape != (2,) or not np.all(np.isfinite(rest)):
+                raise ValueError(f"rest_depth: {rest_depth!r}; give the finite (F, R) depths at rest [m]")
+        if not np.all(np.isfinite(meas.depth)):
+            log.warning("zero_depth: %d of %d markers found; the depths keep no offset", found, len(MARKERS))
+            return None
+        offset = meas.depth - rest
+        if rest_depth is None:
+            offset = np.full(2, offset.mean())
+        worst = float(np.abs(offset).max())
+        if worst > self.config.max_depth_zero:
+            log.warning(
+                "zero_depth: the frame measures axle depths %.4f m off their rest, more than max_depth_zero=%g;"
+                " is the rover at rest on its wheels? the depths keep no offset",
+                worst,
+                self.config.max_depth_zero,
+            )
+            return None
+        self._depth_zero = offset
+        self._geometry = None
+        return offset.copy()
 
     def zero_steering(self, image: np.ndarray) -> np.ndarray | None:
         """Take the steering a frame of the rover at rest, its steering centred, measures as zero.
@@ -294,24 +370,11 @@ class KinematicStateEstimator:
             The offsets taken (FL, FR, RL, RR) [rad], or None: markers missing, or an offset
             above ``max_steering_zero`` (then nothing is taken and a warning is logged).
         """
-        img = np.asarray(image)
-        w, h = self.camera.image_size
-        if not self._usable(img):
-            raise ValueError(
-                f"image: {img.dtype} {img.shape}; give the fisheye's ({h}, {w}, 3) uint8 RGB frame"
-            )
-        m = self.model
-        rest = (np.zeros(2), np.full(2, m.nominal_depth))
-        predicted, offsets = marker_projection(m, self.camera, *rest, np.zeros(4))
-        cent, _, _ = segment_magenta(img, self.config.markers)
-        found = assign_markers(predicted, cent, self.config.markers.gate_frac * w)
-        meas = measure_axles(
-            m, self.camera, {k: cent[j] for k, j in found.items()}, *rest, self.calibration, offsets=offsets
-        )
+        meas, found = self._rest_measurement(np.asarray(image))
         if not (np.all(np.isfinite(meas.delta)) and np.all(np.isfinite(meas.lam))):
             log.warning(
                 "zero_steering: %d of %d markers found; the steering keeps no offset",
-                len(found),
+                found,
                 len(MARKERS),
             )
             return None
@@ -347,7 +410,9 @@ class KinematicStateEstimator:
             dq = np.abs(q - self._geometry[0])
             if dq[:6].max() <= angle and dq[6:].max() <= length:
                 return self._geometry[1]
-        self._geometry = (q, marker_projection(self.model, self.camera, s.psi, s.depth, s.delta))
+        # where the image shows them: the depths as measured, before zero_depth's offsets
+        depth = s.depth + self._depth_zero
+        self._geometry = (q, marker_projection(self.model, self.camera, s.psi, depth, s.delta))
         return self._geometry[1]
 
     def update(self, image: np.ndarray, t: float) -> KinematicState:
@@ -392,12 +457,12 @@ class KinematicStateEstimator:
             self.camera,
             {m: cent[j] for m, j in found.items()},
             prev.psi,
-            prev.depth,
+            prev.depth + self._depth_zero,
             self.calibration,
             offsets=offsets,
         )
         psi = np.where(np.isfinite(meas.psi), meas.psi, prev.psi)
-        depth = np.where(np.isfinite(meas.depth), meas.depth, prev.depth)
+        depth = np.where(np.isfinite(meas.depth), meas.depth - self._depth_zero, prev.depth)
         lam = np.where(np.isfinite(meas.lam), meas.lam - self._lam_zero, prev.lam)
         from_lam = self.model.wheel_angles(*lam)
         delta = np.where(np.isfinite(meas.delta), meas.delta - self._delta_zero, from_lam)
@@ -420,7 +485,8 @@ class KinematicStateEstimator:
         theta, theta_dot = prev.theta.copy(), prev.theta_dot.copy()
         rate_std = np.full(4, np.inf)
         corrected = []
-        curr_frames = self.model.wheel_frames(psi, depth, delta)
+        # the treads where the image shows them (the depths as measured, as the markers are)
+        curr_frames = self.model.wheel_frames(psi, depth + self._depth_zero, delta)
         raw = unwrap_treads(
             gray, self.model, self.camera, curr_frames, self._dphi, cfg.tread, list(WHEELS), cfg.shadow_robust
         )

@@ -61,6 +61,14 @@ class RoverKinematicModel:
         correction_marker_arc: Angular width of the white tread marker [rad].
         ackermann_center_x: x of the turn-centre line each axle's tie rod is designed for.
         T_body_cam: Fisheye optical frame in the body frame.
+        rest_sag: How far the body's weight compresses each axle's travel spring at rest [m]
+            (its share of the weight over the spring's stiffness; 0: unknown). Tilted, the
+            springs carry the weight's component along body z only, so both axles hang deeper
+            by ``rest_sag (1 - cos(roll) cos(pitch))``.
+        pitch_sag: How far the front axle's depth at rest grows per unit sine of the body's
+            nose-up pitch [m], the rear's shrinking as much: the weight's component along body
+            x, acting at the body's height over the ground, moves load between the axles
+            (0: unknown). See :meth:`rest_depths`.
     """
 
     axle_x: float
@@ -75,12 +83,18 @@ class RoverKinematicModel:
     correction_marker_arc: float
     ackermann_center_x: float = 0.0
     T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    rest_sag: float = 0.0
+    pitch_sag: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("axle_x", "nominal_depth", "track", "wheel_radius", "wheel_width", "marker_size"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise CalibrationError(f"{name}: {v!r} must be a positive length in metres")
+        for name in ("rest_sag", "pitch_sag"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise CalibrationError(f"{name}: {v!r} must be a length >= 0 in metres")
         for name in ("plate_offset", "plate_marker_y", "ackermann_center_x"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
@@ -92,6 +106,21 @@ class RoverKinematicModel:
             )
         object.__setattr__(self, "arm_tip", tuple(float(v) for v in as_array(self.arm_tip, (3,), "arm_tip")))
         object.__setattr__(self, "T_body_cam", check_rigid(self.T_body_cam, "T_body_cam"))
+
+    def rest_depths(self, roll: float, pitch: float) -> np.ndarray:
+        """The axle depths (d_F, d_R) of the rover at rest on its wheels, its body tilted [m].
+
+        Args:
+            roll: Body roll against gravity [rad] (left side up +).
+            pitch: Body pitch against gravity [rad] (nose down +).
+
+        With ``rest_sag`` and ``pitch_sag`` 0 both are ``nominal_depth``, the level rest.
+        """
+        if not (math.isfinite(roll) and math.isfinite(pitch)):
+            raise ValueError(f"roll={roll!r}, pitch={pitch!r}: the tilt must be finite [rad]")
+        common = self.nominal_depth + self.rest_sag * (1.0 - math.cos(roll) * math.cos(pitch))
+        shift = -self.pitch_sag * math.sin(pitch)
+        return np.array([common + shift, common - shift])
 
     # ------------------------------------------------------------------ forward kinematics
     def axle_sign(self, axle: str) -> float:
@@ -230,12 +259,15 @@ class RoverKinematicModel:
         }
     )
 
+    _OPTIONAL = ("rest_sag", "pitch_sag")  # 0 when absent (files written before them)
+
     @classmethod
     def load(cls, path: str | Path) -> RoverKinematicModel:
-        """Read a model written by :meth:`save` (every key required; unknown keys are errors)."""
-        d = read_mapping(path, set(cls._KEYS), set())
+        """Read a model written by :meth:`save` (every key required but the sags; unknown keys are errors)."""
+        d = read_mapping(path, set(cls._KEYS), set(cls._OPTIONAL))
         try:
             kw = {k: real_number(k, d[k]) for k in cls._KEYS - {"arm_tip", "T_body_cam"}}
+            kw.update({k: real_number(k, d[k]) for k in cls._OPTIONAL if k in d})
             return cls(
                 arm_tip=tuple(as_array(d["arm_tip"], (3,), "arm_tip")),
                 T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),
@@ -246,6 +278,6 @@ class RoverKinematicModel:
 
     def save(self, path: str | Path) -> Path:
         """Write every field to YAML."""
-        data = {k: getattr(self, k) for k in sorted(self._KEYS)}
+        data = {k: getattr(self, k) for k in sorted(self._KEYS | set(self._OPTIONAL))}
         data["arm_tip"] = list(self.arm_tip)
         return write_mapping(path, data)

@@ -153,11 +153,15 @@ class RoverEstimator:
             faster than its axle).
         odometry_gyro: With an IMU, give the odometry's 3-D fit the gyro's mean roll and pitch
             rates over each frame pair (default). False: vision only (the odometry paper's method).
-        zero_steering_at_start: The rover stands at rest with its steering centred when the time
-            line starts (a simulated mission does): the fisheye frame taken then sets the
-            steering's zero (:meth:`KinematicStateEstimator.zero_steering`), which takes out most
-            of a fisheye mount error's effect on the steering. False (default): the calibrated
-            mount is trusted (a log may start anywhere).
+        zero_steering_at_start: The rover stands at rest on its wheels with its steering centred
+            when the time line starts (a simulated mission does): the fisheye frame taken then
+            sets the steering's zero (:meth:`KinematicStateEstimator.zero_steering`) and the axle
+            depths' (:meth:`KinematicStateEstimator.zero_depth`: the rest depths of the model's
+            :meth:`~perception.kinematics.RoverKinematicModel.rest_depths` at the IMU's tilt,
+            or without an IMU only the two axles' mean), which takes out most of a fisheye mount
+            error's effect on the steering, and on the downward odometry's scale through the
+            ground plane. False (default): the calibrated mount is trusted (a log may start
+            anywhere).
 
     Raises:
         ConfigError: The rig lacks a downward camera or a fisheye, or has two of a kind.
@@ -321,6 +325,10 @@ class RoverEstimator:
         if self._zero_at is not None:
             if abs(t - self._zero_at) <= 1e-9:  # taken at rest, steering centred
                 self.kinematics.zero_steering(img)
+                rest = None
+                if self.imu is not None and self._attitude_ready:
+                    rest = self.model.rest_depths(self.attitude.roll, self.attitude.pitch)
+                self.kinematics.zero_depth(img, rest)
             self._zero_at = None
         state = self.kinematics.update(img, t)
         self.slip.add_wheels(

@@ -347,3 +347,77 @@ def test_zeroing_the_steering_at_rest_takes_out_a_fisheye_mount_error(caplog):
     assert not est.steering_zero.any()
     with pytest.raises(ValueError, match="uint8"):
         est.zero_steering(np.zeros((480, 640), np.float32))
+
+
+def test_zeroing_the_depths_at_rest_takes_out_a_fisheye_mount_error(caplog):
+    """A fisheye mounted 2-3 mm and 0.3-0.45 degrees off its calibration reads the axles 1-4 mm
+    too deep or shallow, differently per axle; a frame at rest, its depths known, takes that out
+    over rolled, sunk and steered states (the mean of the two only, without the rest depths)."""
+    import dataclasses
+
+    from perception.fisheye_kinematics import KinematicStateEstimator
+
+    nominal = dataclasses.replace(rover_model(), rest_sag=0.018, pitch_sag=0.014)
+    cam = fisheye(nominal)
+    T = nominal.T_body_cam.copy()
+    T[:3, :3] = T[:3, :3] @ cv2.Rodrigues(np.radians([0.4, -0.45, 0.3]))[0]  # camera frame
+    T[:3, 3] += (0.003, -0.002, 0.002)
+    true = dataclasses.replace(nominal, T_body_cam=T)
+    true_cam = dataclasses.replace(cam, T_body_cam=T)
+    rng = np.random.default_rng(5)
+    rest_depth = nominal.rest_depths(0.0, math.radians(-8.0))  # at rest, nose up 8 degrees
+    assert rest_depth[0] > nominal.nominal_depth + 0.0015 > rest_depth[1] + 0.003
+    rest = render_markers(true, true_cam, (0.01, -0.02), rest_depth, np.zeros(4), rng=rng)
+    states = [((0.08, -0.05), (0.16, 0.14), (0.2, -0.15)), ((-0.06, 0.03), (0.14, 0.155), (-0.2, 0.1))]
+    frames = [render_markers(true, true_cam, p, d, true.wheel_angles(*lam), rng=rng) for p, d, lam in states]
+    errors, means = {}, {}
+    for zero in ("off", "mean", "axles"):
+        errs, mean_errs = [], []
+        for (_, d, _), img in zip(states, frames, strict=True):
+            est = KinematicStateEstimator(cam, nominal)
+            if zero != "off":
+                offsets = est.zero_depth(rest, rest_depth if zero == "axles" else None)
+                assert offsets is not None
+                np.testing.assert_allclose(est.depth_zero, offsets)
+            s = est.update(img, 0.0)
+            assert s.markers_found == len(MARKERS)
+            errs.append(np.abs(s.depth - d).max())
+            mean_errs.append(abs(np.mean(s.depth - d)))
+        errors[zero], means[zero] = max(errs), max(mean_errs)
+    assert errors["off"] > 0.002  # the mount error shows as depth
+    assert errors["axles"] < min(0.35 * errors["off"], 0.001)
+    assert means["mean"] < 0.35 * means["off"]  # the mean only: the axles' common error
+    est.reset()
+    assert not est.depth_zero.any()
+    # a frame far from rest, or without markers, sets no zero
+    sunk = render_markers(true, true_cam, (0, 0), (0.175, 0.175), np.zeros(4), rng=rng)
+    with caplog.at_level("WARNING"):
+        assert est.zero_depth(sunk) is None
+        assert est.zero_depth(np.zeros((480, 640, 3), np.uint8)) is None
+    assert "at rest" in caplog.text and "markers found" in caplog.text
+    assert not est.depth_zero.any()
+    with pytest.raises(ValueError, match="rest_depth"):
+        est.zero_depth(rest, (0.15, math.nan))
+
+
+def test_the_rest_depths_follow_the_tilt_and_survive_a_round_trip(tmp_path):
+    """Level: the nominal depth; tilted, both axles hang deeper by rest_sag (1 - cos roll cos
+    pitch), and nose up moves pitch_sag sin(pitch) from the rear axle's depth to the front's."""
+    import dataclasses
+
+    from perception.calib_io import CalibrationError
+
+    model = dataclasses.replace(rover_model(), rest_sag=0.0184, pitch_sag=0.0146)
+    np.testing.assert_allclose(model.rest_depths(0.0, 0.0), [model.nominal_depth] * 2)
+    p = math.radians(-10.0)
+    common = model.nominal_depth + 0.0184 * (1 - math.cos(p))
+    np.testing.assert_allclose(
+        model.rest_depths(0.0, p), [common + 0.0146 * math.sin(-p), common - 0.0146 * math.sin(-p)], atol=1e-12
+    )
+    assert model.rest_depths(0.2, 0.0)[0] == pytest.approx(model.nominal_depth + 0.0184 * (1 - math.cos(0.2)))
+    loaded = RoverKinematicModel.load(model.save(tmp_path / "model.yaml"))
+    assert (loaded.rest_sag, loaded.pitch_sag) == (0.0184, 0.0146)
+    with pytest.raises(CalibrationError, match="pitch_sag"):
+        dataclasses.replace(model, pitch_sag=-0.01)
+    with pytest.raises(ValueError, match="finite"):
+        model.rest_depths(math.nan, 0.0)

@@ -251,3 +251,24 @@ def test_braked_rover_holds_and_climbs_an_8_degree_slope():
         assert np.abs(gt.slip_ratio).max() < 0.01
     finally:
         sim.close()
+
+
+@pytest.mark.parametrize("yaw", [0.0, math.pi])
+def test_the_axles_rest_on_a_slope_where_the_kinematic_model_puts_them(yaw):
+    """The estimator's rest depths (the body's weight over the travel springs, moved between the
+    axles by the pitch; ``RoverKinematicModel.rest_depths``) match the settled simulated rover
+    facing up and down a 10-degree slope within 0.5 mm per axle (the load shift is 2.5 mm)."""
+    sc = flat_scenario(mu=0.9)
+    sc = dataclasses.replace(sc, terrain=dataclasses.replace(sc.terrain, slope_deg=10.0))
+    sim = RoverSim(sc)
+    try:
+        sim.reset(0.0, 0.0, yaw)
+        sim.rover.command(np.zeros(4), 0.0, 0.0)
+        sim.step(2.0)
+        gt = sim.ground_truth()
+        model = sim.rover.geom.kinematic_model(np.eye(4))
+        expected = model.rest_depths(*gt.tilt)
+        assert abs(gt.axle_height[0] - gt.axle_height[1]) > 0.004  # the load has moved
+        np.testing.assert_allclose(gt.axle_height, expected, atol=5e-4)
+    finally:
+        sim.close()

@@ -15,6 +15,8 @@ import numpy as np
 from perception.drive_geometry import AXLES, WHEELS, DriveGeometry, ackermann_arms, wheel_steering_angles
 from perception.validation import ConfigError, check_range
 
+GRAVITY = 9.81  # [m/s^2]
+
 __all__ = ["AXLES", "WHEELS", "Fiducial", "RoverGeometry"]
 
 
@@ -313,6 +315,11 @@ class RoverGeometry:
             correction_marker_arc=self.correction_marker_arc,
             ackermann_center_x=self.ackermann_center_x,
             T_body_cam=T_body_fisheye,
+            # the body's weight over the travel springs, and its load moved between the axles by
+            # a pitch (the weight along body x at the body's height over the ground)
+            rest_sag=self.sprung_mass * GRAVITY / (2.0 * self.travel_stiffness),
+            pitch_sag=self.sprung_mass * GRAVITY * (-self.axle_z + self.wheel_radius)
+            / (2.0 * self.axle_x * self.travel_stiffness),
         )
 
     def fiducial(self, name: str) -> Fiducial:

@@ -11,7 +11,7 @@ import pybullet as pb
 
 from perception.drive_geometry import ackermann_arms, axle_steering_angles
 from perception.wheel_kinematics import slip_ratio
-from rover_env.sim.geometry import AXLES, WHEELS, RoverGeometry
+from rover_env.sim.geometry import AXLES, GRAVITY, WHEELS, RoverGeometry
 from rover_env.sim.ground_truth import GroundTruth
 from rover_env.sim.textures import tread_texture, write_cached
 from rover_env.sim.transforms import quat_to_matrix
@@ -22,7 +22,6 @@ if TYPE_CHECKING:
 
     from rover_env.sim.terrain import Terrain
 
-GRAVITY = 9.81  # [m/s^2]
 
 
 class Rover:
