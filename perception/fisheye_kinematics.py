@@ -342,8 +342,8 @@ class KinematicStateEstimator:
         worst = float(np.abs(offset).max())
         if worst > self.config.max_depth_zero:
             log.warning(
-                "zero_depth: the frame measures axle depths %.4f m off their rest, more than max_depth_zero=%g;"
-                " is the rover at rest on its wheels? the depths keep no offset",
+                "zero_depth: the frame measures axle depths %.4f m off their rest, more than "
+                "max_depth_zero=%g; is the rover at rest on its wheels? the depths keep no offset",
                 worst,
                 self.config.max_depth_zero,
             )

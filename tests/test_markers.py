@@ -412,7 +412,9 @@ def test_the_rest_depths_follow_the_tilt_and_survive_a_round_trip(tmp_path):
     p = math.radians(-10.0)
     common = model.nominal_depth + 0.0184 * (1 - math.cos(p))
     np.testing.assert_allclose(
-        model.rest_depths(0.0, p), [common + 0.0146 * math.sin(-p), common - 0.0146 * math.sin(-p)], atol=1e-12
+        model.rest_depths(0.0, p),
+        [common + 0.0146 * math.sin(-p), common - 0.0146 * math.sin(-p)],
+        atol=1e-12,
     )
     assert model.rest_depths(0.2, 0.0)[0] == pytest.approx(model.nominal_depth + 0.0184 * (1 - math.cos(0.2)))
     loaded = RoverKinematicModel.load(model.save(tmp_path / "model.yaml"))

@@ -318,7 +318,9 @@ class RoverGeometry:
             # the body's weight over the travel springs, and its load moved between the axles by
             # a pitch (the weight along body x at the body's height over the ground)
             rest_sag=self.sprung_mass * GRAVITY / (2.0 * self.travel_stiffness),
-            pitch_sag=self.sprung_mass * GRAVITY * (-self.axle_z + self.wheel_radius)
+            pitch_sag=self.sprung_mass
+            * GRAVITY
+            * (-self.axle_z + self.wheel_radius)
             / (2.0 * self.axle_x * self.travel_stiffness),
         )
 

@@ -23,7 +23,6 @@ if TYPE_CHECKING:
     from rover_env.sim.terrain import Terrain
 
 
-
 class Rover:
     """The rover's multibody, its motors and passive springs.
 
