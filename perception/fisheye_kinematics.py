@@ -106,6 +106,15 @@ class KinematicsConfig:
         reacquire_tolerance: Sightings that ask for a larger correction are taken when two of
             them, at least half a turn apart, agree on it within this [rad] (the drift grew past
             ``max_correction`` while the marker was not seen).
+        rate_scale_prior: Each wheel's rates and angle increments are multiplied by a scale
+            that the correction marker measures: the rotation between two of its sightings,
+            whole turns, over the increments the treads measured in between (least squares over
+            the intervals, with this rotation [rad] of prior weight on 1; 0: off). The treads'
+            rotation is exact only where the wheel's cylinder model lies where the image shows
+            it: a fisheye mount error of millimetres and tenths of a degree makes a wheel's rates
+            read 0-2 % off, which dead reckoning on gripping wheels carries into the distance.
+        max_rate_scale: Largest change of that scale from 1 [-]; an interval that asks for more
+            than twice it is left out (a marker sighting taken for the wrong turn).
         max_steering_zero: Largest steering offset :meth:`KinematicStateEstimator.zero_steering`
             takes out [rad]; a frame that measures more is not of centred steering.
         max_depth_zero: Largest axle-depth offset :meth:`KinematicStateEstimator.zero_depth`
@@ -143,6 +152,8 @@ class KinematicsConfig:
     peer_tolerance: float = 0.05
     roi_margin_frac: float = 0.03
     geometry_refresh: tuple[float, float] = (math.radians(2.0), 0.004)
+    rate_scale_prior: float = 2.0 * math.pi
+    max_rate_scale: float = 0.05
     max_steering_zero: float = 0.1
     max_depth_zero: float = 0.01
     static_rate: float = 0.25
@@ -266,6 +277,12 @@ class KinematicStateEstimator:
         self._pending = np.full(4, math.nan)  # the last unconfirmed sighting's offset
         self._doubt: list = [None] * 4  # (correction, theta) of a sighting too far from theta
         self._fixed_at = np.full(4, math.nan)  # theta at the last correction
+        # the treads' rate scale (rate_scale_prior): sums over the marker's intervals of the
+        # true rotation times the measured one and of the measured one squared [rad^2], and the
+        # increments since the interval began, as measured and as applied (scaled) [rad]
+        self._scale = np.ones(4)
+        self._scale_sums = np.zeros((4, 2))
+        self._since = np.full((4, 2), math.nan)  # NaN: no interval open (no sighting yet)
         self._delta_zero = np.zeros(4)  # steering measured at rest, centred (zero_steering)
         self._lam_zero = np.zeros(2)
         self._depth_zero = np.zeros(2)  # axle depths measured at rest less their rest depths
@@ -279,6 +296,27 @@ class KinematicStateEstimator:
     def steering_zero(self) -> np.ndarray:
         """The per-wheel steering offsets (FL, FR, RL, RR) taken out of every frame [rad]."""
         return self._delta_zero.copy()
+
+    @property
+    def rate_scale(self) -> np.ndarray:
+        """Each wheel's tread-rate scale (FL, FR, RL, RR) the correction marker has measured [-]."""
+        return self._scale.copy()
+
+    def _marker_interval(self, k: int, correction: float | None) -> None:
+        """Close wheel ``k``'s interval at a marker sighting (None: the first, which opens one)."""
+        cfg = self.config
+        raw, applied = self._since[k]
+        self._since[k] = 0.0
+        if correction is None or not math.isfinite(raw) or cfg.rate_scale_prior <= 0:
+            return
+        true = applied + correction
+        if abs(raw) < math.pi or abs(true / raw - 1.0) > 2.0 * cfg.max_rate_scale:
+            return  # under half a turn: the sighting's own error weighs too much; or a wrong turn
+        self._scale_sums[k] += (true * raw, raw * raw)
+        prior = cfg.rate_scale_prior**2
+        tr, rr = self._scale_sums[k]
+        lim = cfg.max_rate_scale
+        self._scale[k] = min(max((tr + prior) / (rr + prior), 1.0 - lim), 1.0 + lim)
 
     @property
     def depth_zero(self) -> np.ndarray:
@@ -541,14 +579,17 @@ class KinematicStateEstimator:
                         self._trend[k] = 0.0
                     self._alpha[k] = rot.alpha
                     self._measured[k] = True
-                    theta[k] += rot.alpha
-                    theta_dot[k] = rot.alpha / dt
-                    rate_std[k] = rot.std(self._dphi, cfg.tread) / dt
+                    step = rot.alpha * self._scale[k]
+                    self._since[k] += (rot.alpha, step)
+                    theta[k] += step
+                    theta_dot[k] = step / dt
+                    rate_std[k] = rot.std(self._dphi, cfg.tread) * self._scale[k] / dt
                     self._missed[k] = 0
                 else:
                     self._missed[k] += 1
                     if not self._measured[k] and good:  # no rate of its own yet: the others'
-                        theta_dot[k] = float(np.median(good)) / dt
+                        theta_dot[k] = float(np.median(good)) * self._scale[k] / dt
+                    self._since[k] += (theta_dot[k] * dt / self._scale[k], theta_dot[k] * dt)
                     theta[k] += theta_dot[k] * dt
                 valid[f"theta_{wheel}"] = rot.valid
                 if static is not None and good:
@@ -575,10 +616,12 @@ class KinematicStateEstimator:
                 gap = math.remainder(offset - self._pending[k], 2 * math.pi)
                 if abs(gap) <= cfg.max_correction:
                     self._offset[k] = offset
+                    self._marker_interval(k, None)
                 self._pending[k] = offset
                 continue
             fixed = self._correct(k, theta[k], phase)
             if fixed is not None:
+                self._marker_interval(k, fixed - theta[k])
                 theta[k] = fixed
                 corrected.append(wheel)
         self._strips = strips

@@ -423,3 +423,42 @@ def test_the_rest_depths_follow_the_tilt_and_survive_a_round_trip(tmp_path):
         dataclasses.replace(model, pitch_sag=-0.01)
     with pytest.raises(ValueError, match="finite"):
         model.rest_depths(math.nan, 0.0)
+
+
+@pytest.mark.parametrize("reads", [0.98, 1.015])
+def test_the_correction_marker_measures_the_treads_rate_scale(monkeypatch, reads):
+    """Treads that read every rotation 2 % short (or 1.5 % long), as a fisheye mount error makes
+    them, are scaled back by the rotation the white marker counts between its sightings: whole
+    turns. The scale is within 0.2 % after twelve turns, and so are the rates; off, they stay off."""
+    import perception.fisheye_kinematics as fk
+    from perception.wheel_rotation import RotationMeasurement
+
+    model = rover_model()
+    cam = fisheye(model)
+    img = render_markers(model, cam, (0.0, 0.0), (0.15, 0.15), model.wheel_angles(0.0, 0.0))
+    step, dt = 0.45, 1 / 30  # true rotation a frame [rad]: 13.5 rad/s
+    measured = RotationMeasurement(step * reads, 0, 0, 0, True)
+    monkeypatch.setattr(fk, "measure_pairs", lambda pairs, *a, **k: [measured] * len(pairs))
+    results = {}
+    for prior in (2 * math.pi, 0.0):
+        est = fk.KinematicStateEstimator(cam, model, fk.KinematicsConfig(rate_scale_prior=prior))
+        true = [0.0]
+
+        def sighting(img_, strip, true=true):
+            """The marker (at wheel angle 0), seen in the first frame of each turn, 0.02 rad off."""
+            phase = true[0] % (2 * math.pi)
+            return phase + 0.02 if phase < step else None
+
+        monkeypatch.setattr(est, "_marker_may_show", lambda strip, expected: True)
+        monkeypatch.setattr(est, "_marker_phase", sighting)
+        for k in range(int(12 * 2 * math.pi / step) + 2):
+            true[0] = k * step
+            s = est.update(img, k * dt)
+        results[prior] = (est.rate_scale, s.theta_dot, s.theta)
+    scale, rate, theta = results[2 * math.pi]
+    np.testing.assert_allclose(scale, 1 / reads, rtol=0.002)
+    np.testing.assert_allclose(rate, step / dt, rtol=0.002)
+    assert np.abs(theta - true[0]).max() < 0.2  # held by the marker's corrections, as before
+    scale, rate, _ = results[0.0]
+    np.testing.assert_array_equal(scale, 1.0)
+    np.testing.assert_allclose(rate, step * reads / dt, rtol=1e-9)
