@@ -364,9 +364,8 @@ class KinematicStateEstimator:
             ``max_depth_zero`` (then nothing is taken and a warning is logged).
         """
         meas, found = self._rest_measurement(np.asarray(image))
-        nominal = np.full(2, self.model.nominal_depth)
         if rest_depth is None:
-            rest = nominal
+            rest = np.full(2, self.model.nominal_depth)
         else:
             rest = np.asarray(rest_depth, dtype=np.float64).reshape(-1)
             if rest.shape != (2,) or not np.all(np.isfinite(rest)):

@@ -302,21 +302,26 @@ def test_a_lost_wheel_stays_tracked_for_track_hold_frames(monkeypatch):
     assert len(fl) == n
 
 
+def mounted_off(model, camera, rotation_deg, shift):
+    """(model, camera) with the fisheye turned by ``rotation_deg`` (its own frame) and moved by
+    ``shift`` [m] off the calibration ``model`` and ``camera`` carry: the truth a mount error makes."""
+    import dataclasses
+
+    T = model.T_body_cam.copy()
+    T[:3, :3] = T[:3, :3] @ cv2.Rodrigues(np.radians(rotation_deg))[0]
+    T[:3, 3] += shift
+    return dataclasses.replace(model, T_body_cam=T), dataclasses.replace(camera, T_body_cam=T)
+
+
 def test_zeroing_the_steering_at_rest_takes_out_a_fisheye_mount_error(caplog):
     """A fisheye mounted 0.3-0.45 degrees (and 2 mm) off its calibration reads up to 40 mrad of
     steering; a frame at rest with the steering centred takes out three quarters of it over rolled,
     sunk and steered states."""
-    import dataclasses
-
     from perception.fisheye_kinematics import KinematicStateEstimator
 
     nominal = rover_model()
     cam = fisheye(nominal)
-    T = nominal.T_body_cam.copy()
-    T[:3, :3] = T[:3, :3] @ cv2.Rodrigues(np.radians([0.45, -0.4, 0.3]))[0]  # camera frame
-    T[:3, 3] += (0.002, -0.002, 0.001)
-    true = dataclasses.replace(nominal, T_body_cam=T)
-    true_cam = dataclasses.replace(cam, T_body_cam=T)
+    true, true_cam = mounted_off(nominal, cam, [0.45, -0.4, 0.3], (0.002, -0.002, 0.001))
     rng = np.random.default_rng(3)
     rest = render_markers(true, true_cam, (0.02, -0.01), (0.155, 0.148), np.zeros(4), rng=rng)
     states = [((0.08, -0.05), (0.16, 0.14), (0.2, -0.15)), ((-0.06, 0.03), (0.14, 0.15), (-0.2, 0.1))]
@@ -359,11 +364,7 @@ def test_zeroing_the_depths_at_rest_takes_out_a_fisheye_mount_error(caplog):
 
     nominal = dataclasses.replace(rover_model(), rest_sag=0.018, pitch_sag=0.014)
     cam = fisheye(nominal)
-    T = nominal.T_body_cam.copy()
-    T[:3, :3] = T[:3, :3] @ cv2.Rodrigues(np.radians([0.4, -0.45, 0.3]))[0]  # camera frame
-    T[:3, 3] += (0.003, -0.002, 0.002)
-    true = dataclasses.replace(nominal, T_body_cam=T)
-    true_cam = dataclasses.replace(cam, T_body_cam=T)
+    true, true_cam = mounted_off(nominal, cam, [0.4, -0.45, 0.3], (0.003, -0.002, 0.002))
     rng = np.random.default_rng(5)
     rest_depth = nominal.rest_depths(0.0, math.radians(-8.0))  # at rest, nose up 8 degrees
     assert rest_depth[0] > nominal.nominal_depth + 0.0015 > rest_depth[1] + 0.003
