@@ -87,8 +87,6 @@ def _figures(data: Any, key: str) -> TriadFigures:
     values = {k: real_number(f"{key}.{k}", v, allow_inf=k == "range") for k, v in data.items()}
     if any(v < 0 for v in values.values()):
         raise ConfigError(f"{key}: {data!r}; the figures are >= 0")
-    if values.get("scale_factor", 0.0) >= 0.5:
-        raise ConfigError(f"{key}.scale_factor: {values['scale_factor']!r}; give a share below 0.5")
     return TriadFigures(**values)
 
 

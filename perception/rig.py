@@ -53,14 +53,12 @@ class TriadFigures:
         bias_random_walk: Bias random walk [u/s/sqrt(Hz)].
         turn_on_bias: Spread of the bias at turn-on (1 sigma) [u].
         range: Full scale [u] (inf: none).
-        scale_factor: Spread of each axis's scale-factor error (1 sigma) [-], below 0.5.
     """
 
     noise_density: float = 0.0
     bias_instability: float = 0.0
     bias_random_walk: float = 0.0
     turn_on_bias: float = 0.0
-    scale_factor: float = 0.0
     range: float = float("inf")
 
 

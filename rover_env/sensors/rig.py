@@ -64,7 +64,6 @@ def _figures(triad) -> TriadFigures:
         bias_random_walk=triad.bias_random_walk,
         turn_on_bias=triad.turn_on_bias,
         range=triad.range,
-        scale_factor=triad.scale_factor,
     )
 
 
