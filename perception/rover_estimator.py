@@ -214,13 +214,11 @@ class RoverEstimator:
             self._gyro_density = imu.model.gyro.noise_density
             self.attitude = AttitudeFilter(R)
             # the gyro's bias prior from its data sheet: the turn-on spread, and a drift of the
-            # bias instability over about 100 s on top of the random walk; its scale factor's
-            # tolerance, calibrated in the turns
+            # bias instability over about 100 s on top of the random walk
             slip = dataclasses.replace(
                 slip,
                 gyro_bias_std=max(imu.model.gyro.turn_on_bias, 1e-6),
                 gyro_bias_rw=imu.model.gyro.bias_random_walk + imu.model.gyro.bias_instability / 10.0,
-                gyro_scale_std=imu.model.gyro.scale_factor,
             )
         self.slip = SlipEstimator(np.array([c[:2] for _, c in nominal]), self.model.wheel_radius, slip)
         self._pose = np.zeros(3)
@@ -413,7 +411,7 @@ class RoverEstimator:
         # the body's acceleration: the specific force less gravity through the attitude, plus the
         # transport terms of a turning frame, is the rate of the body-frame velocity (v_x, v_y)
         a = self.R_body_imu @ mean[3:] - G * self.attitude.R[2]
-        wz = (rate - self.slip.gyro_bias[0]) / (1.0 + self.slip.gyro_scale)
+        wz = rate - self.slip.gyro_bias[0]
         self.slip.add_accel(self._imu_t, (a[0] + wz * vy, a[1] - wz * vx), window)
         self._imu_batch = []
 

@@ -58,9 +58,7 @@ _BIAS = 3 + N_WHEELS  # index of the gyro's yaw-rate bias in the state
 _ODOM_BIAS = _BIAS + 1  # index of the odometry's yaw-rate bias (estimated only with a gyro)
 _ACC_BIAS = _ODOM_BIAS + 1  # the accelerometer's x and y bias (estimated only with one)
 _WHEEL_ACC = _ACC_BIAS + 2  # the wheels' angular accelerations
-_SCALE = _WHEEL_ACC + N_WHEELS  # the gyro's scale-factor error (estimated only with a gyro)
-_N_STATE = _SCALE + 1
-_GYRO = "gyro"  # marks a queued gyro rate, whose measurement model is not linear
+_N_STATE = _WHEEL_ACC + N_WHEELS
 
 
 @dataclass(frozen=True)
@@ -145,10 +143,6 @@ class SlipConfig:
             the relief under the camera into a yaw rate of the order of 0.01 rad/s, which would
             otherwise pass into the gyro's bias.
         odom_yaw_bias_rw: Random walk of that bias [rad/s per sqrt(s)].
-        gyro_scale_std: Prior standard deviation of the gyro's scale-factor error [-] (its data
-            sheet's sensitivity tolerance); the gyro then measures (1 + k) omega + bias and the
-            filter estimates k, told from the odometry's slowly varying yaw bias by turns whose
-            rate changes faster than that bias can. 0: not estimated (k = 0).
         accel_velocity_rw: With an accelerometer (:meth:`SlipEstimator.add_accel`), the body's
             velocity is predicted with its measured acceleration up to the query time, and only
             this is left of the velocity's random walk [m/s per sqrt(s)] (vibration, the lever
@@ -229,7 +223,6 @@ class SlipConfig:
     gyro_bias_rw: float = 1e-4
     odom_yaw_bias_std: float = 0.01
     odom_yaw_bias_rw: float = 1e-3
-    gyro_scale_std: float = 0.0
     accel_velocity_rw: float = 0.05
     accel_bias_std: float = 0.2
     accel_bias_rw: float = 0.1
@@ -257,8 +250,6 @@ class SlipConfig:
                 f"SlipConfig: odom_yaw_bias_std={self.odom_yaw_bias_std!r} must be > 0 and "
                 f"odom_yaw_bias_rw={self.odom_yaw_bias_rw!r} >= 0"
             )
-        if not (math.isfinite(self.gyro_scale_std) and 0 <= self.gyro_scale_std < 0.5):
-            raise ValueError(f"SlipConfig.gyro_scale_std: {self.gyro_scale_std!r}; give a share in [0, 0.5)")
         if not (self.gyro_bias_std > 0 and self.gyro_bias_rw >= 0):
             raise ValueError(
                 f"SlipConfig: gyro_bias_std={self.gyro_bias_std!r} must be > 0 and "
@@ -401,7 +392,7 @@ class SlipEstimator:
         self._x = np.zeros(_N_STATE)
         v0, w0, r0 = c.init_std
         biases = [c.gyro_bias_std**2, c.odom_yaw_bias_std**2] + [c.accel_bias_std**2] * 2
-        biases += [c.wheel_accel_std**2] * N_WHEELS + [c.gyro_scale_std**2]
+        biases += [c.wheel_accel_std**2] * N_WHEELS
         self._P = np.diag([v0**2, v0**2, w0**2] + [r0**2] * N_WHEELS + biases)
         self._gyro_used = False
         self._accel_used = False
@@ -539,7 +530,9 @@ class SlipEstimator:
             self._reject(f"gyro rate {rate!r} at t={t}")
             return
         self._gyro_used = True
-        self._queue(t - 0.5 * max(dt, 0.0), _GYRO, np.array([rate]), np.array([[std * std]]))
+        H = np.zeros((1, len(self._x)))
+        H[0, 2] = H[0, _BIAS] = 1.0
+        self._queue(t - 0.5 * max(dt, 0.0), None, np.array([rate]), np.array([[std * std]]), H)
 
     def add_accel(self, t: float, accel_xy, dt: float) -> None:
         """The body's horizontal acceleration, the mean over ``dt`` seconds up to ``t``.
@@ -589,11 +582,6 @@ class SlipEstimator:
         self._update(H, np.array([rate]), np.array([[std * std]]))
 
     @property
-    def gyro_scale(self) -> float:
-        """The gyro's estimated scale-factor error k [-]: it measures (1 + k) omega + bias."""
-        return float(self._x[_SCALE])
-
-    @property
     def gyro_bias(self) -> tuple[float, float]:
         """The gyro's estimated yaw-rate bias and its standard deviation [rad/s]."""
         return float(self._x[_BIAS]), float(math.sqrt(self._P[_BIAS, _BIAS]))
@@ -638,9 +626,9 @@ class SlipEstimator:
         dt = t1 - t0
         if not self._accel_used:  # random walks: the twist is held, its variance grows
             rw = [c.velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.wheel_rate_rw**2] * N_WHEELS
-            q = np.array(rw + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [0.0] * (3 + N_WHEELS))
+            q = np.array(rw + [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [0.0] * (2 + N_WHEELS))
             F = np.eye(_N_STATE)  # and each wheel rate integrates its angular acceleration
-            rates, accs = np.arange(3, _BIAS), np.arange(_WHEEL_ACC, _SCALE)
+            rates, accs = np.arange(3, _BIAS), np.arange(_WHEEL_ACC, _N_STATE)
             F[rates, accs] = dt
             Q = np.diag(q * dt)
             j = c.wheel_accel_rw**2
@@ -652,12 +640,12 @@ class SlipEstimator:
         # angular acceleration, an integrated random walk
         F = np.eye(_N_STATE)
         F[[0, 1], [_ACC_BIAS, _ACC_BIAS + 1]] = -dt
-        rates, accs = np.arange(3, _BIAS), np.arange(_WHEEL_ACC, _SCALE)
+        rates, accs = np.arange(3, _BIAS), np.arange(_WHEEL_ACC, _N_STATE)
         F[rates, accs] = dt
         x = F @ x
         x[:2] += self._velocity_change(t0, t1)
         rw = [c.accel_velocity_rw**2] * 2 + [c.yaw_rate_rw**2] + [c.accel_wheel_rate_rw**2] * N_WHEELS
-        rw += [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [c.accel_bias_rw**2] * 2 + [0.0] * (N_WHEELS + 1)
+        rw += [c.gyro_bias_rw**2, c.odom_yaw_bias_rw**2] + [c.accel_bias_rw**2] * 2 + [0.0] * N_WHEELS
         Q = np.diag(np.array(rw) * dt)
         j = c.wheel_accel_rw**2
         Q[rates, rates] += j * dt**3 / 3.0
@@ -674,13 +662,7 @@ class SlipEstimator:
                 self._x, self._P = self._predict(self._x, self._P, self._t, t)
             if self._t is None or t > self._t:
                 self._t = t
-            if isinstance(idx, str):  # a gyro rate: (1 + k) omega + bias, linearised here
-                x = self._x
-                H = np.zeros((1, len(x)))
-                H[0, 2], H[0, _BIAS], H[0, _SCALE] = 1.0 + x[_SCALE], 1.0, x[2]
-                z = z - ((1.0 + x[_SCALE]) * x[2] + x[_BIAS]) + H @ x  # so that z - H x is the innovation
-                idx = None
-            elif H is None:  # rows that pick state entries
+            if H is None:  # rows that pick state entries
                 H = np.zeros((len(idx), len(self._x)))
                 H[np.arange(len(idx)), idx] = 1.0
             rates = idx is not None and idx[0] >= 3
