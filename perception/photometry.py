@@ -29,7 +29,6 @@ CFA_PATTERNS: dict[str, tuple[int, int, int, int]] = {
     "GBRG": (1, 2, 0, 1),
 }
 _SITES = ((0, 0), (0, 1), (1, 0), (1, 1))
-_LUMA = (0.299, 0.587, 0.114)  # a grey conversion's weights of R, G and B (ITU-R BT.601)
 
 
 @functools.lru_cache(maxsize=8)
@@ -65,10 +64,8 @@ def cfa_luminance(
 
     Each pixel's sample of its own colour (``pattern``: the camera's CFA, :data:`CFA_PATTERNS`)
     is linearised (``gamma``) and multiplied by the local luminance over the local level of its
-    colour: each colour's level is a Gaussian mean, ``sigma`` pixels of its quarter-resolution
-    plane; the luminance a Gaussian mean of the samples, each weighted by its colour's weight
-    in a grey conversion over that colour's share of the array's sites.
-    Locally even colour then gives one level to all four sites, and every pixel keeps its own
+    colour (both Gaussian means, ``sigma`` pixels of that colour's quarter-resolution plane):
+    locally even colour then gives one level to all four sites, and every pixel keeps its own
     reading of the texture.
 
     Args:
@@ -101,37 +98,22 @@ def cfa_luminance(
         px1, py1 = min(w, (x1 + pad + 1) & ~1), min(h, (y1 + pad + 1) & ~1)
         out = cfa_luminance(img[py0:py1, px0:px1], pattern, gamma, sigma)
         return out[y0 - py0 : y1 - py0, x0 - px0 : x1 - px0]
-    # each pixel's own sample, linearised
+    lin = linear_gray(img, gamma) if gamma != 1.0 else img.astype(np.float32)
+    level = cv2.GaussianBlur(cv2.cvtColor(lin, cv2.COLOR_RGB2GRAY), (0, 0), 2.0 * sigma)
+    # the four sites' own samples, one colour plane each, blurred in one call (as four channels)
     h, w = img.shape[:2]
-    colours = CFA_PATTERNS[pattern]
-    sites = list(zip(_SITES, colours, strict=True))
-    own = np.empty((h, w), np.uint8)
-    for (dy, dx), c in sites:
-        own[dy::2, dx::2] = img[dy::2, dx::2, c]
-    lin = cv2.LUT(own, _linear_lut(float(gamma))) if gamma != 1.0 else own.astype(np.float32)
-    # the local luminance: the samples weighted as a grey conversion weighs their colours (by
-    # the share of the array's sites each colour has), a Gaussian mean of 2 sigma pixels
-    level = cv2.GaussianBlur(lin * _luma_tile(pattern, h, w), (0, 0), 2.0 * sigma)
-    # each colour's local level: its own samples (one quarter-resolution plane per site of the
-    # 2 x 2 tile, blurred in one call as four channels), back at the sites' places
+    sites = list(zip(_SITES, CFA_PATTERNS[pattern], strict=True))
     planes = np.empty((h // 2, w // 2, 4), np.float32)
-    for k, ((dy, dx), _) in enumerate(sites):
-        planes[..., k] = lin[dy::2, dx::2]
+    for k, ((dy, dx), c) in enumerate(sites):
+        planes[..., k] = lin[dy::2, dx::2, c]
     means = cv2.GaussianBlur(planes, (0, 0), sigma)
+    np.maximum(means, np.float32(1e-3), out=means)
+    # each pixel's own sample and its colour's level, at full resolution for the arithmetic
+    own = np.empty((h, w), np.float32)
     own_mean = np.empty((h, w), np.float32)
     for k, ((dy, dx), _) in enumerate(sites):
+        own[dy::2, dx::2] = planes[..., k]
         own_mean[dy::2, dx::2] = means[..., k]
-    np.maximum(own_mean, np.float32(1e-3), out=own_mean)
-    lin *= level
-    lin /= own_mean
-    return lin
-
-
-@functools.lru_cache(maxsize=32)
-def _luma_tile(pattern: str, h: int, w: int) -> np.ndarray:
-    """(H, W) float32 each site's weight in the luminance: its colour's grey weight over its share."""
-    colours = CFA_PATTERNS[pattern]
-    tile = np.array([4.0 * _LUMA[c] / colours.count(c) for c in colours], np.float32).reshape(2, 2)
-    out = np.tile(tile, (h // 2, w // 2))
-    out.flags.writeable = False
-    return out
+    own *= level
+    own /= own_mean
+    return own

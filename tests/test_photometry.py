@@ -46,7 +46,7 @@ def _ncc(x: np.ndarray, y: np.ndarray) -> float:
 def test_cfa_luminance_keeps_each_pixels_reading_of_the_fine_texture(pattern):
     """A tinted texture through a colour camera: the grey of the demosaiced colours mixes each
     pixel's own sample with its neighbours' (0.978 of the true fine texture); each pixel's own
-    sample, levelled by its colour, keeps it (0.9996)."""
+    sample, levelled by its colour, keeps it (0.9995)."""
     rgb, truth = tinted_frame(pattern)
     naive = linear_gray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), 2.2)
     lum = cfa_luminance(rgb, pattern, gamma=2.2)
