@@ -116,7 +116,8 @@ class SlipConfig:
             against 5 and 16 without it, with 1 and 1 more false events (7 and 5 in all); on the
             loose slope it changed nothing. An estimate before that was too wide to be valid
             (``max_slip_std``) counts at its lower bound |s| - std where that reaches
-            ``event_off``: a wheel driving off from reverse at 0.1-0.3 m/s of tread reads so
+            ``event_off`` (and the wheel is at ``event_min_speed``): a wheel driving off from
+            reverse at 0.15-0.3 m/s of tread reads so
             for a frame or two, then its first valid estimate starts the event (on the six
             seed sets of the field-camera slip drives: 4 more of 885 onsets within two frames,
             6 more false events, 47 in all).

@@ -558,7 +558,11 @@ def replay_window(path, accel: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """
     d = np.load(path)
     est = SlipEstimator(d["wheel_xy"], float(d["wheel_radius"]))
-    rows = {k: iter(d[k] if k in d.files else ()) for k in ("odometry", "wheels", "gyro", "accel")}
+    # a window without an IMU has no gyro or accelerometer arrays (and no such rows in "order")
+    kinds = ("odometry", "wheels", "gyro", "accel")
+    missing = [k for i, k in enumerate(kinds) if k not in d.files and (d["order"] == i).any()]
+    assert not missing, f"{path}: 'order' has {missing} rows but the file has no such arrays"
+    rows = {k: iter(d[k] if k in d.files else ()) for k in kinds}
     events = []
     for kind in d["order"].astype(int):
         if kind == 0:
@@ -604,10 +608,11 @@ def test_a_wheel_driving_off_from_reverse_starts_its_event_within_two_frames():
     """A recorded reversal (``RoverRoughSlippery-v0`` seed 412 of the scripted slip drives, field
     cameras, no IMU): the wheels spin backwards (true slip -1), then drive forwards at 0.1-0.3 m/s
     of tread with true slip 0.25-0.28 from t = 6.300 s. At that speed the first estimates are too
-    wide to be valid (deviation 0.11-0.17, above ``max_slip_std``) but surely show slip above
-    ``event_off``: they tell the first valid estimate's sure rise from a jump out of steady
-    rolling, so the front-left and rear-right wheels' events start at 6.367 s, two frames after
-    the truth's onset (a frame later, three, before the wide estimates counted)."""
+    wide to be valid (deviation above ``max_slip_std``); those at ``event_min_speed`` or more
+    (deviation 0.11-0.17) surely show slip above ``event_off``: they tell the first valid
+    estimate's sure rise from a jump out of steady rolling, so the front-left and rear-right
+    wheels' events start at 6.367 s, two frames after the truth's onset (a frame later, three,
+    before the wide estimates counted)."""
     t, events, s_true = replay_window(DATA / "reverse_rough_seed412_field.npz", False)
     after = t > 6.25
     onset = t[after][np.flatnonzero(s_true[after, 0] >= 0.2)[0]]
