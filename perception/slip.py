@@ -117,10 +117,9 @@ class SlipConfig:
             loose slope it changed nothing. An estimate before that was too wide to be valid
             (``max_slip_std``) counts at its lower bound |s| - std where that reaches
             ``event_off`` (and the wheel is at ``event_min_speed``): a wheel driving off from
-            reverse at 0.15-0.3 m/s of tread reads so
-            for a frame or two, then its first valid estimate starts the event (on the six
-            seed sets of the field-camera slip drives: 4 more of 885 onsets within two frames,
-            6 more false events, 47 in all).
+            reverse at 0.15-0.3 m/s of tread reads so for a frame or two, then its first valid
+            estimate starts the event (on the six seed sets of the field-camera slip drives: 4
+            more of 885 onsets within two frames, 6 more false events, 47 in all).
         event_sure_gap: ... and where |s| stands this many of its deviations above ``event_on``
             after an estimate that resolved no slip (a wheel through zero speed as it reverses,
             or missed for longer than ``max_age``): such an estimate says nothing of low slip,
@@ -783,7 +782,7 @@ class SlipEstimator:
         v_long, v_lat = wheel_ground_velocity(x[:3], self.wheel_xy, self._steer)
         a = rates * self.wheel_radius
         raw = slip_ratio(a, v_long, c.eps, clip=False)
-        s = np.clip(raw, -1.0, 1.0)
+        clipped = np.clip(raw, -1.0, 1.0)
         # first-order standard deviation: ds/da and ds/dv_long on the side of the larger speed
         big_a = np.abs(a) >= np.abs(v_long)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -803,7 +802,7 @@ class SlipEstimator:
         speed = np.maximum(np.abs(a), np.abs(v_long))  # tread or ground [m/s]
         moving = speed >= c.min_speed
         valid = fresh & moving & (s_std <= c.max_slip_std)
-        s = np.where(valid, s, 0.0)
+        s = np.where(valid, clipped, 0.0)
         beta = np.where(valid, slip_angle(v_long, v_lat), 0.0)
         mag = np.abs(s)
         fast = speed >= c.event_min_speed
@@ -836,7 +835,7 @@ class SlipEstimator:
             # an estimate too wide to be valid that still surely shows slip of event_off or
             # more (a wheel reversing at low speed) is no steady rolling before a sure rise
             with np.errstate(invalid="ignore"):
-                low = np.abs(np.clip(raw, -1.0, 1.0)) - s_std
+                low = np.abs(clipped) - s_std
                 wide = fresh & moving & fast & ~valid & (low >= c.event_off)
             self._last_t, self._last_mag = t, np.where(valid & fast, mag, np.where(wide, low, np.nan))
         self._events = np.where(valid & fast, np.where(self._events, mag >= c.event_off, start), False)
