@@ -73,7 +73,19 @@ class LogRig:
     topics: dict[str, str | None]
 
 
-_SENSOR_KEYS = {"name", "kind", "rate_hz", "calibration", "topic", "mount", "gyro", "accel", "gamma", "bayer"}
+_SENSOR_KEYS = {
+    "name",
+    "kind",
+    "rate_hz",
+    "calibration",
+    "topic",
+    "mount",
+    "gyro",
+    "accel",
+    "gamma",
+    "bayer",
+    "vignetting",
+}
 
 
 def _figures(data: Any, key: str) -> TriadFigures:
@@ -141,7 +153,7 @@ def load_rig(path: str | Path) -> LogRig:
             raise ConfigError(f"{key}.kind: {kind!r}; use pinhole, fisheye or imu")
         try:
             # a log's images are recorded: no readout window can be asked for
-            photometry = {k: s[k] for k in ("gamma", "bayer") if s.get(k) is not None}
+            photometry = {k: s[k] for k in ("gamma", "bayer", "vignetting") if s.get(k) is not None}
             specs.append(SensorSpec(name, kind, s["rate_hz"], mount, model, **photometry))
         except ConfigError as exc:
             raise ConfigError(f"{key}: {exc}") from None
@@ -208,6 +220,8 @@ def save_rig(
                 entry["gamma"] = float(spec.gamma)
             if spec.bayer is not None:
                 entry["bayer"] = spec.bayer
+            if spec.vignetting != 1.0:
+                entry["vignetting"] = float(spec.vignetting)
         if topics and spec.name in topics:
             entry["topic"] = topics[spec.name]
         sensors.append(entry)

@@ -95,6 +95,10 @@ class SensorSpec:
             colour per pixel (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``;
             :data:`perception.photometry.CFA_PATTERNS`), or None (full colour, or unknown).
             The fisheye kinematics then reads the treads from each pixel's own sample.
+        vignetting: A camera's relative illumination at its image corners (1: none, or not
+            calibrated), of the radial model of
+            :func:`perception.photometry.relative_illumination`. The odometry flat-fields its
+            frames with it.
     """
 
     name: str
@@ -105,6 +109,7 @@ class SensorSpec:
     readout_window: bool = False
     gamma: float = 1.0
     bayer: str | None = None
+    vignetting: float = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in SENSOR_KINDS:
@@ -114,6 +119,12 @@ class SensorSpec:
             raise ConfigError(
                 f"{self.name}.gamma: {self.gamma!r}; give the camera's response exponent in (0, 5] "
                 "(1: linear images, 2.2: the usual output gamma)"
+            )
+        vig = real_number(f"{self.name}.vignetting", self.vignetting)
+        if not 0.0 < vig <= 1.0:
+            raise ConfigError(
+                f"{self.name}.vignetting: {self.vignetting!r}; give the lens's relative illumination at "
+                "the image corner in (0, 1] (1: no vignetting)"
             )
         if self.bayer is not None and self.bayer not in CFA_PATTERNS:
             raise ConfigError(

@@ -201,6 +201,8 @@ class RoverEstimator:
         self.odometry = FlowOdometry(
             down.model,
             odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {})),
+            vignetting=down.vignetting,
+            gamma=down.gamma,
         )
         self.kinematics = KinematicStateEstimator(
             fish.model, self.model, kinematics, gamma=fish.gamma, bayer=fish.bayer

@@ -292,12 +292,18 @@ def test_field_cameras_change_the_images_not_the_physics_and_the_seed_repeats_th
         assert [rig[n].bayer for n in ("fisheye", "downward")] == ["RGGB", "RGGB"]
         assert env.unwrapped.pipeline.kinematics.gamma == 2.2
         assert env.unwrapped.pipeline.kinematics.bayer == "RGGB"
+        # and its lens's vignetting, which the odometry flat-fields
+        assert [rig[n].vignetting for n in ("fisheye", "downward")] == [0.8, 0.8]
+        assert env.unwrapped.pipeline.odometry._flat is not None
     finally:
         env.close()
     with pytest.raises(ConfigError, match="gamma"):
         SensorSpec("downward", "pinhole", 30.0, np.eye(4), None, gamma=0.0)
     with pytest.raises(ConfigError, match="bayer"):
         SensorSpec("downward", "pinhole", 30.0, np.eye(4), None, bayer="RGBW")
+    for vignetting in (0.0, 1.2, float("nan")):
+        with pytest.raises(ConfigError, match="downward.vignetting"):
+            SensorSpec("downward", "pinhole", 30.0, np.eye(4), None, vignetting=vignetting)
     with pytest.raises(ValueError, match="camera_effects"):
         gym.make("Rover-v0", camera_effects="vivid")
 

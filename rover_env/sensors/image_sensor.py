@@ -20,6 +20,7 @@ import math
 import cv2
 import numpy as np
 
+from perception.photometry import relative_illumination
 from rover_env.config.image_sensor import ImageSensorConfig
 
 #: Bayer pattern of the colour-filter array: R at (0, 0), G at (0, 1) and (1, 0), B at (1, 1).
@@ -32,15 +33,10 @@ def vignetting_map(size: tuple[int, int], corner: float) -> np.ndarray:
     """Relative illumination (H, W) float32 of a lens with ``corner`` at the image corner (1 at the centre).
 
     The falloff is 1 / (1 + a r^2)^2 over r, the distance from the image centre as a share of
-    the half diagonal, with ``a`` set by ``corner``.
+    the half diagonal, with ``a`` set by ``corner``: the radial model a calibration fits
+    (:func:`perception.photometry.relative_illumination`, which the estimator undoes).
     """
-    w, h = size
-    if not 0.0 < corner <= 1.0:
-        raise ValueError(f"corner: {corner!r}; use a relative illumination in (0, 1]")
-    a = 1.0 / math.sqrt(corner) - 1.0
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    r2 = ((xs - (w - 1) / 2.0) ** 2 + (ys - (h - 1) / 2.0) ** 2) / ((w / 2.0) ** 2 + (h / 2.0) ** 2)
-    return (1.0 / (1.0 + a * r2) ** 2).astype(np.float32)
+    return relative_illumination(size, corner)
 
 
 #: Draws of OpenCV's generator dropped after each seed (its first is biased, see ImageSensor._normal).

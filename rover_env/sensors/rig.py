@@ -130,6 +130,11 @@ def _gamma(camera) -> float:
     return 1.0 if camera.image_sensor is None else float(camera.image_sensor.config.gamma)
 
 
+def _vignetting(camera) -> float:
+    """A simulated camera's relative illumination at the image corner: its lens's, or 1 (rendered as is)."""
+    return 1.0 if camera.image_sensor is None else float(camera.image_sensor.config.vignetting)
+
+
 def _bayer(camera) -> str | None:
     """A simulated camera's colour-filter array: its image sensor's, or None (rendered colour)."""
     return None if camera.image_sensor is None else BAYER
@@ -139,7 +144,7 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
     """The :class:`perception.rig.Rig` of a simulated rover's sensors: what an estimator is given.
 
     The cameras' calibrations are their exact models (the simulation renders through them) and
-    their image sensors' output gamma and colour-filter array; the
+    their image sensors' output gamma, vignetting and colour-filter array; the
     IMU's is its data sheet (its errors are drawn per episode, and not given away). The rover's
     kinematic model sees the markers through the rig's first fisheye (or where the standard
     fisheye would be).
@@ -156,12 +161,31 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
         elif isinstance(sensor, FisheyeCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
             specs.append(
-                SensorSpec(name, "fisheye", rate, T, sensor.model, True, _gamma(sensor), _bayer(sensor))
+                SensorSpec(
+                    name,
+                    "fisheye",
+                    rate,
+                    T,
+                    sensor.model,
+                    True,
+                    _gamma(sensor),
+                    _bayer(sensor),
+                    _vignetting(sensor),
+                )
             )
         elif isinstance(sensor, DownwardCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
             specs.append(
-                SensorSpec(name, "pinhole", rate, T, sensor.model, gamma=_gamma(sensor), bayer=_bayer(sensor))
+                SensorSpec(
+                    name,
+                    "pinhole",
+                    rate,
+                    T,
+                    sensor.model,
+                    gamma=_gamma(sensor),
+                    bayer=_bayer(sensor),
+                    vignetting=_vignetting(sensor),
+                )
             )
         else:
             raise TypeError(
