@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.photometry import flat_field, flat_field_gain
+from perception.photometry import flat_field, flat_field_gain, relative_illumination
 from rover_env.config.image_sensor import ImageSensorConfig
 from rover_env.config.io import ConfigError
-from rover_env.sensors.image_sensor import ImageSensor, vignetting_map
+from rover_env.sensors.image_sensor import ImageSensor
 
 PERIOD = 1 / 30
 
@@ -74,7 +74,7 @@ def test_vignetting_matches_its_model_and_the_corner_figure():
     t = 0.5 * cfg.full_well_e / cfg.sun_e_per_s
     e = np.mean([sensor.raw(flat(255, size), t) for _ in range(8)], axis=0) - cfg.black_level_dn
     centre = e[110:130, 150:170].mean()
-    model = vignetting_map(size, 0.7)
+    model = relative_illumination(size, 0.7)
     rel = e / centre
     assert np.abs(rel - model / model[110:130, 150:170].mean()).mean() < 0.01
     assert rel[:4, :4].mean() == pytest.approx(0.7, abs=0.02)

@@ -29,16 +29,6 @@ BAYER = "RGGB"
 _DEMOSAIC = cv2.COLOR_BayerBG2RGB
 
 
-def vignetting_map(size: tuple[int, int], corner: float) -> np.ndarray:
-    """Relative illumination (H, W) float32 of a lens with ``corner`` at the image corner (1 at the centre).
-
-    The falloff is 1 / (1 + a r^2)^2 over r, the distance from the image centre as a share of
-    the half diagonal, with ``a`` set by ``corner``: the radial model a calibration fits
-    (:func:`perception.photometry.relative_illumination`, which the estimator undoes).
-    """
-    return relative_illumination(size, corner)
-
-
 #: Draws of OpenCV's generator dropped after each seed (its first is biased, see ImageSensor._normal).
 _NORMAL_SKIP = 4
 #: The RGB channel each pixel of the 2 x 2 RGGB tile samples, by (row, column) parity.
@@ -100,7 +90,7 @@ class ImageSensor:
         self.config = config
         self.size = (int(w), int(h))
         self.frame_period = float(frame_period)
-        self._vignetting = vignetting_map(self.size, config.vignetting)
+        self._vignetting = relative_illumination(self.size, config.vignetting)
         self._lut = self._gamma_lut()
         self._alpha = 1.0 - math.exp(-frame_period / config.settling_tau(frame_period))
         self.reset(seed)
@@ -119,7 +109,7 @@ class ImageSensor:
         if config is not None and config is not self.config:
             config.check_frame_period(self.frame_period)
             self.config = config
-            self._vignetting = vignetting_map(self.size, config.vignetting)
+            self._vignetting = relative_illumination(self.size, config.vignetting)
             self._lut = self._gamma_lut()
             self._alpha = 1.0 - math.exp(-self.frame_period / config.settling_tau(self.frame_period))
         c = self.config

@@ -125,19 +125,18 @@ def build_sensor(
     raise ConfigError(f"{key}.kind: {config.kind!r}; no simulated sensor of this kind")
 
 
-def _gamma(camera) -> float:
-    """A simulated camera's photometric response exponent: its image sensor's output gamma, or 1."""
-    return 1.0 if camera.image_sensor is None else float(camera.image_sensor.config.gamma)
+def _photometry(camera) -> dict[str, Any]:
+    """A simulated camera's photometry, :class:`SensorSpec` keywords (none for rendered images).
 
-
-def _vignetting(camera) -> float:
-    """A simulated camera's relative illumination at the image corner: its lens's, or 1 (rendered as is)."""
-    return 1.0 if camera.image_sensor is None else float(camera.image_sensor.config.vignetting)
-
-
-def _bayer(camera) -> str | None:
-    """A simulated camera's colour-filter array: its image sensor's, or None (rendered colour)."""
-    return None if camera.image_sensor is None else BAYER
+    Its image sensor's output gamma, colour-filter array and lens vignetting.
+    """
+    if camera.image_sensor is None:
+        return {}
+    return {
+        "gamma": float(camera.image_sensor.config.gamma),
+        "bayer": BAYER,
+        "vignetting": float(camera.image_sensor.config.vignetting),
+    }
 
 
 def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
@@ -160,33 +159,10 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             specs.append(SensorSpec(name, "imu", sensor.config.rate_hz, T, model))
         elif isinstance(sensor, FisheyeCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
-            specs.append(
-                SensorSpec(
-                    name,
-                    "fisheye",
-                    rate,
-                    T,
-                    sensor.model,
-                    True,
-                    _gamma(sensor),
-                    _bayer(sensor),
-                    _vignetting(sensor),
-                )
-            )
+            specs.append(SensorSpec(name, "fisheye", rate, T, sensor.model, True, **_photometry(sensor)))
         elif isinstance(sensor, DownwardCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
-            specs.append(
-                SensorSpec(
-                    name,
-                    "pinhole",
-                    rate,
-                    T,
-                    sensor.model,
-                    gamma=_gamma(sensor),
-                    bayer=_bayer(sensor),
-                    vignetting=_vignetting(sensor),
-                )
-            )
+            specs.append(SensorSpec(name, "pinhole", rate, T, sensor.model, **_photometry(sensor)))
         else:
             raise TypeError(
                 f"sensor {name!r}: {type(sensor).__name__} has no rig spec; add its kind to rig_of"
