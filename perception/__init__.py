@@ -11,7 +11,7 @@ from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, Kinematic
 from perception.kinematics import RoverKinematicModel
 from perception.markers import SteeringCalibration
 from perception.odometry import FlowOdometry, FlowOdometryConfig, OdometryEstimate
-from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec
+from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel
 from perception.rover_estimator import RoverEstimator
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator, slip_events
 from perception.wheel_kinematics import (
@@ -27,6 +27,7 @@ __all__ = [
     "Estimator",
     "EstimatorError",
     "ImuModel",
+    "SunSensorModel",
     "Rig",
     "RoverEstimator",
     "SensorMessage",

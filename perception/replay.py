@@ -173,7 +173,8 @@ def save_rig(
 ) -> Path:
     """Write ``rig`` as a rig file ``rig.yaml`` with its calibrations in ``folder``; its path.
 
-    Each camera's calibration is ``<name>.yaml``, the rover's model ``rover.yaml``.
+    Each camera's calibration is ``<name>.yaml``, the rover's model ``rover.yaml``. A sun sensor
+    is left out (with a warning): logs carry cameras and IMUs only.
 
     Args:
         rig: The rig (cameras' models must be :class:`PinholeCamera` or :class:`OmniCamera`).
@@ -187,7 +188,13 @@ def save_rig(
     """
     folder = Path(folder)
     files = ["rig.yaml"] + (["rover.yaml"] if rig.vehicle is not None else [])
+    specs = [s for s in rig.values() if s.kind in ("pinhole", "fisheye", "imu")]
     for spec in rig.values():
+        if spec not in specs:
+            log.warning(
+                "sensor %r (%s) left out of the rig file: logs carry cameras and IMUs", spec.name, spec.kind
+            )
+    for spec in specs:
         if spec.kind == "imu":
             continue
         if (
@@ -207,7 +214,7 @@ def save_rig(
         )
     folder.mkdir(parents=True, exist_ok=True)
     sensors = []
-    for spec in rig.values():
+    for spec in specs:
         entry: dict[str, Any] = {"name": spec.name, "kind": spec.kind, "rate_hz": float(spec.rate_hz)}
         if spec.kind == "imu":
             entry["mount"] = np.asarray(spec.mount, dtype=np.float64).tolist()

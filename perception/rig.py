@@ -23,6 +23,7 @@ SENSOR_KINDS: dict[str, str] = {
     "pinhole": "perception.PinholeCamera (a downward camera: its calibration, mount and ground plane)",
     "fisheye": "perception.OmniCamera (a downward fisheye: its calibration)",
     "imu": "perception.rig.ImuModel (the data sheet's figures)",
+    "sun": "perception.rig.SunSensorModel (a sun sensor's data-sheet figures)",
 }
 
 
@@ -35,7 +36,9 @@ class SensorMessage:
         t: Time of the sample [s] (simulation time, or a log's time line).
         data: The sample: a camera's (H, W, 3) uint8 RGB image; an IMU's (7,) gyro xyz [rad/s],
             accelerometer xyz [m/s^2] in its mount frame, and a saturation flag (> 0: a reading
-            was clipped at the range).
+            was clipped at the range); a sun sensor's (7,) unit vector toward the sun in its
+            frame, the ephemeris's unit vector toward the sun in the world frame (z up) at that
+            time, and a flag (> 0: no sun seen; the first three are then NaN).
     """
 
     sensor: str
@@ -53,6 +56,7 @@ class TriadFigures:
         bias_random_walk: Bias random walk [u/s/sqrt(Hz)].
         turn_on_bias: Spread of the bias at turn-on (1 sigma) [u].
         range: Full scale [u] (inf: none).
+        misalignment: Spread of each cross-axis coupling (1 sigma) [rad].
     """
 
     noise_density: float = 0.0
@@ -60,6 +64,7 @@ class TriadFigures:
     bias_random_walk: float = 0.0
     turn_on_bias: float = 0.0
     range: float = float("inf")
+    misalignment: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -76,12 +81,27 @@ class ImuModel:
 
 
 @dataclass(frozen=True)
+class SunSensorModel:
+    """What an estimator knows of a sun sensor: its data sheet.
+
+    Attributes:
+        fov_deg: Half-angle of its field of view about its boresight (its z axis) [deg].
+        accuracy_deg: Standard deviation of its fixed error per axis [deg].
+        noise_deg: Standard deviation of a reading's white noise per axis [deg].
+    """
+
+    fov_deg: float = 70.0
+    accuracy_deg: float = 0.1
+    noise_deg: float = 0.03
+
+
+@dataclass(frozen=True)
 class SensorSpec:
     """One sensor of a rig.
 
     Attributes:
         name: Its name (the ``sensor`` of its messages).
-        kind: ``"pinhole"``, ``"fisheye"`` or ``"imu"`` (:data:`SENSOR_KINDS`).
+        kind: ``"pinhole"``, ``"fisheye"``, ``"imu"`` or ``"sun"`` (:data:`SENSOR_KINDS`).
         rate_hz: Samples per second [Hz].
         mount: (4, 4) pose of the sensor's frame in the body frame (body from sensor) [m].
         model: The calibration an estimator uses (see :data:`SENSOR_KINDS`).

@@ -9,7 +9,8 @@ optionally, one IMU:
 - the fisheye -> :class:`perception.KinematicStateEstimator` -> psi, d, lambda, theta, theta_dot;
 - both (and the gyro and accelerometer) -> :class:`perception.SlipEstimator` -> fused twist and
   wheel rates, slip ratio and angle; the IMU -> :class:`perception.inertial.AttitudeFilter`;
-- the fused twist integrated from the start fix -> the dead-reckoned pose.
+- the fused twist integrated from the start fix -> the dead-reckoned pose; with a sun sensor and
+  an IMU its heading is corrected by the sun's (:mod:`perception.sun_heading`).
 
 It sees sensor messages, the rig's calibrations and the start fix only.
 """
@@ -38,6 +39,7 @@ from perception.odometry import (
 from perception.rig import Rig, SensorMessage
 from perception.rover_parts import joint_window_parts
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
+from perception.sun_heading import HeadingConfig, HeadingFilter
 from perception.validation import ConfigError
 
 #: The rover's state under the names the simulator's ground truth uses too (besides its pose).
@@ -63,6 +65,9 @@ IMU_CALIBRATION_S = 1.5
 #: The rate of the fused velocity that the attitude filter takes out of the specific force is a
 #: difference over at least this long [s] (shorter: the odometry's frame-to-frame noise).
 VELOCITY_RATE_S = 0.25
+#: The dead-reckoned yaw's variance grows as a random walk whose variance matches, after this long
+#: [s], that of the gyro's bias error integrated (which grows as the square of time).
+YAW_WALK_MATCH_S = 40.0
 
 
 @dataclass
@@ -85,6 +90,9 @@ class StepEstimate:
             (None without an IMU).
         tilt: (roll, pitch) of the body from the IMU [rad] (None without one).
         height: Dead-reckoned height change since the start [m] (0 without an IMU).
+        heading_std: The heading's standard deviation [rad] from the sun-heading filter (None
+            without a sun sensor and an IMU).
+        sun_readings: Sun readings fused since the start (0 without a sun sensor).
     """
 
     values: dict[str, np.ndarray]
@@ -98,6 +106,8 @@ class StepEstimate:
     gyro_bias: tuple[float, float] | None = None
     tilt: tuple[float, float] | None = None
     height: float = 0.0
+    heading_std: float | None = None
+    sun_readings: int = 0
 
     def fields(self) -> dict[str, object]:
         """The estimate under the names of :data:`perception.estimator.ESTIMATE_FIELDS` (unknown: out)."""
@@ -138,8 +148,9 @@ class RoverEstimator:
     :data:`perception.estimator.ESTIMATE_FIELDS` and :meth:`step_estimate` the full state.
 
     Args:
-        rig: The sensors (one ``"pinhole"``, one ``"fisheye"``, at most one ``"imu"``) and the
-            rover's kinematic model.
+        rig: The sensors (one ``"pinhole"``, one ``"fisheye"``, at most one ``"imu"`` and one
+            ``"sun"`` sensor) and the rover's kinematic model. A sun sensor is used only with an
+            IMU (the sun's direction is levelled by its tilt).
         odometry: Odometry parameters (default: :meth:`FlowOdometryConfig.for_camera` of the
             downward camera, with ``odometry_overrides``).
         kinematics: Fisheye-kinematics parameters.
@@ -162,6 +173,8 @@ class RoverEstimator:
             error's effect on the steering, and on the downward odometry's scale through the
             ground plane. False (default): the calibrated mount is trusted (a log may start
             anywhere).
+        heading: The sun-heading filter's parameters (:class:`perception.sun_heading.HeadingConfig`;
+            its ``start_std_deg`` is the start fix's heading uncertainty).
 
     Raises:
         ConfigError: The rig lacks a downward camera or a fisheye, or has two of a kind.
@@ -177,11 +190,13 @@ class RoverEstimator:
         fisheye_window: tuple[float, float, float] | None = None,
         odometry_gyro: bool = True,
         zero_steering_at_start: bool = False,
+        heading: HeadingConfig | None = None,
     ) -> None:
-        down, fish, imu = (
+        down, fish, imu, sun = (
             rig.one("pinhole", "RoverEstimator"),
             rig.one("fisheye", "RoverEstimator"),
             rig.one("imu", "RoverEstimator"),
+            rig.one("sun", "RoverEstimator"),
         )
         if down is None or fish is None:
             raise ConfigError(
@@ -223,6 +238,20 @@ class RoverEstimator:
                 gyro_bias_rw=imu.model.gyro.bias_random_walk + imu.model.gyro.bias_instability / 10.0,
             )
         self.slip = SlipEstimator(np.array([c[:2] for _, c in nominal]), self.model.wheel_radius, slip)
+        #: The sun sensor (None without one, or without an IMU to level it) and its heading filter.
+        self.sun = sun if imu is not None else None
+        self.heading: HeadingFilter | None = None
+        if self.sun is not None:
+            m = self.sun.model
+            assert imu is not None
+            # the accelerometer's bias and its cross-axis coupling tilt its gravity; the gyro's x-y
+            # bias, until the attitude filter has learnt it, tilts it by bias * time constant
+            tilt = math.hypot(
+                imu.model.accel.turn_on_bias / G,
+                imu.model.accel.misalignment,
+                imu.model.gyro.turn_on_bias * self.attitude.time_constant,
+            )
+            self.heading = HeadingFilter(heading, m.accuracy_deg, m.noise_deg, tilt)
         self._pose = np.zeros(3)
         self._fix = np.zeros(3)
         self._started = False
@@ -267,6 +296,8 @@ class RoverEstimator:
         self._clear()
         if self.imu is not None:
             self.attitude.reset()
+        if self.heading is not None:
+            self.heading.reset()
 
     def update(self, messages: Sequence[SensorMessage], t: float) -> dict[str, object]:
         """Consume the messages since the last call, in time order; the estimate at ``t`` [s].
@@ -417,6 +448,20 @@ class RoverEstimator:
         self.slip.add_accel(self._imu_t, (a[0] + wz * vy, a[1] - wz * vx), window)
         self._imu_batch = []
 
+    def _on_sun(self, data: np.ndarray, t: float) -> None:
+        """A sun reading: the heading it gives, fused into the dead-reckoned yaw."""
+        assert self.sun is not None and self.heading is not None
+        if data[6] > 0 or not np.all(np.isfinite(data[:6])) or not self._attitude_ready:
+            return
+        if abs(float(self._twist[2])) > self.heading.config.max_turn_rate:
+            return
+        a = self.attitude
+        correction = self.heading.update(
+            float(self._pose[2]), data[:3], self.sun.mount[:3, :3], data[3:6], a.roll, a.pitch
+        )
+        if correction is not None:
+            self._pose[2] += correction
+
     def process(self, messages: Sequence[SensorMessage], t: float) -> StepEstimate:
         """Consume the messages of one step, in time order, and estimate the state at ``t``.
 
@@ -432,6 +477,8 @@ class RoverEstimator:
         }
         if self.imu is not None:
             handlers[self.imu.name] = self._on_imu
+        if self.sun is not None:
+            handlers[self.sun.name] = self._on_sun
         for msg in messages:
             handler = handlers.get(msg.sensor)
             if handler is None:
@@ -472,6 +519,9 @@ class RoverEstimator:
             twist = self.slip.twist_at(self._t_pose)
             self._twist = twist
             dt = t1 - self._t_pose
+            if self.heading is not None:
+                std = self.slip.gyro_bias[1]
+                self.heading.predict(dt, self._gyro_density**2 + std * std * YAW_WALK_MATCH_S)
             if self.imu is None:
                 self._pose = arc_step(self._pose, twist, dt)
             else:  # on the tilted ground plane, turning at the world heading's rate
@@ -506,6 +556,19 @@ class RoverEstimator:
         q_att = self._attitude_q
         values["tilt"] = np.array(tilt)
         bias = self.slip.gyro_bias
+        h = self.heading
         return StepEstimate(
-            values, q_odo, q_kin, q_att, sl, odo, ks, self._imu_saturated, bias, tilt, self._z
+            values,
+            q_odo,
+            q_kin,
+            q_att,
+            sl,
+            odo,
+            ks,
+            self._imu_saturated,
+            bias,
+            tilt,
+            self._z,
+            None if h is None else h.yaw_std,
+            0 if h is None else h.used,
         )

@@ -74,10 +74,10 @@ def test_the_observation_is_what_the_estimator_returned_and_the_tracker_follows_
         assert math.isnan(info["estimate"]["axle_roll"][0]) and info["estimate"]["twist"][0] == 0.5
         # every sensor's messages reach it, at the rig's rates: 1 s of 30 Hz cameras, a 240 Hz IMU
         rig = u.rig
-        assert set(rig) == {"fisheye", "downward", "imu"} and rig["imu"].rate_hz == 240.0
+        assert set(rig) == {"fisheye", "downward", "imu", "sun"} and rig["imu"].rate_hz == 240.0
         after = [(s, t) for s, t in est.seen if t > 1e-9]
         counts = {name: sum(s == name for s, _ in after) for name in rig}
-        assert counts == {"fisheye": 30, "downward": 30, "imu": 240}
+        assert counts == {"fisheye": 30, "downward": 30, "imu": 240, "sun": 5}
         for name in rig:
             ts = np.array([t for s, t in est.seen if s == name])
             np.testing.assert_allclose(np.diff(ts[ts > 1e-9]), rig[name].period, atol=1e-9)

@@ -48,10 +48,13 @@ def test_the_standard_rig_is_the_one_the_sensors_are_built_with():
     env = gym.make("Rover-v0", renderer="tiny", imu="bmi088")
     try:
         rig = env.unwrapped.rig
-        assert list(rig) == ["fisheye", "downward", "imu"]
-        assert [rig[n].kind for n in rig] == ["fisheye", "pinhole", "imu"]
-        assert [rig[n].rate_hz for n in rig] == [30.0, 30.0, 240.0]
+        assert list(rig) == ["fisheye", "downward", "imu", "sun"]
+        assert [rig[n].kind for n in rig] == ["fisheye", "pinhole", "imu", "sun"]
+        assert [rig[n].rate_hz for n in rig] == [30.0, 30.0, 240.0, 5.0]
         g = RoverGeometry()
+        # the sun sensor on the mast's post, above its boom, looking up
+        np.testing.assert_array_equal(rig["sun"].mount[:3, :3], np.eye(3))
+        assert rig["sun"].mount[2, 3] > g.mast_camera_position[2] and rig["sun"].mount[0, 3] == g.mast_x
         np.testing.assert_array_equal(rig["downward"].mount[:3, :3], R_BODY_DOWNCAM)
         np.testing.assert_array_equal(rig["downward"].mount[:3, 3], g.mast_camera_position)
         np.testing.assert_array_equal(rig["fisheye"].mount[:3, :3], R_BODY_FISHEYE)

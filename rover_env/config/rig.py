@@ -34,9 +34,11 @@ from perception.calib_io import check_rigid
 from rover_env.config.cameras import CameraConfig, DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError, check_range, from_dict
+from rover_env.config.sun_sensor import SunSensorConfig
 
-#: The kinds of sensor a rig may hold: a downward pinhole camera, a downward fisheye, an IMU.
-SensorKind = Literal["pinhole", "fisheye", "imu"]
+#: The kinds of sensor a rig may hold: a downward pinhole camera, a downward fisheye, an IMU, a
+#: sun sensor.
+SensorKind = Literal["pinhole", "fisheye", "imu", "sun"]
 SENSOR_KIND_NAMES: tuple[str, ...] = get_args(SensorKind)
 
 #: The estimator-in-the-loop presets (:data:`PERCEPTION_PRESETS`).
@@ -49,6 +51,7 @@ STANDARD_RPY: dict[str, tuple[float, float, float]] = {
     "pinhole": (math.pi, 0.0, -math.pi / 2),
     "fisheye": (math.pi, 0.0, 0.0),
     "imu": (0.0, 0.0, 0.0),
+    "sun": (0.0, 0.0, 0.0),
 }
 
 
@@ -105,20 +108,22 @@ class SensorConfig:
 
     Attributes:
         name: Its name: the ``sensor`` of its messages, the key in ``env.unwrapped.rig``.
-        kind: ``"pinhole"``, ``"fisheye"`` or ``"imu"``.
+        kind: ``"pinhole"``, ``"fisheye"``, ``"imu"`` or ``"sun"`` (a sun sensor).
         rate_hz: Samples per second [Hz]; must divide the physics rate (240 Hz: 240, 120, 80,
-            60, 48, 40, 30, ...). None: the preset's (cameras) or the IMU's own.
+            60, 48, 40, 30, ...). None: the preset's (cameras) or the IMU's or sun sensor's own.
         mount: Body from sensor: a 4 x 4 rigid transform, or ``{position: [x, y, z], rpy: [r,
             p, y]}`` [m, rad], either of which may be left out and is then the standard
             mount's. None: the standard mount (the downward camera on the mast, the fisheye
             under the body, looking down as :data:`STANDARD_RPY` says; the IMU where its
-            settings put it).
+            settings put it; the sun sensor on top of the mast, looking up).
         camera: A camera's settings that differ from the preset's: fields of
             :class:`~rover_env.config.cameras.DownwardCameraConfig` (pinhole) or
             :class:`~rover_env.config.cameras.FisheyeCameraConfig` (fisheye), except ``rate_hz``.
         imu: An IMU's settings: a preset name or a mapping (``preset`` and overrides, see
             :meth:`rover_env.config.imu.ImuConfig.from_dict`); None: ``bmi088``. Its
             ``rate_hz`` and mount above, when given, take the place of the settings'.
+        sun: A sun sensor's settings: a preset name or a mapping (``preset`` and overrides, see
+            :meth:`rover_env.config.sun_sensor.SunSensorConfig.from_dict`); None: ``nfss411``.
     """
 
     name: str
@@ -127,6 +132,7 @@ class SensorConfig:
     mount: Any = None
     camera: Any = None
     imu: Any = None
+    sun: Any = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -139,8 +145,9 @@ class SensorConfig:
             check_range("rate_hz", self.rate_hz, 0.0, 10000.0, lo_open=True)
         object.__setattr__(self, "mount", _mount(self.mount))
         if self.camera is not None:
-            if self.kind == "imu":
-                raise ConfigError(f"camera: sensor {self.name!r} is an IMU; give its settings as imu")
+            if self.kind in ("imu", "sun"):
+                what = "an IMU" if self.kind == "imu" else "a sun sensor"
+                raise ConfigError(f"camera: sensor {self.name!r} is {what}; give its settings as {self.kind}")
             if not isinstance(self.camera, dict):
                 raise ConfigError(f"camera: {self.camera!r}; give a mapping of camera settings")
             if "rate_hz" in self.camera:
@@ -152,6 +159,12 @@ class SensorConfig:
                     f"imu: sensor {self.name!r} is a {self.kind} camera; give its settings as camera"
                 )
             imu_config(self.imu)  # validated here
+        if self.sun is not None:
+            if self.kind != "sun":
+                raise ConfigError(
+                    f"sun: sensor {self.name!r} is a {self.kind}; only a sun sensor takes sun settings"
+                )
+            SunSensorConfig.from_dict(self.sun)  # validated here
 
     def mount_or(self, standard: np.ndarray) -> np.ndarray:
         """The (4, 4) mount; ``standard`` (the sensor's mount without one) fills what it leaves out."""
@@ -216,13 +229,19 @@ def with_imu(rig: tuple[SensorConfig, ...], imu: Any) -> tuple[SensorConfig, ...
 
 
 def standard_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
-    """The rig of a scenario that declares none: the fisheye, the downward camera, and ``imu``.
+    """The rig of a scenario that declares none: the fisheye, the downward camera, ``imu`` and a sun sensor.
+
+    The IMU and the sun sensor (``"sun"``, an NFSS-411 on the mast) come together: the sun
+    sensor gives the heading only with the tilt the IMU measures. Declare a ``rig`` for one
+    without the other.
 
     Args:
-        imu: The scenario's IMU (a preset name or a mapping), or None for no IMU.
+        imu: The scenario's IMU (a preset name or a mapping), or None for neither.
     """
     rig = (SensorConfig("fisheye", "fisheye"), SensorConfig("downward", "pinhole"))
-    return rig + ((SensorConfig("imu", "imu", imu=imu),) if imu is not None else ())
+    if imu is None:
+        return rig
+    return rig + (SensorConfig("imu", "imu", imu=imu), SensorConfig("sun", "sun"))
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
 from rover_env.config.imu import ImuConfig
 from rover_env.config.randomize import RandomizeConfig, WorldDraw, randomize_config
-from rover_env.config.rig import PresetName, imu_config, with_imu
+from rover_env.config.rig import PresetName, imu_config, standard_rig, with_imu
 from rover_env.config.scenario import ScenarioConfig, load_scenario, scenario_rig
 from rover_env.envs.chase_view import ChaseView
 from rover_env.rendering import resolve_renderer
@@ -190,7 +190,9 @@ class RoverEnv(gym.Env):
         imu: An IMU for the estimator (with ``obs_source="estimated"``): a preset name
             (``"bmi088"``, ``"tactical"``, ``"ideal"``), a mapping (``preset`` and overrides, as
             in a scenario) or an :class:`~rover_env.sensors.imu.ImuConfig`; its errors are drawn per
-            episode from the reset's seed. None (default): the scenario's ``imu``, if any.
+            episode from the reset's seed. None (default): the scenario's ``imu``, if any. The
+            standard rig carries a sun sensor (``"sun"``) with its IMU
+            (:func:`~rover_env.config.rig.standard_rig`); a declared rig only what it declares.
         estimator: With ``obs_source="estimated"``, a factory (class or callable) called once
             with the sensor rig (:attr:`rig`) that makes the estimator
             (:mod:`perception.estimator`: ``reset(start_fix)``, ``update(messages, t)``); the
@@ -298,7 +300,10 @@ class RoverEnv(gym.Env):
         if self.obs_source is ObsSource.ESTIMATED:
             rig = scenario_rig(self.scenario)
             if imu is not None:  # the keyword's IMU takes the place of the scenario's
-                rig = with_imu(rig, imu_config(imu))
+                if self.scenario.rig is None:  # the standard rig: with its sun sensor
+                    rig = standard_rig(imu_config(imu))
+                else:
+                    rig = with_imu(rig, imu_config(imu))
             declared = self.scenario.rig is not None
             try:
                 self.pipeline = PerceptionPipeline(
@@ -382,6 +387,8 @@ class RoverEnv(gym.Env):
                     cam.reset_effects(
                         int(rng.integers(2**63 - 1)), _sensor_unit(cam.sensor_config, self.world, i)
                     )
+            for sun in self.pipeline.sun_sensors:  # drawn last: the draws above stay as they were
+                sun.reset(int(rng.integers(2**63 - 1)))
         self._gt = self.sim.reset(x, y, yaw)
         messages = self.sim.take_messages()
         if self.pipeline is not None:

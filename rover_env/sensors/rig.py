@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 from perception.estimator import EstimatorError, check_estimate, estimator_name
 from perception.fisheye_kinematics import KinematicsConfig
 from perception.odometry import FlowOdometryConfig
-from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, TriadFigures
+from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
 from perception.slip import SlipConfig
 from rover_env.config.imu import ImuConfig
@@ -38,9 +38,11 @@ from rover_env.config.rig import (
     mount_matrix,
     standard_rig,
 )
+from rover_env.config.sun_sensor import SunSensorConfig
 from rover_env.sensors.cameras import DownwardCamera, FisheyeCamera
 from rover_env.sensors.image_sensor import BAYER
 from rover_env.sensors.imu import Imu
+from rover_env.sensors.sun_sensor import SunSensor
 from rover_env.sim.simulation import RoverSim
 
 log = logging.getLogger(__name__)
@@ -64,11 +66,12 @@ def _figures(triad) -> TriadFigures:
         bias_random_walk=triad.bias_random_walk,
         turn_on_bias=triad.turn_on_bias,
         range=triad.range,
+        misalignment=triad.misalignment,
     )
 
 
-#: A simulated sensor: a camera or an IMU that the simulation samples.
-SimSensor = DownwardCamera | FisheyeCamera | Imu
+#: A simulated sensor: a camera, an IMU or a sun sensor that the simulation samples.
+SimSensor = DownwardCamera | FisheyeCamera | Imu | SunSensor
 
 
 def build_sensor(
@@ -99,6 +102,12 @@ def build_sensor(
         imu = dataclasses.replace(imu, **changes) if changes else imu
         rate = imu.rate_hz
         settings = f"{key}.imu" if declared else key
+    elif config.kind == "sun":
+        sun = SunSensorConfig.from_dict(config.sun if config.sun is not None else "nfss411")
+        if config.rate_hz is not None:
+            sun = dataclasses.replace(sun, rate_hz=config.rate_hz)
+        rate = sun.rate_hz
+        settings = f"{key}.sun" if declared else key
     else:
         base = preset.downward if config.kind == "pinhole" else preset.fisheye
         try:
@@ -116,6 +125,8 @@ def build_sensor(
         )
     if config.kind == "imu":
         return Imu(sim, imu)
+    if config.kind == "sun":
+        return SunSensor(sim, sun, config.mount_or(SunSensor.standard_mount(sim.geometry)))
     if config.kind == "pinhole":
         standard = DownwardCamera.standard_mount(sim.geometry)
         return DownwardCamera(sim, cam_cfg, config.mount_or(standard))  # type: ignore[arg-type]
@@ -157,6 +168,10 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             T[:3, 3] = sensor.r_body
             model = ImuModel(gyro=_figures(sensor.config.gyro), accel=_figures(sensor.config.accel))
             specs.append(SensorSpec(name, "imu", sensor.config.rate_hz, T, model))
+        elif isinstance(sensor, SunSensor):
+            c = sensor.config
+            sun = SunSensorModel(c.fov_deg, c.accuracy_deg, c.noise_deg)
+            specs.append(SensorSpec(name, "sun", c.rate_hz, sensor.T_body_sensor, sun))
         elif isinstance(sensor, FisheyeCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
             specs.append(SensorSpec(name, "fisheye", rate, T, sensor.model, True, **_photometry(sensor)))
@@ -283,6 +298,7 @@ class PerceptionPipeline:
         cameras = {n: s for n, s in self.sensors.items() if isinstance(s, DownwardCamera | FisheyeCamera)}
         self.cameras = list(cameras.values())
         self.imus = [s for s in self.sensors.values() if isinstance(s, Imu)]
+        self.sun_sensors = [s for s in self.sensors.values() if isinstance(s, SunSensor)]
         # the first of each kind, as a user reaches them (None if the rig has none)
         self.downward = next((s for s in self.cameras if isinstance(s, DownwardCamera)), None)
         self.fisheye = next((s for s in self.cameras if isinstance(s, FisheyeCamera)), None)
