@@ -118,8 +118,9 @@ class HeadingFilter:
         config: Its parameters.
         accuracy_deg: The sun sensor's fixed error per axis (1 sigma) [deg].
         noise_deg: A reading's white noise per axis (1 sigma) [deg].
-        tilt_std: The tilt's constant error (1 sigma) [rad]: the accelerometer's bias over
-            gravity, and the sensor's fixed error about its other two axes.
+        tilt_std: The IMU tilt's slowly varying error (1 sigma) [rad] from its data sheet
+            (``config.tilt_std_deg``, when given, takes its place); the sensor's fixed error about
+            its other two axes is added to it, as it looks the same.
     """
 
     def __init__(
