@@ -4,15 +4,18 @@ A scenario's ``rig`` lists the rover's sensors in the order the simulation sampl
 has a name (the ``sensor`` of its messages), a kind, and optionally a rate, a mount and the
 settings of its kind. Without a ``rig`` a rover carries the standard one
 (:func:`standard_rig`): the fisheye, the downward camera and, if the scenario names an IMU,
-the IMU. Example (the downward camera moved forward at 60 Hz, and an IMU at 120 Hz)::
+the IMU and a sun sensor. Example (the downward camera moved forward at 60 Hz, an IMU at
+120 Hz and a sun sensor)::
 
     rig:
       - {name: fisheye, kind: fisheye}
       - {name: downward, kind: pinhole, rate_hz: 60, mount: {position: [0.45, 0.0, 0.5]}}
       - {name: imu, kind: imu, rate_hz: 120, imu: bmi088}
+      - {name: sun, kind: sun, sun: nfss411}
 
-The built-in estimator takes one pinhole camera and one fisheye (and an IMU if there is one);
-a rig with other sensors, more of them or fewer needs an estimator of your own that takes it.
+The built-in estimator takes one pinhole camera and one fisheye (and an IMU and a sun sensor
+if there are); a rig with other sensors, more of them or fewer needs an estimator of your own
+that takes it.
 
 Frames: a mount is the sensor's frame in the body frame (x forward, y left, z up), "body from
 sensor", as a 4 x 4 matrix or as ``position`` [m] and ``rpy`` [rad] (roll, pitch, yaw about the
