@@ -85,7 +85,7 @@ def test_no_reading_without_the_sun_in_view(sun, seen):
 def test_bad_sun_sensor_settings_name_the_key():
     with pytest.raises(ConfigError, match="fov_deg"):
         SunSensorConfig(fov_deg=0.0)
-    with pytest.raises(ConfigError, match="noise_deg"):
+    with pytest.raises(ConfigError, match=r"sun\.noise_deg"):
         SensorConfig("sun", "sun", sun={"noise_deg": -1.0})
     with pytest.raises(ConfigError, match="unknown keys"):
         SensorConfig("sun", "sun", sun={"fov": 60.0})

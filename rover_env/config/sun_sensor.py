@@ -37,17 +37,17 @@ class SunSensorConfig:
     min_sunlight: float = 0.5
 
     def __post_init__(self) -> None:
-        check_range("sun_sensor.rate_hz", self.rate_hz, 0.0, 1000.0, lo_open=True)
-        check_range("sun_sensor.fov_deg", self.fov_deg, 0.0, 90.0, lo_open=True)
-        check_range("sun_sensor.accuracy_deg", self.accuracy_deg, 0.0, 30.0)
-        check_range("sun_sensor.noise_deg", self.noise_deg, 0.0, 30.0)
-        check_range("sun_sensor.min_sunlight", self.min_sunlight, 0.0, 1.0, lo_open=True)
+        check_range("sun.rate_hz", self.rate_hz, 0.0, 1000.0, lo_open=True)
+        check_range("sun.fov_deg", self.fov_deg, 0.0, 90.0, lo_open=True)
+        check_range("sun.accuracy_deg", self.accuracy_deg, 0.0, 30.0)
+        check_range("sun.noise_deg", self.noise_deg, 0.0, 30.0)
+        check_range("sun.min_sunlight", self.min_sunlight, 0.0, 1.0, lo_open=True)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> SunSensorConfig:
         """A named part: ``"nfss411"`` (the default) or ``"ideal"`` (no errors)."""
         if name not in SUN_SENSOR_PRESETS:
-            raise ConfigError(f"sun_sensor preset {name!r}: choose one of {sorted(SUN_SENSOR_PRESETS)}")
+            raise ConfigError(f"sun preset {name!r}: choose one of {sorted(SUN_SENSOR_PRESETS)}")
         return replace(SUN_SENSOR_PRESETS[name], **overrides)
 
     @classmethod
@@ -58,22 +58,22 @@ class SunSensorConfig:
         if isinstance(d, str):
             return cls.preset(d)
         if not isinstance(d, dict):
-            raise ConfigError(f"sun_sensor: {d!r}; give a preset name or a mapping (preset and figures)")
+            raise ConfigError(f"sun: {d!r}; give a preset name or a mapping (preset and figures)")
         d = dict(d)
         name = d.pop("preset", "nfss411")
         if not isinstance(name, str):
-            raise ConfigError(f"sun_sensor.preset: {name!r}; choose one of {sorted(SUN_SENSOR_PRESETS)}")
+            raise ConfigError(f"sun.preset: {name!r}; choose one of {sorted(SUN_SENSOR_PRESETS)}")
         base = cls.preset(name)
         known = {"rate_hz", "fov_deg", "accuracy_deg", "noise_deg", "min_sunlight"}
         unknown = sorted(set(d) - known, key=str)
         if unknown:
             raise ConfigError(
-                f"sun_sensor: unknown keys {unknown}; allowed: preset, {', '.join(sorted(known))}"
+                f"sun: unknown keys {unknown}; allowed: preset, {', '.join(sorted(known))}"
             )
         merged = to_dict(base) | d
         if d:
             merged["name"] = "custom"
-        return from_dict(cls, merged, "sun_sensor")
+        return from_dict(cls, merged, "sun")
 
 
 # NewSpace Systems NFSS-411 fine sun sensor (data sheet, via CubeSatShop): field of view 140 deg
