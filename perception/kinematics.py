@@ -37,6 +37,12 @@ def rot_x(a: float) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
+def rot_y(a: float) -> np.ndarray:
+    """Rotation by ``a`` [rad] about y."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
 def rot_z(a: float) -> np.ndarray:
     """Rotation by ``a`` [rad] about z."""
     c, s = math.cos(a), math.sin(a)

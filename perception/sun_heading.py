@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perception.kinematics import rot_x, rot_y, rot_z
 from perception.validation import ConfigError
 
 
@@ -37,10 +38,7 @@ def wrap(angle: float) -> float:
 
 def level_direction(s_body, roll: float, pitch: float) -> np.ndarray:
     """A body-frame direction in the level frame (the body's frame turned back by pitch and roll)."""
-    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
-    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    return Ry @ Rx @ np.asarray(s_body, dtype=np.float64)
+    return rot_y(pitch) @ rot_x(roll) @ np.asarray(s_body, dtype=np.float64)
 
 
 def sun_heading(s_sensor, R_body_sensor, ephemeris, roll: float, pitch: float) -> tuple[float, float]:
@@ -101,11 +99,6 @@ class HeadingConfig:
             raise ConfigError(f"heading.max_elevation_deg: {self.max_elevation_deg!r}; give it below 90 deg")
 
 
-def _rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 class HeadingFilter:
     """The dead-reckoned yaw corrected by sun readings: an error-state Kalman filter.
 
@@ -164,7 +157,7 @@ class HeadingFilter:
 
     def _measure(self, x, yaw, s_body, roll, pitch) -> np.ndarray:
         """(azimuth [rad] world, elevation [rad]) of the reading with the errors ``x`` (4,) taken out."""
-        s = level_direction(_rot_z(x[1]) @ s_body, roll + x[2], pitch + x[3])
+        s = level_direction(rot_z(x[1]) @ s_body, roll + x[2], pitch + x[3])
         return np.array([yaw + x[0] + math.atan2(s[1], s[0]), math.atan2(s[2], math.hypot(s[0], s[1]))])
 
     def update(

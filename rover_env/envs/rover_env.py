@@ -298,12 +298,12 @@ class RoverEnv(gym.Env):
             raise ValueError(f"camera_effects={camera_effects!r}: use 'field' or 'ideal'")
         self.camera_effects = camera_effects
         if self.obs_source is ObsSource.ESTIMATED:
-            rig = scenario_rig(self.scenario)
-            if imu is not None:  # the keyword's IMU takes the place of the scenario's
-                if self.scenario.rig is None:  # the standard rig: with its sun sensor
-                    rig = standard_rig(imu_config(imu))
-                else:
-                    rig = with_imu(rig, imu_config(imu))
+            if imu is None:
+                rig = scenario_rig(self.scenario)
+            elif self.scenario.rig is None:  # the keyword's IMU, and with it the sun sensor
+                rig = standard_rig(imu_config(imu))
+            else:  # the keyword's IMU in place of the declared rig's
+                rig = with_imu(self.scenario.rig, imu_config(imu))
             declared = self.scenario.rig is not None
             try:
                 self.pipeline = PerceptionPipeline(
