@@ -315,6 +315,14 @@ class PolicyController:
         base: Any = env.unwrapped
         if base.action_mode.value != self.meta["action_mode"]:
             raise ValueError(f"the policy acts in action_mode={self.meta['action_mode']!r}; make the env so")
+        trained_imu = self.meta.get("imu")
+        pipeline = getattr(base, "pipeline", None)
+        if trained_imu and pipeline is not None and pipeline.imu is None:
+            log.warning(
+                "%s: the policy was trained with an IMU (%s) and this environment has none: its yaw "
+                "rate, roll and pitch are not what it saw; drive it with one (rover eval --controllers "
+                "NAME@imu:%s, or gym.make(..., imu=%r))", path, trained_imu, trained_imu, trained_imu,
+            )  # fmt: skip
         # the policy's inputs by name: a policy trained before fields were added still reads its own
         names = [f.name for f in base.obs_fields]
         trained = list(self.meta["obs_fields"])

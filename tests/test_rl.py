@@ -2,6 +2,7 @@
 
 import copy
 import json
+import logging
 
 import gymnasium as gym
 import numpy as np
@@ -265,3 +266,28 @@ def test_training_with_an_imu_puts_one_on_the_rover_and_a_bad_preset_is_refused(
     with pytest.raises(ValueError, match="imu 'bmi99'"):
         TrainConfig(imu="bmi99")
     assert TrainConfig(imu="bmi088").imu == "bmi088"
+
+
+def test_a_policy_trained_with_an_imu_warns_when_driven_without_one(tmp_path, tiny_scenario, caplog):
+    """A policy trained on an IMU's yaw rate, roll and pitch, driven on a rover without one, is
+    named with the fix (``@imu:PRESET``); with the IMU it was trained with, nothing is said."""
+    import shutil
+
+    from controllers.rl import shipped_policy
+
+    folder = shutil.copytree(shipped_policy(), tmp_path / "policy")
+    meta = json.loads((folder / "policy.json").read_text())
+    meta["imu"] = "bmi088"
+    (folder / "policy.json").write_text(json.dumps(meta))
+    for imu, warned in ((None, True), ("bmi088", False)):
+        env = make_env(tiny_scenario, imu=imu)
+        try:
+            caplog.clear()
+            with caplog.at_level(logging.WARNING, logger="controllers.rl"):
+                PolicyController(folder, env)
+            said = [r.getMessage() for r in caplog.records if "trained with an IMU" in r.getMessage()]
+            assert bool(said) is warned
+            if warned:
+                assert "@imu:bmi088" in said[0]
+        finally:
+            env.close()
