@@ -9,13 +9,14 @@ inputs is the live run; it reproduces the live events exactly with the same sett
         --envs Rover-v0 --seeds 100 101 102 103 104 --out rec/
     python benchmarks/slip_replay.py window rec/FILE.pkl --run 0 --from 10.8 --to 11.9 --out w.npz
 
-``record`` runs ``slip_accuracy.drive`` (train preset) on every mission and writes one pickle per
-mission and seed set (local files of your own: ``score`` unpickles them). With ``--closed-loop
-CONTROLLER`` it runs that controller's missions on the estimates instead (as ``rover eval``):
-a replay of the same inputs then gives the events of other event settings exactly (``event_*``:
-no controller reads the events), and of other filter settings on the same drive (the slip-aware
-controller, which reads the slip, would have driven a little differently). ``score`` prints the
-slip metrics of ``rover_env.tools.estimator_metrics.slip_metrics`` per mission and in all.
+``record`` runs ``slip_accuracy.drive`` (``--preset``, train by default) on every mission and
+writes one pickle per mission and seed set (local files of your own: ``score`` unpickles them).
+With ``--closed-loop CONTROLLER`` it runs that controller's missions on the estimates instead
+(as ``rover eval``): a replay of the same inputs then gives the events of other event settings
+exactly (``event_*``: no controller reads the events), and of other filter settings on the same
+drive (the slip-aware controller, which reads the slip, would have driven a little differently).
+``score`` prints the slip metrics of ``rover_env.tools.estimator_metrics.slip_metrics`` per
+mission and in all.
 ``window`` writes the filter's inputs of one recorded run between two times, with the truth's
 slip at each estimate, as plain arrays (``.npz``): the test fixtures of recorded skids
 (``tests/data/``) are made with it.
@@ -68,24 +69,25 @@ def record(args) -> None:
             else:
                 span = sa.patch_span(env_id)
                 make = {"camera_effects": args.camera_effects}
-                run = sa.drive(seed, "train", env_id, span, 20.0, 0.05, args.renderer, args.imu, make)
+                run = sa.drive(seed, args.preset, env_id, span, 20.0, 0.05, args.renderer, args.imu, make)
             runs.append({"seed": seed, "run": run, "calls": list(calls)})
         tag = f"_{args.closed_loop}" if args.closed_loop else ""
-        path = out / f"{env_id}{tag}_{args.imu}_{args.camera_effects}_{args.seeds[0]}.pkl"
+        preset = "" if args.preset == "train" else f"_{args.preset}"
+        path = out / f"{env_id}{tag}_{args.imu}_{args.camera_effects}{preset}_{args.seeds[0]}.pkl"
         with open(path, "wb") as fh:
             pickle.dump(runs, fh)
         print(f"recorded {env_id}, seeds {args.seeds}: {path}", flush=True)
 
 
 def closed_loop(env_id: str, seed: int, args) -> dict:
-    """One mission of ``args.closed_loop`` on the estimates (train preset); its per-step log."""
+    """One mission of ``args.closed_loop`` on the estimates (``args.preset``); its per-step log."""
     from rover_env.tools.estimator_metrics import EstimateLog
     from rover_env.tools.evaluation import make_mission_env, parse_controller
 
     spec, source = parse_controller(args.closed_loop)
     extra = {"imu": args.imu} if args.imu else {}
     env = make_mission_env(
-        env_id, obs_source=source, action_mode=spec.action_mode, preset="train", randomize="off",
+        env_id, obs_source=source, action_mode=spec.action_mode, preset=args.preset, randomize="off",
         camera_effects=args.camera_effects, renderer=args.renderer, **extra,
     )  # fmt: skip
     try:
@@ -202,6 +204,9 @@ def main(argv=None) -> int:
     r.add_argument("--seeds", type=int, nargs="+", required=True)
     r.add_argument("--imu", default=None, help="IMU preset (default: none)")
     r.add_argument("--renderer", default="gl", choices=("gl", "tiny"))
+    r.add_argument(
+        "--preset", default="train", choices=("train", "eval"), help="camera preset (default: train)"
+    )
     r.add_argument("--envs", nargs="+", default=None, help="environment ids (default: all)")
     r.add_argument(
         "--closed-loop", default=None, metavar="CONTROLLER", help="drive the missions with this controller"
