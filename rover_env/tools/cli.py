@@ -272,8 +272,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
         f"training {args.algo} for {args.steps} steps on {args.envs} environments; logs: {args.out}/tb\n"
     )
     out = train(cfg, args.out, progress=True)
+    imu = f"@imu:{args.imu}" if args.imu else ""
+    flags = f" --camera-effects {args.camera_effects}"
+    if args.randomize:
+        flags += f" --randomize {args.randomize}"
     print(f"wrote {out / 'policy.zip'} in {(time.perf_counter() - start) / 60:.1f} min; "
-          f"evaluate it with: rover eval --controllers policy:{out} ...")  # fmt: skip
+          f"evaluate it as trained with: rover eval --controllers policy:{out}{imu}{flags} ...")  # fmt: skip
     return 0
 
 
