@@ -391,9 +391,14 @@ class RoverEstimator:
 
         The fused velocity rests on the odometry at every frame, whatever the attitude's error
         (the slip filter's accelerometer bias state takes up the gravity that leaks through it).
+        In an odometry outage (:meth:`perception.slip.SlipEstimator.in_outage`) it does not, and
+        its rate would feed the attitude's error back into the velocity: none is given then.
         """
         t, (vx, vy, _) = self._t_pose, self._twist
         hist = self._twist_hist
+        if self.slip.in_outage(t):
+            hist.clear()
+            return 0.0, 0.0
         if not hist or t > hist[-1][0]:
             hist.append((t, vx, vy))
         while len(hist) > 2 and t - hist[1][0] >= VELOCITY_RATE_S:
