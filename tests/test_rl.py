@@ -3,6 +3,7 @@
 import copy
 import json
 import logging
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -21,6 +22,8 @@ from rover_env.tools.training import (  # noqa: E402
     make_env,
     train,
 )
+
+DATA = Path(__file__).parent / "data"
 
 
 def test_residual_drive_adds_the_scaled_residual_to_the_follower():
@@ -186,24 +189,45 @@ def test_train_writes_a_policy_that_the_loader_and_rover_eval_drive(tmp_path, ti
 
 
 def test_the_shipped_policy_loads_and_drives():
+    """The shipped policy: residual over traction control, trained on estimates with field cameras,
+    randomised worlds and the BMI088; it drives off along the course."""
     from controllers.rl import shipped_policy
 
     env = gym.make("Rover-v0", obs_source="ground_truth", action_mode=policy_action_mode(shipped_policy()))
     try:
         ctrl = PolicyController(shipped_policy(), env)
-        assert ctrl.meta["reward"] == {"slip_speed": 5.0} and ctrl.residual is not None
-        assert ctrl.meta["obs_source"] == "estimated" and ctrl.meta["base"] == "traction"
+        meta = ctrl.meta
+        assert meta["reward"] == {"slip_speed": 5.0} and ctrl.residual is not None
+        assert meta["obs_source"] == "estimated" and meta["base"] == "traction"
+        assert (meta["camera_effects"], meta["randomize"], meta["imu"]) == ("field", "on", "bmi088")
+        assert meta["obs_fields"] == [f.name for f in env.unwrapped.obs_fields][: len(meta["obs_fields"])]
         obs, _ = env.reset(seed=0)
-        # trained before roll, pitch and attitude quality were observed: it reads its fields by name
+        ctrl.reset()
+        for _ in range(60):  # two seconds: it drives off along the course
+            obs, _, _, _, info = env.step(ctrl.act(obs))
+        assert info["progress"] > 1.0
+    finally:
+        env.close()
+
+
+def test_a_policy_trained_before_fields_were_added_reads_its_own_by_name():
+    """The policy shipped before roll, pitch and attitude quality were observed
+    (``tests/data/policy_before_attitude``) reads its own fields by name: a change of the roll
+    it never saw leaves its action as it was."""
+    folder = DATA / "policy_before_attitude"
+    env = gym.make("Rover-v0", obs_source="ground_truth", action_mode=policy_action_mode(folder))
+    try:
+        ctrl = PolicyController(folder, env)
         names = [f.name for f in env.unwrapped.obs_fields]
-        assert set(ctrl.meta["obs_fields"]) < set(names)
+        assert set(ctrl.meta["obs_fields"]) < set(names) and "roll" not in ctrl.meta["obs_fields"]
+        obs, _ = env.reset(seed=0)
         ctrl.reset()
         a0 = ctrl.act(obs)
         ctrl.reset()
         tilted = np.where(np.arange(obs.size) == names.index("roll"), 0.3, obs).astype(np.float32)
         np.testing.assert_array_equal(ctrl.act(tilted), a0)
         ctrl.reset()
-        for _ in range(60):  # two seconds: it drives off along the course
+        for _ in range(60):
             obs, _, _, _, info = env.step(ctrl.act(obs))
         assert info["progress"] > 1.0
     finally:

@@ -88,7 +88,10 @@ CONTROLLERS: dict[str, ControllerSpec] = {
     "slip_unaware": ControllerSpec("drive", _slip_unaware, "path follower, no traction control"),
     "slip_aware": ControllerSpec("wheels", _slip_aware, "path follower with per-wheel traction control"),
     "pure_pursuit": ControllerSpec("drive", _pure_pursuit, "pure pursuit toward the next waypoint"),
-    "ppo": _policy_spec(_shipped_policy_folder, "the shipped residual PPO policy (controllers/policies)"),
+    "ppo": _policy_spec(
+        _shipped_policy_folder,
+        "the shipped residual PPO policy (controllers/policies); trained with the BMI088: ppo@imu",
+    ),
 }
 OBS_SOURCES = ("estimated", "ground_truth")
 
