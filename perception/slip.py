@@ -175,8 +175,8 @@ class SlipConfig:
             accelerometer) or integrated the accelerometer's bias and the gravity leaking
             through the attitude's error for as long as the outage lasted: 7 s on a
             textureless, randomised loose slope took v_x to -2.4 m/s at a true +0.4 and the
-            dead-reckoned goal 12 m off. A slip is never valid in an outage (``max_age``), so
-            this touches the twist only. ``math.inf``: off.
+            dead-reckoned goal 12 m off. A slip is never valid in an outage (``max_age``), so the
+            assumed rolling never reads as a measured zero slip. ``math.inf``: off.
         outage_slip_std: The deviation of that pseudo-measurement, a share of the wheels' speed
             (at least ``event_min_speed``): a slip of this size is allowed for.
         accel_rate_std_own: With an accelerometer, ``rate_std_own`` in its place. The velocity
