@@ -772,11 +772,10 @@ class SlipEstimator:
         steer = self._steer[wheels]
         x_i, y_i = self.wheel_xy[wheels, 0], self.wheel_xy[wheels, 1]
         cos, sin = np.cos(steer), np.sin(steer)
-        n = len(wheels)
         H = np.zeros((2, len(self._x)))
-        # contact-point velocity (v_x - omega y_i, v_y + omega x_i) along and across each wheel
-        H[0, :3] = np.mean(np.stack([cos, sin, sin * x_i - cos * y_i], axis=1), axis=0)
-        H[0, 3 + wheels] = -r / n
+        H[0, :3] = _long_jacobian(self.wheel_xy[wheels], steer).mean(axis=0)
+        H[0, 3 + wheels] = -r / len(wheels)
+        # across each wheel: the contact point's (v_x - omega y_i, v_y + omega x_i)
         H[1, :3] = np.mean(np.stack([-sin, cos, cos * x_i + sin * y_i], axis=1), axis=0)
         speed = max(float(np.mean(np.abs(rates))) * r, c.event_min_speed)
         self._update(H, np.zeros(2), np.eye(2) * (c.outage_slip_std * speed) ** 2)
