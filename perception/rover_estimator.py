@@ -213,16 +213,16 @@ class RoverEstimator:
         self._zero_at: float | None = None  # the start's time, until its fisheye frame is seen
         self._steer_max_rate = rig.steer_max_rate
         width = down.model.image_size[0]
-        self.odometry = FlowOdometry(
-            down.model,
-            odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {})),
-            vignetting=down.vignetting,
-            gamma=down.gamma,
-        )
+        nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
+        odo = odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {}))
+        if odo.plane_anchor is None:  # the ground in view keeps its height at the front axle
+            front = max(c[0] for _, c in nominal)
+            ys = [c[1] for _, c in nominal if c[0] > front - 1e-6]
+            odo = dataclasses.replace(odo, plane_anchor=(float(front), float(np.mean(ys))))
+        self.odometry = FlowOdometry(down.model, odo, vignetting=down.vignetting, gamma=down.gamma)
         self.kinematics = KinematicStateEstimator(
             fish.model, self.model, kinematics, gamma=fish.gamma, bayer=fish.bayer
         )
-        nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
         slip = slip or SlipConfig()
         if imu is not None:
             R = imu.mount[:3, :3]

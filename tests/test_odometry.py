@@ -19,6 +19,7 @@ from perception.odometry import (
     keep_border_segments,
     kmeans_1d,
     label_fragmentation,
+    local_plane_motion,
     rigid_ransac,
     shadow_detected,
     velocity_from_points,
@@ -293,6 +294,43 @@ def test_gyro_roll_and_pitch_rates_keep_a_plane_tilt_error_out_of_the_velocity()
         FlowOdometry(mast_camera()).update(np.zeros((480, 640), np.uint8), 0.0, rate_xy=(math.nan, 0.0))
 
 
+def test_local_plane_fit_recovers_the_pitch_rate_and_the_tilt_of_the_ground_in_view():
+    """Rough ground: the patch in view tilts against the wheels' plane (through the front axle) and
+    the body pitches and rolls. The fit on the wheels' plane takes both into the speed; the
+    local-plane fit recovers speed, yaw rate, pitch rate and tilt from the pixel tracks."""
+    cam = mast_camera()
+    rng = np.random.default_rng(11)
+    dt, wheels = 1 / 60, (0.0, 0.0, -0.265)
+    a, b, anchor = 0.08, -0.05, (0.4, 0.0)  # the patch: 4.6 and -2.9 degrees about the front axle
+    v = np.array([0.8, 0.05, -0.02])
+    w = np.array([0.15, 0.25, 0.3])  # roll, pitch, yaw [rad/s]
+    K, R_bc, o = cam.K, cam.T_body_cam[:3, :3], cam.T_body_cam[:3, 3]
+    px = np.column_stack([rng.uniform(100, 540, 60), rng.uniform(80, 400, 60)])
+    rays = np.column_stack([(px - K[:2, 2]) / np.diag(K)[:2], np.ones(len(px))]) @ R_bc.T
+    c = wheels[2] - a * anchor[0] - b * anchor[1]
+    s = (c + a * o[0] + b * o[1] - o[2]) / (rays[:, 2] - a * rays[:, 0] - b * rays[:, 1])
+    X1 = o + s[:, None] * rays
+    X2 = (X1 - v * dt) @ Rotation.from_rotvec(w * dt).as_matrix()  # R^T (X1 - v dt)
+    Xc = (X2 - o) @ R_bc
+    px2 = Xc[:, :2] / Xc[:, 2:] * np.diag(K)[:2] + K[:2, 2] + rng.normal(scale=0.03, size=(len(px), 2))
+    fit = local_plane_motion(px, px2, cam, wheels, dt, (0.7, 0.0, 0.0), anchor=anchor)
+    assert fit is not None
+    np.testing.assert_allclose(fit.twist[[0, 1, 5]], [v[0], v[1], w[2]], atol=0.01)
+    assert abs(fit.twist[4] - w[1]) < 0.05  # the pitch rate, from the view's perspective alone
+    np.testing.assert_allclose(fit.plane, (a, b, c), atol=0.01)
+    assert fit.rms_px < 0.05
+    # the same tracks on the wheels' plane: the tilt and the pitch go into the speed
+    P = FlowOdometry(cam)._to_ground_3d(px, wheels)
+    C = FlowOdometry(cam)._to_ground_3d(px2, wheels)
+    old, _ = velocity_from_points(P, C, dt)
+    print(f"v_x error: wheels' plane {old[0] - v[0]:+.4f}, local plane {fit.twist[0] - v[0]:+.4f} m/s")
+    assert abs(old[0] - v[0]) > 5 * abs(fit.twist[0] - v[0]) and abs(old[0] - v[0]) > 0.02
+    # measured roll and pitch rates are held
+    held = local_plane_motion(px, px2, cam, wheels, dt, (0.7, 0.0, 0.0), anchor=anchor, rate_xy=w[:2])
+    np.testing.assert_allclose(held.twist[3:5], w[:2])
+    np.testing.assert_allclose(held.twist[[0, 1, 5]], [v[0], v[1], w[2]], atol=0.005)
+
+
 def test_each_frame_on_its_own_ground_plane_removes_the_roll_of_a_suspended_body(ground):
     """The body rolls 0.6 rad/s over the pair: with both frames' planes the estimate holds."""
     cam = mast_camera()
@@ -507,6 +545,12 @@ def test_config_for_camera_scales_pixel_sizes():
     assert FlowOdometryConfig.for_camera(640, 60.0) == base
     with pytest.raises(ValueError, match="width"):
         FlowOdometryConfig.for_camera(0, 30.0)
+    for key, value in (("tilt_std", 0.0), ("rate_std", -1.0), ("track_std", math.nan)):
+        with pytest.raises(ValueError, match=key):
+            FlowOdometryConfig(**{key: value})
+    with pytest.raises(ValueError, match="plane_anchor"):
+        FlowOdometryConfig(plane_anchor=(0.4, math.nan))
+    assert FlowOdometryConfig(plane_anchor=[0.4, 0]).plane_anchor == (0.4, 0.0)
 
 
 def test_kmeans_of_8_bit_images_equals_the_general_one():
