@@ -525,12 +525,20 @@ class _LocalPlane:
 
 def _rotation(rotvec: np.ndarray) -> np.ndarray:
     """Rotation matrix of a rotation vector [rad] (Rodrigues)."""
-    angle = float(np.linalg.norm(rotvec))
+    x, y, z = float(rotvec[0]), float(rotvec[1]), float(rotvec[2])
+    angle = math.sqrt(x * x + y * y + z * z)
     if angle < 1e-12:
         return np.eye(3)
-    k = rotvec / angle
-    Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * Kx + (1.0 - math.cos(angle)) * (Kx @ Kx)
+    x, y, z = x / angle, y / angle, z / angle
+    c, s = math.cos(angle), math.sin(angle)
+    t = 1.0 - c
+    return np.array(
+        [
+            [c + t * x * x, t * x * y - s * z, t * x * z + s * y],
+            [t * x * y + s * z, c + t * y * y, t * y * z - s * x],
+            [t * x * z - s * y, t * y * z + s * x, c + t * z * z],
+        ]
+    )
 
 
 def _planar_design(r: np.ndarray) -> np.ndarray:
@@ -600,6 +608,15 @@ class FlowOdometryConfig:
             not show (point errors are not independent: they share the texture's aliasing and
             the ground's relief); 1.5 makes the deviations about right at 160 px on flat,
             shadowed and rough ground.
+        shadow_split: Where a shadow is detected, select features in it too, on their own (up to
+            its share of the allowed area, at most half of ``max_features``, at a tenth of the
+            quality level), besides ``max_features`` on the lit ground: Harris's quality level is
+            relative to the strongest corner, which the lit ground holds, so a dark shadow
+            otherwise gets none and the features crowd on one side of the view (which the
+            ground's tilt is then fitted from).
+        shadow_residual_ratio: The shadow's features are dropped from a pair when the RMS of
+            their residuals about the planar fit exceeds this multiple of the lit ones' (on dim,
+            noisy shadow they track noise).
         local_plane: With the ground planes of both frames given (3-D mode), fit the tilt of the
             ground in view and the body's roll and pitch rates with the velocity
             (:func:`local_plane_motion`); without it the features lie on the planes given (the
@@ -623,6 +640,8 @@ class FlowOdometryConfig:
             ground the extra freedom only adds noise). 0: always the fitted plane.
         plane_iterations: Most Gauss-Newton steps of the held and the free fit (the problem is
             nearly linear from the planar fit: more steps change the speed by under 1 mm/s).
+        plane_max_points: The plane is fitted on at most this many of the inliers (spread over
+            them); all of them are then put on it.
         use_mask: Ablation switch: the shadow-edge feature mask.
         use_ransac: Ablation switch: RANSAC (off: every tracked feature is used).
         repeated_frames: What two bit-identical frames mean. ``"invalid"`` (the default): a real
@@ -672,6 +691,8 @@ class FlowOdometryConfig:
     min_inlier_ratio: float = 0.3
     max_std: float = 0.02
     noise_scale: float = 1.5
+    shadow_split: bool = True
+    shadow_residual_ratio: float = 2.0
     local_plane: bool = True
     plane_anchor: tuple[float, float] | None = None
     tilt_std: float = 0.1
@@ -679,6 +700,7 @@ class FlowOdometryConfig:
     track_std: float = 0.05
     plane_test: float = 10.0
     plane_iterations: tuple[int, int] = (1, 2)
+    plane_max_points: int = 60
     use_mask: bool = True
     use_ransac: bool = True
     repeated_frames: str = "invalid"
@@ -734,12 +756,18 @@ class FlowOdometryConfig:
             "ransac_threshold",
             "max_std",
             "noise_scale",
+            "shadow_residual_ratio",
             "tilt_std",
             "rate_std",
             "track_std",
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: {getattr(self, name)!r} must be > 0")
+        if not (isinstance(self.plane_max_points, int) and self.plane_max_points >= 8):
+            raise ValueError(f"plane_max_points: {self.plane_max_points!r}; use an integer >= 8")
+        its = tuple(self.plane_iterations)
+        if len(its) != 2 or not all(isinstance(k, int) and k >= 1 for k in its):
+            raise ValueError(f"plane_iterations: {self.plane_iterations!r}; use two integers >= 1")
         if not self.plane_test >= 0:
             raise ValueError(f"plane_test: {self.plane_test!r}; use an F statistic >= 0")
         if not (self.window >= 5 and self.window % 2 == 1):
@@ -817,6 +845,7 @@ class Selection:
         diagnostics: Intermediate images of the mask.
         ground_plane: The ground under the body when ``I_prev`` was taken, (a, b, c) of
             z = a x + b y + c in the body frame [-, -, m] (None: not given).
+        in_shadow: (n,) bool: the feature was chosen in the detected shadow (``shadow_split``).
     """
 
     gray: np.ndarray
@@ -825,6 +854,7 @@ class Selection:
     t: float | None = None
     diagnostics: MaskDiagnostics | None = None
     ground_plane: tuple[float, float, float] | None = None
+    in_shadow: np.ndarray | None = None
 
 
 @dataclass
@@ -1031,25 +1061,49 @@ class FlowOdometry:
         L = self._harris_level
         y0, y1, x0, x1 = self._roi_box
         step = 1 << L
-        pts = cv2.goodFeaturesToTrack(
-            pyr[L][y0:y1, x0:x1],
-            maxCorners=cfg.max_features,
-            qualityLevel=cfg.quality_level,
-            minDistance=cfg.min_distance / step,
-            mask=mask[y0 * step : y1 * step : step, x0 * step : x1 * step : step].astype(np.uint8),
-            blockSize=self._harris_block,
-            useHarrisDetector=True,
-            k=0.04,
-        )
-        feats = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
+        allowed = mask[y0 * step : y1 * step : step, x0 * step : x1 * step : step]
+        dark = None
+        if cfg.shadow_split and diag is not None and diag.shadow and diag.clean.any():
+            h, w = pyr[L].shape
+            dark = cv2.resize(diag.clean.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+            dark = dark[y0:y1, x0:x1]
+        found, shaded = [], []
+        regions = [(allowed, cfg.max_features, cfg.quality_level, False)]
+        if dark is not None:
+            # Harris's quality is relative to the strongest corner, which the lit ground holds: the
+            # shadow's features are chosen on their own, at a tenth of the level, as extra ones
+            share = float((allowed & dark).sum()) / max(float(allowed.sum()), 1.0)
+            n_dark = min(int(round(cfg.max_features * share)), cfg.max_features // 2)
+            regions = [(allowed & ~dark, cfg.max_features, cfg.quality_level, False)]
+            if n_dark > 0:
+                regions.append((allowed & dark, n_dark, 0.1 * cfg.quality_level, True))
+        for region, n_max, quality, in_shadow in regions:
+            pts = cv2.goodFeaturesToTrack(
+                pyr[L][y0:y1, x0:x1],
+                maxCorners=n_max,
+                qualityLevel=quality,
+                minDistance=cfg.min_distance / step,
+                mask=region.astype(np.uint8),
+                blockSize=self._harris_block,
+                useHarrisDetector=True,
+                k=0.04,
+            )
+            if pts is not None:
+                found.append(pts.reshape(-1, 2))
+                shaded.append(np.full(len(found[-1]), in_shadow))
+        feats = np.concatenate(found).astype(np.float32) if found else np.zeros((0, 2), np.float32)
+        in_dark = np.concatenate(shaded) if shaded else np.zeros(0, dtype=bool)
         feats = (feats + np.array([x0, y0], np.float32)) * np.float32(step)
         # Harris on a textureless or saturated image returns corners of noise-free flat areas: drop
         # features whose 7 x 7 neighbourhood has no contrast (grey-level variance about its local
         # 7 x 7 means, averaged over the neighbourhood, <= 1)
         if len(feats):
-            feats = feats[_local_contrast(gray, feats) > 1.0]
+            keep = _local_contrast(gray, feats) > 1.0
+            feats, in_dark = feats[keep], in_dark[keep]
         plane = None if ground_plane is None else _plane(ground_plane)
-        return Selection(gray=gray, features=feats, mask=mask, t=t, diagnostics=diag, ground_plane=plane)
+        return Selection(
+            gray=gray, features=feats, mask=mask, t=t, diagnostics=diag, ground_plane=plane, in_shadow=in_dark
+        )
 
     # ------------------------------------------------------------------ lines 5-10
     def track(
@@ -1150,20 +1204,26 @@ class FlowOdometry:
         if n_in < cfg.min_inliers:
             return invalid(f"too few inliers ({n_in} of {n_tr})", **common)
         rates = rate_xy if P.shape[1] == 3 else None
+        shaded = None if selection.in_shadow is None else selection.in_shadow[ok]
+        if shaded is not None and shaded[inl].any() and (~shaded[inl]).sum() >= cfg.min_inliers:
+            inl = self._without_noisy_shadow(P, C, dt, inl, shaded)
         P, C = P[inl], C[inl]
-        vel, residual, cov = velocity_from_points(P, C, dt, return_cov=True, rate_xy=rates)
+        fit = None
         if (
             P.shape[1] == 3
             and cfg.local_plane
             and selection.ground_plane is not None
             and plane_curr is not None
         ):
+            start, _ = velocity_from_points(P, C, dt, rate_xy=rates)
             fit = self._local_plane(
-                und_prev[inl], und_curr[inl], selection.ground_plane, plane_curr, dt, vel, rates
+                und_prev[inl], und_curr[inl], selection.ground_plane, plane_curr, dt, start, rates
             )
-            if fit is not None:  # the features on the plane in view, the roll and pitch rates fitted
-                P, C = fit.P, fit.C
-                vel, residual, cov = velocity_from_points(P, C, dt, return_cov=True, rate_xy=fit.twist[3:5])
+        if fit is not None:  # the features on the plane in view, the roll and pitch rates fitted
+            P, C = fit.P, fit.C
+            vel, residual, cov = velocity_from_points(P, C, dt, return_cov=True, rate_xy=fit.twist[3:5])
+        else:
+            vel, residual, cov = velocity_from_points(P, C, dt, return_cov=True, rate_xy=rates)
         cov = cov * cfg.noise_scale**2
         reason = ""
         if ratio < cfg.min_inlier_ratio:
@@ -1193,6 +1253,24 @@ class FlowOdometry:
             **common,
         )
 
+    def _without_noisy_shadow(self, P, C, dt, inl, shaded) -> np.ndarray:
+        """``inl`` without the shadow's tracks if they fit the lit ground's motion worse than it.
+
+        On dim, noisy shadow the extra features track noise: their residuals (about the planar fit
+        of all inliers) have an RMS above ``shadow_residual_ratio`` times the lit ones'.
+        """
+        P2, C2 = P[inl, :2], C[inl, :2]
+        (vx, vy, w), _ = velocity_from_points(P2, C2, dt)
+        r = 0.5 * (P2 + C2)
+        err = -(C2 - P2) / dt - np.column_stack([vx - w * r[:, 1], vy + w * r[:, 0]])
+        e2 = np.sum(err * err, axis=1)
+        dark = shaded[inl]
+        if math.sqrt(e2[dark].mean()) <= self.config.shadow_residual_ratio * math.sqrt(e2[~dark].mean()):
+            return inl
+        out = inl.copy()
+        out[inl] = ~dark
+        return out
+
     def _local_plane(
         self, und_prev, und_curr, plane_prev, plane_curr, dt, vel, rates
     ) -> LocalPlaneFit | None:
@@ -1205,16 +1283,18 @@ class FlowOdometry:
         would add their noise (yaw rate MAE 0.0019 against 0.0064 rad/s on ``Rover-v0``).
         """
         cfg = self.config
+        args = (self.camera, plane_prev, dt, cfg.plane_anchor, cfg.tilt_std, cfg.rate_std, cfg.track_std)
+        every = _LocalPlane(und_prev, und_curr, *args)
+        if len(und_prev) > cfg.plane_max_points:  # fitted on a spread subset (the order is Harris's)
+            pick = np.linspace(0, len(und_prev) - 1, cfg.plane_max_points).round().astype(int)
+            und_prev, und_curr = und_prev[pick], und_curr[pick]
         n = len(und_prev)
         if rates is None:  # the planes' turn between the frames (small angles)
             (a0, b0, _), (a1, b1, _) = plane_prev, plane_curr
             held = ((b0 - b1) / dt, (a1 - a0) / dt)
         else:
             held = tuple(rates)
-        problem = _LocalPlane(
-            und_prev, und_curr, self.camera, plane_prev, dt, cfg.plane_anchor, cfg.tilt_std, cfg.rate_std,
-            cfg.track_std,
-        )  # fmt: skip
+        problem = every if n == every.n else _LocalPlane(und_prev, und_curr, *args)
         theta = problem.start(vel, held)
         first = problem.residual(theta, True)
         mask = np.zeros(8, dtype=bool)
@@ -1230,8 +1310,10 @@ class FlowOdometry:
             chi_free, chi_fixed = problem.chi2(free[1]), problem.chi2(fixed[1])
             f_stat = ((chi_fixed - chi_free) / extra) / max(chi_free / max(2 * n - int(mask.sum()), 1), 1e-12)
             if f_stat < cfg.plane_test:
-                return problem.result(*fixed)
-        return problem.result(*free)
+                free = fixed
+        theta = free[0]
+        r, _ = every.residual(theta, False)  # all the tracks on the chosen plane
+        return None if r is None else every.result(theta, r)
 
     @staticmethod
     def _to_ground(und: np.ndarray, H_inv: np.ndarray) -> np.ndarray:

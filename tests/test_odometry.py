@@ -97,6 +97,36 @@ def test_known_planar_motion_is_recovered(ground, twist, shadowed):
         assert est.selection.diagnostics.shadow
 
 
+def test_a_dark_shadow_gets_its_own_features_and_loses_them_where_it_shows_only_noise(ground):
+    """A shadow at 30 % of the light: Harris against the lit ground's strongest corner finds
+    nothing in it, so the features crowd on the lit side; chosen on their own, a share lies in it
+    and tracks. Where the shadow holds only noise its features are dropped from the fit."""
+    cam = mast_camera()
+    dt, twist = 1 / 60, (0.9, 0.1, 0.2)
+    shadow = body_shadow()
+    texture = (ground - 130.0) * 0.6 + 130.0
+    prev = render(cam, texture, START, rng=np.random.default_rng(1))
+    curr = render(cam, texture, pose_after(START, twist, dt), rng=np.random.default_rng(2))
+    prev, curr = (np.where(shadow, (i * 0.3).astype(np.uint8), i) for i in (prev, curr))
+    split = FlowOdometry(cam).estimate(prev, curr, dt)
+    lit_only = FlowOdometry(cam, FlowOdometryConfig(shadow_split=False)).estimate(prev, curr, dt)
+    for est in (split, lit_only):
+        assert est.valid, est.reason
+        np.testing.assert_allclose(est.twist, twist, atol=0.01)
+    in_dark = split.selection.in_shadow
+    assert in_dark.sum() >= 5 and not np.any(shadow[tuple(lit_only.selection.features.astype(int).T[::-1])])
+    dark_px = split.prev_px[split.inliers]
+    assert np.mean(shadow[dark_px[:, 1].astype(int), dark_px[:, 0].astype(int)]) > 0.15  # they track
+    # the shadow replaced by fresh noise in each frame: its tracks fit no motion and are dropped
+    rng = np.random.default_rng(3)
+    noisy = [np.where(shadow, rng.integers(0, 8, shadow.shape), i).astype(np.uint8) for i in (prev, curr)]
+    est = FlowOdometry(cam).estimate(*noisy, dt)
+    assert est.valid, est.reason
+    np.testing.assert_allclose(est.twist, twist, atol=0.01)
+    used = est.prev_px[est.inliers].astype(int)
+    assert not np.any(shadow[used[:, 1], used[:, 0]])
+
+
 @pytest.mark.parametrize("twist", [(0.8, 0.0, 0.0), (1.5, -0.2, 0.3), (0.3, 0.1, -0.2)])
 @pytest.mark.parametrize("shadowed", [False, True])
 def test_training_resolution_recovers_known_motion(ground, twist, shadowed):
