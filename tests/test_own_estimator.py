@@ -118,6 +118,15 @@ def test_builtin_estimator_is_the_default_unchanged_and_its_changes_take_effect(
     assert np.abs(other[:, slips] - default[:, slips]).max() > 1e-3
     with pytest.raises(rover_env.ConfigError, match="preset"):
         builtin_estimator("fast")
+    # the odometry's ground in view keeps the wheels' plane's height at the front axle
+    env = gym.make("Rover-v0", renderer="tiny")
+    try:
+        env.reset(seed=0)
+        geom = env.unwrapped.geometry
+        anchor = env.unwrapped.pipeline.estimator.odometry.config.plane_anchor
+        np.testing.assert_allclose(anchor, (geom.wheelbase / 2, 0.0), atol=1e-9)
+    finally:
+        env.close()
 
 
 @pytest.mark.parametrize(
