@@ -1274,13 +1274,15 @@ class FlowOdometry:
     def _local_plane(
         self, und_prev, und_curr, plane_prev, plane_curr, dt, vel, rates
     ) -> LocalPlaneFit | None:
-        """The local-plane fit if the tracks show the ground in view off the wheels' plane, else None.
+        """The tracks on the ground plane that explains them, with its roll and pitch rates.
 
-        Two fits of the same tracks (:func:`local_plane_motion`): one held to the wheels' plane, its
-        roll and pitch rates those of how the two frames' planes differ (or the measured ones);
-        one free. The free one is taken when its extra parameters explain the tracks (F statistic
-        of the drop in the squared pixel residuals at least ``plane_test``): on flat ground it
-        would add their noise (yaw rate MAE 0.0019 against 0.0064 rad/s on ``Rover-v0``).
+        Two fits of the same tracks (:func:`local_plane_motion`, on at most ``plane_max_points``
+        of them): one held to the wheels' plane, its roll and pitch rates those of how the two
+        frames' planes differ (or the measured ones); one free. The free one is taken when its
+        extra parameters explain the tracks (F statistic of the drop in the squared pixel
+        residuals at least ``plane_test``): on flat ground it would add their noise (yaw rate
+        MAE 0.0019 against 0.0064 rad/s on ``Rover-v0``). All the tracks are then put on the
+        chosen plane. None: a ray misses the plane (the caller keeps its planar fit).
         """
         cfg = self.config
         args = (self.camera, plane_prev, dt, cfg.plane_anchor, cfg.tilt_std, cfg.rate_std, cfg.track_std)
