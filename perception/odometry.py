@@ -509,7 +509,7 @@ class _LocalPlane:
     def result(self, theta: np.ndarray, r: np.ndarray) -> LocalPlaneFit:
         """The fit of ``theta`` (residuals ``r``): the points in both frames, the plane, the RMS."""
         n, o, dt = self.n, self.o, self.dt
-        rms_px = math.sqrt(float(r[: 2 * n] @ r[: 2 * n]) / (2 * n)) * self.pixel_std
+        rms_px = math.sqrt(self.chi2(r) / (2 * n)) * self.pixel_std
         a, b = theta[0], theta[1]
         X1 = o + self._depth(a, b)[0][:, None] * self.rays
         # the second frame's rays on the plane moved into its body frame
@@ -1068,13 +1068,12 @@ class FlowOdometry:
             dark = cv2.resize(diag.clean.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
             dark = dark[y0:y1, x0:x1]
         found, shaded = [], []
-        regions = [(allowed, cfg.max_features, cfg.quality_level, False)]
+        regions = [(allowed if dark is None else allowed & ~dark, cfg.max_features, cfg.quality_level, False)]
         if dark is not None:
             # Harris's quality is relative to the strongest corner, which the lit ground holds: the
             # shadow's features are chosen on their own, at a tenth of the level, as extra ones
             share = float((allowed & dark).sum()) / max(float(allowed.sum()), 1.0)
             n_dark = min(int(round(cfg.max_features * share)), cfg.max_features // 2)
-            regions = [(allowed & ~dark, cfg.max_features, cfg.quality_level, False)]
             if n_dark > 0:
                 regions.append((allowed & dark, n_dark, 0.1 * cfg.quality_level, True))
         for region, n_max, quality, in_shadow in regions:
