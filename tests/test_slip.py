@@ -623,7 +623,6 @@ def test_a_wheel_driving_off_from_reverse_starts_its_event_within_two_frames():
         assert round((first - onset) * 30) <= 2
 
 
-
 def test_wheels_braked_by_their_motors_at_a_reversal_are_no_event():
     """A recorded reversal on flat ground (``Rover-v0`` seed 424 of the scripted slip drives, set
     421, train preset, field cameras, no IMU): at 6.6 s the motors brake the wheels from -3.5
