@@ -469,6 +469,37 @@ def test_one_outlying_wheel_rate_held_over_a_missed_frame_is_not_an_event():
     assert not any(run([0.5 * rate, None, rate]))
 
 
+@pytest.mark.parametrize("gap", [3, 5])
+def test_an_event_is_held_over_an_estimate_that_resolves_no_slip(gap):
+    """FL spins at s = 0.5 for 20 frames at 0.6 m/s; the odometry misses ``gap`` frames in the
+    middle, so that estimates older than ``max_age`` resolve no slip. One such estimate (three
+    frames missed) holds the event: one event, not two. Longer (five frames, three unresolved
+    estimates, 0.1 s): the event ends ``max_age`` after its last resolved estimate."""
+    v, dt = 0.6, 1 / 30
+    est = SlipEstimator(XY, R_WHEEL)
+    on, valid = [], []
+    for k in range(60):
+        t = (k + 1) * dt
+        j = k - 30
+        if not 5 <= j < 5 + gap:
+            est.add_odometry(t, [v, 0.0, 0.0], dt)
+        rates = np.full(4, v / R_WHEEL)
+        if 0 <= j < 20:
+            rates[0] = v / (1 - 0.5) / R_WHEEL
+        est.add_wheels(t, rates, dt)
+        e = est.estimate(t)
+        on.append(bool(e.events[0]))
+        valid.append(bool(e.valid[0]))
+    on, valid = np.array(on), np.array(valid)
+    starts = np.flatnonzero(np.diff(on.astype(int)) == 1) + 1
+    unresolved = np.flatnonzero(~valid[30:50]) + 30
+    assert len(unresolved) == gap - 2, unresolved
+    if gap == 3:
+        assert len(starts) == 1 and on[31:50].all(), np.flatnonzero(on)
+    else:  # held for two estimates (max_age 0.07 s), ended at the third
+        assert on[unresolved[:2]].all() and not on[unresolved[2]]
+
+
 def test_a_rate_given_with_its_own_deviation_weighs_less_and_starts_no_event():
     """One wheel's rates scattered by 1 rad/s, as a wheel seen obliquely on few cells is measured.
 
