@@ -906,9 +906,10 @@ class SlipEstimator:
             self._last_t, self._last_mag = t, np.where(valid & fast, mag, np.where(wide, low, np.nan))
         # an event ends at a resolved |s| below event_off, or when its wheel slows below
         # event_min_speed; an estimate that resolves no slip holds it for max_age
+        resolved = valid & fast
         held = self._events & fast & ~valid & (t - self._event_seen <= c.max_age + 1e-9)
-        self._events = np.where(valid & fast, np.where(self._events, mag >= c.event_off, start), held)
-        self._event_seen = np.where(valid & fast & self._events, t, self._event_seen)
+        self._events = np.where(resolved, np.where(self._events, mag >= c.event_off, start), held)
+        self._event_seen = np.where(resolved & self._events, t, self._event_seen)
         return SlipEstimate(
             t=float(t),
             twist=twist,
