@@ -72,6 +72,7 @@ def record(args) -> None:
                 run = sa.drive(seed, args.preset, env_id, span, 20.0, 0.05, args.renderer, args.imu, make)
             runs.append({"seed": seed, "run": run, "calls": list(calls)})
         tag = f"_{args.closed_loop}" if args.closed_loop else ""
+        tag += "_randomized" if args.randomize == "on" else ""
         preset = "" if args.preset == "train" else f"_{args.preset}"
         path = out / f"{env_id}{tag}_{args.imu}_{args.camera_effects}{preset}_{args.seeds[0]}.pkl"
         with open(path, "wb") as fh:
@@ -82,12 +83,14 @@ def record(args) -> None:
 def closed_loop(env_id: str, seed: int, args) -> dict:
     """One mission of ``args.closed_loop`` on the estimates (``args.preset``); its per-step log."""
     from rover_env.tools.estimator_metrics import EstimateLog
-    from rover_env.tools.evaluation import make_mission_env, parse_controller
+    from rover_env.tools.evaluation import load_estimator, make_mission_env, parse_controller
 
     spec, source = parse_controller(args.closed_loop)
-    extra = {"imu": args.imu} if args.imu else {}
+    extra: dict = {"imu": args.imu} if args.imu else {}
+    if args.estimator:
+        extra["estimator"] = load_estimator(args.estimator)
     env = make_mission_env(
-        env_id, obs_source=source, action_mode=spec.action_mode, preset=args.preset, randomize="off",
+        env_id, obs_source=source, action_mode=spec.action_mode, preset=args.preset, randomize=args.randomize,
         camera_effects=args.camera_effects, renderer=args.renderer, **extra,
     )  # fmt: skip
     try:
@@ -214,6 +217,10 @@ def main(argv=None) -> int:
     r.add_argument(
         "--camera-effects", default="field", choices=("ideal", "field"), help="the cameras (default: field)"
     )
+    r.add_argument(
+        "--randomize", default="off", choices=("off", "on"), help="domain randomisation (closed loop)"
+    )
+    r.add_argument("--estimator", default=None, help="estimator factory, as rover eval's (closed loop)")
     r.add_argument("--out", required=True, help="folder for the recordings")
     s = sub.add_parser("score", help="replay recordings through a filter's settings")
     s.add_argument("folder")
