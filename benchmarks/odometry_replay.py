@@ -22,6 +22,7 @@ mission would have driven with it.
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import sys
 from pathlib import Path
@@ -40,9 +41,23 @@ def _fields(pairs) -> dict:
     return out
 
 
+def _value(old, text: str):
+    """``text`` as a value of ``old``'s type (a bool from True/False, a tuple or None literally)."""
+    if isinstance(old, bool):
+        if text not in ("True", "False"):
+            raise SystemExit(f"--set/--variants: {text!r}; use True or False")
+        return text == "True"
+    if isinstance(old, (int, float)) and not isinstance(old, bool):
+        return type(old)(text)
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
 def _typed(config, fields: dict):
     try:
-        return dataclasses.replace(config, **{k: type(getattr(config, k))(v) for k, v in fields.items()})
+        return dataclasses.replace(config, **{k: _value(getattr(config, k), v) for k, v in fields.items()})
     except AttributeError as e:
         raise SystemExit(f"unknown odometry field: {e}") from None
 
