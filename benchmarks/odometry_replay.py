@@ -14,7 +14,8 @@ gyro rates, and the truth's body twist at every control step (an ``.npz`` of a f
 megabytes). ``replay`` rebuilds the mission's estimator for the same seed (its nominal
 calibration and odometry configuration), runs a fresh ``FlowOdometry`` per variant over the
 recorded frames and prints the valid pairs and the speed and yaw-rate errors of the valid
-estimates against the truth's mean over each frame interval. The frames are those of the
+estimates against the truth's mean over each frame interval, and the median time of an update
+(one thread; compare variants of one run only). The frames are those of the
 recorded drive: a replay shows what another setting reads on the same images, not how the
 mission would have driven with it.
 """
@@ -25,6 +26,7 @@ import argparse
 import ast
 import dataclasses
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -147,15 +149,20 @@ def replay(args) -> int:
         return float(twist[m, 0].mean()), float(twist[m, 2].mean())
 
     print(f"{mission} seed {seed}, {len(d['t'])} frames")
-    print("| variant | valid pairs | v_x bias [m/s] | v_x MAE [m/s] | yaw-rate MAE [rad/s] |")
-    print("|---|---:|---:|---:|---:|")
+    print(
+        "| variant | valid pairs | v_x bias [m/s] | v_x MAE [m/s] | yaw-rate MAE [rad/s] "
+        "| ms a frame (median) |"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
     for variant in args.variants:
         fields = {} if variant == "base" else _fields(variant.split())
         odo = FlowOdometry(camera, _typed(config, fields))
-        errors, pairs, prev = [], 0, None
+        errors, pairs, prev, times = [], 0, None, []
         for img, t, plane, rate in zip(d["frames"], d["t"], d["planes"], d["rates"], strict=True):
             plane_or_none = None if np.isnan(plane).any() else plane
+            t0 = time.perf_counter()
             est = odo.update(img, float(t), plane_or_none, None if np.isnan(rate).any() else rate)
+            times.append(time.perf_counter() - t0)
             if est is not None:
                 pairs += 1
                 if est.valid:
@@ -165,7 +172,7 @@ def replay(args) -> int:
         e = np.array(errors).reshape(-1, 2)
         print(
             f"| {variant} | {len(e)}/{pairs} | {e[:, 0].mean():+.4f} | {np.abs(e[:, 0]).mean():.4f} | "
-            f"{np.abs(e[:, 1]).mean():.4f} |"
+            f"{np.abs(e[:, 1]).mean():.4f} | {1e3 * np.median(times):.2f} |"
         )
     return 0
 

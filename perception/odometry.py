@@ -654,12 +654,13 @@ class FlowOdometryConfig:
             F statistic of the drop in the squared pixel residuals against the fit held to the
             wheels' plane (and its rates) reaches this; else the held fit is used (on flat
             ground the extra freedom only adds noise). 0: always the fitted plane.
-        plane_outlier: A track whose pixel residual exceeds this multiple of the median track's
-            under both the held and the free fit is dropped and both are fitted again (0: none
-            dropped). Features on the edge of the rover's own shadow move with the camera, and
-            RANSAC's ground threshold (1.5 px at the train preset) keeps them while the flow is a
-            few pixels a frame; the free fit took their lag as a tilt of 0.2-0.4 and the speed
-            fell by a third (randomised worlds, ``RoverRoughSlippery-v0``, docs/odometry.md).
+        plane_outlier: A track whose pixel residual under the fit taken (where the free one is
+            taken, under either fit) exceeds this multiple of the median track's is dropped, and
+            a free fit is made again (at most ``PLANE_OUTLIER_ROUNDS`` times; 0: none dropped).
+            Features on the edge of the rover's own shadow move with the camera, and RANSAC's
+            ground threshold (1.5 px at the train preset) keeps them while the flow is a few
+            pixels a frame; the free fit took their lag as a tilt of 0.2-0.4 and the speed fell
+            by a third (randomised worlds, ``RoverRoughSlippery-v0``, docs/odometry.md).
         plane_iterations: Most Gauss-Newton steps of the held and the free fit (the problem is
             nearly linear from the planar fit: more steps change the speed by under 1 mm/s).
         plane_max_points: The plane is fitted on at most this many of the inliers (spread over
@@ -1311,10 +1312,11 @@ class FlowOdometry:
         frames' planes differ (or the measured ones); one free. The free one is taken when its
         extra parameters explain the tracks (F statistic of the drop in the squared pixel
         residuals at least ``plane_test``): on flat ground it would add their noise (yaw rate
-        MAE 0.0019 against 0.0064 rad/s on ``Rover-v0``). Tracks that neither fit explains
-        (``plane_outlier``) are dropped and both fits made again without them. The kept tracks
-        are then put on the chosen plane. None: a ray misses the plane (the caller keeps its
-        planar fit).
+        MAE 0.0019 against 0.0064 rad/s on ``Rover-v0``). Tracks that the fit taken leaves
+        unexplained (``plane_outlier``) are dropped; where the free one is taken, those of either
+        fit, and both are made again without them (the held plane does not depend on the
+        tracks). The kept tracks are then put on the chosen plane. None: a ray misses the plane
+        (the caller keeps its planar fit).
         """
         cfg = self.config
         args = (self.camera, plane_prev, dt, cfg.plane_anchor, cfg.tilt_std, cfg.rate_std, cfg.track_std)
@@ -1327,20 +1329,26 @@ class FlowOdometry:
         fits = self._plane_fits(every, und_prev, und_curr, args, vel, held, rates is None)
         if fits is None:
             return None
-        theta, fixed, free = fits
+        theta, fixed, free, took_free = fits
         kept = np.ones(len(und_prev), dtype=bool)
         for _ in range(PLANE_OUTLIER_ROUNDS if cfg.plane_outlier > 0 else 0):
             if fixed is None:
                 break
-            bad = _unexplained(every, fixed, cfg.plane_outlier) | _unexplained(every, free, cfg.plane_outlier)
+            k = cfg.plane_outlier
+            if took_free:
+                bad = _unexplained(every, fixed, k) | _unexplained(every, free, k)
+            else:
+                bad = _unexplained(every, theta, k)
             if not bad.any() or (~bad).sum() < cfg.min_inliers:
                 break
             kept[np.flatnonzero(kept)[bad]] = False
             every = _LocalPlane(und_prev[kept], und_curr[kept], *args)
+            if not took_free:  # the held plane does not depend on the tracks: no fit again
+                break
             fits = self._plane_fits(every, und_prev[kept], und_curr[kept], args, vel, held, rates is None)
             if fits is None:
                 return None
-            theta, fixed, free = fits
+            theta, fixed, free, took_free = fits
         r, _ = every.residual(theta, False)  # the kept tracks on the chosen plane
         if r is None:
             return None
@@ -1351,8 +1359,8 @@ class FlowOdometry:
         """The held and the free fit of :meth:`_local_plane` and the parameters it takes.
 
         Returns:
-            (theta taken, the held fit's parameters or None, the free fit's), or None (a ray
-            misses the plane at the start).
+            (theta taken, the held fit's parameters or None, the free fit's, whether the free
+            one is taken), or None (a ray misses the plane at the start).
         """
         cfg = self.config
         problem = every
@@ -1370,14 +1378,14 @@ class FlowOdometry:
         free = problem.fit(theta, mask, first, iterations=cfg.plane_iterations[1])
         if free is None:
             return None
-        taken = free[0]
+        took_free = True
         if fixed is not None:
             extra = int(mask.sum()) - 4
             chi_free, chi_fixed = problem.chi2(free[1]), problem.chi2(fixed[1])
             f_stat = ((chi_fixed - chi_free) / extra) / max(chi_free / max(2 * n - int(mask.sum()), 1), 1e-12)
-            if f_stat < cfg.plane_test:
-                taken = fixed[0]
-        return taken, None if fixed is None else fixed[0], free[0]
+            took_free = f_stat >= cfg.plane_test
+        taken = free[0] if took_free or fixed is None else fixed[0]
+        return taken, None if fixed is None else fixed[0], free[0], took_free
 
     @staticmethod
     def _to_ground(und: np.ndarray, H_inv: np.ndarray) -> np.ndarray:
