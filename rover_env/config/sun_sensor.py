@@ -67,9 +67,7 @@ class SunSensorConfig:
         known = {"rate_hz", "fov_deg", "accuracy_deg", "noise_deg", "min_sunlight"}
         unknown = sorted(set(d) - known, key=str)
         if unknown:
-            raise ConfigError(
-                f"sun: unknown keys {unknown}; allowed: preset, {', '.join(sorted(known))}"
-            )
+            raise ConfigError(f"sun: unknown keys {unknown}; allowed: preset, {', '.join(sorted(known))}")
         merged = to_dict(base) | d
         if d:
             merged["name"] = "custom"
