@@ -313,7 +313,7 @@ class LocalPlaneFit:
         C: (n, 3) the same points as seen in the second frame (its body frame) [m].
         rms_px: RMS reprojection residual [px].
         kept: (n_tracks,) bool, the tracks that ``P`` and ``C`` hold (``FlowOdometry`` drops those
-            that neither the held nor the free fit explains); None: all of them.
+            that its plane's fits leave unexplained, ``plane_outlier``); None: all of them.
     """
 
     twist: np.ndarray
