@@ -49,7 +49,7 @@ def _value(old, text: str):
         if text not in ("True", "False"):
             raise SystemExit(f"--set/--variants: {text!r}; use True or False")
         return text == "True"
-    if isinstance(old, (int, float)) and not isinstance(old, bool):
+    if isinstance(old, (int, float)):
         return type(old)(text)
     try:
         return ast.literal_eval(text)

@@ -324,6 +324,17 @@ def test_gyro_roll_and_pitch_rates_keep_a_plane_tilt_error_out_of_the_velocity()
         FlowOdometry(mast_camera()).update(np.zeros((480, 640), np.uint8), 0.0, rate_xy=(math.nan, 0.0))
 
 
+def _tracks_on_plane(cam, px, plane, v, w, dt):
+    """Pixels of the ground points behind ``px`` (on ``plane``) after the body moves by (v, w) dt."""
+    K, R_bc, o = cam.K, cam.T_body_cam[:3, :3], cam.T_body_cam[:3, 3]
+    a, b, c = plane
+    rays = np.column_stack([(px - K[:2, 2]) / np.diag(K)[:2], np.ones(len(px))]) @ R_bc.T
+    s = (c + a * o[0] + b * o[1] - o[2]) / (rays[:, 2] - a * rays[:, 0] - b * rays[:, 1])
+    X2 = (o + s[:, None] * rays - v * dt) @ Rotation.from_rotvec(w * dt).as_matrix()
+    Xc = (X2 - o) @ R_bc
+    return Xc[:, :2] / Xc[:, 2:] * np.diag(K)[:2] + K[:2, 2]
+
+
 def test_local_plane_fit_recovers_the_pitch_rate_and_the_tilt_of_the_ground_in_view():
     """Rough ground: the patch in view tilts against the wheels' plane (through the front axle) and
     the body pitches and rolls. The fit on the wheels' plane takes both into the speed; the
@@ -334,15 +345,9 @@ def test_local_plane_fit_recovers_the_pitch_rate_and_the_tilt_of_the_ground_in_v
     a, b, anchor = 0.08, -0.05, (0.4, 0.0)  # the patch: 4.6 and -2.9 degrees about the front axle
     v = np.array([0.8, 0.05, -0.02])
     w = np.array([0.15, 0.25, 0.3])  # roll, pitch, yaw [rad/s]
-    K, R_bc, o = cam.K, cam.T_body_cam[:3, :3], cam.T_body_cam[:3, 3]
     px = np.column_stack([rng.uniform(100, 540, 60), rng.uniform(80, 400, 60)])
-    rays = np.column_stack([(px - K[:2, 2]) / np.diag(K)[:2], np.ones(len(px))]) @ R_bc.T
     c = wheels[2] - a * anchor[0] - b * anchor[1]
-    s = (c + a * o[0] + b * o[1] - o[2]) / (rays[:, 2] - a * rays[:, 0] - b * rays[:, 1])
-    X1 = o + s[:, None] * rays
-    X2 = (X1 - v * dt) @ Rotation.from_rotvec(w * dt).as_matrix()  # R^T (X1 - v dt)
-    Xc = (X2 - o) @ R_bc
-    px2 = Xc[:, :2] / Xc[:, 2:] * np.diag(K)[:2] + K[:2, 2] + rng.normal(scale=0.03, size=(len(px), 2))
+    px2 = _tracks_on_plane(cam, px, (a, b, c), v, w, dt) + rng.normal(scale=0.03, size=(len(px), 2))
     fit = local_plane_motion(px, px2, cam, wheels, dt, (0.7, 0.0, 0.0), anchor=anchor)
     assert fit is not None
     np.testing.assert_allclose(fit.twist[[0, 1, 5]], [v[0], v[1], w[2]], atol=0.01)
@@ -359,17 +364,6 @@ def test_local_plane_fit_recovers_the_pitch_rate_and_the_tilt_of_the_ground_in_v
     held = local_plane_motion(px, px2, cam, wheels, dt, (0.7, 0.0, 0.0), anchor=anchor, rate_xy=w[:2])
     np.testing.assert_allclose(held.twist[3:5], w[:2])
     np.testing.assert_allclose(held.twist[[0, 1, 5]], [v[0], v[1], w[2]], atol=0.005)
-
-
-def _tracks_on_plane(cam, px, plane, v, w, dt):
-    """Pixels of the ground points behind ``px`` (on ``plane``) after the body moves by (v, w) dt."""
-    K, R_bc, o = cam.K, cam.T_body_cam[:3, :3], cam.T_body_cam[:3, 3]
-    a, b, c = plane
-    rays = np.column_stack([(px - K[:2, 2]) / np.diag(K)[:2], np.ones(len(px))]) @ R_bc.T
-    s = (c + a * o[0] + b * o[1] - o[2]) / (rays[:, 2] - a * rays[:, 0] - b * rays[:, 1])
-    X2 = (o + s[:, None] * rays - v * dt) @ Rotation.from_rotvec(w * dt).as_matrix()
-    Xc = (X2 - o) @ R_bc
-    return Xc[:, :2] / Xc[:, 2:] * np.diag(K)[:2] + K[:2, 2]
 
 
 @pytest.mark.parametrize("tilt", [(0.0, 0.0), (0.08, -0.05)])
