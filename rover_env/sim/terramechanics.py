@@ -59,7 +59,16 @@ __all__ = ["WheelSpec", "ContactForces", "contact_forces", "rut_surface", "stead
 
 GRAVITY = 9.81
 #: Largest ratio v / (r omega) of a braking wheel the shear displacement uses (s = -0.98).
-_MAX_SKID_RATIO = 50.0
+MAX_SKID_RATIO = 50.0
+
+
+def _compiled(f):
+    """``f`` compiled by numba (cached on disk); without numba the same code runs as Python."""
+    try:
+        from numba import njit
+    except ImportError:  # pragma: no cover
+        return f
+    return njit(cache=True)(f)
 
 
 @dataclass(frozen=True)
@@ -151,15 +160,150 @@ def rut_surface(soil: SoilConfig, wheel: WheelSpec, prior) -> np.ndarray:
     return np.maximum(z - back, 0.0)
 
 
-def _pressure(soil, wheel, depth, n, prior, surface):
-    """Normal stress [Pa] at ``depth`` below the original surface, with earlier loading."""
-    k = soil.modulus(wheel.width)
-    virgin = k * np.maximum(depth, 0.0) ** n
-    if prior is None:
-        return virgin
-    ku = soil.unload_k0 + soil.unload_au * prior
-    reload = ku * np.maximum(depth - surface, 0.0)
-    return np.where(depth <= prior, np.minimum(reload, virgin), virgin)
+@_compiled
+def _pressure(kb, n, k0, au, depth, prior, surface):  # pragma: no cover (compiled)
+    """Normal stress [Pa] at ``depth`` below the original surface, soil earlier pressed to ``prior``."""
+    virgin = kb * max(depth, 0.0) ** n
+    if depth <= prior:
+        return min((k0 + au * prior) * max(depth - surface, 0.0), virgin)
+    return virgin
+
+
+@_compiled
+def _sign(x):  # pragma: no cover (compiled)
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
+@_compiled
+def _contact_kernel(p, h, vx_in, w_in, vy, zp, jprev, n_theta, out):  # pragma: no cover (compiled)
+    """The contact integrals of every wheel; ``p`` the packed parameters (see ``_params``)."""
+    r, rs, b, mu, kb, n0, n_slip, n_skid = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
+    c, tan_phi, k_x, k_y, a0, a1, b0, b1 = p[8], p[9], p[10], p[11], p[12], p[13], p[14], p[15]
+    k0, au, rest, d1, d2, rho_g = p[16], p[17], p[18], p[19], p[20], p[21]
+    for i in range(h.shape[0]):
+        for k in range(out.shape[1]):
+            out[i, k] = 0.0
+        # mirror a wheel rolling backward onto one rolling forward
+        d = -1.0 if r * w_in[i] + vx_in[i] < 0.0 else 1.0
+        vx, w, jp = vx_in[i] * d, w_in[i] * d, jprev[i] * d
+        rim = r * w
+        driving = rim >= vx
+        if driving:
+            s = (rim - vx) / rim if rim > 0.0 else 0.0
+        else:
+            s = (rim - vx) / max(vx, 1e-12)
+        s = min(max(s, -1.0), 1.0)
+        out[i, 4] = s
+        n = n0 + (n_slip * s if s >= 0.0 else -n_skid * s)
+        z_p = max(zp[i], 0.0)
+        surf = 0.0
+        if z_p > 0.0:
+            ku = k0 + au * z_p
+            if ku > 0.0:
+                surf = max(z_p - kb * z_p**n0 / ku, 0.0)
+        depth_in = h[i] - surf
+        if depth_in <= 0.0:
+            continue
+        tf = math.acos(min(max(1.0 - depth_in / rs, -1.0), 1.0))
+        moving = min(max(max(abs(vx), abs(rim)) / rest, 0.0), 1.0)
+        sd = max(s, 0.0)
+        tm = moving * (a0 + a1 * sd) * tf
+        if b0 >= 0.0:
+            rear = (b0 + b1 * sd) * tf
+        else:  # the rim leaves the soil where it rises above the rut's rebounded surface
+            ku = k0 + au * max(h[i], 0.0)
+            rebound = _pressure(kb, n, k0, au, h[i], z_p, surf) / ku if ku > 0.0 else 0.0
+            rear = math.acos(min(max(1.0 - max(depth_in - rebound, 0.0) / rs, -1.0), 1.0))
+        tr = -((1.0 - moving) * tf + moving * rear)
+        cos_f, sin_f = math.cos(tf), math.sin(tf)
+        # braking: v/omega capped (a locked wheel shears the soil fully anyway)
+        vw = min(vx / max(w, vx / (r * MAX_SKID_RATIO) + 1e-300), r * MAX_SKID_RATIO)
+        t0 = tf * (1.0 + 0.5 * min(s, 0.0))
+        sin_0 = math.sin(t0)
+        chord = (sin_f - sin_0) / (tf - t0) if tf > t0 else cos_f
+        w_lat = max(max(abs(w), abs(vx) / r), 1e-9)
+        vjy = -vy[i]
+        speed = math.hypot(vx, vy[i])
+        sin_beta = vy[i] / speed if speed > 0.0 else 0.0
+        span = (tf - tr) / (n_theta - 1)
+        fx = fz = fy_t = fy_b = tq = 0.0
+        for k in range(n_theta):
+            th = tr + (tf - tr) * k / (n_theta - 1)
+            frac = (th - tr) / (tm - tr) if tm > tr else 1.0
+            te = th if th >= tm else tf - frac * (tf - tm)
+            gap = max(math.cos(te) - cos_f, 0.0)
+            sig = _pressure(kb, n, k0, au, rs * gap + surf, z_p, surf)
+            if mu < 1.0:
+                sig = mu * sig + (1.0 - mu) * _pressure(kb, n, k0, au, r * gap + surf, z_p, surf)
+            sin_t, cos_t = math.sin(th), math.cos(th)
+            # shear displacement along the wheel, and the slip velocity that sets its sign
+            if driving:
+                jx0 = r * (tf - th) - (vx / w) * (sin_f - sin_t) if w > 0.0 else 0.0
+                vjx = rim - vx * cos_t
+            elif th > t0:
+                jx0 = vw * ((tf - th) * chord - (sin_f - sin_t))
+                vjx = vx * (chord - cos_t)
+            else:
+                jx0 = r * (t0 - th) - vw * (sin_0 - sin_t)
+                vjx = rim - vx * cos_t
+            jx = _sign(vjx) * abs(jx0) + jp  # earlier passes' shear stays in the soil
+            jy = _sign(vjy) * abs((tf - th) * vjy / w_lat)
+            mob = 1.0 - math.exp(-math.hypot(jx / k_x, jy / k_y))
+            jn = math.hypot(jx, jy)
+            tau = (c + sig * tan_phi) * mob
+            tau_x = tau * jx / jn if jn > 0.0 else 0.0
+            tau_y = tau * jy / jn if jn > 0.0 else 0.0
+            wt = 0.5 * span if (k == 0 or k == n_theta - 1) else span
+            fx += wt * (tau_x * cos_t - sig * sin_t)
+            fz += wt * (tau_x * sin_t + sig * cos_t)
+            tq += wt * tau_x
+            fy_t += wt * tau_y
+            # side wall bulldozing (Ishigami et al. 2007)
+            hh = rs * max(cos_t - cos_f, 0.0)
+            fy_b += wt * d1 * (c * hh + d2 * rho_g * hh * hh / 2.0) * (rs - hh * cos_t)
+            if k == 0:
+                out[i, 8] = jx * d
+        out[i, 0] = rs * b * fx * d
+        out[i, 1] = rs * b * fz
+        out[i, 2] = rs * b * fy_t - sin_beta * fy_b
+        out[i, 3] = rs * rs * b * tq * d
+        out[i, 5] = tf
+        out[i, 6] = tr
+        out[i, 7] = tm
+
+
+def _params(soil: SoilConfig, wheel: WheelSpec, rest_speed: float) -> np.ndarray:
+    phi = math.radians(soil.friction_deg)
+    xc = math.radians(soil.destructive_deg)
+    d1 = 1.0 / math.tan(xc) + math.tan(xc + phi)
+    d2 = 1.0 / math.tan(xc) + (1.0 / math.tan(xc)) ** 2 * math.tan(phi)
+    b0 = -1.0 if soil.rear_b0 is None else soil.rear_b0
+    return np.array(
+        [
+            wheel.radius,
+            wheel.shear_radius,
+            wheel.width,
+            wheel.tips,
+            soil.modulus(wheel.width),
+            soil.n,
+            soil.n_slip,
+            soil.n_skid,
+            soil.cohesion,
+            math.tan(phi),
+            soil.shear_modulus,
+            soil.shear_modulus_lateral,
+            soil.peak_a0,
+            soil.peak_a1,
+            b0,
+            soil.rear_b1,
+            soil.unload_k0,
+            soil.unload_au,
+            max(rest_speed, 1e-9),
+            d1,
+            d2,
+            soil.density * GRAVITY,
+        ]
+    )
 
 
 def contact_forces(
@@ -170,7 +314,7 @@ def contact_forces(
     omega,
     v_y=0.0,
     *,
-    prior=None,
+    prior=0.0,
     prior_shear=0.0,
     rest_speed: float = 0.005,
     n_theta: int = 48,
@@ -184,137 +328,35 @@ def contact_forces(
         v_x: The wheel centre's velocity along the wheel's heading [m/s].
         omega: The wheel's spin rate, positive rolling forward [rad/s].
         v_y: The wheel centre's velocity across the wheel, to its left [m/s].
-        prior: The largest earlier sinkage at the place [m] (a rut; None or 0: virgin soil).
+        prior: The largest earlier sinkage at the place [m] (a rut; 0: virgin soil).
         prior_shear: The shear displacement earlier passes left in the soil there, along this
             wheel's heading [m] (Wong's cumulative shear of multi-axle vehicles): a wheel in a
             rut starts from it.
         rest_speed: Below this speed of the centre and the rim [m/s] the contact blends to the
             symmetric shape of a wheel at rest.
-        n_theta: Integration nodes along the contact arc.
+        n_theta: Integration nodes along the contact arc (at least 3).
 
     Returns:
         :class:`ContactForces`, arrays of the inputs' broadcast shape.
     """
-    h, vx, w, vy = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (sinkage, v_x, omega, v_y)))
-    shape = h.shape
-    h, vx, w, vy = (a.reshape(-1) for a in (h, vx, w, vy))
-    r, rs, b = wheel.radius, wheel.shear_radius, wheel.width
-    # travel direction: mirror a wheel rolling backward onto one rolling forward
-    d = np.where(r * w + vx < 0.0, -1.0, 1.0)
-    vx, w = vx * d, w * d
-    j_prev = np.broadcast_to(np.asarray(prior_shear, dtype=np.float64), shape).reshape(-1) * d
-    rim = r * w
-    driving = rim >= vx
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(driving, np.where(rim > 0, (rim - vx) / rim, 0.0), (rim - vx) / np.maximum(vx, 1e-12))
-    s = np.clip(s, -1.0, 1.0)
-    n = soil.n + np.where(s >= 0.0, soil.n_slip * s, -soil.n_skid * s)
-    if prior is None:
-        zp = None
-        surf = np.zeros_like(h)
-    else:
-        zp = np.broadcast_to(np.asarray(prior, dtype=np.float64), shape).reshape(-1)
-        surf = rut_surface(soil, wheel, zp)
-    depth_in = h - surf  # how far the rim reaches below the rut's surface
-    touch = depth_in > 0.0
-    tf = np.arccos(np.clip(1.0 - np.maximum(depth_in, 0.0) / rs, -1.0, 1.0))
-    moving = np.clip(np.maximum(np.abs(vx), np.abs(rim)) / max(rest_speed, 1e-9), 0.0, 1.0)
-    sd = np.maximum(s, 0.0)
-    tm = moving * (soil.peak_a0 + soil.peak_a1 * sd) * tf
-    if soil.rear_b0 is not None:
-        rear = (soil.rear_b0 + soil.rear_b1 * sd) * tf
-    else:  # the rim leaves the soil where it rises above the rut's rebounded surface
-        bottom = _pressure(soil, wheel, h, n, zp, surf)
-        ku = soil.unload_k0 + soil.unload_au * np.maximum(h, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rebound = np.where(ku > 0.0, bottom / ku, 0.0)
-        rear = np.arccos(np.clip(1.0 - np.maximum(depth_in - rebound, 0.0) / rs, -1.0, 1.0))
-    tr = -((1.0 - moving) * tf + moving * rear)
-    # nodes along the arc
-    u = np.linspace(0.0, 1.0, n_theta)[None, :]
-    th = tr[:, None] + (tf - tr)[:, None] * u
-    tf_, tm_, tr_ = tf[:, None], tm[:, None], tr[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.where(tm_ > tr_, (th - tr_) / (tm_ - tr_), 1.0)
-    te = np.where(th >= tm_, th, tf_ - frac * (tf_ - tm_))
-    cos_gap = np.maximum(np.cos(te) - np.cos(tf_), 0.0)
-    n_ = n[:, None]
-    zp_ = None if zp is None else zp[:, None]
-    surf_ = surf[:, None]
-    sig_tips = _pressure(soil, wheel, rs * cos_gap + surf_, n_, zp_, surf_)
-    mu = wheel.tips
-    if mu < 1.0:
-        sig_rim = _pressure(soil, wheel, r * cos_gap + surf_, n_, zp_, surf_)
-        sig = mu * sig_tips + (1.0 - mu) * sig_rim
-    else:
-        sig = sig_tips
-    # shear displacement and the slip velocity's direction at each node
-    sin_t, cos_t = np.sin(th), np.cos(th)
-    sin_f = np.sin(tf_)
-    vx_, w_, rim_ = vx[:, None], w[:, None], rim[:, None]
-    w_drive = np.where(w_ > 0.0, w_, 1.0)
-    jx_drive = np.where(w_ > 0.0, r * (tf_ - th) - (vx_ / w_drive) * (sin_f - sin_t), 0.0)
-    vj_drive = rim_ - vx_ * cos_t
-    # braking: v/omega capped (a locked wheel shears the soil fully anyway)
-    vw = np.minimum(vx_ / np.maximum(w_, vx_ / (r * _MAX_SKID_RATIO) + 1e-300), r * _MAX_SKID_RATIO)
-    s_ = s[:, None]
-    t0 = tf_ * (1.0 + 0.5 * np.minimum(s_, 0.0))
-    sin_0 = np.sin(t0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        chord = np.where(tf_ > t0, (sin_f - sin_0) / (tf_ - t0), np.cos(tf_))
-    front = th > t0
-    jx_skid = np.where(
-        front, vw * ((tf_ - th) * chord - (sin_f - sin_t)), r * (t0 - th) - vw * (sin_0 - sin_t)
+    args = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (sinkage, v_x, omega, v_y, prior, prior_shear))
     )
-    vj_skid = np.where(front, vx_ * (chord - cos_t), rim_ - vx_ * cos_t)
-    drive_ = driving[:, None]
-    vjx = np.where(drive_, vj_drive, vj_skid)
-    vjy = -vy[:, None] * np.ones_like(th)
-    w_lat = np.maximum(np.maximum(np.abs(w_), np.abs(vx_) / r), 1e-9)
-    # signed shear displacements along and across the wheel; earlier passes' shear stays in the soil
-    jx = np.sign(vjx) * np.abs(np.where(drive_, jx_drive, jx_skid)) + j_prev[:, None]
-    jy = np.sign(vjy) * np.abs((tf_ - th) * vjy / w_lat)
-    phi = math.radians(soil.friction_deg)
-    strength = soil.cohesion + sig * math.tan(phi)
-    mobilised = 1.0 - np.exp(-np.hypot(jx / soil.shear_modulus, jy / soil.shear_modulus_lateral))
-    jn = np.hypot(jx, jy)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ux = np.where(jn > 0.0, jx / jn, 0.0)
-        uy = np.where(jn > 0.0, jy / jn, 0.0)
-    tau_x = strength * mobilised * ux
-    tau_y = strength * mobilised * uy
-    span = (tf - tr)[:, None] / (n_theta - 1)
-    wts = np.full(n_theta, 1.0)
-    wts[0] = wts[-1] = 0.5
-    integ = lambda f: np.sum(f * wts[None, :] * span, axis=1)  # noqa: E731
-    fx = rs * b * integ(tau_x * cos_t - sig * sin_t)
-    fz = rs * b * integ(tau_x * sin_t + sig * cos_t)
-    torque = rs * rs * b * integ(tau_x)
-    # side wall bulldozing (Ishigami et al. 2007), against the side slip
-    xc = math.radians(soil.destructive_deg)
-    d1 = 1.0 / math.tan(xc) + math.tan(xc + phi)
-    d2 = 1.0 / math.tan(xc) + (1.0 / math.tan(xc)) ** 2 * math.tan(phi)
-    hh = rs * np.maximum(cos_t - np.cos(tf_), 0.0)
-    rb = d1 * (soil.cohesion * hh + d2 * soil.density * GRAVITY * hh * hh / 2.0)
-    speed = np.hypot(vx, vy)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sin_beta = np.where(speed > 0.0, vy / speed, 0.0)
-    fy = rs * b * integ(tau_y) - sin_beta * integ(rb * (rs - hh * cos_t))
-    zero = ~touch
-    out = []
-    for a in (fx * d, fz, fy, torque * d):
-        a = np.where(zero, 0.0, a)
-        out.append(a.reshape(shape))
+    shape = args[0].shape
+    flat = [np.ascontiguousarray(a.reshape(-1)) for a in args]
+    out = np.empty((flat[0].shape[0], 9))
+    _contact_kernel(_params(soil, wheel, rest_speed), *flat, max(int(n_theta), 3), out)
+    o = [out[:, k].reshape(shape) for k in range(9)]
     return ContactForces(
-        drawbar_pull=out[0],
-        normal=out[1],
-        lateral=out[2],
-        torque=out[3],
-        slip=s.reshape(shape),
-        theta_f=np.where(zero, 0.0, tf).reshape(shape),
-        theta_r=np.where(zero, 0.0, tr).reshape(shape),
-        theta_m=np.where(zero, 0.0, tm).reshape(shape),
-        shear_exit=np.where(zero, 0.0, jx[:, 0] * d).reshape(shape),
+        drawbar_pull=o[0],
+        normal=o[1],
+        lateral=o[2],
+        torque=o[3],
+        slip=o[4],
+        theta_f=o[5],
+        theta_r=o[6],
+        theta_m=o[7],
+        shear_exit=o[8],
     )
 
 
@@ -365,7 +407,7 @@ def steady_state(
     *,
     speed: float = 0.01,
     slip_angle_deg=0.0,
-    prior=None,
+    prior=0.0,
     prior_shear=0.0,
     n_theta: int = 96,
 ) -> SteadyState:
