@@ -8,7 +8,10 @@ repository's ``raw-data-processing/all_{grouser,smooth}_data.mat``). The model r
 published soil parameters and coefficients (soil presets ``cmu_testbed_grousered`` and
 ``cmu_testbed_smooth``), each run at its measured load, to the steady state.
 
-    python benchmarks/wheel_validation.py [--plot docs/images/wheel_validation.png]
+    python benchmarks/wheel_validation.py [--bed] [--plot docs/images/wheel_validation.png]
+
+``--bed`` runs each slip on the simulated test bed (``rover wheel-test``'s, in PyBullet, a metre
+of travel) instead of solving the model's steady state directly.
 
 Prints a table per wheel and the errors over the slips -0.5 to 0.9: DP/W's mean absolute error
 and the sinkage's relative error.
@@ -24,6 +27,7 @@ import numpy as np
 
 from rover_env.config.soil import load_soil
 from rover_env.sim.terramechanics import WheelSpec, steady_state
+from rover_env.sim.wheel_test import run_wheel_test
 
 DATA = Path(__file__).parent / "data" / "cmu_single_wheel_beta0.csv"
 WHEELS = {
@@ -47,26 +51,38 @@ def load_rows(path: Path = DATA) -> dict[str, dict[str, np.ndarray]]:
     return out
 
 
-def compare(wheel: str, meas: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Model DP/W and sinkage at each measured slip and load of ``wheel``."""
+def compare(wheel: str, meas: dict[str, np.ndarray], bed: bool = False) -> dict[str, np.ndarray]:
+    """Model DP/W and sinkage at each measured slip and load of ``wheel`` (``bed``: simulated)."""
     soil_name, spec = WHEELS[wheel]
-    r = steady_state(load_soil(soil_name), spec, meas["load_N"], meas["slip"])
+    soil = load_soil(soil_name)
+    if bed:
+        rows = [
+            run_wheel_test(soil, spec, w, [s])[0] for s, w in zip(meas["slip"], meas["load_N"], strict=True)
+        ]
+        return {
+            "dp_over_w": np.array([r.drawbar_pull_N / r.load_N for r in rows]),
+            "sinkage_m": np.array([r.sinkage_m for r in rows]),
+            "converged": np.array([abs(r.load_N / w - 1.0) < 0.01 for r, w in zip(rows, meas["load_N"])]),
+        }
+    r = steady_state(soil, spec, meas["load_N"], meas["slip"])
     return {"dp_over_w": r.drawbar_pull / meas["load_N"], "sinkage_m": r.sinkage, "converged": r.converged}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--plot", type=Path, help="write the side-by-side plot here (PNG)")
+    ap.add_argument("--bed", action="store_true", help="run each slip on the simulated test bed")
     args = ap.parse_args(argv)
     data = load_rows()
     results = {}
     for wheel, meas in data.items():
-        sim = compare(wheel, meas)
+        sim = compare(wheel, meas, bed=args.bed)
         results[wheel] = sim
         scored = (meas["slip"] >= SCORED[0] - 0.01) & (meas["slip"] <= SCORED[1] + 0.01)
         dp_err = np.abs(sim["dp_over_w"] - meas["dp_over_w"])
         z_err = sim["sinkage_m"] / meas["sinkage_m"] - 1.0
-        print(f"\n### {wheel} wheel (soil preset {WHEELS[wheel][0]})\n")
+        how = "simulated test bed" if args.bed else "steady state"
+        print(f"\n### {wheel} wheel (soil preset {WHEELS[wheel][0]}, {how})\n")
         print(
             "| slip | load [N] | DP/W measured | DP/W model | sinkage measured [mm]"
             " | sinkage model [mm] | sinkage error |"

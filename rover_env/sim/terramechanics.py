@@ -40,7 +40,10 @@ Choices where the literature is silent, all documented in ``docs/terramechanics.
   Bekker's curve again (Wong 2008, Sec. 2.4.4). The rut's surface is ``d``.
 - At rest the contact is symmetric: below ``rest_speed`` the stress shape blends to
   ``theta_m = 0, theta_r = -theta_f``, so a wheel standing on level soil feels no horizontal
-  force and does not creep.
+  force and does not creep; and its shear displacement blends from the kinematic one of a
+  rolling wheel to the one it has accumulated since it stopped (``hold_x``, ``hold_y``), which
+  holds it on a slope as static friction would, without the chatter of a friction law that
+  jumps at zero speed.
 
 Every function is vectorised over wheels: arrays of one shape in, arrays of that shape out.
 """
@@ -175,24 +178,27 @@ def _sign(x):  # pragma: no cover (compiled)
 
 
 @_compiled
-def _contact_kernel(p, h, vx_in, w_in, vy, zp, jprev, n_theta, out):  # pragma: no cover (compiled)
-    """The contact integrals of every wheel; ``p`` the packed parameters (see ``_params``)."""
+def _contact_kernel(
+    p, h, slip, side, sin_beta, moving_in, direction, zp, jprev, hold_x, hold_y, n_theta, out
+):  # pragma: no cover (compiled)
+    """The contact integrals of every wheel; ``p`` the packed parameters (see ``_params``).
+
+    Per wheel, in its travel frame (``direction`` -1 mirrors a wheel rolling backward): the
+    slip ratio, the side slip ``side`` (j_y = r (theta_f - theta) side), sin of the slip angle
+    (side-wall bulldozing), how far it is from rest (``moving``, 0..1), the rut (``zp``,
+    ``jprev``) and the held shear (``hold_x``, ``hold_y``), the last three in the caller's frame.
+    """
     r, rs, b, mu, kb, n0, n_slip, n_skid = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
     c, tan_phi, k_x, k_y, a0, a1, b0, b1 = p[8], p[9], p[10], p[11], p[12], p[13], p[14], p[15]
-    k0, au, rest, d1, d2, rho_g = p[16], p[17], p[18], p[19], p[20], p[21]
+    k0, au, d1, d2, rho_g = p[16], p[17], p[18], p[19], p[20]
     for i in range(h.shape[0]):
         for k in range(out.shape[1]):
             out[i, k] = 0.0
-        # mirror a wheel rolling backward onto one rolling forward
-        d = -1.0 if r * w_in[i] + vx_in[i] < 0.0 else 1.0
-        vx, w, jp = vx_in[i] * d, w_in[i] * d, jprev[i] * d
-        rim = r * w
-        driving = rim >= vx
-        if driving:
-            s = (rim - vx) / rim if rim > 0.0 else 0.0
-        else:
-            s = (rim - vx) / max(vx, 1e-12)
-        s = min(max(s, -1.0), 1.0)
+        d = direction[i]
+        jp, hx = jprev[i] * d, hold_x[i] * d
+        s = min(max(slip[i], -1.0), 1.0)
+        driving = s >= 0.0
+        moving = min(max(moving_in[i], 0.0), 1.0)
         out[i, 4] = s
         n = n0 + (n_slip * s if s >= 0.0 else -n_skid * s)
         z_p = max(zp[i], 0.0)
@@ -205,7 +211,6 @@ def _contact_kernel(p, h, vx_in, w_in, vy, zp, jprev, n_theta, out):  # pragma: 
         if depth_in <= 0.0:
             continue
         tf = math.acos(min(max(1.0 - depth_in / rs, -1.0), 1.0))
-        moving = min(max(max(abs(vx), abs(rim)) / rest, 0.0), 1.0)
         sd = max(s, 0.0)
         tm = moving * (a0 + a1 * sd) * tf
         if b0 >= 0.0:
@@ -216,15 +221,11 @@ def _contact_kernel(p, h, vx_in, w_in, vy, zp, jprev, n_theta, out):  # pragma: 
             rear = math.acos(min(max(1.0 - max(depth_in - rebound, 0.0) / rs, -1.0), 1.0))
         tr = -((1.0 - moving) * tf + moving * rear)
         cos_f, sin_f = math.cos(tf), math.sin(tf)
-        # braking: v/omega capped (a locked wheel shears the soil fully anyway)
-        vw = min(vx / max(w, vx / (r * MAX_SKID_RATIO) + 1e-300), r * MAX_SKID_RATIO)
+        # braking: v / (r omega) capped (a locked wheel shears the soil fully anyway)
+        vw = r * min(1.0 / max(1.0 + s, 1e-300), MAX_SKID_RATIO)
         t0 = tf * (1.0 + 0.5 * min(s, 0.0))
         sin_0 = math.sin(t0)
         chord = (sin_f - sin_0) / (tf - t0) if tf > t0 else cos_f
-        w_lat = max(max(abs(w), abs(vx) / r), 1e-9)
-        vjy = -vy[i]
-        speed = math.hypot(vx, vy[i])
-        sin_beta = vy[i] / speed if speed > 0.0 else 0.0
         span = (tf - tr) / (n_theta - 1)
         fx = fz = fy_t = fy_b = tq = 0.0
         for k in range(n_theta):
@@ -236,18 +237,19 @@ def _contact_kernel(p, h, vx_in, w_in, vy, zp, jprev, n_theta, out):  # pragma: 
             if mu < 1.0:
                 sig = mu * sig + (1.0 - mu) * _pressure(kb, n, k0, au, r * gap + surf, z_p, surf)
             sin_t, cos_t = math.sin(th), math.cos(th)
-            # shear displacement along the wheel, and the slip velocity that sets its sign
+            # shear displacement along the wheel, signed by the slip velocity there
             if driving:
-                jx0 = r * (tf - th) - (vx / w) * (sin_f - sin_t) if w > 0.0 else 0.0
-                vjx = rim - vx * cos_t
+                jx0 = r * ((tf - th) - (1.0 - s) * (sin_f - sin_t))
+                vjx = 1.0 - (1.0 - s) * cos_t
             elif th > t0:
                 jx0 = vw * ((tf - th) * chord - (sin_f - sin_t))
-                vjx = vx * (chord - cos_t)
+                vjx = chord - cos_t
             else:
                 jx0 = r * (t0 - th) - vw * (sin_0 - sin_t)
-                vjx = rim - vx * cos_t
-            jx = _sign(vjx) * abs(jx0) + jp  # earlier passes' shear stays in the soil
-            jy = _sign(vjy) * abs((tf - th) * vjy / w_lat)
+                vjx = (1.0 + s) - cos_t
+            # rolling: the kinematic displacement; at rest: the held one; earlier passes' stays
+            jx = moving * _sign(vjx) * abs(jx0) + (1.0 - moving) * hx + jp
+            jy = moving * r * (tf - th) * side[i] + (1.0 - moving) * hold_y[i]
             mob = 1.0 - math.exp(-math.hypot(jx / k_x, jy / k_y))
             jn = math.hypot(jx, jy)
             tau = (c + sig * tan_phi) * mob
@@ -265,14 +267,14 @@ def _contact_kernel(p, h, vx_in, w_in, vy, zp, jprev, n_theta, out):  # pragma: 
                 out[i, 8] = jx * d
         out[i, 0] = rs * b * fx * d
         out[i, 1] = rs * b * fz
-        out[i, 2] = rs * b * fy_t - sin_beta * fy_b
+        out[i, 2] = rs * b * fy_t - sin_beta[i] * fy_b
         out[i, 3] = rs * rs * b * tq * d
         out[i, 5] = tf
         out[i, 6] = tr
         out[i, 7] = tm
 
 
-def _params(soil: SoilConfig, wheel: WheelSpec, rest_speed: float) -> np.ndarray:
+def _params(soil: SoilConfig, wheel: WheelSpec) -> np.ndarray:
     phi = math.radians(soil.friction_deg)
     xc = math.radians(soil.destructive_deg)
     d1 = 1.0 / math.tan(xc) + math.tan(xc + phi)
@@ -298,12 +300,37 @@ def _params(soil: SoilConfig, wheel: WheelSpec, rest_speed: float) -> np.ndarray
             soil.rear_b1,
             soil.unload_k0,
             soil.unload_au,
-            max(rest_speed, 1e-9),
             d1,
             d2,
             soil.density * GRAVITY,
         ]
     )
+
+
+def slip_state(radius: float, v_x, omega, v_y, rest_speed: float):
+    """A wheel's slip from its velocities (vectorised), as the contact integrals take it.
+
+    Returns:
+        ``(slip, side, sin_beta, moving, direction)``: the slip ratio in [-1, 1] (driving
+        (r omega - v)/(r omega), braking (r omega - v)/v, in the travel direction); the side
+        slip ``-v_y / max(|r omega|, |v_x|)``; sin of the slip angle; how far from rest, 0..1
+        (``max(|v_x|, |r omega|) / rest_speed``); the travel direction, +1 or -1 (-1: rolling
+        backward, mirrored).
+    """
+    vx = np.asarray(v_x, dtype=np.float64)
+    w = np.asarray(omega, dtype=np.float64)
+    vy = np.asarray(v_y, dtype=np.float64)
+    d = np.where(radius * w + vx < 0.0, -1.0, 1.0)
+    fwd, rim = vx * d, radius * w * d
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(
+            rim >= fwd, np.where(rim > 0.0, (rim - fwd) / rim, 0.0), (rim - fwd) / np.maximum(fwd, 1e-12)
+        )
+        side = -vy / np.maximum(np.maximum(np.abs(rim), np.abs(fwd)), 1e-9 * radius)
+        speed = np.hypot(vx, vy)
+        sin_beta = np.where(speed > 0.0, vy / speed, 0.0)
+    moving = np.clip(np.maximum(np.abs(fwd), np.abs(rim)) / max(rest_speed, 1e-9), 0.0, 1.0)
+    return np.clip(s, -1.0, 1.0), side, sin_beta, moving, d
 
 
 def contact_forces(
@@ -316,6 +343,8 @@ def contact_forces(
     *,
     prior=0.0,
     prior_shear=0.0,
+    hold_x=0.0,
+    hold_y=0.0,
     rest_speed: float = 0.005,
     n_theta: int = 48,
 ) -> ContactForces:
@@ -332,20 +361,46 @@ def contact_forces(
         prior_shear: The shear displacement earlier passes left in the soil there, along this
             wheel's heading [m] (Wong's cumulative shear of multi-axle vehicles): a wheel in a
             rut starts from it.
+        hold_x: The shear displacement of a wheel at rest along it [m]: the slip it has
+            accumulated since it stopped (:class:`rover_env.sim.soil_contact.SoilContact`
+            integrates it), which holds it the way static friction would.
+        hold_y: The same across the wheel [m].
         rest_speed: Below this speed of the centre and the rim [m/s] the contact blends to the
-            symmetric shape of a wheel at rest.
+            symmetric shape of a wheel at rest, and the shear to the held one.
         n_theta: Integration nodes along the contact arc (at least 3).
 
     Returns:
         :class:`ContactForces`, arrays of the inputs' broadcast shape.
     """
-    args = np.broadcast_arrays(
-        *(np.asarray(a, dtype=np.float64) for a in (sinkage, v_x, omega, v_y, prior, prior_shear))
+    h, vx, w, vy, zp, jp, hx, hy = (
+        np.ascontiguousarray(a.reshape(-1), dtype=np.float64)
+        for a in np.broadcast_arrays(
+            *(
+                np.asarray(a, dtype=np.float64)
+                for a in (sinkage, v_x, omega, v_y, prior, prior_shear, hold_x, hold_y)
+            )
+        )
     )
-    shape = args[0].shape
-    flat = [np.ascontiguousarray(a.reshape(-1)) for a in args]
-    out = np.empty((flat[0].shape[0], 9))
-    _contact_kernel(_params(soil, wheel, rest_speed), *flat, max(int(n_theta), 3), out)
+    shape = np.broadcast_shapes(
+        *(np.shape(a) for a in (sinkage, v_x, omega, v_y, prior, prior_shear, hold_x, hold_y))
+    )
+    slip, side, sin_beta, moving, direction = slip_state(wheel.radius, vx, w, vy, rest_speed)
+    out = np.empty((h.shape[0], 9))
+    _contact_kernel(
+        _params(soil, wheel),
+        h,
+        slip,
+        side,
+        sin_beta,
+        moving,
+        direction,
+        zp,
+        jp,
+        hx,
+        hy,
+        max(int(n_theta), 3),
+        out,
+    )
     o = [out[:, k].reshape(shape) for k in range(9)]
     return ContactForces(
         drawbar_pull=o[0],

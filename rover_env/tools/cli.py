@@ -427,6 +427,12 @@ def _need_fps(args: argparse.Namespace) -> None:
         )
 
 
+def _cmd_wheel_test(args: argparse.Namespace) -> int:
+    from rover_env.tools.wheel_test import PRODUCTS, run
+
+    return run(args, _prepare_out(args.out, PRODUCTS, args.overwrite))
+
+
 def _cmd_scenarios(args: argparse.Namespace) -> int:
     from rover_env.config.scenario import list_scenarios, load_scenario
 
@@ -460,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rover",
         description="Camera-based state estimation and slip-aware driving of planetary rovers: "
-        "demo, eval, train, bench, odometry, kinematics, scenarios.",
+        "demo, eval, train, bench, odometry, kinematics, replay, wheel-test, scenarios.",
     )
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = p.add_subparsers(dest="command", required=True)
@@ -667,6 +673,33 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output folder (estimates.csv)")
     r.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     r.set_defaults(func=_cmd_replay)
+    wt = sub.add_parser(
+        "wheel-test", formatter_class=fmt,
+        help="single-wheel test bed on soil: drawbar pull, sinkage and torque against slip",
+    )  # fmt: skip
+    wt.add_argument(
+        "--soil", required=True,
+        help="a soil preset (toyoura, lunar_regolith, mars_simulant, dry_sand, ...) or a YAML file",
+    )  # fmt: skip
+    wt.add_argument("--radius", type=_float_in(0.0, 10.0), required=True, help="wheel radius to the rim [m]")
+    wt.add_argument("--width", type=_float_in(0.0, 10.0), required=True, help="wheel width [m]")
+    wt.add_argument("--load", type=float, required=True, help="vertical load on the wheel [N]")
+    wt.add_argument("--grousers", type=int, default=0, help="number of grousers")
+    wt.add_argument("--grouser-height", type=float, default=0.0, help="grouser height [m]")
+    wt.add_argument(
+        "--grouser-thickness", type=float, default=None, help="grouser tip thickness [m] (default 0.003)"
+    )
+    wt.add_argument(
+        "--slips", type=float, nargs="+", required=True, metavar="S",
+        help="slip ratios in [-1, 1] (negative: braking)",
+    )  # fmt: skip
+    wt.add_argument("--speed", type=_float_in(0.0, 10.0), default=0.01, help="carriage speed [m/s]")
+    wt.add_argument(
+        "--distance", type=_float_in(0.0, 100.0), default=1.0, help="carriage travel per slip [m]"
+    )
+    wt.add_argument("--out", required=True, help="output folder (wheel_test.csv, wheel_test.png)")
+    wt.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
+    wt.set_defaults(func=_cmd_wheel_test)
     s = sub.add_parser("scenarios", formatter_class=fmt, help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
     return p

@@ -1,0 +1,61 @@
+"""``rover wheel-test``: the single-wheel test bed, its CSV and its plot."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rover_env.config.soil import load_soil
+from rover_env.sim.terramechanics import WheelSpec
+from rover_env.sim.wheel_test import WheelTestRow, run_wheel_test, wheel_test_table
+
+PRODUCTS = ("wheel_test.csv", "wheel_test.png")
+
+
+def write_plot(rows: list[WheelTestRow], path: Path, title: str) -> None:
+    """Drawbar pull over load, and sinkage, against slip (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = [r.slip for r in rows]
+    fig, (a, b) = plt.subplots(2, 1, figsize=(6, 6), sharex=True)
+    a.plot(s, [r.drawbar_pull_N / r.load_N for r in rows], "o-")
+    a.axhline(0.0, color="0.5", lw=0.8)
+    a.set_ylabel("drawbar pull / load")
+    a.grid(alpha=0.3)
+    b.plot(s, [1e3 * r.sinkage_m for r in rows], "o-")
+    b.set_ylabel("sinkage [mm]")
+    b.set_xlabel("slip")
+    b.grid(alpha=0.3)
+    a.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace, out: Path) -> int:
+    """Run the test bed from the parsed ``rover wheel-test`` arguments into ``out``."""
+    soil = load_soil(args.soil)
+    wheel = WheelSpec(
+        radius=args.radius,
+        width=args.width,
+        grousers=args.grousers,
+        grouser_height=args.grouser_height,
+        **({} if args.grouser_thickness is None else {"grouser_thickness": args.grouser_thickness}),
+    )
+    rows = run_wheel_test(soil, wheel, args.load, args.slips, speed=args.speed, distance=args.distance)
+    (out / "wheel_test.csv").write_text(wheel_test_table(rows))
+    title = (
+        f"soil {soil.name}, r {args.radius} m, b {args.width} m, load {args.load} N, "
+        f"{args.grousers} grousers x {args.grouser_height} m, {args.speed} m/s"
+    )
+    write_plot(rows, out / "wheel_test.png", title)
+    print(f"{'slip':>6} {'DP/W':>7} {'sinkage mm':>10} {'torque Nm':>9}")
+    for r in rows:
+        print(
+            f"{r.slip:+6.2f} {r.drawbar_pull_N / r.load_N:+7.3f} {1e3 * r.sinkage_m:10.2f} {r.torque_Nm:9.4f}"
+        )
+    print(f"wrote {out / 'wheel_test.csv'} and {out / 'wheel_test.png'}")
+    return 0
