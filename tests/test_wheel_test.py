@@ -84,6 +84,27 @@ def test_at_rest_on_level_soil_a_wheel_settles_at_the_pressure_sinkage_equilibri
         bed.close()
 
 
+def test_a_braked_wheel_settled_on_soil_creeps_into_its_hold_when_tilted_and_stands():
+    soil, bed = _free_bed("toyoura")
+    try:
+        for _ in range(240 * 2):  # settle on level soil, then tilt it by 15 degrees
+            bed._substep()
+        a = math.radians(15.0)
+        bed.c.setGravity(9.81 * math.sin(a), 0.0, -9.81 * math.cos(a))
+        x = []
+        for _ in range(240 * 6):
+            bed._substep()
+            x.append(_carriage_x(bed))
+        x = np.array(x)
+        assert 0.0 < x[-1] < 2.0 * soil.shear_modulus  # crept into its hold, a few cm at most
+        assert np.ptp(x[-480:]) < 1e-4  # then stands: under 0.1 mm in the last two seconds
+        # the soil holds the downhill weight of everything the carriage carries
+        carried = sum(bed.c.getDynamicsInfo(bed.body, link)[0] for link in (0, 1, 2))
+        assert -bed.soil.last[0, 0] == pytest.approx(carried * 9.81 * math.sin(a), rel=0.01)
+    finally:
+        bed.close()
+
+
 def test_a_wheel_dropped_on_soil_settles_without_bouncing_back_up():
     soil, bed = _free_bed("dry_sand")
     try:

@@ -165,7 +165,9 @@ class _Bed:
             self._substep()
         self._settled = self.c.saveState()
         soil = self.soil
-        self._soil_state = tuple(a.copy() for a in (soil.hold, soil.deflection, soil.rolled, soil.last))
+        self._soil_state = tuple(
+            a.copy() for a in (soil.hold, soil.deflection, soil.rolled, soil.last, soil._travel, soil._turn)
+        )
 
     def run(self, slip: float, speed: float, duration: float) -> WheelTestRow:
         self.c.restoreState(self._settled)
