@@ -34,7 +34,7 @@ import numpy as np
 
 from rover_env.config.io import check_range
 from rover_env.config.soil import SoilConfig
-from rover_env.sim.terramechanics import WheelSpec, _contact_kernel, _params
+from rover_env.sim.terramechanics import N_PARAMS, WheelSpec, _contact_kernel, _params
 
 __all__ = ["SoilContact"]
 
@@ -74,7 +74,7 @@ class SoilContact:
         self.damping = float(damping)
         self.shear_damping = float(shear_damping)
         self.n_theta = max(int(n_theta), 3)
-        self._p = _params(soil, wheel)
+        self._p = np.ascontiguousarray(np.broadcast_to(_params(soil, wheel), (self.n, N_PARAMS)))
         self._cap = HOLD_CAP * max(soil.shear_modulus, soil.shear_modulus_lateral)
         self._out = np.zeros((self.n, 9))
         self._zeros = np.zeros(self.n)

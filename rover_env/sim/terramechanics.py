@@ -181,17 +181,18 @@ def _sign(x):  # pragma: no cover (compiled)
 def _contact_kernel(
     p, h, slip, side, sin_beta, moving_in, direction, zp, jprev, hold_x, hold_y, n_theta, out
 ):  # pragma: no cover (compiled)
-    """The contact integrals of every wheel; ``p`` the packed parameters (see ``_params``).
+    """The contact integrals of every wheel; ``p`` (n, 21) its soil's and wheel's parameters (``_params``).
 
     Per wheel, in its travel frame (``direction`` -1 mirrors a wheel rolling backward): the
     slip ratio, the side slip ``side`` (j_y = r (theta_f - theta) side), sin of the slip angle
     (side-wall bulldozing), how far it is from rest (``moving``, 0..1), the rut (``zp``,
     ``jprev``) and the held shear (``hold_x``, ``hold_y``), the last three in the caller's frame.
     """
-    r, rs, b, mu, kb, n0, n_slip, n_skid = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
-    c, tan_phi, k_x, k_y, a0, a1, b0, b1 = p[8], p[9], p[10], p[11], p[12], p[13], p[14], p[15]
-    k0, au, d1, d2, rho_g = p[16], p[17], p[18], p[19], p[20]
     for i in range(h.shape[0]):
+        q = p[i]
+        r, rs, b, mu, kb, n0, n_slip, n_skid = q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7]
+        c, tan_phi, k_x, k_y, a0, a1, b0, b1 = q[8], q[9], q[10], q[11], q[12], q[13], q[14], q[15]
+        k0, au, d1, d2, rho_g = q[16], q[17], q[18], q[19], q[20]
         for k in range(out.shape[1]):
             out[i, k] = 0.0
         d = direction[i]
@@ -274,7 +275,11 @@ def _contact_kernel(
         out[i, 7] = tm
 
 
+N_PARAMS = 21
+
+
 def _params(soil: SoilConfig, wheel: WheelSpec) -> np.ndarray:
+    """The kernel's parameter row of a soil and a wheel."""
     phi = math.radians(soil.friction_deg)
     xc = math.radians(soil.destructive_deg)
     d1 = 1.0 / math.tan(xc) + math.tan(xc + phi)
@@ -386,8 +391,9 @@ def contact_forces(
     )
     slip, side, sin_beta, moving, direction = slip_state(wheel.radius, vx, w, vy, rest_speed)
     out = np.empty((h.shape[0], 9))
+    params = np.ascontiguousarray(np.broadcast_to(_params(soil, wheel), (h.shape[0], N_PARAMS)))
     _contact_kernel(
-        _params(soil, wheel),
+        params,
         h,
         slip,
         side,
