@@ -131,6 +131,11 @@ class FrictionPatch:
         radius: Circle radius [m].
         slip_loss: Loose soil: the share of ``mu`` a wheel loses by digging in when it spins
             (or skids) fully (0: firm ground). See :class:`FrictionMapConfig`.
+        soil: Deformable soil in the region: a soil preset (``toyoura``, ``lunar_regolith``,
+            ``mars_simulant``, ``dry_sand``, ...), a YAML file or a mapping
+            (:class:`rover_env.config.soil.SoilConfig`). Wheels there sink and shear the soil
+            (:mod:`rover_env.sim.terramechanics`) instead of touching the rigid ground; ``mu``
+            and ``slip_loss`` do not apply to them. None: rigid ground.
     """
 
     mu: float
@@ -140,10 +145,15 @@ class FrictionPatch:
     yaw_deg: float = 0.0
     radius: float = 1.0
     slip_loss: float = 0.0
+    soil: Any = None
 
     def __post_init__(self) -> None:
         check_range("mu", self.mu, 0.05, 1.5)
         check_range("slip_loss", self.slip_loss, 0.0, 0.9)
+        if self.soil is not None:
+            from rover_env.config.soil import SoilConfig
+
+            object.__setattr__(self, "soil", SoilConfig.from_dict(self.soil))
         for i, v in enumerate(self.size):
             check_range(f"size[{i}]", v, 0.0, 1000.0, lo_open=True)
         check_range("radius", self.radius, 0.0, 1000.0, lo_open=True)

@@ -20,6 +20,7 @@ from rover_env.sim.urdf import urdf_file
 if TYPE_CHECKING:
     from pybullet_utils.bullet_client import BulletClient
 
+    from rover_env.sim.soil_contact import SoilGround
     from rover_env.sim.terrain import Terrain
 
 
@@ -133,6 +134,9 @@ class Rover:
             )
         self._mu = [-1.0] * 4
         self.dig = np.zeros(4)  # how far each wheel has dug into loose soil (0-1)
+        #: The deformable soil under the wheels (:meth:`attach_soil`), or None.
+        self.soil: SoilGround | None = None
+        self._on_soil = [False] * 4
         self.wheel_rate_cmd = np.zeros(4)
         self.steer_cmd = np.zeros(2)
 
@@ -146,6 +150,12 @@ class Rover:
             c.resetJointState(self.body_id, j, 0.0, 0.0)
         self._mu = [-1.0] * 4
         self.dig = np.zeros(4)
+        if self.soil is not None:
+            self.soil.reset()
+            for i, link in enumerate(self.wheel_links):  # every wheel on the rigid ground again
+                if self._on_soil[i]:
+                    c.setCollisionFilterPair(self.body_id, self._terrain_id, link, -1, 1)
+                    self._on_soil[i] = False
         self.command(np.zeros(4), 0.0, 0.0)
 
     def command(self, wheel_rates: np.ndarray, steer_front: float, steer_rear: float) -> None:
@@ -208,6 +218,49 @@ class Rover:
             if mu != current[i]:
                 self.client.changeDynamics(self.body_id, self.wheel_links[i], lateralFriction=mu)
                 current[i] = mu
+
+    def attach_soil(self, terrain: Terrain, dt: float) -> None:
+        """Let the wheels sink into ``terrain``'s deformable soils at substep ``dt`` [s]."""
+        from rover_env.sim.soil_contact import SoilGround
+        from rover_env.sim.terramechanics import WheelSpec
+
+        g = self.geom
+        wheel = WheelSpec(radius=g.wheel_radius, width=g.wheel_width)
+        self.soil = SoilGround(list(terrain.friction.soils), wheel, 4, dt)
+        self._terrain_id = terrain.body_id
+        cid = self.client._client
+        self._push = partial(pb.applyExternalForce, physicsClientId=cid)
+        self._turn = partial(pb.applyExternalTorque, physicsClientId=cid)
+
+    def apply_soil(self, terrain: Terrain) -> None:
+        """Forces of the soil on the wheels standing on it (call every substep, before stepping).
+
+        A wheel over a soil patch stops colliding with the rigid ground and is carried by the
+        soil instead (:class:`rover_env.sim.soil_contact.SoilGround`).
+        """
+        soil = self.soil
+        if soil is None:
+            return
+        wheels = np.array(
+            [(*st[4], *st[5], *st[6], *st[7]) for st in self._read_wheels_with_velocity()]
+        )  # per wheel: frame origin, frame orientation, velocity, angular velocity
+        cx, cy = wheels[:, 0], wheels[:, 1]
+        ground = terrain.height_at(cx, cy)
+        normal = terrain.normal_at(cx, cy)
+        fmap = terrain.friction
+        index = [fmap.soil_at(x, y) for x, y in zip(cx.tolist(), cy.tolist())]
+        c = self.client
+        for i, link in enumerate(self.wheel_links):
+            on = index[i] >= 0
+            if on != self._on_soil[i]:
+                c.setCollisionFilterPair(self.body_id, terrain.body_id, link, -1, int(not on))
+                self._on_soil[i] = on
+        force, torque = soil.step(index, wheels, ground, normal)
+        push, turn = self._push, self._turn
+        for i, link in enumerate(self.wheel_links):
+            if index[i] >= 0:
+                push(self.body_id, link, force[i].tolist(), wheels[i, :3].tolist(), pb.WORLD_FRAME)
+                turn(self.body_id, link, torque[i].tolist(), pb.WORLD_FRAME)
 
     def _wheel_velocities(self) -> tuple[list[float], list[float]]:
         """Per wheel: centre velocity along its knuckle's x (rolling) and y (lateral) axes [m/s]."""

@@ -125,6 +125,8 @@ class RoverSim:
         c.setGravity(0, 0, -9.81)
         self.terrain = Terrain(c, scenario.terrain, scenario.friction)
         self.rover = Rover(c, self.geometry)
+        if self.terrain.friction.soils:
+            self.rover.attach_soil(self.terrain, self.dt)
         self._steps = 0
         self._step_physics: Callable[[], None] = partial(pb.stepSimulation, physicsClientId=c._client)
         self._state_id = c.saveState()
@@ -222,6 +224,8 @@ class RoverSim:
         rover = self.rover
         rover.apply_passive()
         rover.apply_friction(self.terrain)
+        if rover.soil is not None:  # wheels on deformable soil: its forces, not the ground's contact
+            rover.apply_soil(self.terrain)
         self._step_physics()
         if self.terrain.friction.loose:  # the soil under spinning wheels gives way
             rover.update_dig(self.terrain)

@@ -55,7 +55,17 @@ class FrictionMap:
                 )
             )
         #: Whether any patch is loose soil (grip lost to slip, :class:`FrictionMapConfig`).
-        self.loose = any(p.slip_loss > 0 for p in cfg.patches)
+        self.loose = any(p.slip_loss > 0 and p.soil is None for p in cfg.patches)
+        #: The deformable soils of the patches (:mod:`rover_env.sim.terramechanics`), each once.
+        self.soils: list = []
+        self._soil_of: list[int] = []
+        for p in cfg.patches:
+            if p.soil is None:
+                self._soil_of.append(-1)
+                continue
+            if p.soil not in self.soils:
+                self.soils.append(p.soil)
+            self._soil_of.append(self.soils.index(p.soil))
         #: Factor on every friction coefficient of the map (domain randomisation; 1: as configured).
         self.scale = 1.0
 
@@ -74,6 +84,18 @@ class FrictionMap:
             elif abs(c * dx + s * dy) <= hx and abs(-s * dx + c * dy) <= hy:
                 mu, loss = pmu, ploss
         return mu * self.scale, loss
+
+    def soil_at(self, x: float, y: float) -> int:
+        """Index into :attr:`soils` of the deformable soil at world (x, y) [m]; -1: rigid ground."""
+        soil = -1
+        for k, (circle, cx, cy, c, s, hx, hy, r2, _, _) in enumerate(self._patches):
+            dx, dy = x - cx, y - cy
+            if circle:
+                if dx * dx + dy * dy <= r2:
+                    soil = self._soil_of[k]
+            elif abs(c * dx + s * dy) <= hx and abs(-s * dx + c * dy) <= hy:
+                soil = self._soil_of[k]
+        return soil
 
     def dig(self, slip_ratio: np.ndarray, slip_speed: np.ndarray) -> np.ndarray:
         """How far each wheel has dug in (0-1) at slip ratios and slip speeds [m/s] (see the config)."""
@@ -331,6 +353,18 @@ class Terrain:
         z_low = h00 + u * (h10 - h00) + v * (h01 - h00)
         z_high = h11 + (1 - u) * (h01 - h11) + (1 - v) * (h10 - h11)
         return np.where(u + v <= 1.0, z_low, z_high)
+
+    def normal_at(self, x: float | np.ndarray, y: float | np.ndarray, step: float = 0.01) -> np.ndarray:
+        """Unit normal of the ground at world (x, y) [m] (central differences over ``step`` m), (..., 3)."""
+        if self.heights is None:
+            shape = np.broadcast(x, y).shape
+            return np.tile(self.plane_normal, (int(np.prod(shape)), 1)).reshape(shape + (3,))
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        gx = (self.height_at(x + step, y) - self.height_at(x - step, y)) / (2 * step)
+        gy = (self.height_at(x, y + step) - self.height_at(x, y - step)) / (2 * step)
+        n = np.stack([-gx, -gy, np.ones_like(gx)], axis=-1)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
     def contains(self, x: float, y: float, margin: float = 0.5) -> bool:
         """True if (x, y) lies on the terrain at least ``margin`` m from its edge."""
