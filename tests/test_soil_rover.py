@@ -14,7 +14,7 @@ from rover_env.config.scenario import FrictionPatch
 from rover_env.config.soil import load_soil
 from rover_env.sim.geometry import GRAVITY
 from rover_env.sim.simulation import RoverSim
-from rover_env.sim.terramechanics import WheelSpec, contact_forces, steady_state
+from rover_env.sim.terramechanics import WheelSpec, contact_forces, rut_surface, steady_state
 
 SOIL = "toyoura"
 
@@ -56,28 +56,44 @@ def test_a_rover_on_soil_rests_at_the_static_sinkage_and_does_not_creep():
 
 @pytest.mark.parametrize("slope_deg", [6.0, 12.0])
 def test_a_rover_climbing_soil_slips_as_the_single_wheel_model_predicts(slope_deg):
-    # Four driven wheels at one rate: each must pull tan(slope) of its load. The slip at which
-    # the single-wheel steady state does so is the rover's slip (loads taken equal).
+    # Four wheels driven at one rate up a slope: together they pull the weight's downhill part.
+    # Predicted from the single-wheel steady states at one slip: the front wheels on fresh
+    # soil, the rear ones in the front wheels' ruts (their sinkage and the shear they leave),
+    # each pair at the load the simulation puts on it.
     sim = _soil_sim(slope_deg)
     try:
         sim.reset(0.0, 0.0, 0.0)
         g = sim.geometry
         sim.rover.command(np.full(4, 0.3 / g.wheel_radius), 0.0, 0.0)
-        sim.step(5.0)
-        slips = []
-        for _ in range(120):
-            sim.step(1 / 40)
+        # The rear wheels meet the ruts the front ones left 3 s before, and their traction
+        # follows the shear left there: the slip swings slowly about its mean (a period of
+        # about two delays, decaying). Averaged over two periods.
+        sim.step(10.0)
+        slips, loads, sinks = [], [], []
+        for _ in range(240):
+            sim.step(1 / 20)
             slips.append(sim.ground_truth().slip_ratio.copy())
+            loads.append(sim.rover.soil.contact.last[:, 1].copy())
+            sinks.append(sim.rover.soil.sinkage.copy())
         slip = float(np.mean(slips))
+        load = np.mean(loads, axis=0)
+        sink = np.mean(sinks, axis=0)
         a = math.radians(slope_deg)
-        load = _mass(g) * GRAVITY * math.cos(a) / 4
-        s = np.linspace(0.0, 0.6, 601)
-        pull = steady_state(load_soil(SOIL), _wheel(g), load, s, speed=0.3).drawbar_pull / load
-        predicted = s[np.argmax(pull >= math.tan(a))]
-        assert 0.05 < predicted < 0.4
-        assert slip == pytest.approx(predicted, abs=0.015)
-        sink = sim.rover.soil.sinkage
-        assert sink[2:].min() > sink[:2].max()  # the load shifts to the rear wheels uphill
+        assert load.sum() == pytest.approx(_mass(g) * GRAVITY * math.cos(a), rel=0.005)
+        front_load, rear_load = load[:2].mean(), load[2:].mean()
+        s = np.linspace(0.0, 0.5, 251)
+        soil, wheel = load_soil(SOIL), _wheel(g)
+        front = steady_state(soil, wheel, front_load, s, speed=0.3)
+        rear = steady_state(
+            soil, wheel, rear_load, s, speed=0.3, prior=front.sinkage, prior_shear=front.shear_exit
+        )
+        pull = (front.drawbar_pull + rear.drawbar_pull) / (front_load + rear_load)
+        k = int(np.argmax(pull >= math.tan(a)))
+        assert 0 < k < len(s) - 1
+        assert slip == pytest.approx(s[k], abs=0.02)
+        assert sink[:2] == pytest.approx(np.full(2, front.sinkage[k]), rel=0.03)
+        assert sink[2:] == pytest.approx(np.full(2, rear.sinkage[k]), rel=0.03)
+        assert sink[2:].min() > sink[:2].max()  # the rear wheels sink on into the ruts
     finally:
         sim.close()
 
@@ -104,3 +120,29 @@ def test_a_patch_names_its_soil_and_bad_soils_are_refused():
         FrictionPatch(mu=0.5, center=(0.0, 0.0), soil={"preset": "toyoura", "friction_deg": 91})
     with pytest.raises(ConfigError, match="choose one of"):
         FrictionPatch(mu=0.5, center=(0.0, 0.0), soil="quicksand")
+
+
+def test_the_wheels_leave_ruts_as_deep_as_they_sank():
+    sim = _soil_sim()
+    try:
+        sim.reset(0.0, 0.0, 0.0)
+        g = sim.geometry
+        sim.rover.command(np.full(4, 0.3 / g.wheel_radius), 0.0, 0.0)
+        nbytes = sim.rover.ruts.nbytes
+        sinks = []
+        for _ in range(40):
+            sim.step(0.1)
+            sinks.append(sim.rover.soil.sinkage.copy())
+        rear_sink = np.mean(sinks[-10:], axis=0)[2:]
+        wheels = np.array([st[4] for st in sim.rover._read_wheels()])
+        # behind the rear wheels, along their tracks: pressed as deep as they sank
+        behind = wheels[2:, :2] - np.array([0.3, 0.0])
+        pressed = sim.rover.ruts.sample(behind)[:, 0]
+        assert pressed == pytest.approx(rear_sink, rel=0.03)
+        rut = rut_surface(load_soil(SOIL), _wheel(g), pressed)
+        assert np.all(rut > 0.8 * rear_sink) and np.all(rut < rear_sink)  # rebounds a little
+        # beside the tracks the soil is untouched
+        assert np.all(sim.rover.ruts.sample(behind + np.array([0.0, 0.15]))[:, 0] == 0.0)
+        assert sim.rover.ruts.nbytes == nbytes  # the map's memory is fixed
+    finally:
+        sim.close()

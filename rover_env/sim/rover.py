@@ -13,6 +13,7 @@ from perception.drive_geometry import ackermann_arms, axle_steering_angles
 from perception.wheel_kinematics import slip_ratio
 from rover_env.sim.geometry import AXLES, GRAVITY, WHEELS, RoverGeometry
 from rover_env.sim.ground_truth import GroundTruth
+from rover_env.sim.ruts import RutMap
 from rover_env.sim.textures import tread_texture, write_cached
 from rover_env.sim.transforms import quat_to_matrix
 from rover_env.sim.urdf import urdf_file
@@ -152,6 +153,7 @@ class Rover:
         self.dig = np.zeros(4)
         if self.soil is not None:
             self.soil.reset()
+            self.ruts.reset(float(position[0]), float(position[1]))
             for i, link in enumerate(self.wheel_links):  # every wheel on the rigid ground again
                 if self._on_soil[i]:
                     c.setCollisionFilterPair(self.body_id, self._terrain_id, link, -1, 1)
@@ -227,6 +229,8 @@ class Rover:
         g = self.geom
         wheel = WheelSpec(radius=g.wheel_radius, width=g.wheel_width)
         self.soil = SoilGround(list(terrain.friction.soils), wheel, 4, dt)
+        #: What the wheels leave in the soil, around the rover (:class:`rover_env.sim.ruts.RutMap`).
+        self.ruts = RutMap()
         self._terrain_id = terrain.body_id
         cid = self.client._client
         self._push = partial(pb.applyExternalForce, physicsClientId=cid)
@@ -248,14 +252,23 @@ class Rover:
         ground = terrain.height_at(cx, cy)
         normal = terrain.normal_at(cx, cy)
         fmap = terrain.friction
-        index = [fmap.soil_at(x, y) for x, y in zip(cx.tolist(), cy.tolist())]
+        index = [fmap.soil_at(x, y) for x, y in zip(cx.tolist(), cy.tolist(), strict=True)]
         c = self.client
         for i, link in enumerate(self.wheel_links):
             on = index[i] >= 0
             if on != self._on_soil[i]:
                 c.setCollisionFilterPair(self.body_id, terrain.body_id, link, -1, int(not on))
                 self._on_soil[i] = on
-        force, torque = soil.step(index, wheels, ground, normal)
+        # the ruts: read where each wheel is about to meet the soil, pressed where it leaves it
+        ruts = self.ruts
+        x_, y_ = cx.tolist(), cy.tolist()
+        ruts.follow(sum(x_) / len(x_), sum(y_) / len(y_))
+        c_ = soil.contact
+        prior, shear, leave = ruts.meet(wheels, soil.frames, c_.last, c_.rolled, soil.wheel.shear_radius)
+        force, torque = soil.step(index, wheels, ground, normal, prior, shear)
+        ruts.press(
+            leave, soil.frames[:, 0, :2], self.geom.wheel_width, soil.sinkage, c_.last[:, 8], soil.index >= 0
+        )
         push, turn = self._push, self._turn
         for i, link in enumerate(self.wheel_links):
             if index[i] >= 0:

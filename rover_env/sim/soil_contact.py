@@ -30,135 +30,13 @@ slip. Stepping it in a simulation at 240 Hz needs three things more, all here:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from rover_env.config.io import check_range
 from rover_env.config.soil import SoilConfig
-from rover_env.sim.terramechanics import N_PARAMS, WheelSpec, _compiled, _contact_kernel, _params
+from rover_env.sim.terramechanics import N_PARAMS, WheelSpec, _ground_step, _params, _soil_step
 
 __all__ = ["SoilContact"]
-
-#: How far the held shear may grow, in shear moduli (the soil's strength is reached by then).
-HOLD_CAP = 5.0
-
-
-@_compiled
-def _advance(track, i, step, length):  # pragma: no cover (compiled)
-    """Move wheel ``i``'s ``track`` (position, front, back) by ``step``; the new ground reached."""
-    pos = track[i, 0] + step
-    front, back = track[i, 1], track[i, 2]
-    fresh = max(pos - front, 0.0) + max(back - pos, 0.0)
-    front = max(front, pos)
-    back = min(back, pos)
-    back = max(back, front - length)  # the worked stretch is at most a contact long
-    front = min(front, back + length)
-    track[i, 0], track[i, 1], track[i, 2] = pos, front, back
-    return fresh
-
-
-@_compiled
-def _soil_step(
-    p, h, vx, w, vy, sink_rate, zp, jprev, dt, damping, shear_damping, n_theta,
-    hold, deflection, rolled, travel, turn, work, out,
-):  # pragma: no cover (compiled)  # fmt: skip
-    """One substep of :class:`SoilContact` for every wheel: its soil state, then its forces."""
-    slip, side, sin_beta, moving, direction, rate_x, rate_y = (
-        work[0], work[1], work[2], work[3], work[4], work[5], work[6]
-    )  # fmt: skip
-    for i in range(h.shape[0]):
-        r, rs, k_x, k_y = p[i, 0], p[i, 1], p[i, 10], p[i, 11]
-        rim = r * w[i]
-        # the deflection relaxes over the contact's length (the last step's, or the sinkage's)
-        arc = rs * (out[i, 5] - out[i, 6])
-        if arc <= 0.0:
-            arc = 2.0 * rs * math.acos(min(max(1.0 - max(h[i], 0.0) / rs, -1.0), 1.0))
-        length = max(arc, 0.05 * r)
-        # new soil: travel past the stretch of ground (and of rim) the contact has already
-        # worked, at most a contact length; moving back and forth inside it brings none
-        fresh_x = _advance(travel, i, vx[i] * dt, length)
-        fresh = max(fresh_x, _advance(turn, i, rim * dt, length))
-        keep = math.exp(-fresh_x / length)
-        cap = 100.0 * length
-        jx = min(max(deflection[0, i] * keep + (rim - vx[i]) * dt, -cap), cap)
-        jy = min(max(deflection[1, i] * keep - vy[i] * dt, -cap), cap)
-        rate_x[i] = (jx - deflection[0, i]) / dt
-        rate_y[i] = (jy - deflection[1, i]) / dt
-        deflection[0, i], deflection[1, i] = jx, jy
-        # how much of the contact the wheel has rolled through, signed by the direction: the
-        # kinematic shear of a rolling wheel builds over a contact length of travel and turns
-        # round only when the wheel has rolled back as far (never at a jitter about zero speed)
-        heading = -1.0 if rim + vx[i] < 0.0 else 1.0
-        forget = math.exp(-fresh / length)
-        rolled[i] = heading + (rolled[i] - heading) * forget
-        d = -1.0 if rolled[i] < 0.0 else 1.0
-        direction[i] = d
-        moving[i] = abs(rolled[i])
-        q = min(max(d * jx / length, -1.0), 99.0)
-        s = q / (1.0 + abs(q)) if q >= 0.0 else q
-        slip[i] = s
-        side[i] = (jy / length) * ((1.0 - s) if s >= 0.0 else 1.0)
-        speed = math.hypot(vx[i], vy[i])
-        sin_beta[i] = vy[i] / speed if speed > 0.0 else 0.0
-        # the shear a wheel at rest holds: what it has slipped, forgotten as it rolls on
-        held = HOLD_CAP * max(k_x, k_y)
-        hold[0, i] = min(max(hold[0, i] * forget + (rim - vx[i]) * dt, -held), held)
-        hold[1, i] = min(max(hold[1, i] * forget - vy[i] * dt, -held), held)
-    _contact_kernel(p, h, slip, side, sin_beta, moving, direction, zp, jprev, hold[0], hold[1], n_theta, out)
-    for i in range(h.shape[0]):
-        area = p[i, 2] * p[i, 1] * (out[i, 5] - out[i, 6])
-        out[i, 1] += damping * max(sink_rate[i], 0.0) * area
-        drag = shear_damping * area  # the shear deflection's rate: zero in steady rolling
-        out[i, 0] += drag * rate_x[i]
-        out[i, 2] += drag * rate_y[i]
-        out[i, 3] += p[i, 1] * drag * rate_x[i]
-
-
-@_compiled
-def _ground_step(
-    p, index, wheels, ground, normal, dt, damping, shear_damping, n_theta,
-    hold, deflection, rolled, travel, turn, work, out, inputs, force, torque, sinkage,
-):  # pragma: no cover (compiled)  # fmt: skip
-    """One substep of :class:`SoilGround`: world frames, the soil's step, world forces."""
-    h, vx, w, vy, sink_rate, zeros = inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5]
-    frames = np.empty((index.shape[0], 3, 3))
-    for i in range(index.shape[0]):
-        n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
-        # the axle: the y axis of the wheel's frame (quaternion x, y, z, w)
-        qx, qy, qz, qw = wheels[i, 3], wheels[i, 4], wheels[i, 5], wheels[i, 6]
-        a0, a1, a2 = 2.0 * (qx * qy - qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz + qw * qx)
-        frames[i, 2, 0], frames[i, 2, 1], frames[i, 2, 2] = a0, a1, a2
-        # heading = axle x normal (in the ground's plane), left = normal x heading
-        x0, x1, x2 = a1 * n2 - a2 * n1, a2 * n0 - a0 * n2, a0 * n1 - a1 * n0
-        norm = max(math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1e-12)
-        x0, x1, x2 = x0 / norm, x1 / norm, x2 / norm
-        y0, y1, y2 = n1 * x2 - n2 * x1, n2 * x0 - n0 * x2, n0 * x1 - n1 * x0
-        frames[i, 0, 0], frames[i, 0, 1], frames[i, 0, 2] = x0, x1, x2
-        frames[i, 1, 0], frames[i, 1, 1], frames[i, 1, 2] = y0, y1, y2
-        c0, c1, c2 = 0.0, 0.0, wheels[i, 2] - ground[i]  # from the ground point below the centre
-        v0, v1, v2 = wheels[i, 7], wheels[i, 8], wheels[i, 9]
-        h[i] = p[i, 1] - (c0 * n0 + c1 * n1 + c2 * n2) if index[i] >= 0 else -1.0
-        vx[i] = v0 * x0 + v1 * x1 + v2 * x2
-        vy[i] = v0 * y0 + v1 * y1 + v2 * y2
-        sink_rate[i] = -(v0 * n0 + v1 * n1 + v2 * n2)
-        w[i] = wheels[i, 10] * a0 + wheels[i, 11] * a1 + wheels[i, 12] * a2
-    _soil_step(
-        p, h, vx, w, vy, sink_rate, zeros, zeros, dt, damping, shear_damping, n_theta,
-        hold, deflection, rolled, travel, turn, work, out,
-    )  # fmt: skip
-    for i in range(index.shape[0]):
-        on = index[i] >= 0
-        sinkage[i] = max(h[i], 0.0) if on else 0.0
-        for k in range(3):
-            if on:
-                force[i, k] = (
-                    out[i, 0] * frames[i, 0, k] + out[i, 2] * frames[i, 1, k] + out[i, 1] * normal[i, k]
-                )
-                torque[i, k] = -out[i, 3] * frames[i, 2, k]
-            else:
-                force[i, k] = 0.0
-                torque[i, k] = 0.0
 
 
 class SoilContact:
@@ -292,9 +170,21 @@ class SoilGround:
         self.index = np.full(n, -1, dtype=np.int64)
         #: The last substep's sinkage of each wheel on soil [m] (0 on rigid ground).
         self.sinkage = np.zeros(n)
-        self._inputs = np.zeros((6, n))
+        self._inputs = np.zeros((5, n))
+        self._zeros = np.zeros(n)
+        #: Per wheel, the last substep's frame (rows: heading, left, axle; world).
+        self.frames = np.zeros((n, 3, 3))
         self._force = np.zeros((n, 3))
         self._torque = np.zeros((n, 3))
+
+    def last_exit_lengths(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per wheel, how far ahead of its centre it meets the soil and behind it leaves it [m].
+
+        From the last substep's contact angles (``0.9 r_s sin theta_f`` and
+        ``r_s sin |theta_r|``); 0 before the first.
+        """
+        out, rs = self.contact.last, self.wheel.shear_radius
+        return 0.9 * rs * np.sin(out[:, 5]), rs * np.sin(np.abs(out[:, 6]))
 
     def reset(self) -> None:
         """Forget every wheel's soil state (a new episode)."""
@@ -302,7 +192,9 @@ class SoilGround:
         self.index[:] = -1
         self.sinkage[:] = 0.0
 
-    def step(self, index, wheels, ground, normal) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, index, wheels, ground, normal, prior=None, prior_shear=None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The soil's force and torque on each wheel (zero for wheels on rigid ground).
 
         Args:
@@ -312,6 +204,8 @@ class SoilGround:
                 centre velocity [m/s] (3), angular velocity [rad/s] (3); world frame.
             ground: (n,) height of the original ground below each centre [m].
             normal: (n, 3) the ground's unit normal there.
+            prior: (n,) the largest earlier sinkage where each wheel goes [m] (None: virgin).
+            prior_shear: (n,) the shear left there, along each wheel's heading [m] (None: none).
 
         Returns:
             ``(force, torque)``, (n, 3) each, world frame [N], [N m]; reused by the next call.
@@ -337,6 +231,8 @@ class SoilGround:
             np.ascontiguousarray(wheels, dtype=np.float64),
             np.ascontiguousarray(ground, dtype=np.float64),
             np.ascontiguousarray(normal, dtype=np.float64),
+            self._zeros if prior is None else np.ascontiguousarray(prior, dtype=np.float64),
+            self._zeros if prior_shear is None else np.ascontiguousarray(prior_shear, dtype=np.float64),
             c.dt,
             c.damping,
             c.shear_damping,
@@ -349,6 +245,7 @@ class SoilGround:
             c._work,
             c._out,
             self._inputs,
+            self.frames,
             self._force,
             self._torque,
             self.sinkage,

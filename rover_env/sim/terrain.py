@@ -165,6 +165,7 @@ class Terrain:
 
         self.cfg = cfg
         self.friction = FrictionMap(friction)
+        self._normals: dict[tuple, np.ndarray] = {}  # a plane's normal, by query shape
         self._client = client
         # the height grid (rough ground only): x and y samples [m], heights (rows along y) [m]
         self.xs: np.ndarray | None
@@ -358,7 +359,13 @@ class Terrain:
         """Unit normal of the ground at world (x, y) [m] (central differences over ``step`` m), (..., 3)."""
         if self.heights is None:
             shape = np.broadcast(x, y).shape
-            return np.tile(self.plane_normal, (int(np.prod(shape)), 1)).reshape(shape + (3,))
+            cached = self._normals.get(shape)
+            if cached is None:
+                cached = self._normals[shape] = np.tile(self.plane_normal, (int(np.prod(shape)), 1)).reshape(
+                    shape + (3,)
+                )
+                cached.flags.writeable = False
+            return cached
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
         gx = (self.height_at(x + step, y) - self.height_at(x - step, y)) / (2 * step)

@@ -37,7 +37,10 @@ Choices where the literature is silent, all documented in ``docs/terramechanics.
 - Ruts and a second pass: sinkage is measured from the original surface. Where a wheel has
   been before, down to ``z_p``, the soil rebounded to ``d = z_p - p(z_p)/k_u(z_p)`` and reloads
   along the stiff line ``k_u (z - d)`` until it reaches its earlier pressure, then along
-  Bekker's curve again (Wong 2008, Sec. 2.4.4). The rut's surface is ``d``.
+  Bekker's curve again (Wong 2008, Sec. 2.4.4). The rut's surface is ``d``. The shear the
+  earlier wheel left adds to this wheel's own where both go the same way (Wong's cumulative
+  shear of multi-axle vehicles), reached along a line ``RELOAD`` times as stiff as fresh soil's
+  from this wheel's own displacement: it is no force of its own.
 - At rest the contact is symmetric: below ``rest_speed`` the stress shape blends to
   ``theta_m = 0, theta_r = -theta_f``, so a wheel standing on level soil feels no horizontal
   force and does not creep; and its shear displacement blends from the kinematic one of a
@@ -63,6 +66,9 @@ __all__ = ["WheelSpec", "ContactForces", "contact_forces", "rut_surface", "stead
 GRAVITY = 9.81
 #: Largest ratio v / (r omega) of a braking wheel the shear displacement uses (s = -0.98).
 MAX_SKID_RATIO = 50.0
+#: Soil sheared before reloads this many times as stiffly as fresh soil (assumed; the normal
+#: stress's unloading modulus is of that order against Bekker's at the ruts' depths).
+RELOAD = 10.0
 
 
 def _compiled(f):
@@ -248,10 +254,18 @@ def _contact_kernel(
             else:
                 jx0 = r * (t0 - th) - vw * (sin_0 - sin_t)
                 vjx = (1.0 + s) - cos_t
-            # rolling: the kinematic displacement; at rest: the held one; earlier passes' stays
-            jx = moving * _sign(vjx) * abs(jx0) + (1.0 - moving) * hx + jp
+            # rolling: the kinematic displacement; at rest: the held one
+            jx = moving * _sign(vjx) * abs(jx0) + (1.0 - moving) * hx
             jy = moving * r * (tf - th) * side[i] + (1.0 - moving) * hold_y[i]
             mob = 1.0 - math.exp(-math.hypot(jx / k_x, jy / k_y))
+            if jx * jp > 0.0:
+                # soil sheared the same way by an earlier pass reloads along a stiff line to
+                # the strength it had reached, then goes on (Wong's repetitive shearing)
+                own = mob
+                jx += jp
+                mob = min(
+                    1.0 - math.exp(-math.hypot(jx / k_x, jy / k_y)), max(own, RELOAD * abs(jx - jp) / k_x)
+                )
             jn = math.hypot(jx, jy)
             tau = (c + sig * tan_phi) * mob
             tau_x = tau * jx / jn if jn > 0.0 else 0.0
@@ -276,6 +290,130 @@ def _contact_kernel(
 
 
 N_PARAMS = 21
+
+
+# The stepped contact of rover_env.sim.soil_contact, compiled here beside the kernel it calls:
+# numba's on-disk cache follows a function's own file only, so callers in another file would
+# keep running an edited kernel's old code.
+
+#: How far the held shear may grow, in shear moduli (the soil's strength is reached by then).
+HOLD_CAP = 5.0
+
+
+@_compiled
+def _advance(track, i, step, length):  # pragma: no cover (compiled)
+    """Move wheel ``i``'s ``track`` (position, front, back) by ``step``; the new ground reached."""
+    pos = track[i, 0] + step
+    front, back = track[i, 1], track[i, 2]
+    fresh = max(pos - front, 0.0) + max(back - pos, 0.0)
+    front = max(front, pos)
+    back = min(back, pos)
+    back = max(back, front - length)  # the worked stretch is at most a contact long
+    front = min(front, back + length)
+    track[i, 0], track[i, 1], track[i, 2] = pos, front, back
+    return fresh
+
+
+@_compiled
+def _soil_step(
+    p, h, vx, w, vy, sink_rate, zp, jprev, dt, damping, shear_damping, n_theta,
+    hold, deflection, rolled, travel, turn, work, out,
+):  # pragma: no cover (compiled)  # fmt: skip
+    """One substep of :class:`SoilContact` for every wheel: its soil state, then its forces."""
+    slip, side, sin_beta, moving, direction, rate_x, rate_y = (
+        work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    )  # fmt: skip
+    for i in range(h.shape[0]):
+        r, rs, k_x, k_y = p[i, 0], p[i, 1], p[i, 10], p[i, 11]
+        rim = r * w[i]
+        # the deflection relaxes over the contact's length (the last step's, or the sinkage's)
+        arc = rs * (out[i, 5] - out[i, 6])
+        if arc <= 0.0:
+            arc = 2.0 * rs * math.acos(min(max(1.0 - max(h[i], 0.0) / rs, -1.0), 1.0))
+        length = max(arc, 0.05 * r)
+        # new soil: travel past the stretch of ground (and of rim) the contact has already
+        # worked, at most a contact length; moving back and forth inside it brings none
+        fresh_x = _advance(travel, i, vx[i] * dt, length)
+        fresh = max(fresh_x, _advance(turn, i, rim * dt, length))
+        keep = math.exp(-fresh_x / length)
+        cap = 100.0 * length
+        jx = min(max(deflection[0, i] * keep + (rim - vx[i]) * dt, -cap), cap)
+        jy = min(max(deflection[1, i] * keep - vy[i] * dt, -cap), cap)
+        rate_x[i] = (jx - deflection[0, i]) / dt
+        rate_y[i] = (jy - deflection[1, i]) / dt
+        deflection[0, i], deflection[1, i] = jx, jy
+        # how much of the contact the wheel has rolled through, signed by the direction: the
+        # kinematic shear of a rolling wheel builds over a contact length of travel and turns
+        # round only when the wheel has rolled back as far (never at a jitter about zero speed)
+        heading = -1.0 if rim + vx[i] < 0.0 else 1.0
+        forget = math.exp(-fresh / length)
+        rolled[i] = heading + (rolled[i] - heading) * forget
+        d = -1.0 if rolled[i] < 0.0 else 1.0
+        direction[i] = d
+        moving[i] = abs(rolled[i])
+        q = min(max(d * jx / length, -1.0), 99.0)
+        s = q / (1.0 + abs(q)) if q >= 0.0 else q
+        slip[i] = s
+        side[i] = (jy / length) * ((1.0 - s) if s >= 0.0 else 1.0)
+        speed = math.hypot(vx[i], vy[i])
+        sin_beta[i] = vy[i] / speed if speed > 0.0 else 0.0
+        # the shear a wheel at rest holds: what it has slipped, forgotten as it rolls on
+        held = HOLD_CAP * max(k_x, k_y)
+        hold[0, i] = min(max(hold[0, i] * forget + (rim - vx[i]) * dt, -held), held)
+        hold[1, i] = min(max(hold[1, i] * forget - vy[i] * dt, -held), held)
+    _contact_kernel(p, h, slip, side, sin_beta, moving, direction, zp, jprev, hold[0], hold[1], n_theta, out)
+    for i in range(h.shape[0]):
+        area = p[i, 2] * p[i, 1] * (out[i, 5] - out[i, 6])
+        out[i, 1] += damping * max(sink_rate[i], 0.0) * area
+        drag = shear_damping * area  # the shear deflection's rate: zero in steady rolling
+        out[i, 0] += drag * rate_x[i]
+        out[i, 2] += drag * rate_y[i]
+        out[i, 3] += p[i, 1] * drag * rate_x[i]
+
+
+@_compiled
+def _ground_step(
+    p, index, wheels, ground, normal, prior, prior_shear, dt, damping, shear_damping, n_theta,
+    hold, deflection, rolled, travel, turn, work, out, inputs, frames, force, torque, sinkage,
+):  # pragma: no cover (compiled)  # fmt: skip
+    """One substep of :class:`SoilGround`: world frames, the soil's step, world forces."""
+    h, vx, w, vy, sink_rate = inputs[0], inputs[1], inputs[2], inputs[3], inputs[4]
+    for i in range(index.shape[0]):
+        n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
+        # the axle: the y axis of the wheel's frame (quaternion x, y, z, w)
+        qx, qy, qz, qw = wheels[i, 3], wheels[i, 4], wheels[i, 5], wheels[i, 6]
+        a0, a1, a2 = 2.0 * (qx * qy - qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz + qw * qx)
+        frames[i, 2, 0], frames[i, 2, 1], frames[i, 2, 2] = a0, a1, a2
+        # heading = axle x normal (in the ground's plane), left = normal x heading
+        x0, x1, x2 = a1 * n2 - a2 * n1, a2 * n0 - a0 * n2, a0 * n1 - a1 * n0
+        norm = max(math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1e-12)
+        x0, x1, x2 = x0 / norm, x1 / norm, x2 / norm
+        y0, y1, y2 = n1 * x2 - n2 * x1, n2 * x0 - n0 * x2, n0 * x1 - n1 * x0
+        frames[i, 0, 0], frames[i, 0, 1], frames[i, 0, 2] = x0, x1, x2
+        frames[i, 1, 0], frames[i, 1, 1], frames[i, 1, 2] = y0, y1, y2
+        c0, c1, c2 = 0.0, 0.0, wheels[i, 2] - ground[i]  # from the ground point below the centre
+        v0, v1, v2 = wheels[i, 7], wheels[i, 8], wheels[i, 9]
+        h[i] = p[i, 1] - (c0 * n0 + c1 * n1 + c2 * n2) if index[i] >= 0 else -1.0
+        vx[i] = v0 * x0 + v1 * x1 + v2 * x2
+        vy[i] = v0 * y0 + v1 * y1 + v2 * y2
+        sink_rate[i] = -(v0 * n0 + v1 * n1 + v2 * n2)
+        w[i] = wheels[i, 10] * a0 + wheels[i, 11] * a1 + wheels[i, 12] * a2
+    _soil_step(
+        p, h, vx, w, vy, sink_rate, prior, prior_shear, dt, damping, shear_damping, n_theta,
+        hold, deflection, rolled, travel, turn, work, out,
+    )  # fmt: skip
+    for i in range(index.shape[0]):
+        on = index[i] >= 0
+        sinkage[i] = max(h[i], 0.0) if on else 0.0
+        for k in range(3):
+            if on:
+                force[i, k] = (
+                    out[i, 0] * frames[i, 0, k] + out[i, 2] * frames[i, 1, k] + out[i, 1] * normal[i, k]
+                )
+                torque[i, k] = -out[i, 3] * frames[i, 2, k]
+            else:
+                force[i, k] = 0.0
+                torque[i, k] = 0.0
 
 
 def _params(soil: SoilConfig, wheel: WheelSpec) -> np.ndarray:

@@ -1,0 +1,204 @@
+"""Ruts: what the wheels leave in the soil, kept in a window that travels with the rover.
+
+A wheel that sinks ``z`` into the soil leaves, behind it, soil pressed to ``z`` (the rut's
+surface rebounds above that, :func:`rover_env.sim.terramechanics.rut_surface`) and sheared by
+the shear displacement at its exit. A later wheel on the same track meets both
+(:func:`rover_env.sim.terramechanics.contact_forces`' ``prior`` and ``prior_shear``).
+
+The map is a square grid of ``size`` metres at ``cell`` metres around the rover, three layers
+(the largest sinkage [m], the shear's world x and y components [m]). When the rover comes
+within ``margin`` of its edge the window moves to centre on it, keeping what overlaps: ruts
+further than about half the window behind are forgotten. Memory is fixed: 3 x (size/cell)^2
+float32 (17 MB at the default 12 m and 1 cm).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rover_env.config.io import check_range
+from rover_env.sim.terramechanics import _compiled
+
+__all__ = ["RutMap"]
+
+
+@_compiled
+def _sample(grid, x0, y0, cell, px, py, out):  # pragma: no cover (compiled)
+    n = grid.shape[1]
+    for k in range(px.shape[0]):
+        i = int(math.floor((px[k] - x0) / cell))
+        j = int(math.floor((py[k] - y0) / cell))
+        if 0 <= i < n and 0 <= j < n:
+            out[k, 0], out[k, 1], out[k, 2] = grid[0, j, i], grid[1, j, i], grid[2, j, i]
+        else:
+            out[k, 0], out[k, 1], out[k, 2] = 0.0, 0.0, 0.0
+
+
+@_compiled
+def _press(grid, x0, y0, cell, cx, cy, hx, hy, half, depth, shear, on):  # pragma: no cover (compiled)
+    n = grid.shape[1]
+    steps = int(math.ceil(2.0 * half / (0.5 * cell)))
+    for k in range(cx.shape[0]):
+        if not on[k] or depth[k] <= 0.0:
+            continue
+        # across the wheel: the heading turned by 90 degrees to the left
+        lx, ly = -hy[k], hx[k]
+        for m in range(steps + 1):
+            u = -half + 2.0 * half * m / steps
+            i = int(math.floor((cx[k] + u * lx - x0) / cell))
+            j = int(math.floor((cy[k] + u * ly - y0) / cell))
+            if 0 <= i < n and 0 <= j < n:
+                if depth[k] > grid[0, j, i]:
+                    grid[0, j, i] = depth[k]
+                grid[1, j, i] = shear[k] * hx[k]
+                grid[2, j, i] = shear[k] * hy[k]
+
+
+@_compiled
+def _meet(grid, x0, y0, cell, wheels, frames, out, rolled, rs, prior, prior_shear, leave):  # pragma: no cover
+    """Per wheel: the rut where it meets the soil, and where it leaves the soil.
+
+    ``prior``: the largest earlier sinkage there; ``prior_shear``: the shear left there along
+    the wheel's heading; ``leave`` (n, 2): the exit point, from its last contact angles.
+    """
+    n = grid.shape[1]
+    for k in range(wheels.shape[0]):
+        hx, hy = frames[k, 0, 0], frames[k, 0, 1]
+        go = -1.0 if rolled[k] < -0.5 else 1.0  # the way it rolls; forward from rest
+        front = 0.9 * rs * math.sin(out[k, 5])
+        back = rs * math.sin(abs(out[k, 6]))
+        px, py = wheels[k, 0] + go * hx * front, wheels[k, 1] + go * hy * front
+        leave[k, 0], leave[k, 1] = wheels[k, 0] - go * hx * back, wheels[k, 1] - go * hy * back
+        i = int(math.floor((px - x0) / cell))
+        j = int(math.floor((py - y0) / cell))
+        if 0 <= i < n and 0 <= j < n:
+            prior[k] = grid[0, j, i]
+            prior_shear[k] = grid[1, j, i] * hx + grid[2, j, i] * hy
+        else:
+            prior[k] = 0.0
+            prior_shear[k] = 0.0
+
+
+class RutMap:
+    """The soil's memory of the wheels that passed: pressed depth and shear, world frame.
+
+    Args:
+        size: Edge of the square window [m].
+        cell: Grid cell [m].
+        margin: Distance from the window's edge at which it moves to centre on the rover [m].
+    """
+
+    def __init__(self, size: float = 12.0, cell: float = 0.01, margin: float = 2.0) -> None:
+        check_range("ruts.cell", cell, 0.001, 0.5)
+        check_range("ruts.size", size, 20 * cell, 200.0)
+        check_range("ruts.margin", margin, 0.0, size / 2, hi_open=True)
+        self.cell = float(cell)
+        self.n = int(round(size / cell))
+        self.size = self.n * self.cell
+        self.margin = float(margin)
+        points = 3 * self.n * self.n
+        if points * 4 > 2 * 1024**3:
+            raise ValueError(
+                f"ruts: a {size} m window at {cell} m needs {points * 4 / 1e9:.1f} GB; enlarge the cell"
+            )
+        self.grid = np.zeros((3, self.n, self.n), dtype=np.float32)
+        self.origin = np.array([-self.size / 2, -self.size / 2])
+        self._buf = np.zeros((0, 3))
+        self._meet_buf: tuple[np.ndarray, np.ndarray, np.ndarray] = (
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros((0, 2)),
+        )
+
+    def reset(self, x: float = 0.0, y: float = 0.0) -> None:
+        """Fresh soil everywhere; the window centred on (x, y) [m]."""
+        self.grid[:] = 0.0
+        self.origin = np.array([x - self.size / 2, y - self.size / 2])
+
+    def follow(self, x: float, y: float) -> None:
+        """Move the window to centre on (x, y) [m] if that is within ``margin`` of its edge."""
+        lo = self.origin + self.margin
+        hi = self.origin + self.size - self.margin
+        if lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]:
+            return
+        new = np.array([x - self.size / 2, y - self.size / 2])
+        shift = np.round((new - self.origin) / self.cell).astype(int)
+        new = self.origin + shift * self.cell
+        moved = np.zeros_like(self.grid)
+        di, dj = int(shift[0]), int(shift[1])
+        n = self.n
+        if abs(di) < n and abs(dj) < n:
+            src_i = slice(max(di, 0), n + min(di, 0))
+            dst_i = slice(max(-di, 0), n - max(di, 0))
+            src_j = slice(max(dj, 0), n + min(dj, 0))
+            dst_j = slice(max(-dj, 0), n - max(dj, 0))
+            moved[:, dst_j, dst_i] = self.grid[:, src_j, src_i]
+        self.grid = moved
+        self.origin = new
+
+    def sample(self, xy) -> np.ndarray:
+        """(k, 3) at world points ``xy`` (k, 2) [m]: largest sinkage [m], shear x and y [m]."""
+        xy = np.ascontiguousarray(xy, dtype=np.float64)
+        if self._buf.shape[0] != len(xy):
+            self._buf = np.zeros((len(xy), 3))
+        _sample(self.grid, self.origin[0], self.origin[1], self.cell, xy[:, 0], xy[:, 1], self._buf)
+        return self._buf
+
+    def press(self, xy, heading, width: float, depth, shear, on) -> None:
+        """Record wheels passing: a strip ``width`` [m] across each ``heading`` (k, 2) at ``xy``.
+
+        Args:
+            xy: (k, 2) where each wheel leaves the soil [m].
+            heading: (k, 2) unit travel directions in the ground's plane (x, y).
+            width: Wheel width [m].
+            depth: (k,) each wheel's sinkage there [m] (the map keeps the largest).
+            shear: (k,) the shear displacement each leaves, along its heading [m].
+            on: (k,) bool, the wheels on soil.
+        """
+        xy = np.ascontiguousarray(xy, dtype=np.float64)
+        hd = np.ascontiguousarray(heading, dtype=np.float64)
+        on = on if isinstance(on, np.ndarray) and on.dtype == np.bool_ else np.asarray(on, dtype=np.bool_)
+        _press(
+            self.grid,
+            self.origin[0],
+            self.origin[1],
+            self.cell,
+            xy[:, 0],
+            xy[:, 1],
+            hd[:, 0],
+            hd[:, 1],
+            0.5 * width,
+            np.ascontiguousarray(depth, dtype=np.float64),
+            np.ascontiguousarray(shear, dtype=np.float64),
+            on,
+        )
+
+    def meet(self, wheels, frames, out, rolled, shear_radius: float):
+        """The ruts the wheels are about to meet, and where they leave the soil.
+
+        Args:
+            wheels: (n, >=2) wheel centres' world x, y first [m].
+            frames: (n, 3, 3) each wheel's heading, left and axle (world).
+            out: (n, 9) the contact's last output (its angles, columns 5 and 6).
+            rolled: (n,) the contact's rolling state (its sign: the direction).
+            shear_radius: The wheels' shear radius [m].
+
+        Returns:
+            ``(prior, prior_shear, leave)``: (n,) largest earlier sinkage ahead [m], (n,) the
+            shear left there along each heading [m], (n, 2) the points each leaves the soil.
+            Reused by the next call.
+        """
+        n = len(wheels)
+        if self._meet_buf[0].shape[0] != n:
+            self._meet_buf = (np.zeros(n), np.zeros(n), np.zeros((n, 2)))
+        prior, shear, leave = self._meet_buf
+        _meet(self.grid, self.origin[0], self.origin[1], self.cell, wheels, frames, out, rolled,
+              shear_radius, prior, shear, leave)  # fmt: skip
+        return prior, shear, leave
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the grid [bytes]."""
+        return int(self.grid.nbytes)
