@@ -399,6 +399,9 @@ class ScenarioConfig:
             the downward camera and the ``imu`` if any).
         randomize: Domain randomisation of each episode's world: ``"off"`` (or absent), ``"on"``
             (the default ranges) or a mapping of ranges (:mod:`rover_env.config.randomize`).
+        stuck_after: The judge ends an episode as ``"stuck"`` when, over this many seconds, the
+            rover's body moved less than 0.1 m while its treads turned through 0.5 m or more
+            [s]; None (the default): never.
     """
 
     name: str
@@ -412,9 +415,12 @@ class ScenarioConfig:
     imu: Any = None
     rig: tuple[SensorConfig, ...] | None = None
     randomize: Any = None
+    stuck_after: float | None = None
 
     def __post_init__(self) -> None:
         check_range("duration", self.duration, 0.1, 36000.0)
+        if self.stuck_after is not None:
+            check_range("stuck_after", self.stuck_after, 0.5, 3600.0)
         randomize_config(self.randomize)  # ConfigError naming the key
         if self.imu is not None:
             # validated here (ConfigError naming the key): a preset name or a mapping

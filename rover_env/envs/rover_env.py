@@ -28,7 +28,7 @@ from rover_env.sim.geometry import RoverGeometry
 from rover_env.sim.ground_truth import GroundTruth
 from rover_env.sim.simulation import RoverSim, quat_to_yaw, yaw_to_quat
 from rover_env.task.course import WaypointCourse
-from rover_env.task.judge import Judge, RewardConfig, StepFacts, wheel_power
+from rover_env.task.judge import STUCK_DISTANCE, STUCK_TREAD, Judge, RewardConfig, StepFacts, wheel_power
 
 log = logging.getLogger(__name__)
 
@@ -334,6 +334,8 @@ class RoverEnv(gym.Env):
         self._nav = np.zeros(3)  # the pose the on-board tracker is fed (x, y, yaw)
         self._start_fix = np.zeros(3)
         self._progress = 0.0
+        self._stuck_track: list[tuple[float, float, float, float]] = []  # t, x, y, tread travel
+        self._tread = 0.0
         self._closed = False
         self._chase: ChaseView | None = None
 
@@ -404,6 +406,7 @@ class RoverEnv(gym.Env):
         feats = self.course.features(self._nav[:2], self._nav[2])
         judge = self._judge_features()
         self._progress = judge.progress
+        self._stuck_track, self._tread = [], 0.0
         terms = Judge.zero_terms()
         info = self._info(judge, terms, False, None)
         if self.world is not None:
@@ -444,6 +447,7 @@ class RoverEnv(gym.Env):
         tipped = 1.0 - 2.0 * (qx * qx + qy * qy) < 0.5  # body z axis tilted more than 60 deg
         off = not self.sim.terrain.contains(xy[0], xy[1], margin=0.5)
         off_target = arrived and miss > self.scenario.course.tolerance
+        stuck = self._stuck(gt)
         facts = StepFacts(
             gt=gt,
             progress_gain=0.0,
@@ -455,6 +459,7 @@ class RoverEnv(gym.Env):
             left_terrain=off,
             off_target=off_target,
             arrived=arrived,
+            stuck=stuck,
         )
         end = self.judge.end(facts)
         # the true pose's course features (progress at the course's end once it has succeeded)
@@ -494,6 +499,22 @@ class RoverEnv(gym.Env):
         if self.pipeline is not None:
             for cam, mount in zip(self.pipeline.cameras, mounts, strict=True):
                 cam.set_mount_error(mount)
+
+    def _stuck(self, gt: GroundTruth) -> bool:
+        """The judge's ``stuck`` (scenario ``stuck_after``): moved < 0.1 m, treads turned >= 0.5 m."""
+        window = self.scenario.stuck_after
+        if window is None:
+            return False
+        self._tread += float(np.mean(np.abs(gt.wheel_rate))) * self.geometry.wheel_radius * self.control_dt
+        track = self._stuck_track
+        track.append((gt.t, float(gt.pose[0]), float(gt.pose[1]), self._tread))
+        while len(track) > 1 and track[1][0] <= gt.t - window:
+            track.pop(0)
+        t0, x0, y0, tread0 = track[0]
+        if gt.t - t0 < window - 1e-9:
+            return False
+        moved = math.hypot(gt.pose[0] - x0, gt.pose[1] - y0)
+        return moved < STUCK_DISTANCE and self._tread - tread0 >= STUCK_TREAD
 
     def _nav_pose(self) -> np.ndarray:
         """(x, y, yaw) the on-board tracker is fed: dead-reckoned, or the truth for ground truth."""

@@ -71,6 +71,10 @@ class StepFacts:
         left_terrain: The true position is within 0.5 m of the terrain's edge or beyond.
         off_target: The tracker has arrived but the true position misses the goal.
         arrived: The tracker has reached the last waypoint.
+        stuck: The rover is stuck: in the scenario's last ``stuck_after`` seconds its body moved
+            less than :data:`STUCK_DISTANCE` while its treads turned through at least
+            :data:`STUCK_TREAD` (wheels spinning or digging in place; off unless the scenario
+            sets ``stuck_after``).
     """
 
     gt: GroundTruth
@@ -83,6 +87,13 @@ class StepFacts:
     left_terrain: bool
     off_target: bool
     arrived: bool
+    stuck: bool = False
+
+
+#: Less than this much true movement of the body [m] ...
+STUCK_DISTANCE = 0.1
+#: ... while the treads turned through at least this much [m] (mean of the wheels) is stuck.
+STUCK_TREAD = 0.5
 
 
 @dataclass(frozen=True)
@@ -106,6 +117,12 @@ class Termination:
 TERMINATIONS: tuple[Termination, ...] = (
     Termination("tipped_over", True, lambda f: f.tipped, "the body tilted more than 60 deg"),
     Termination("left_terrain", True, lambda f: f.left_terrain, "the rover came within 0.5 m of the edge"),
+    Termination(
+        "stuck",
+        True,
+        lambda f: f.stuck,
+        "the body moved under 0.1 m while the treads turned 0.5 m or more (scenarios with stuck_after)",
+    ),
     Termination("off_target", True, lambda f: f.off_target, "the tracker arrived, the true position missed"),
     Termination("success", False, lambda f: f.arrived, "the tracker arrived and the true position is there"),
 )
