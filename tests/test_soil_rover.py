@@ -146,3 +146,26 @@ def test_the_wheels_leave_ruts_as_deep_as_they_sank():
         assert sim.rover.ruts.nbytes == nbytes  # the map's memory is fixed
     finally:
         sim.close()
+
+
+def test_ground_truth_on_soil_reports_the_soils_load():
+    sim = _soil_sim()
+    try:
+        sim.reset(0.0, 0.0, 0.0)
+        gt = sim.ground_truth()
+        assert gt.normal_force.sum() == pytest.approx(_mass(sim.geometry) * GRAVITY, rel=0.01)
+        assert np.all(np.isfinite(gt.contact_point))
+        assert gt.friction == pytest.approx(np.full(4, math.tan(math.radians(load_soil(SOIL).friction_deg))))
+    finally:
+        sim.close()
+
+
+def test_soil_contact_refuses_non_finite_or_misshapen_input():
+    from rover_env.sim.soil_contact import SoilContact
+
+    c = SoilContact(load_soil(SOIL), WheelSpec(0.1, 0.1), 4, 1 / 240)
+    ok = np.zeros(4)
+    with pytest.raises(ValueError, match="v_x.*NaN"):
+        c.step(ok, np.array([0.0, np.nan, 0.0, 0.0]), ok, ok, ok)
+    with pytest.raises(ValueError, match="sinkage: shape"):
+        c.step(np.zeros(3), ok, ok, ok, ok)

@@ -205,3 +205,14 @@ def test_the_model_matches_a_published_single_wheel_test_bed():
         assert len(mine) == 7 and r.converged.all()
         assert np.abs(r.drawbar_pull / load - dpw).mean() < 0.05
         assert np.abs(r.sinkage / sink - 1.0).mean() < 0.20
+
+
+def test_no_side_force_jumps_at_zero_speed():
+    soil = load_soil("toyoura")
+    f = contact_forces(soil, WHEEL, 0.015, v_x=0.0, omega=0.0, v_y=[-1e-7, 0.0, 1e-7])
+    assert np.abs(f.lateral).max() < 1e-3  # N: a creep of 0.1 um/s is no slide
+
+
+def test_a_test_bed_run_refuses_a_speed_that_is_rest():
+    with pytest.raises(ConfigError, match="speed"):
+        steady_state(load_soil("dry_sand"), WHEEL, LOAD, 0.2, speed=0.001)

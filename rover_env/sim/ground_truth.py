@@ -36,9 +36,11 @@ class GroundTruth:
         wheel_v_long: Ground velocity of each wheel centre along its heading [m/s].
         wheel_v_lat: Ground velocity of each wheel centre across its heading, left + [m/s].
         wheel_torque: Torque applied by each drive motor in the last physics step [N m].
-        friction: Friction coefficient applied to each wheel (from the map under it).
-        normal_force: Total contact normal force on each wheel [N].
-        contact_point: World position of each wheel's deepest contact (NaN if none) [m].
+        friction: Friction coefficient applied to each wheel (from the map under it); on
+            deformable soil, tan(phi) of the soil (its shear strength per unit normal stress).
+        normal_force: Total contact normal force on each wheel [N] (on soil: the soil's).
+        contact_point: World position of each wheel's deepest contact (NaN if none) [m] (on
+            soil: the rim's lowest point).
     """
 
     t: float

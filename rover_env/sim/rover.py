@@ -25,6 +25,10 @@ if TYPE_CHECKING:
     from rover_env.sim.terrain import Terrain
 
 
+#: How far past a soil patch's edge a wheel on it stays on it [m]: no flicker at the edge.
+SOIL_EDGE = 0.05
+
+
 class Rover:
     """The rover's multibody, its motors and passive springs.
 
@@ -253,6 +257,13 @@ class Rover:
         normal = terrain.normal_at(cx, cy)
         fmap = terrain.friction
         index = [fmap.soil_at(x, y) for x, y in zip(cx.tolist(), cy.tolist(), strict=True)]
+        for i, was in enumerate(soil.index.tolist()):  # a wheel leaves soil only 5 cm past its edge
+            if (
+                was >= 0
+                and index[i] != was
+                and fmap.soil_at(float(cx[i]), float(cy[i]), grow=SOIL_EDGE) == was
+            ):
+                index[i] = was
         c = self.client
         for i, link in enumerate(self.wheel_links):
             on = index[i] >= 0
@@ -332,6 +343,16 @@ class Rover:
             if p[8] < depth[i]:
                 depth[i] = p[8]
                 contact_point[i] = p[6]
+        friction = np.array(self._mu, dtype=np.float64)
+        soil = self.soil
+        if soil is not None:  # wheels on soil: the soil's load, its lowest rim point, tan(phi)
+            for i, st in enumerate(self._read_wheels()):
+                if soil.index[i] >= 0:
+                    heading, left = soil.frames[i, 0], soil.frames[i, 1]
+                    normal = np.cross(heading, left)
+                    normal_force[i] = float(soil.contact.last[i, 1])
+                    contact_point[i] = (np.asarray(st[4]) - normal * soil.wheel.shear_radius).tolist()
+                    friction[i] = float(soil.contact._p[i, 9])
         return GroundTruth(
             t=t,
             pose=np.array([*pos, *quat]),
@@ -347,7 +368,7 @@ class Rover:
             wheel_v_long=v_long,
             wheel_v_lat=np.array(v_lat_l),
             wheel_torque=np.array([joints[j][3] for j in self.wheel_joints]),
-            friction=np.array(self._mu, dtype=np.float64),
+            friction=friction,
             normal_force=np.array(normal_force),
             contact_point=np.array(contact_point, dtype=np.float64),
         )

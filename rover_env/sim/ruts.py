@@ -44,7 +44,11 @@ def _press(grid, x0, y0, cell, cx, cy, hx, hy, half, depth, shear, on):  # pragm
         if not on[k] or depth[k] <= 0.0:
             continue
         # across the wheel: the heading turned by 90 degrees to the left
-        lx, ly = -hy[k], hx[k]
+        norm = math.hypot(hx[k], hy[k])
+        if norm <= 0.0:
+            continue
+        ux, uy = hx[k] / norm, hy[k] / norm
+        lx, ly = -uy, ux
         for m in range(steps + 1):
             u = -half + 2.0 * half * m / steps
             i = int(math.floor((cx[k] + u * lx - x0) / cell))
@@ -52,8 +56,8 @@ def _press(grid, x0, y0, cell, cx, cy, hx, hy, half, depth, shear, on):  # pragm
             if 0 <= i < n and 0 <= j < n:
                 if depth[k] > grid[0, j, i]:
                     grid[0, j, i] = depth[k]
-                grid[1, j, i] = shear[k] * hx[k]
-                grid[2, j, i] = shear[k] * hy[k]
+                grid[1, j, i] = shear[k] * ux
+                grid[2, j, i] = shear[k] * uy
 
 
 @_compiled
@@ -66,7 +70,12 @@ def _meet(grid, x0, y0, cell, wheels, frames, out, rolled, rs, prior, prior_shea
     n = grid.shape[1]
     for k in range(wheels.shape[0]):
         hx, hy = frames[k, 0, 0], frames[k, 0, 1]
-        go = -1.0 if rolled[k] < -0.5 else 1.0  # the way it rolls; forward from rest
+        norm = math.hypot(hx, hy)
+        if norm > 0.0:  # the heading's direction on the map (shortened by the slope in 3-D)
+            hx, hy = hx / norm, hy / norm
+        # the way it rolls (forward from rest, and until it has rolled half a contact back;
+        # the force law mirrors from the first backward roll, with that roll's small weight)
+        go = -1.0 if rolled[k] < -0.5 else 1.0
         front = 0.9 * rs * math.sin(out[k, 5])
         back = rs * math.sin(abs(out[k, 6]))
         px, py = wheels[k, 0] + go * hx * front, wheels[k, 1] + go * hy * front

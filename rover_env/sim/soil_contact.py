@@ -93,6 +93,15 @@ class SoilContact:
         self.rolled[:] = 0.0
         self._travel[:] = 0.0
         self._turn[:] = 0.0
+        self._out[:] = 0.0
+
+    def _checked(self, name: str, a) -> np.ndarray:
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        if a.shape != (self.n,):
+            raise ValueError(f"{name}: shape {a.shape}; expected ({self.n},), one per wheel")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name}: {a!r} holds NaN or infinity; give finite values")
+        return a
 
     def step(self, sinkage, v_x, omega, v_y, sink_rate, prior=None, prior_shear=None) -> np.ndarray:
         """The soil's forces now; advances the held shear by one substep.
@@ -112,16 +121,16 @@ class SoilContact:
             the soil resists the wheel's spin with [N m], in each wheel's travel frame. The
             array is reused by the next call.
         """
-        z = self._zeros
+        z, ok = self._zeros, self._checked
         _soil_step(
             self._p,
-            np.ascontiguousarray(sinkage, dtype=np.float64),
-            np.ascontiguousarray(v_x, dtype=np.float64),
-            np.ascontiguousarray(omega, dtype=np.float64),
-            np.ascontiguousarray(v_y, dtype=np.float64),
-            np.ascontiguousarray(sink_rate, dtype=np.float64),
-            z if prior is None else np.ascontiguousarray(prior, dtype=np.float64),
-            z if prior_shear is None else np.ascontiguousarray(prior_shear, dtype=np.float64),
+            ok("sinkage", sinkage),
+            ok("v_x", v_x),
+            ok("omega", omega),
+            ok("v_y", v_y),
+            ok("sink_rate", sink_rate),
+            z if prior is None else ok("prior", prior),
+            z if prior_shear is None else ok("prior_shear", prior_shear),
             self.dt,
             self.damping,
             self.shear_damping,
@@ -211,6 +220,12 @@ class SoilGround:
             ``(force, torque)``, (n, 3) each, world frame [N], [N m]; reused by the next call.
         """
         index = np.asarray(index, dtype=np.int64)
+        n = self.index.shape[0]
+        wheels = np.ascontiguousarray(wheels, dtype=np.float64)
+        if index.shape != (n,) or wheels.shape != (n, 13):
+            raise ValueError(f"index {index.shape}, wheels {wheels.shape}: expected ({n},) and ({n}, 13)")
+        if not np.all(np.isfinite(wheels)):
+            raise ValueError("wheels: a wheel's state holds NaN or infinity; the simulation has diverged")
         changed = index != self.index
         if changed.any():  # a wheel onto or off soil: its soil state starts afresh
             c = self.contact

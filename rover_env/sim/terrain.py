@@ -85,15 +85,19 @@ class FrictionMap:
                 mu, loss = pmu, ploss
         return mu * self.scale, loss
 
-    def soil_at(self, x: float, y: float) -> int:
-        """Index into :attr:`soils` of the deformable soil at world (x, y) [m]; -1: rigid ground."""
+    def soil_at(self, x: float, y: float, grow: float = 0.0) -> int:
+        """Index into :attr:`soils` of the deformable soil at world (x, y) [m]; -1: rigid ground.
+
+        ``grow`` [m] widens every patch (a wheel already on soil leaves it only that far out).
+        """
         soil = -1
         for k, (circle, cx, cy, c, s, hx, hy, r2, _, _) in enumerate(self._patches):
             dx, dy = x - cx, y - cy
             if circle:
-                if dx * dx + dy * dy <= r2:
+                r = math.sqrt(r2) + grow
+                if dx * dx + dy * dy <= r * r:
                     soil = self._soil_of[k]
-            elif abs(c * dx + s * dy) <= hx and abs(-s * dx + c * dy) <= hy:
+            elif abs(c * dx + s * dy) <= hx + grow and abs(-s * dx + c * dy) <= hy + grow:
                 soil = self._soil_of[k]
         return soil
 

@@ -31,7 +31,7 @@ Choices where the literature is silent, all documented in ``docs/terramechanics.
 
 - Grousers: stresses act at the shear radius ``r_s = r + h_g`` on the grousers' tips and at r
   between them, mixed by the tips' share of the rim (Pavlov and Johnson).
-- Side slip: the shear displacement across the wheel is ``j_y = (theta_f - theta) v_jy / omega``
+- Side slip: the shear displacement across the wheel is ``j_y = -(theta_f - theta) v_y / omega``
   and the shear stress points along the slip velocity of the rim point, its strength reached
   at ``sqrt((j_x/K)^2 + (j_y/K_y)^2)``; the side wall bulldozes soil (Ishigami et al. 2007).
 - Ruts and a second pass: sinkage is measured from the original surface. Where a wheel has
@@ -69,6 +69,9 @@ MAX_SKID_RATIO = 50.0
 #: Soil sheared before reloads this many times as stiffly as fresh soil (assumed; the normal
 #: stress's unloading modulus is of that order against Bekker's at the ruts' depths).
 RELOAD = 10.0
+#: Speed below which a wheel counts as at rest [m/s] (the side wall's bulldozing fades in below
+#: it in the stepped contact). These constants are compiled into the kernels: edit, not assign.
+REST_SPEED = 0.005
 
 
 def _compiled(f):
@@ -356,7 +359,7 @@ def _soil_step(
         slip[i] = s
         side[i] = (jy / length) * ((1.0 - s) if s >= 0.0 else 1.0)
         speed = math.hypot(vx[i], vy[i])
-        sin_beta[i] = vy[i] / speed if speed > 0.0 else 0.0
+        sin_beta[i] = vy[i] / max(speed, REST_SPEED)  # no jump in the side force at zero speed
         # the shear a wheel at rest holds: what it has slipped, forgotten as it rolls on
         held = HOLD_CAP * max(k_x, k_y)
         hold[0, i] = min(max(hold[0, i] * forget + (rim - vx[i]) * dt, -held), held)
@@ -470,8 +473,7 @@ def slip_state(radius: float, v_x, omega, v_y, rest_speed: float):
             rim >= fwd, np.where(rim > 0.0, (rim - fwd) / rim, 0.0), (rim - fwd) / np.maximum(fwd, 1e-12)
         )
         side = -vy / np.maximum(np.maximum(np.abs(rim), np.abs(fwd)), 1e-9 * radius)
-        speed = np.hypot(vx, vy)
-        sin_beta = np.where(speed > 0.0, vy / speed, 0.0)
+        sin_beta = vy / np.maximum(np.hypot(vx, vy), max(rest_speed, 1e-9))
     moving = np.clip(np.maximum(np.abs(fwd), np.abs(rim)) / max(rest_speed, 1e-9), 0.0, 1.0)
     return np.clip(s, -1.0, 1.0), side, sin_beta, moving, d
 
@@ -622,6 +624,12 @@ def steady_state(
         raise ConfigError(f"load: {load!r}; give a positive, finite load [N]")
     if np.any(np.abs(s) > 1.0) or not np.all(np.isfinite(s)):
         raise ConfigError(f"slip: {s!r}; give slips in [-1, 1]")
+    if not (math.isfinite(speed) and speed >= 2 * REST_SPEED):
+        raise ConfigError(
+            f"speed: {speed!r} m/s; give at least {2 * REST_SPEED} m/s (slower is a wheel at rest)"
+        )
+    if np.any(np.asarray(prior, dtype=np.float64) < 0.0) or not np.all(np.isfinite(np.asarray(prior, float))):
+        raise ConfigError(f"prior: {prior!r}; give earlier sinkages >= 0 [m]")
     load, s, beta = np.broadcast_arrays(load, s, np.radians(np.asarray(slip_angle_deg, dtype=np.float64)))
     v, w = slip_velocities(s, speed, wheel.radius)
     vx, vy = v * np.cos(beta), -v * np.sin(beta)

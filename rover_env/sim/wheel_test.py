@@ -86,6 +86,14 @@ def run_wheel_test(
         rows = []
         for s in slips:
             rows.append(bed.run(s, speed, distance / speed))
+            if abs(rows[-1].load_N / load - 1.0) > 0.01:
+                log.warning(
+                    "slip %+.2f: the soil carried %.1f N of the %.1f N load (the wheel was still sinking);"
+                    " drive further (distance) or lighten the load",
+                    s,
+                    rows[-1].load_N,
+                    load,
+                )
             log.info(
                 "slip %+.2f: DP/W %+.3f, sinkage %.1f mm",
                 s,
@@ -166,7 +174,7 @@ class _Bed:
         self._settled = self.c.saveState()
         soil = self.soil
         self._soil_state = tuple(
-            a.copy() for a in (soil.hold, soil.deflection, soil.rolled, soil.last, soil._travel, soil._turn)
+            a.copy() for a in (soil.hold, soil.deflection, soil.rolled, soil._out, soil._travel, soil._turn)
         )
 
     def run(self, slip: float, speed: float, duration: float) -> WheelTestRow:
