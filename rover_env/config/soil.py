@@ -21,7 +21,7 @@ deformation in m, density in kg/m^3, angles in degrees.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from perception.validation import read_yaml
@@ -269,28 +269,20 @@ SOIL_PRESETS: dict[str, SoilConfig] = {
             " b1 -0.1766). X_c = 45 - phi/2 assumed." + _UNLOAD
         ),
     ),
-    "cmu_testbed_smooth": SoilConfig(
-        name="cmu_testbed_smooth",
-        k_c=0.0,
-        k_phi=8.0e6,
-        n=1.46,
-        n_slip=0.01,
-        n_skid=0.55,
-        cohesion=1.0e3,
-        friction_deg=29.0,
-        shear_modulus=0.021,
-        shear_modulus_lateral=0.021,
-        density=1330.0,
-        destructive_deg=30.5,
-        peak_a0=0.2024,
-        peak_a1=0.7048,
-        rear_b0=0.476,
-        rear_b1=0.0003,
-        source=(
-            "Pavlov and Johnson (CMU), github.com/robomechanics/3d-terramechanics:"
-            " terramechanics/set_soil_params.m ('K10_mini_smooth': as the grousered wheel's soil,"
-            " n2 0.55) and trench_off_smooth_new.mat (beta 0: a0 0.2024, a1 0.7048, b0 -0.476,"
-            " b1 -0.0003). X_c = 45 - phi/2 assumed." + _UNLOAD
-        ),
-    ),
 }
+# The same soil with the coefficients fitted for the smooth wheel.
+SOIL_PRESETS["cmu_testbed_smooth"] = replace(
+    SOIL_PRESETS["cmu_testbed_grousered"],
+    name="cmu_testbed_smooth",
+    n_skid=0.55,
+    peak_a0=0.2024,
+    peak_a1=0.7048,
+    rear_b0=0.476,
+    rear_b1=0.0003,
+    source=(
+        "Pavlov and Johnson (CMU), github.com/robomechanics/3d-terramechanics:"
+        " terramechanics/set_soil_params.m ('K10_mini_smooth': as the grousered wheel's soil,"
+        " n2 0.55) and trench_off_smooth_new.mat (beta 0: a0 0.2024, a1 0.7048, b0 -0.476,"
+        " b1 -0.0003). X_c = 45 - phi/2 assumed." + _UNLOAD
+    ),
+)
