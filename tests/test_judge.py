@@ -71,6 +71,7 @@ def test_the_table_is_in_its_documented_order():
     assert [(r.name, r.failure) for r in TERMINATIONS] == [
         ("tipped_over", True),
         ("left_terrain", True),
+        ("stuck", True),
         ("off_target", True),
         ("success", False),
     ]
@@ -83,3 +84,10 @@ def test_the_duration_truncates_an_episode_that_no_reason_ended():
     v = judge(facts(arrived=True))  # success at the last instant is success, not a time limit
     assert (v.terminated, v.truncated, v.reason) == (True, False, "success")
     assert Judge(RewardConfig(), duration=2.0)(facts()).truncated is False
+
+
+def test_stuck_ends_an_episode_as_a_failure_before_the_goal_counts():
+    judge = Judge(RewardConfig(), duration=10.0)
+    v = judge(facts(stuck=True, arrived=True))
+    assert (v.terminated, v.reason, v.success) == (True, "stuck", False)
+    assert judge(facts(stuck=False)).reason is None
