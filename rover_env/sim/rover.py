@@ -198,13 +198,14 @@ class Rover:
         ]
         self._write_passive(forces=forces)
 
-    def apply_friction(self, terrain: Terrain) -> None:
+    def apply_friction(self, terrain: Terrain, states=None) -> None:
         """Set each wheel's friction from the map at its contact point (call every substep).
 
         The contact point is taken below the wheel centre along the body's -z axis; PyBullet
         multiplies the two bodies' coefficients and the ground's is 1, so the wheel's value is
         the contact's. On loose soil it is reduced by the wheel's :attr:`dig`
-        (:meth:`update_dig`).
+        (:meth:`update_dig`). ``states``: this substep's wheel link states, if already read;
+        wheels on deformable soil (which do not touch the rigid ground) are left alone.
         """
         x, y, z, w = self._read_base()[1]
         r = self.geom.wheel_radius
@@ -214,7 +215,10 @@ class Rover:
         fmap = terrain.friction
         mu_at, loose, dig = fmap.mu_at, fmap.loose, self.dig
         current = self._mu
-        for i, st in enumerate(self._read_wheels()):
+        on_soil = self._on_soil
+        for i, st in enumerate(self._read_wheels() if states is None else states):
+            if on_soil[i]:
+                continue
             p = st[4]
             if loose:
                 mu, loss = fmap.mu_loss_at(p[0] - zx, p[1] - zy)
@@ -240,17 +244,18 @@ class Rover:
         self._push = partial(pb.applyExternalForce, physicsClientId=cid)
         self._turn = partial(pb.applyExternalTorque, physicsClientId=cid)
 
-    def apply_soil(self, terrain: Terrain) -> None:
+    def apply_soil(self, terrain: Terrain, states=None) -> None:
         """Forces of the soil on the wheels standing on it (call every substep, before stepping).
 
         A wheel over a soil patch stops colliding with the rigid ground and is carried by the
-        soil instead (:class:`rover_env.sim.soil_contact.SoilGround`).
+        soil instead (:class:`rover_env.sim.soil_contact.SoilGround`). ``states``: this
+        substep's wheel link states with their velocities, if already read.
         """
         soil = self.soil
         if soil is None:
             return
         wheels = np.array(
-            [(*st[4], *st[5], *st[6], *st[7]) for st in self._read_wheels_with_velocity()]
+            [(*st[4], *st[5], *st[6], *st[7]) for st in (states or self._read_wheels_with_velocity())]
         )  # per wheel: frame origin, frame orientation, velocity, angular velocity
         cx, cy = wheels[:, 0], wheels[:, 1]
         ground = terrain.height_at(cx, cy)

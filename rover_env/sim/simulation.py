@@ -223,9 +223,12 @@ class RoverSim:
     def _substep(self) -> None:
         rover = self.rover
         rover.apply_passive()
-        rover.apply_friction(self.terrain)
-        if rover.soil is not None:  # wheels on deformable soil: its forces, not the ground's contact
-            rover.apply_soil(self.terrain)
+        if rover.soil is None:
+            rover.apply_friction(self.terrain)
+        else:  # wheels on deformable soil: its forces, not the ground's contact
+            states = rover._read_wheels_with_velocity()
+            rover.apply_friction(self.terrain, states)
+            rover.apply_soil(self.terrain, states)
         self._step_physics()
         if self.terrain.friction.loose:  # the soil under spinning wheels gives way
             rover.update_dig(self.terrain)
