@@ -88,12 +88,27 @@ class SoilContact:
 
     def reset(self) -> None:
         """Forget the held shear and the deflection (a new episode)."""
-        self.hold[:] = 0.0
-        self.deflection[:] = 0.0
-        self.rolled[:] = 0.0
-        self._travel[:] = 0.0
-        self._turn[:] = 0.0
-        self._out[:] = 0.0
+        for a in self._state():
+            a[...] = 0.0
+
+    def forget(self, wheel: int) -> None:
+        """Fresh soil state for one wheel (it went onto or off the soil)."""
+        self.hold[:, wheel] = 0.0
+        self.deflection[:, wheel] = 0.0
+        for a in (self.rolled, self._out, self._travel, self._turn):
+            a[wheel] = 0.0
+
+    def snapshot(self) -> tuple[np.ndarray, ...]:
+        """Copies of every wheel's soil state, for :meth:`restore`."""
+        return tuple(a.copy() for a in self._state())
+
+    def restore(self, snap: tuple[np.ndarray, ...]) -> None:
+        """Put back the soil state of :meth:`snapshot`."""
+        for now, kept in zip(self._state(), snap, strict=True):
+            now[...] = kept
+
+    def _state(self) -> tuple[np.ndarray, ...]:
+        return (self.hold, self.deflection, self.rolled, self._out, self._travel, self._turn)
 
     def _checked(self, name: str, a) -> np.ndarray:
         a = np.ascontiguousarray(a, dtype=np.float64)
@@ -186,15 +201,6 @@ class SoilGround:
         self._force = np.zeros((n, 3))
         self._torque = np.zeros((n, 3))
 
-    def last_exit_lengths(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per wheel, how far ahead of its centre it meets the soil and behind it leaves it [m].
-
-        From the last substep's contact angles (``0.9 r_s sin theta_f`` and
-        ``r_s sin |theta_r|``); 0 before the first.
-        """
-        out, rs = self.contact.last, self.wheel.shear_radius
-        return 0.9 * rs * np.sin(out[:, 5]), rs * np.sin(np.abs(out[:, 6]))
-
     def reset(self) -> None:
         """Forget every wheel's soil state (a new episode)."""
         self.contact.reset()
@@ -230,12 +236,7 @@ class SoilGround:
         if changed.any():  # a wheel onto or off soil: its soil state starts afresh
             c = self.contact
             for k in np.flatnonzero(changed):
-                c.hold[:, k] = 0.0
-                c.deflection[:, k] = 0.0
-                c.rolled[k] = 0.0
-                c._travel[k] = 0.0
-                c._turn[k] = 0.0
-                c._out[k] = 0.0
+                c.forget(int(k))
                 if index[k] >= 0:
                     c._p[k] = self._rows[index[k]]
             self.index = index.copy()

@@ -60,10 +60,10 @@ import numpy as np
 
 from rover_env.config.io import ConfigError, check_range
 from rover_env.config.soil import SoilConfig
+from rover_env.sim.geometry import GRAVITY
 
 __all__ = ["WheelSpec", "ContactForces", "contact_forces", "rut_surface", "steady_state", "SteadyState"]
 
-GRAVITY = 9.81
 #: Largest ratio v / (r omega) of a braking wheel the shear displacement uses (s = -0.98).
 MAX_SKID_RATIO = 50.0
 #: Soil sheared before reloads this many times as stiffly as fresh soil (assumed; the normal

@@ -24,12 +24,12 @@ from pybullet_utils.bullet_client import BulletClient
 
 from rover_env.config.io import ConfigError, check_range
 from rover_env.config.soil import SoilConfig
+from rover_env.sim.geometry import GRAVITY
 from rover_env.sim.soil_contact import SoilContact
 from rover_env.sim.terramechanics import WheelSpec, slip_velocities
 
 log = logging.getLogger(__name__)
 
-GRAVITY = 9.81
 COLUMNS = ("slip", "drawbar_pull_N", "load_N", "sinkage_m", "torque_Nm")
 
 
@@ -172,17 +172,11 @@ class _Bed:
         for _ in range(int(round(seconds / self.dt))):
             self._substep()
         self._settled = self.c.saveState()
-        soil = self.soil
-        self._soil_state = tuple(
-            a.copy() for a in (soil.hold, soil.deflection, soil.rolled, soil._out, soil._travel, soil._turn)
-        )
+        self._soil_state = self.soil.snapshot()
 
     def run(self, slip: float, speed: float, duration: float) -> WheelTestRow:
         self.c.restoreState(self._settled)
-        for kept, now in zip(
-            self._soil_state, (self.soil.hold, self.soil.deflection, self.soil.rolled, self.soil.last)
-        ):
-            now[:] = kept
+        self.soil.restore(self._soil_state)
         v, w = slip_velocities(np.array([slip]), speed, self.wheel.radius)
         self._drive(float(v[0]), float(w[0]))
         n = int(round(duration / self.dt))

@@ -430,7 +430,15 @@ def _need_fps(args: argparse.Namespace) -> None:
 def _cmd_wheel_test(args: argparse.Namespace) -> int:
     from rover_env.tools.wheel_test import PRODUCTS, run
 
-    return run(args, _prepare_out(args.out, PRODUCTS, args.overwrite))
+    out = _prepare_out(args.out, PRODUCTS, args.overwrite)
+    rows = run(args, out)
+    print(f"{'slip':>6} {'DP/W':>7} {'sinkage mm':>10} {'torque Nm':>9}")
+    for r in rows:
+        print(
+            f"{r.slip:+6.2f} {r.drawbar_pull_N / r.load_N:+7.3f} {1e3 * r.sinkage_m:10.2f} {r.torque_Nm:9.4f}"
+        )
+    print(f"wrote {out / 'wheel_test.csv'} and {out / 'wheel_test.png'}")
+    return 0
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:

@@ -35,8 +35,8 @@ def write_plot(rows: list[WheelTestRow], path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def run(args: argparse.Namespace, out: Path) -> int:
-    """Run the test bed from the parsed ``rover wheel-test`` arguments into ``out``."""
+def run(args: argparse.Namespace, out: Path) -> list[WheelTestRow]:
+    """Run the test bed from the parsed ``rover wheel-test`` arguments; its CSV and plot into ``out``."""
     soil = load_soil(args.soil)
     wheel = WheelSpec(
         radius=args.radius,
@@ -52,10 +52,4 @@ def run(args: argparse.Namespace, out: Path) -> int:
         f"{args.grousers} grousers x {args.grouser_height} m, {args.speed} m/s"
     )
     write_plot(rows, out / "wheel_test.png", title)
-    print(f"{'slip':>6} {'DP/W':>7} {'sinkage mm':>10} {'torque Nm':>9}")
-    for r in rows:
-        print(
-            f"{r.slip:+6.2f} {r.drawbar_pull_N / r.load_N:+7.3f} {1e3 * r.sinkage_m:10.2f} {r.torque_Nm:9.4f}"
-        )
-    print(f"wrote {out / 'wheel_test.csv'} and {out / 'wheel_test.png'}")
-    return 0
+    return rows
