@@ -479,6 +479,9 @@ def test_bad_inputs_raise_clear_errors(ground):
         FlowOdometryConfig(harris_width=40)
     with pytest.raises(ValueError, match="fb_levels"):
         FlowOdometryConfig(fb_levels=4)
+    for bad in (-1.0, 100.0, float("nan")):
+        with pytest.raises(ValueError, match="quality_percentile"):
+            FlowOdometryConfig(quality_percentile=bad)
 
 
 def test_chained_mode_matches_pairs_and_integrates_an_arc(ground):
@@ -822,3 +825,36 @@ def test_a_ground_of_two_grey_levels_is_not_taken_for_a_shadow_and_its_motion_is
     # the robot's shadow on it is still one
     shaded = render(cam, tex, START, body_shadow(size), noise=2.0, rng=np.random.default_rng(1))
     assert odo.select(shaded).diagnostics.shadow
+
+
+def test_a_small_dark_blob_does_not_starve_faint_ground_of_features(ground):
+    """Harris's quality is a share of the strongest corner: a small dark blob fixed in the view
+    (the shadow of the mast, too small to be taken for a shadow) holds it, and pale, faint ground
+    must still get its features (the quality then refers to a percentile of the response)."""
+    size = (160, 120)
+    cam = mast_camera(size)
+    dt = 1 / 30
+    faint = 130 + 0.12 * (ground - 130)  # grey-level spread about 4 instead of 30
+    blob = np.zeros((size[1], size[0]), bool)
+    blob[95:103, 115:123] = True
+    twist = (0.6, 0.0, 0.2)
+    results = {}
+    for pct in (95.0, 0.0):
+        odo = FlowOdometry(cam, FlowOdometryConfig.for_camera(160, 30.0, quality_percentile=pct))
+        found, errs = [], []
+        for k in range(4):
+            start = (START[0] + 0.2 * k, START[1] - 0.1 * k, 0.3 * k)
+            prev = render(cam, faint, start, blob, rng=np.random.default_rng(2 * k))
+            moved = pose_after(start, twist, dt)
+            curr = render(cam, faint, moved, blob, rng=np.random.default_rng(2 * k + 1))
+            est = odo.estimate(prev, curr, dt)
+            found.append(est.n_features)
+            if est.valid:
+                errs.append((math.hypot(est.v_x - twist[0], est.v_y - twist[1]), abs(est.omega - twist[2])))
+        results[pct] = (found, errs)
+        print(f"quality_percentile={pct}: features {found}, errors {np.round(errs, 4).tolist()}")
+    found, errs = results[95.0]
+    assert min(found) >= odo.config.max_features // 2 and len(errs) == 4
+    err_v, err_w = np.max(errs, axis=0)
+    assert err_v <= 0.03 and err_w <= 0.05
+    assert max(results[0.0][0]) < odo.config.max_features // 4  # the starvation it prevents
