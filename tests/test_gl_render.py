@@ -139,3 +139,61 @@ def test_link_poses_are_pybullets_forward_kinematics_and_rendering_leaves_the_ph
             np.testing.assert_allclose(M[k + 1, :3, :3], R, atol=1e-12)
     finally:
         sim.close()
+
+
+@pytest.mark.parametrize("renderer", ["gl", "tiny"])
+def test_ruts_in_soil_are_shaded_by_the_slope_of_their_walls(renderer):
+    """After a drive on soil, a view down on the rear wheels' tracks against the same view with
+    the ruts left out: the ground outside the tracks is the same to the bit; at each track's edges
+    the shading is that of the rut surface's slope (Lambert's law with the normal tilted by the
+    depth's central difference over one cell), the wall facing the sun brighter, the other in
+    its own shade (ambient light only). Both renderers."""
+    from perception.cameras import PinholeCamera
+    from rover_env.config.scenario import FrictionPatch
+    from rover_env.rendering import focus_on_rover
+    from rover_env.rendering.base import Lighting, look_at
+
+    patch = FrictionPatch(mu=0.5, center=(10.0, 0.0), size=(40.0, 20.0), soil="toyoura")
+    sim = RoverSim(flat_scenario(mu=1.0, patches=[patch]), renderer=renderer)
+    try:
+        sim.reset(0.0, 0.0, 0.0)
+        g = sim.geometry
+        sim.rover.command(np.full(4, 0.3 / g.wheel_radius), 0.0, 0.0)
+        sim.step(3.0)
+        rear = np.array([st[4] for st in sim.rover._read_wheels()])[2:]
+        x = float(rear[:, 0].mean()) - 0.3
+        ruts = sim.rover.ruts
+        x0, y0, depth = ruts.surface(x, 0.0, 0.5)
+        d = float(depth.max())
+        assert d > 0.01  # a rut of a centimetre or more
+        cam = PinholeCamera.from_fov((320, 240), math.radians(50.0), math.radians(38.0))
+        sin_e = 0.5  # the sun 30 degrees up, from +y (across the tracks)
+        light = Lighting((0.0, math.sqrt(1 - sin_e**2), sin_e), ambient=0.25, diffuse=1.0, shadows=False)
+        r = focus_on_rover(sim)
+        T = look_at((x, 0.0, 0.9), (x, 0.0, 0.0), up=(1.0, 0.0, 0.0))
+        seen = r.render_pinhole(cam, T, light, far=5.0)
+        r.ruts = None
+        flat = r.render_pinhole(cam, T, light, far=5.0)
+        ground = np.isin(seen.segmentation, r.ground_ids)
+        a, b = seen.rgb.astype(float).mean(axis=2), flat.rgb.astype(float).mean(axis=2)
+        y = seen.points_world[..., 1]
+        near = np.zeros(ground.shape, bool)
+        for yc in rear[:, 1]:
+            near |= np.abs(y - yc) < 0.5 * g.wheel_width + 0.03
+        # away from the tracks nothing changes
+        assert ground[~near].sum() > 10_000 and np.array_equal(a[ground & ~near], b[ground & ~near])
+        # at the tracks' edges: the shading of the slope's normal over the flat ground's
+        ok = ground & near & (b > 40)
+        ratio = a[ok] / b[ok]
+        flat_shade = 0.25 + sin_e
+        s = d / (2.0 * ruts.cell)  # the steepest slope the central difference reads
+        n = np.array([0.0, s, 1.0]) / math.hypot(s, 1.0)
+        brightest = (0.25 + float(n @ light.sun_direction)) / flat_shade
+        darkest = 0.25 / flat_shade  # the wall away from the sun is in its own shade
+        print(f"{renderer}: rut {1e3 * d:.1f} mm: ratios {ratio.min():.3f}..{ratio.max():.3f}, "
+              f"predicted {darkest:.3f}..{brightest:.3f}")  # fmt: skip
+        assert ratio.max() == pytest.approx(brightest, rel=0.05)
+        assert ratio.min() == pytest.approx(darkest, rel=0.05)
+        assert np.mean(np.abs(ratio - 1.0) > 0.05) > 0.1  # the walls are a good share of the band
+    finally:
+        sim.close()

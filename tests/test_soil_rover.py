@@ -141,6 +141,11 @@ def test_the_wheels_leave_ruts_as_deep_as_they_sank():
         assert pressed == pytest.approx(rear_sink, rel=0.03)
         rut = rut_surface(load_soil(SOIL), _wheel(g), pressed)
         assert np.all(rut > 0.8 * rear_sink) and np.all(rut < rear_sink)  # rebounds a little
+        # the map keeps that surface for the renderers
+        x0, y0, depth = sim.rover.ruts.surface(float(behind[0, 0]), float(behind[0, 1]), 0.05)
+        cell = sim.rover.ruts.cell
+        i, j = int((behind[0, 0] - x0) / cell), int((behind[0, 1] - y0) / cell)
+        assert depth[j, i] == pytest.approx(rut[0], rel=1e-5)
         # beside the tracks the soil is untouched
         assert np.all(sim.rover.ruts.sample(behind + np.array([0.0, 0.15]))[:, 0] == 0.0)
         assert sim.rover.ruts.nbytes == nbytes  # the map's memory is fixed

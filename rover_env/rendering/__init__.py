@@ -55,10 +55,13 @@ def make_renderer(sim: RoverSim) -> Renderer:
             sim.client,
             sim.terrain,
             link_textures={(rv.body_id, link): path for link, path in rv.link_textures.items()},
+            ruts=rv.ruts if rv.soil is not None else None,
         )
     from rover_env.rendering.tiny import TinyRenderer
 
-    return TinyRenderer(sim.client, sim.terrain, shadow_body=sim.rover.body_id)
+    rv = sim.rover
+    ruts = rv.ruts if rv.soil is not None else None
+    return TinyRenderer(sim.client, sim.terrain, shadow_body=rv.body_id, ruts=ruts)
 
 
 def renderer_for(sim: RoverSim) -> Renderer:

@@ -166,6 +166,37 @@ class MotionSpec:
     expose: Callable[[np.ndarray, np.ndarray, tuple[int, int]], np.ndarray] | None = None
 
 
+#: Half the edge of the square about the renderer's focus in which ruts are drawn [m] (the
+#: cameras' near ground: the downward camera's view and the fisheye's wheels).
+RUT_VIEW_HALF = 2.5
+
+
+def rut_shade(ruts, points: np.ndarray, normals: np.ndarray, lighting: Lighting) -> np.ndarray:
+    """Factor (k,) on the sunlit brightness of ground points for the slope of the ruts there.
+
+    The rut surface lies ``depth(x, y)`` below the ground (:meth:`RutMap.surface_at`); its
+    normal is the ground's ``normals`` (k, 3) tilted by the depth's central difference over one
+    cell, and the factor is ``(ambient + diffuse cos i') / (ambient + diffuse cos i)`` with the
+    incidence on the tilted and on the ground's own normal (1 where neither is lit). ``points``
+    (k, 3) world [m]. The depth moves no point (its parallax is not drawn).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    c = ruts.cell
+    xy = pts[:, :2]
+    gx = ruts.surface_at(xy + [c, 0.0]) - ruts.surface_at(xy - [c, 0.0])
+    gy = ruts.surface_at(xy + [0.0, c]) - ruts.surface_at(xy - [0.0, c])
+    tilted = n / n[:, 2:3] + np.stack([gx, gy, np.zeros(len(xy))], axis=1) / (2.0 * c)
+    tilted /= np.linalg.norm(tilted, axis=1, keepdims=True)
+    sun = np.asarray(lighting.sun_direction, dtype=np.float64)
+    sun = sun / np.linalg.norm(sun)
+    a, d = float(lighting.ambient), float(lighting.diffuse)
+    before = a + d * np.maximum(n @ sun, 0.0)
+    after = a + d * np.maximum(tilted @ sun, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(before > 0.0, after / before, 1.0)
+
+
 class Renderer(ABC):
     """Draws one PyBullet client's scene: pinhole views and fisheye images with sun shadows.
 

@@ -35,7 +35,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rover_env.config.cameras import FINE_RADIUS
-from rover_env.rendering.base import FisheyeView, Lighting, MotionSpec, RenderedView, Renderer, view_planes
+from rover_env.rendering.base import (
+    RUT_VIEW_HALF,
+    FisheyeView,
+    Lighting,
+    MotionSpec,
+    RenderedView,
+    Renderer,
+    view_planes,
+)
 from rover_env.sim.terrain import Terrain
 from rover_env.sim.transforms import quat_to_matrix
 
@@ -51,6 +59,7 @@ SHADOW_MAP_PX = 2048  # largest shadow map edge [texels]
 #: and the wheel rates less accurate (benchmarks/ablations.py lod_bias).
 LOD_BIAS = -1.0
 _CHUNK = 0.8  # [m] least edge of a terrain chunk (the unit of view culling)
+
 _CHUNK_CELLS = 8  # least grid cells along a chunk's edge
 
 # One source, four programs: GROUND (untinted texture) or bodies (colours, optional texture), each
@@ -73,6 +82,8 @@ out vec3 v_light;
 in vec4 in_color;
 in float in_link;
 out vec4 v_color;
+#else
+out vec2 v_xy;
 #endif
 #ifdef LABELS
 out vec3 v_world;
@@ -97,6 +108,8 @@ void main() {
     vec3 n = in_normal;
 #ifndef GROUND
     v_color = in_color;
+#else
+    v_xy = w.xy;
 #endif
     vec4 cam = u_view * w;
     gl_Position = u_proj * cam;
@@ -146,6 +159,13 @@ uniform bool u_look;  // the ground's albedo and contrast changed (domain random
 uniform float u_albedo;
 uniform float u_contrast;
 uniform vec3 u_tex_mean;
+// the ruts (rover_env.sim.ruts): depth of the soil's surface below the ground [m], its box
+// (x0, y0, 1 / edge x, 1 / edge y) [m, 1/m] and cell [m]
+uniform bool u_has_ruts;
+uniform sampler2D u_ruts;
+uniform vec4 u_rut_box;
+uniform float u_rut_cell;
+in vec2 v_xy;
 #endif
 in vec3 v_normal;
 in vec2 v_uv;
@@ -177,7 +197,21 @@ void main() {
     vec4 albedo = v_color;
     if (u_textured) albedo *= texture(u_tex, v_uv, u_lod_bias);
 #endif
-    float cos_i = max(dot(normalize(v_normal), u_sun), 0.0);
+    vec3 nrm = normalize(v_normal);
+#ifdef GROUND
+    if (u_has_ruts) {
+        vec2 uv = (v_xy - u_rut_box.xy) * u_rut_box.zw;
+        if (all(greaterThan(uv, vec2(0.0))) && all(lessThan(uv, vec2(1.0)))) {
+            // the surface z = ground - depth: the depth's slope tilts the ground's normal
+            vec2 du = vec2(u_rut_cell * u_rut_box.z, 0.0);
+            vec2 dv = vec2(0.0, u_rut_cell * u_rut_box.w);
+            float gx = texture(u_ruts, uv + du).r - texture(u_ruts, uv - du).r;
+            float gy = texture(u_ruts, uv + dv).r - texture(u_ruts, uv - dv).r;
+            nrm = normalize(nrm / nrm.z + vec3(gx, gy, 0.0) / (2.0 * u_rut_cell));
+        }
+    }
+#endif
+    float cos_i = max(dot(nrm, u_sun), 0.0);
     float lit = u_shadows ? texture(u_shadow, v_light) : 1.0;
     float sky = 1.0;
     for (int i = 0; i < u_nclouds; ++i) {
@@ -695,6 +729,12 @@ class GLRenderer(Renderer):
             (PyBullet does not report textures set by ``changeVisualShape`` on mesh shapes).
         shadow_px: Largest shadow-map edge [texels].
         lod_bias: Mipmap level bias of texture sampling [levels] (see :data:`LOD_BIAS`).
+        ruts: The wheels' ruts in deformable soil (:class:`rover_env.sim.ruts.RutMap`), if any:
+            within :data:`~rover_env.rendering.base.RUT_VIEW_HALF` of the focus the ground is
+            shaded with the slope of their surface (its normal tilted, texel by texel). The
+            ruts do not move the ground's triangles: the depth's parallax (a 2 cm rut seen from
+            0.5 m moves its floor by 4 % of the distance to the view's centre) and the shadows
+            cast inside a rut are not drawn.
 
     Raises:
         GLUnavailableError: No OpenGL 3.3 context can be created.
@@ -711,10 +751,15 @@ class GLRenderer(Renderer):
         link_textures: dict[tuple[int, int], str | Path] | None = None,
         shadow_px: int = SHADOW_MAP_PX,
         lod_bias: float = LOD_BIAS,
+        ruts=None,
     ) -> None:
         import moderngl
 
         self._mgl = moderngl
+        self.ruts = ruts
+        self._rut_tex: Any = None
+        self._rut_key: tuple | None = None
+        self._rut_box = (0.0, 0.0, 1.0, 1.0)
         self.client = client
         self.terrain = terrain
         self._texture_files = {int(k): str(v) for k, v in (textures or {}).items()}
@@ -744,6 +789,7 @@ class GLRenderer(Renderer):
                 _set(prog, "u_tex", 0)
                 _set(prog, "u_lod_bias", float(lod_bias))
                 _set(prog, "u_shadow", 1)
+                _set(prog, "u_ruts", 2)
             self._textures: dict[str, object] = {}
             self._texture_means: dict[str, tuple[float, float, float]] = {}
             self._bodies: dict[int, list[_Group]] = {}
@@ -973,6 +1019,27 @@ class GLRenderer(Renderer):
         ``near`` (views that see no farther). Until the first call all ground is drawn exactly.
         """
         self._focus = (float(x), float(y), None if near is None else float(near))
+
+    def _update_ruts(self) -> bool:
+        """Upload the ruts' surface about the focus if it changed; whether any are drawn."""
+        ruts = self.ruts
+        if ruts is None or not ruts.pressed:
+            return False
+        if self._focus is None:
+            cx, cy = (float(v) for v in ruts.origin + 0.5 * ruts.size)
+        else:
+            cx, cy = self._focus[0], self._focus[1]
+        key = (ruts.version, round(cx / ruts.cell), round(cy / ruts.cell))
+        if key != self._rut_key:
+            x0, y0, depth = ruts.surface(cx, cy, RUT_VIEW_HALF)
+            if self._rut_tex is None or self._rut_tex.size != depth.shape[::-1]:
+                self._rut_tex = self._own(self.ctx.texture(depth.shape[::-1], 1, dtype="f4"))
+                self._rut_tex.repeat_x = self._rut_tex.repeat_y = False
+            self._rut_tex.write(np.ascontiguousarray(depth).tobytes())
+            edge = depth.shape[0] * ruts.cell
+            self._rut_box = (x0, y0, 1.0 / edge, 1.0 / edge)
+            self._rut_key = key
+        return True
 
     def _ground_chunks(self, planes: np.ndarray) -> np.ndarray:
         """Indices of the ground chunks to draw in the view bounded by ``planes`` (world frame)."""
@@ -1225,6 +1292,13 @@ class GLRenderer(Renderer):
                 _set(g, "u_albedo", float(terrain.albedo))
                 _set(g, "u_contrast", float(terrain.contrast))
                 _set(g, "u_tex_mean", self._texture_means[path])
+            has_ruts = self._update_ruts()
+            _set(g, "u_has_ruts", has_ruts)
+            if has_ruts:
+                assert self._rut_tex is not None and self.ruts is not None
+                self._rut_tex.use(2)
+                _set(g, "u_rut_box", self._rut_box)
+                _set(g, "u_rut_cell", float(self.ruts.cell))
             visible = self._ground_chunks(view_planes_world)
             if len(visible):
                 # runs of consecutive chunks, one draw each (an indirect multi-draw would make

@@ -18,7 +18,15 @@ import cv2
 import numpy as np
 import pybullet as pb
 
-from rover_env.rendering.base import FisheyeView, Lighting, RenderedView, Renderer, view_planes
+from rover_env.rendering.base import (
+    RUT_VIEW_HALF,
+    FisheyeView,
+    Lighting,
+    RenderedView,
+    Renderer,
+    rut_shade,
+    view_planes,
+)
 from rover_env.rendering.cubemap import SHADOW_DETAIL_RANGE, CubemapRemap
 from rover_env.rendering.ground_detail import GroundDetail
 from rover_env.rendering.shadows import ShadowCaster, ShadowMap
@@ -91,15 +99,23 @@ class TinyRenderer(Renderer):
             they are).
         shadow_body: The body whose sun shadow is computed (the rover); None: views with
             ``lighting.shadows`` on cannot be rendered.
+        ruts: The wheels' ruts in deformable soil (:class:`rover_env.sim.ruts.RutMap`), if any:
+            sunlit ground within :data:`~rover_env.rendering.base.RUT_VIEW_HALF` of the focus
+            is shaded with the slope of their surface (:func:`~rover_env.rendering.base.rut_shade`,
+            as the GL renderer does), after the image is drawn.
     """
 
     name = "tiny"
 
-    def __init__(self, client, terrain: Terrain | None = None, shadow_body: int | None = None) -> None:
+    def __init__(
+        self, client, terrain: Terrain | None = None, shadow_body: int | None = None, ruts=None
+    ) -> None:
         self.client = client
         self.terrain = terrain
         self.detail = GroundDetail(client, terrain) if terrain is not None else None
         self._shadow_body = shadow_body
+        self.ruts = ruts
+        self._focus: tuple[float, float] | None = None
 
     @functools.cached_property
     def shadow_caster(self) -> ShadowCaster:
@@ -115,6 +131,7 @@ class TinyRenderer(Renderer):
 
     def focus(self, x: float, y: float, ground_range: float | None = None) -> None:
         """See :meth:`Renderer.focus`: the exact ground near (x, y) [m] (:class:`GroundDetail`)."""
+        self._focus = (float(x), float(y))
         if self.detail is not None:
             self.detail.focus(x, y, ground_range)
 
@@ -161,7 +178,35 @@ class TinyRenderer(Renderer):
                 out.shadow = shadow_map.lookup_view(depth, K, out.T_world_cam) & hit
             if out.shadow.any():
                 _darken(rgb, out.shadow, depth, K, out.T_world_cam[:3, :3], lighting)
+        if self.ruts is not None and self.ruts.pressed and self.terrain is not None:
+            self._shade_ruts(out, seg, lighting)
         return out
+
+    def _shade_ruts(self, view: RenderedView, seg: np.ndarray | None, lighting: Lighting) -> None:
+        """Shade the view's sunlit ground near the focus for the ruts' slope (in place)."""
+        assert self.ruts is not None and self.terrain is not None
+        ruts = self.ruts
+        cx, cy = self._focus if self._focus is not None else tuple(ruts.origin + 0.5 * ruts.size)
+        pts = view.points_world
+        near = (np.abs(pts[..., 0] - cx) < RUT_VIEW_HALF) & (np.abs(pts[..., 1] - cy) < RUT_VIEW_HALF)
+        near &= ~view.shadow
+        if seg is not None:
+            near &= np.isin(seg, self.ground_ids)
+        if not near.any():
+            return
+        p = pts[near].astype(np.float64)
+        ground = self.terrain.height_at(p[:, 0], p[:, 1])
+        on = np.abs(p[:, 2] - ground) < 0.005  # the ground itself (without labels: by its height)
+        idx = np.flatnonzero(near)[on]
+        if not len(idx):
+            return
+        p = p[on]
+        factor = rut_shade(ruts, p, self.terrain.normal_at(p[:, 0], p[:, 1]), lighting)
+        changed = factor != 1.0
+        if changed.any():
+            flat = view.rgb.reshape(-1, 3)
+            k = idx[changed]
+            flat[k] = np.clip(np.rint(flat[k] * factor[changed, None]), 0, 255).astype(np.uint8)
 
     def render_fisheye(
         self,

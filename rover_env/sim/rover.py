@@ -283,8 +283,9 @@ class Rover:
         prior, shear, leave = ruts.meet(wheels, soil.frames, c_.last, c_.rolled, soil.wheel.shear_radius)
         force, torque = soil.step(index, wheels, ground, normal, prior, shear)
         ruts.press(
-            leave, soil.frames[:, 0, :2], self.geom.wheel_width, soil.sinkage, c_.last[:, 8], soil.index >= 0
-        )
+            leave, soil.frames[:, 0, :2], self.geom.wheel_width, soil.sinkage, c_.last[:, 8], soil.index >= 0,
+            soil.rows, soil.index,
+        )  # fmt: skip
         push, turn = self._push, self._turn
         for i, link in enumerate(self.wheel_links):
             if index[i] >= 0:

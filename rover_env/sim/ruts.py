@@ -5,11 +5,12 @@ surface rebounds above that, :func:`rover_env.sim.terramechanics.rut_surface`) a
 the shear displacement at its exit. A later wheel on the same track meets both
 (:func:`rover_env.sim.terramechanics.contact_forces`' ``prior`` and ``prior_shear``).
 
-The map is a square grid of ``size`` metres at ``cell`` metres around the rover, three layers
-(the largest sinkage [m], the shear's world x and y components [m]). When the rover comes
-within ``margin`` of its edge the window moves to centre on it, keeping what overlaps: ruts
-further than about half the window behind are forgotten. Memory is fixed: 3 x (size/cell)^2
-float32 (17 MB at the default 12 m and 1 cm).
+The map is a square grid of ``size`` metres at ``cell`` metres around the rover, four layers
+(the largest sinkage [m], the shear's world x and y components [m], and the depth of the rut's
+surface [m], shallower than the sinkage by the soil's rebound: what the cameras see). When the
+rover comes within ``margin`` of its edge the window moves to centre on it, keeping what
+overlaps: ruts further than about half the window behind are forgotten. Memory is fixed:
+4 x (size/cell)^2 float32 (23 MB at the default 12 m and 1 cm).
 """
 
 from __future__ import annotations
@@ -37,12 +38,19 @@ def _sample(grid, x0, y0, cell, px, py, out):  # pragma: no cover (compiled)
 
 
 @_compiled
-def _press(grid, x0, y0, cell, cx, cy, hx, hy, half, depth, shear, on):  # pragma: no cover (compiled)
+def _press(grid, x0, y0, cell, cx, cy, hx, hy, half, depth, shear, on, rows, index):  # pragma: no cover
     n = grid.shape[1]
     steps = int(math.ceil(2.0 * half / (0.5 * cell)))
     for k in range(cx.shape[0]):
         if not on[k] or depth[k] <= 0.0:
             continue
+        # the rut's surface: the sinkage less the rebound p / k_u (terramechanics.rut_surface),
+        # from the wheel's soil's row of terramechanics._params (kb 4, n 5, k0 16, A_u 17)
+        surf = 0.0
+        if index[k] >= 0:
+            q = rows[index[k]]
+            ku = q[16] + q[17] * depth[k]
+            surf = max(depth[k] - q[4] * depth[k] ** q[5] / ku, 0.0) if ku > 0.0 else depth[k]
         # across the wheel: the heading turned by 90 degrees to the left
         norm = math.hypot(hx[k], hy[k])
         if norm <= 0.0:
@@ -56,6 +64,7 @@ def _press(grid, x0, y0, cell, cx, cy, hx, hy, half, depth, shear, on):  # pragm
             if 0 <= i < n and 0 <= j < n:
                 if depth[k] > grid[0, j, i]:
                     grid[0, j, i] = depth[k]
+                    grid[3, j, i] = surf
                 grid[1, j, i] = shear[k] * ux
                 grid[2, j, i] = shear[k] * uy
 
@@ -107,12 +116,16 @@ class RutMap:
         self.n = int(round(size / cell))
         self.size = self.n * self.cell
         self.margin = float(margin)
-        points = 3 * self.n * self.n
+        points = 4 * self.n * self.n
         if points * 4 > 2 * 1024**3:
             raise ValueError(
                 f"ruts: a {size} m window at {cell} m needs {points * 4 / 1e9:.1f} GB; enlarge the cell"
             )
-        self.grid = np.zeros((3, self.n, self.n), dtype=np.float32)
+        self.grid = np.zeros((4, self.n, self.n), dtype=np.float32)
+        #: Counts the changes of the map (a renderer uploads it again when this moves).
+        self.version = 0
+        #: Whether any wheel has pressed the soil since the last reset.
+        self.pressed = False
         self.origin = np.array([-self.size / 2, -self.size / 2])
         self._buf = np.zeros((0, 3))
         self._meet_buf: tuple[np.ndarray, np.ndarray, np.ndarray] = (
@@ -125,6 +138,8 @@ class RutMap:
         """Fresh soil everywhere; the window centred on (x, y) [m]."""
         self.grid[:] = 0.0
         self.origin = np.array([x - self.size / 2, y - self.size / 2])
+        self.version += 1
+        self.pressed = False
 
     def follow(self, x: float, y: float) -> None:
         """Move the window to centre on (x, y) [m] if that is within ``margin`` of its edge."""
@@ -146,6 +161,7 @@ class RutMap:
             moved[:, dst_j, dst_i] = self.grid[:, src_j, src_i]
         self.grid = moved
         self.origin = new
+        self.version += 1
 
     def sample(self, xy) -> np.ndarray:
         """(k, 3) at world points ``xy`` (k, 2) [m]: largest sinkage [m], shear x and y [m]."""
@@ -155,7 +171,7 @@ class RutMap:
         _sample(self.grid, self.origin[0], self.origin[1], self.cell, xy[:, 0], xy[:, 1], self._buf)
         return self._buf
 
-    def press(self, xy, heading, width: float, depth, shear, on) -> None:
+    def press(self, xy, heading, width: float, depth, shear, on, soils, index) -> None:
         """Record wheels passing: a strip ``width`` [m] across each ``heading`` (k, 2) at ``xy``.
 
         Args:
@@ -165,10 +181,16 @@ class RutMap:
             depth: (k,) each wheel's sinkage there [m] (the map keeps the largest).
             shear: (k,) the shear displacement each leaves, along its heading [m].
             on: (k,) bool, the wheels on soil.
+            soils: (m, N_PARAMS) the soils' rows of ``terramechanics._params`` (the rut's
+                surface rebounds by each wheel's own soil).
+            index: (k,) each wheel's soil, a row of ``soils`` (-1: none).
         """
         xy = np.ascontiguousarray(xy, dtype=np.float64)
         hd = np.ascontiguousarray(heading, dtype=np.float64)
         on = on if isinstance(on, np.ndarray) and on.dtype == np.bool_ else np.asarray(on, dtype=np.bool_)
+        if on.any():
+            self.version += 1
+            self.pressed = True
         _press(
             self.grid,
             self.origin[0],
@@ -182,6 +204,54 @@ class RutMap:
             np.ascontiguousarray(depth, dtype=np.float64),
             np.ascontiguousarray(shear, dtype=np.float64),
             on,
+            np.ascontiguousarray(soils, dtype=np.float64),
+            np.ascontiguousarray(index, dtype=np.int64),
+        )
+
+    def surface_at(self, xy) -> np.ndarray:
+        """The ruts' surface depth [m] at world points ``xy`` (k, 2) [m].
+
+        Bilinear between cell centres (as a filtered texture of :meth:`surface` samples it), 0
+        beyond the map.
+        """
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        u = (xy[:, 0] - self.origin[0]) / self.cell - 0.5
+        v = (xy[:, 1] - self.origin[1]) / self.cell - 0.5
+        i, j = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fu, fv = u - i, v - j
+        layer = self.grid[3]
+        out = np.zeros(len(xy))
+        for di, dj, wgt in (
+            (0, 0, (1 - fu) * (1 - fv)),
+            (1, 0, fu * (1 - fv)),
+            (0, 1, (1 - fu) * fv),
+            (1, 1, fu * fv),
+        ):
+            ii, jj = i + di, j + dj
+            ok = (ii >= 0) & (ii < self.n) & (jj >= 0) & (jj < self.n)
+            out[ok] += wgt[ok] * layer[jj[ok], ii[ok]]
+        return out
+
+    def surface(self, x: float, y: float, half: float) -> tuple[float, float, np.ndarray]:
+        """The ruts' surface depth [m] in the square of ``2 half`` metres about world (x, y).
+
+        Returns:
+            ``(x0, y0, depth)``: the world position of cell (0, 0)'s corner [m] and a
+            (m, m) float32 copy of the depth below the original surface (rows along y, 0
+            beyond the map), m = round(2 half / cell).
+        """
+        m = int(round(2.0 * half / self.cell))
+        i0 = int(math.floor((x - half - self.origin[0]) / self.cell))
+        j0 = int(math.floor((y - half - self.origin[1]) / self.cell))
+        out = np.zeros((m, m), dtype=np.float32)
+        a0, a1 = max(i0, 0), min(i0 + m, self.n)
+        b0, b1 = max(j0, 0), min(j0 + m, self.n)
+        if a0 < a1 and b0 < b1:
+            out[b0 - j0 : b1 - j0, a0 - i0 : a1 - i0] = self.grid[3, b0:b1, a0:a1]
+        return (
+            float(self.origin[0] + i0 * self.cell),
+            float(self.origin[1] + j0 * self.cell),
+            out,
         )
 
     def meet(self, wheels, frames, out, rolled, shear_radius: float):

@@ -190,7 +190,8 @@ class SoilGround:
             raise ValueError("SoilGround needs at least one soil")
         self.wheel = wheel
         self.contact = SoilContact(soils[0], wheel, n, dt)
-        self._rows = np.stack([_params(s, wheel) for s in soils])
+        #: (len(soils), N_PARAMS) each soil's parameters with the wheel's (``terramechanics._params``).
+        self.rows = np.stack([_params(s, wheel) for s in soils])
         self.index = np.full(n, -1, dtype=np.int64)
         #: The last substep's sinkage of each wheel on soil [m] (0 on rigid ground).
         self.sinkage = np.zeros(n)
@@ -238,7 +239,7 @@ class SoilGround:
             for k in np.flatnonzero(changed):
                 c.forget(int(k))
                 if index[k] >= 0:
-                    c._p[k] = self._rows[index[k]]
+                    c._p[k] = self.rows[index[k]]
             self.index = index.copy()
         c = self.contact
         _ground_step(
