@@ -28,6 +28,7 @@ def drive(args, draw_ruts: bool) -> tuple[np.ndarray, np.ndarray]:
     from rover_env.config.scenario import FrictionMapConfig, FrictionPatch, load_scenario
     from rover_env.envs.rover_env import RoverEnv
     from rover_env.rendering import renderer_for
+    from rover_env.sim.transforms import quat_to_yaw
 
     sc = load_scenario("flat_patches")
     patch = FrictionPatch(mu=0.5, center=(0.0, 0.0), size=(30.0, 30.0), soil=args.soil)
@@ -62,8 +63,7 @@ def drive(args, draw_ruts: bool) -> tuple[np.ndarray, np.ndarray]:
         while yaw < 2 * math.pi * args.laps:
             _, _, term, trunc, info = env.step(action)
             gt = info["ground_truth"]
-            q = gt["pose"][3:7]
-            heading = math.atan2(2 * (q[3] * q[2] + q[0] * q[1]), 1 - 2 * (q[1] ** 2 + q[2] ** 2))
+            heading = quat_to_yaw(gt["pose"][3:7])
             if last is not None:
                 yaw += math.remainder(heading - last, 2 * math.pi)
             last = heading

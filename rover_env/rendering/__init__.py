@@ -47,20 +47,19 @@ def _warn_fallback(why: str) -> None:
 
 def make_renderer(sim: RoverSim) -> Renderer:
     """A new renderer of ``sim``'s scene, of the kind ``sim.renderer`` selects (:func:`resolve_renderer`)."""
+    rv = sim.rover
+    ruts = rv.ruts if rv.soil is not None else None  # the map exists only with soil
     if resolve_renderer(sim.renderer) == "gl":
         from rover_env.rendering.gl import GLRenderer
 
-        rv = sim.rover
         return GLRenderer(
             sim.client,
             sim.terrain,
             link_textures={(rv.body_id, link): path for link, path in rv.link_textures.items()},
-            ruts=rv.ruts if rv.soil is not None else None,
+            ruts=ruts,
         )
     from rover_env.rendering.tiny import TinyRenderer
 
-    rv = sim.rover
-    ruts = rv.ruts if rv.soil is not None else None
     return TinyRenderer(sim.client, sim.terrain, shadow_body=rv.body_id, ruts=ruts)
 
 

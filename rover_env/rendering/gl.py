@@ -59,7 +59,6 @@ SHADOW_MAP_PX = 2048  # largest shadow map edge [texels]
 #: and the wheel rates less accurate (benchmarks/ablations.py lod_bias).
 LOD_BIAS = -1.0
 _CHUNK = 0.8  # [m] least edge of a terrain chunk (the unit of view culling)
-
 _CHUNK_CELLS = 8  # least grid cells along a chunk's edge
 
 # One source, four programs: GROUND (untinted texture) or bodies (colours, optional texture), each
