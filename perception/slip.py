@@ -204,9 +204,9 @@ class SlipConfig:
             camera (6-8 % for a second), not noise: trusted to 0.01 m/s it held v_x 0.03-0.05
             m/s low through braking skids that the accelerometer measured right, and the
             skids read at about 60 % of their slip. At 0.02 m/s the accelerometer carries the
-            velocity through a braking. Without an accelerometer the same floor lags the
-            velocity in every speed change (F1 0.974 / 0.955 / 0.984 on the scripted train
-            sets against 0.962 / 0.979 / 0.991), so it is this field's alone.
+            velocity through a braking. Without an accelerometer the same floor is mixed (F1
+            0.974 / 0.955 / 0.984 on the scripted train sets against 0.962 / 0.979 / 0.991),
+            so it is this field's alone. Replays: docs/imu.md.
 
     The slip is that of the state at the wheels' latest rates (the middle of the fisheye's last
     frame), held to the query time with the variance growth of ``velocity_rw``,
