@@ -199,14 +199,6 @@ class SlipConfig:
             BMI088 (field cameras, seeds 100-104): at 0.75 the slip-unaware follower's skids on
             flat and rough ground were caught 29 times of 29 with 1 false event, and the
             slip-aware drives of the loose slope made 3; at 0.5, 29 with 3, and 8.
-        accel_odom_std: With an accelerometer, ``odom_std`` in its place [m/s, m/s, rad/s]. The
-            odometry's error on rough ground is a local scale error of the relief under the
-            camera (6-8 % for a second), not noise: trusted to 0.01 m/s it held v_x 0.03-0.05
-            m/s low through braking skids that the accelerometer measured right, and the
-            skids read at about 60 % of their slip. At 0.02 m/s the accelerometer carries the
-            velocity through a braking. Without an accelerometer the same floor is mixed (F1
-            0.974 / 0.955 / 0.984 on the scripted train sets against 0.962 / 0.979 / 0.991),
-            so it is this field's alone. Replays: docs/imu.md.
 
     The slip is that of the state at the wheels' latest rates (the middle of the fisheye's last
     frame), held to the query time with the variance growth of ``velocity_rw``,
@@ -274,7 +266,6 @@ class SlipConfig:
     wheel_accel_std: float = 10.0
     wheel_accel_rw: float = 20.0
     accel_rate_std_own: float = 0.75
-    accel_odom_std: tuple[float, float, float] = (0.02, 0.02, 0.02)
     outage_after: float = 0.5
     outage_slip_std: float = 0.25
 
@@ -284,10 +275,8 @@ class SlipConfig:
                 raise ValueError(f"SlipConfig.{name}: {getattr(self, name)!r} must be > 0")
         if not (math.isfinite(self.rate_std_own) and self.rate_std_own >= 0):
             raise ValueError(f"SlipConfig.rate_std_own: {self.rate_std_own!r} must be finite and >= 0")
-        for name in ("odom_std", "accel_odom_std"):
-            v = getattr(self, name)
-            if len(v) != 3 or not all(math.isfinite(e) and e > 0 for e in v):
-                raise ValueError(f"SlipConfig.{name}: {v!r}; give three finite values > 0")
+        if len(self.odom_std) != 3 or min(self.odom_std) <= 0:
+            raise ValueError(f"SlipConfig.odom_std: {self.odom_std!r}; give three values > 0")
         if len(self.rate_std) != 2 or self.rate_std[0] <= 0 or self.rate_std[1] < 0:
             raise ValueError(f"SlipConfig.rate_std: {self.rate_std!r}; give (floor > 0, share >= 0)")
         if not (self.grip_std >= 0 and self.grip_gate > 0):
@@ -482,8 +471,7 @@ class SlipEstimator:
             twist: (v_x, v_y, omega), the average over the pair [m/s, m/s, rad/s].
             dt: Time between the pair's frames [s]; the measurement applies at t - dt/2.
             quality: The odometry's quality in (0, 1] (ValueError above 1); without ``cov`` it
-                scales the noise ``odom_std`` (``accel_odom_std`` once an acceleration has
-                come) by 1/quality; 0 or NaN: invalid, left out.
+                scales the noise ``odom_std`` by 1/quality; 0 or NaN: invalid, left out.
             cov: (3, 3) covariance of the twist (the odometry's ``twist_cov``), if known; the
                 noise is then ``cov`` plus ``odom_std`` squared on the diagonal (a floor).
                 ValueError unless finite, symmetric and positive semi-definite.
@@ -498,7 +486,7 @@ class SlipEstimator:
         if max(abs(z[0]), abs(z[1])) > MAX_SPEED or abs(z[2]) > MAX_YAW_RATE:
             self._reject(f"odometry twist {z.tolist()} at t={t}")
             return
-        floor = np.asarray(self.config.accel_odom_std if self._accel_used else self.config.odom_std)
+        floor = np.asarray(self.config.odom_std)
         if cov is not None:
             C = np.asarray(cov, dtype=np.float64)
             if C.shape != (3, 3) or not np.all(np.isfinite(C)):

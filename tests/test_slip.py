@@ -360,9 +360,7 @@ def test_invalid_odometry_is_ignored_and_bad_arguments_are_named():
         est.estimate(math.nan)
 
 
-def ramp_drive(
-    accel: bool, seconds: float = 6.0, bias: float = 0.1, spin: bool = False, seed: int = 0, config=None
-):
+def ramp_drive(accel: bool, seconds: float = 6.0, bias: float = 0.1, spin: bool = False, seed: int = 0):
     """A straight drive, odometry and fisheye at 30 Hz, and an accelerometer if ``accel``.
 
     v_x is 0.3 m/s, ramping up at 1.5 m/s^2 over 1-1.8 s and back down over 2.5-3.3 s. The wheels'
@@ -370,7 +368,7 @@ def ramp_drive(
     ``spin`` they speed up at 3 m/s^2 over 4-4.5 s while the body keeps its speed. The
     accelerometer's x and y read the body's acceleration plus ``bias`` [m/s^2] and noise.
     Returns per frame (t, estimated v_x, true v_x, estimated FL slip, true slip, FL event) and
-    the estimator (of ``config``, default settings if None).
+    the estimator.
     """
 
     def v(t):
@@ -380,7 +378,7 @@ def ramp_drive(
         return v(t) + (3.0 * min(max(t - 4.0, 0.0), 0.5) if spin else 0.0)
 
     rng = np.random.default_rng(seed)
-    est = SlipEstimator(XY, R_WHEEL, config)
+    est = SlipEstimator(XY, R_WHEEL)
     ff = 1 / 30
     rows = []
     for k in range(1, int(seconds * 30) + 1):
@@ -399,33 +397,18 @@ def ramp_drive(
 
 def test_an_accelerometer_removes_the_lag_of_the_body_velocity_and_learns_its_bias():
     """The odometry's frames are averages, half a frame old when applied; the accelerometer carries
-    the velocity to the query time, and its 0.1 m/s^2 bias is learnt from the odometry.
-
-    The wheels' rates here are each frame's last (a motor's), a frame's mean speed ahead of the body
-    in a ramp, and their zero-slip pseudo-measurements pull the velocity towards them as far as the
-    odometry lets them: trusted to this odometry's own noise (0.01 m/s) the lag is halved, at the
-    default floor with an accelerometer (``accel_odom_std``, 0.02 m/s, for the relief's local scale
-    errors) the wheels lead it by about a third of a frame, still less than the lag without."""
+    the velocity to the query time, and its 0.1 m/s^2 bias is learnt from the odometry."""
     errs = {}
-    tight = SlipConfig(accel_odom_std=(0.01, 0.01, 0.02))
-    for name, accel, config in (("none", False, None), ("tight", True, tight), ("default", True, None)):
-        rows, est = ramp_drive(accel, config=config)
+    for accel in (False, True):
+        rows, est = ramp_drive(accel)
         t, ve, vt = rows[:, 0], rows[:, 1], rows[:, 2]
         ramps = ((t > 1.1) & (t < 1.8)) | ((t > 2.6) & (t < 3.3))
-        errs[name] = np.abs(ve - vt)[ramps].mean()
-        if accel:
-            bias = est._x[_ACC_BIAS : _ACC_BIAS + 2]
-            assert abs(bias[0] - 0.1) <= 0.02 and abs(bias[1] - 0.1) <= 0.02, (name, bias)
-    # 1.5 m/s^2 over the filter's lag: 0.021 m/s without, 0.010 tight, 0.018 default (measured)
-    assert errs["none"] >= 0.02, errs
-    assert errs["tight"] <= 0.5 * errs["none"] and errs["tight"] <= 0.013, errs
-    assert errs["tight"] < errs["default"] <= 0.9 * errs["none"], errs
-    # without the wheels' pull (no grip pseudo-measurements) either floor leaves 0.005
-    for floor in ((0.01, 0.01, 0.02), (0.02, 0.02, 0.02)):
-        rows, _ = ramp_drive(True, config=SlipConfig(grip_std=0.0, accel_odom_std=floor))
-        t, ve, vt = rows[:, 0], rows[:, 1], rows[:, 2]
-        ramps = ((t > 1.1) & (t < 1.8)) | ((t > 2.6) & (t < 3.3))
-        assert np.abs(ve - vt)[ramps].mean() <= 0.006, floor
+        errs[accel] = np.abs(ve - vt)[ramps].mean()
+    # 1.5 m/s^2 over the filter's lag: 0.026 m/s without, 0.010 with (measured)
+    assert errs[False] >= 0.02, errs
+    assert errs[True] <= 0.5 * errs[False] and errs[True] <= 0.013, errs
+    bias = est._x[_ACC_BIAS : _ACC_BIAS + 2]
+    assert abs(bias[0] - 0.1) <= 0.02 and abs(bias[1] - 0.1) <= 0.02, bias
 
 
 def test_a_wheel_that_spins_up_while_the_body_keeps_its_speed_is_an_event_at_once():
@@ -451,9 +434,6 @@ def test_accelerometer_input_is_checked():
         SlipConfig(accel_wheel_rate_rw=-1.0)
     with pytest.raises(ValueError, match="accel_rate_std_own"):
         SlipConfig(accel_rate_std_own=math.nan)
-    for bad in ((0.02, 0.02), (0.02, 0.0, 0.02), (0.02, math.inf, 0.02)):
-        with pytest.raises(ValueError, match="accel_odom_std"):
-            SlipConfig(accel_odom_std=bad)
 
 
 def test_one_outlying_wheel_rate_held_over_a_missed_frame_is_not_an_event():
