@@ -3,7 +3,7 @@
 A soil is what :mod:`rover_env.sim.terramechanics` needs to compute a wheel's stresses
 (Wong–Reece): the pressure–sinkage law of Bekker,
 
-    p(z) = (k_c / b + k_phi) z^n,        n = n0 + n_slip s (driving), n0 + n_skid |s| (braking),
+    p(z) = (k_c / b + k_phi) z^n,        n = n0 + n_slip s (driving), n0 + n_skid |s|^p (braking),
 
 the shear strength and shear deformation of Mohr–Coulomb and Janosi–Hanamoto,
 
@@ -41,7 +41,11 @@ class SoilConfig:
         n: Sinkage exponent at zero slip [-].
         n_slip: Rise of the sinkage exponent per unit of driving slip (slip sinkage; Ding et al.
             2011) [-].
-        n_skid: Rise of the sinkage exponent per unit of braking skid [-].
+        n_skid: Rise of the sinkage exponent at a locked wheel (skid -1) [-]; at skid s < 0
+            the exponent is ``n + n_skid |s|^n_skid_power``.
+        n_skid_power: How the skid sinkage grows with the skid [-]: 1 is Ding et al.'s linear
+            law; above 1 the sinkage barely changes at light braking and grows toward a lock,
+            as measured on Pavlov and Johnson's test bed (``docs/terramechanics.md``).
         cohesion: Mohr–Coulomb cohesion c [Pa].
         friction_deg: Angle of internal friction phi [deg], below 90.
         shear_modulus: Janosi–Hanamoto shear deformation modulus K along the wheel [m].
@@ -65,6 +69,7 @@ class SoilConfig:
     n: float = 1.0
     n_slip: float = 0.0
     n_skid: float = 0.0
+    n_skid_power: float = 1.0
     cohesion: float = 0.0
     friction_deg: float = 30.0
     shear_modulus: float = 0.02
@@ -87,6 +92,7 @@ class SoilConfig:
         check_range("soil.n", self.n, 0.0, 3.0, lo_open=True)
         check_range("soil.n_slip", self.n_slip, -self.n, 3.0, lo_open=True)
         check_range("soil.n_skid", self.n_skid, -self.n, 3.0, lo_open=True)
+        check_range("soil.n_skid_power", self.n_skid_power, 0.5, 4.0)
         check_range("soil.cohesion", self.cohesion, 0.0, 1e6)
         check_range("soil.friction_deg", self.friction_deg, 0.0, 90.0, hi_open=True)
         check_range("soil.shear_modulus", self.shear_modulus, 0.0, 1.0, lo_open=True)
@@ -249,24 +255,28 @@ SOIL_PRESETS: dict[str, SoilConfig] = {
         k_c=0.0,
         k_phi=8.0e6,
         n=1.46,
-        n_slip=0.01,
-        n_skid=0.74,
+        n_slip=0.0029,
+        n_skid=0.6000,
+        n_skid_power=1.5,
         cohesion=1.0e3,
         friction_deg=29.0,
         shear_modulus=0.021,
         shear_modulus_lateral=0.021,
         density=1330.0,
         destructive_deg=30.5,
-        peak_a0=0.2734,
-        peak_a1=0.6729,
-        rear_b0=0.664,
-        rear_b1=0.1766,
+        peak_a0=0.3762,
+        peak_a1=0.5239,
+        rear_b0=0.6288,
+        rear_b1=0.3180,
         source=(
             "Pavlov and Johnson (CMU), github.com/robomechanics/3d-terramechanics:"
             " terramechanics/set_soil_params.m ('K10_mini_grouser': k 8e3 kN/m^(n+2) from plate"
-            " tests, density 1330 kg/m^3, phi 29 deg, c 1 kPa, K 0.021 m, n0 1.46, n1 0.01,"
-            " n2 0.74) and trench_off_grouser.mat (beta 0: a0 0.2734, a1 0.6729, b0 -0.664,"
-            " b1 -0.1766). X_c = 45 - phi/2 assumed." + _UNLOAD
+            " tests, density 1330 kg/m^3, phi 29 deg, c 1 kPa, K 0.021 m, n0 1.46). The"
+            " slip-sinkage coefficients (n_slip, n_skid with n_skid_power 1.5, a0, a1, b0, b1) are"
+            " refit here to their slip-angle-0 test-bed means with this model's steady state"
+            " (benchmarks/wheel_fit.py; theirs, fitted at the measured sinkage: n1 0.01, n2 0.74"
+            " linear, a0 0.2734, a1 0.6729, b0 -0.664, b1 -0.1766, trench_off_grouser.mat)."
+            " X_c = 45 - phi/2 assumed." + _UNLOAD
         ),
     ),
 }
@@ -274,15 +284,17 @@ SOIL_PRESETS: dict[str, SoilConfig] = {
 SOIL_PRESETS["cmu_testbed_smooth"] = replace(
     SOIL_PRESETS["cmu_testbed_grousered"],
     name="cmu_testbed_smooth",
-    n_skid=0.55,
-    peak_a0=0.2024,
-    peak_a1=0.7048,
-    rear_b0=0.476,
+    n_slip=0.0096,
+    n_skid=0.7249,
+    peak_a0=0.2198,
+    peak_a1=0.5318,
+    rear_b0=0.4239,
     rear_b1=0.0003,
     source=(
         "Pavlov and Johnson (CMU), github.com/robomechanics/3d-terramechanics:"
-        " terramechanics/set_soil_params.m ('K10_mini_smooth': as the grousered wheel's soil,"
-        " n2 0.55) and trench_off_smooth_new.mat (beta 0: a0 0.2024, a1 0.7048, b0 -0.476,"
-        " b1 -0.0003). X_c = 45 - phi/2 assumed." + _UNLOAD
+        " terramechanics/set_soil_params.m ('K10_mini_smooth': the grousered wheel's soil)."
+        " The slip-sinkage coefficients are refit here as the grousered wheel's"
+        " (benchmarks/wheel_fit.py; theirs: n2 0.55, a0 0.2024, a1 0.7048, b0 -0.476,"
+        " b1 -0.0003, trench_off_smooth_new.mat). X_c = 45 - phi/2 assumed." + _UNLOAD
     ),
 )

@@ -19,7 +19,8 @@ The soil's forces on the wheel, in the wheel's travel frame (x along its heading
     T   = r_s^2 b int tau d theta                                (the torque the wheel needs)
 
 Slip sinkage comes from three places (Ding et al. 2011; Ishigami et al. 2007; Pavlov and
-Johnson's single-wheel fits): the sinkage exponent rises with slip (``n_slip``, ``n_skid``), the
+Johnson's single-wheel fits): the sinkage exponent rises with slip (``n_slip`` s driving,
+``n_skid`` |s|^``n_skid_power`` braking), the
 largest stress moves forward (``theta_m = (a0 + a1 s) theta_f``) and the rear contact changes
 (``theta_r = -(b0 + b1 s) theta_f``, or where the rim rises above the soil's rebound).
 Braking (the wheel turning slower than it travels)
@@ -190,7 +191,7 @@ def _sign(x):  # pragma: no cover (compiled)
 def _contact_kernel(
     p, h, slip, side, sin_beta, moving_in, direction, zp, jprev, hold_x, hold_y, n_theta, out
 ):  # pragma: no cover (compiled)
-    """The contact integrals of every wheel; ``p`` (n, 21) its soil's and wheel's parameters (``_params``).
+    """The contact integrals of every wheel; ``p`` (n, 22) its soil's and wheel's parameters (``_params``).
 
     Per wheel, in its travel frame (``direction`` -1 mirrors a wheel rolling backward): the
     slip ratio, the side slip ``side`` (j_y = r (theta_f - theta) side), sin of the slip angle
@@ -201,7 +202,7 @@ def _contact_kernel(
         q = p[i]
         r, rs, b, mu, kb, n0, n_slip, n_skid = q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7]
         c, tan_phi, k_x, k_y, a0, a1, b0, b1 = q[8], q[9], q[10], q[11], q[12], q[13], q[14], q[15]
-        k0, au, d1, d2, rho_g = q[16], q[17], q[18], q[19], q[20]
+        k0, au, d1, d2, rho_g, skid_pow = q[16], q[17], q[18], q[19], q[20], q[21]
         for k in range(out.shape[1]):
             out[i, k] = 0.0
         d = direction[i]
@@ -210,7 +211,7 @@ def _contact_kernel(
         driving = s >= 0.0
         moving = min(max(moving_in[i], 0.0), 1.0)
         out[i, 4] = s
-        n = n0 + (n_slip * s if s >= 0.0 else -n_skid * s)
+        n = n0 + (n_slip * s if s >= 0.0 else n_skid * (-s) ** skid_pow)
         z_p = max(zp[i], 0.0)
         surf = 0.0
         if z_p > 0.0:
@@ -292,7 +293,7 @@ def _contact_kernel(
         out[i, 7] = tm
 
 
-N_PARAMS = 21
+N_PARAMS = 22
 
 
 # The stepped contact of rover_env.sim.soil_contact, compiled here beside the kernel it calls:
@@ -449,6 +450,7 @@ def _params(soil: SoilConfig, wheel: WheelSpec) -> np.ndarray:
             d1,
             d2,
             soil.density * GRAVITY,
+            soil.n_skid_power,
         ]
     )
 
