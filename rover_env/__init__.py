@@ -32,6 +32,8 @@ MISSIONS: dict[str, str] = {
     "RoverRoughSlippery-v0": "rough_slippery",  # rough sand with loose-sand pockets
     "RoverShadows-v0": "shadow_heavy",  # low sun behind the rover, slip patches
     "RoverSlopeLoose-v0": "slope_loose",  # start up a loose-sand slope that gives way under spinning wheels
+    "RoverSlopeLoose-v1": "slope_soil",  # the same climb on a deformable soil (terramechanics), no dig
+    "RoverSoftSand-v0": "soft_sand",  # a hillside with loose-sand patches where the rover can get stuck
 }
 
 ENV_IDS: tuple[str, ...] = tuple(MISSIONS)

@@ -174,3 +174,27 @@ def test_soil_contact_refuses_non_finite_or_misshapen_input():
         c.step(ok, np.array([0.0, np.nan, 0.0, 0.0]), ok, ok, ok)
     with pytest.raises(ValueError, match="sinkage: shape"):
         c.step(np.zeros(3), ok, ok, ok, ok)
+
+
+def test_on_the_soft_sand_hill_traction_control_tuned_for_friction_patches_gets_stuck():
+    # RoverSoftSand-v0 on the truth, seed 1: the follower without traction control climbs
+    # through the loose sand at the slip the hill asks for (about 0.5); the traction control's
+    # set-point (0.15, tuned on friction patches) holds the wheels to a crawl in the sand
+    # pocket, where they turn while the body stops: the judge names it "stuck".
+    from controllers import PathFollower, SlipAwareController
+    from rover_env.envs import RoverEnv
+    from rover_env.tools.mission import run_mission
+
+    ends = {}
+    for name, cls, mode in (
+        ("slip_unaware", PathFollower, "drive"),
+        ("slip_aware", SlipAwareController, "wheels"),
+    ):
+        env = RoverEnv(scenario="soft_sand", obs_source="ground_truth", action_mode=mode)
+        try:
+            result = run_mission(env, cls.for_env(env), seed=1)
+        finally:
+            env.close()
+        ends[name] = (result.metrics.termination, result.metrics.progress)
+    assert ends["slip_unaware"][0] == "success"
+    assert ends["slip_aware"][0] == "stuck" and ends["slip_aware"][1] < 0.8 * ends["slip_unaware"][1]
