@@ -263,8 +263,8 @@ class FisheyeOdometry:
                 "ground with a, b = 0, or take it from the wheels' kinematics)"
             )
         est = None
-        if self._prev is not None:
-            dt = float(t) - float(self._t_prev)
+        if self._prev is not None and self._t_prev is not None:
+            dt = float(t) - self._t_prev
             if not dt > 0.0:
                 raise ValueError(f"t: {t!r} s is not after the last frame's {self._t_prev!r} s")
             est = self.estimate(self._prev, gray, dt, plane, t=t)
@@ -296,13 +296,10 @@ class FisheyeOdometry:
             return invalid("too few features", n_features=0 if pts is None else len(pts))
         p0 = pts.reshape(-1, 2).astype(np.float32)
         n_feat = len(p0)
-        lk = dict(
-            winSize=(c.window, c.window),
-            maxLevel=c.levels,
-            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
-        )
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, curr, p0, None, **lk)
-        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(curr, prev, p1, None, **lk)
+        win, crit = (c.window, c.window), (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        lk = {"winSize": win, "maxLevel": c.levels, "criteria": crit}
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, curr, p0, None, **lk)  # type: ignore[call-overload]
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(curr, prev, p1, None, **lk)  # type: ignore[call-overload]
         fb = np.linalg.norm(p0 - p0b, axis=1)
         ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < c.fb_max)
         P0, P1 = p0[ok].astype(np.float64), p1[ok].astype(np.float64)
@@ -322,10 +319,16 @@ class FisheyeOdometry:
         inl = rigid_ransac(G0[:, :2], G1[:, :2], c.ransac_threshold, c.ransac_iterations)
         n_inl = int(inl.sum())
         ratio = n_inl / n_tr
-        common = dict(n_features=n_feat, n_tracked=n_tr, n_inliers=n_inl, inlier_ratio=ratio)
         if n_inl < c.min_inliers or ratio < c.min_inlier_ratio:
             return invalid(
-                f"too few inliers ({n_inl} of {n_tr})", **common, prev_px=P0, curr_px=P1, inliers=inl
+                f"too few inliers ({n_inl} of {n_tr})",
+                n_features=n_feat,
+                n_tracked=n_tr,
+                n_inliers=n_inl,
+                inlier_ratio=ratio,
+                prev_px=P0,
+                curr_px=P1,
+                inliers=inl,
             )
         vel, rms, cov = velocity_from_points(G0[inl, :2], G1[inl, :2], dt, return_cov=True)
         self._learn_static(P0, P1, inl)
@@ -344,7 +347,10 @@ class FisheyeOdometry:
             prev_px=P0,
             curr_px=P1,
             inliers=inl,
-            **common,
+            n_features=n_feat,
+            n_tracked=n_tr,
+            n_inliers=n_inl,
+            inlier_ratio=ratio,
         )
 
     def _shadow_edges(self, gray: np.ndarray) -> np.ndarray:
