@@ -20,7 +20,7 @@ import numpy as np
 
 from controllers import PathFollower
 from perception import RoverEstimator
-from perception.fisheye_odometry import FisheyeOdometry
+from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
 from perception.odometry import ground_plane_from_wheels
 from rover_env.envs import RoverEnv
 
@@ -28,9 +28,19 @@ from rover_env.envs import RoverEnv
 class _Tap(RoverEstimator):
     """The built-in estimator, recording its downward odometry and running the fisheye's beside it."""
 
+    config = FisheyeOdometryConfig()
+    parts_mask = False
+
     def __init__(self, rig, **kw) -> None:
         super().__init__(rig, fisheye_window=None, **kw)
-        self.fish_odo = FisheyeOdometry(self.fish.model)
+        mask = None
+        if self.parts_mask:
+            from rover_env.sensors.cameras import kinematics_roi
+            from rover_env.sim.geometry import RoverGeometry
+
+            g = RoverGeometry()
+            mask = ~kinematics_roi(self.fish.model, self.model, g.roll_limit, g.travel_limit, g.steer_limit)
+        self.fish_odo = FisheyeOdometry(self.fish.model, self.config, mask=mask)
         self.records: dict[str, list] = {"downward": [], "fisheye": []}
 
     def reset(self, start_fix) -> None:
@@ -116,7 +126,17 @@ def main(argv=None) -> int:
     ap.add_argument("--missions", nargs="+", default=["Rover-v0", "RoverRoughSlippery-v0", "RoverShadows-v0"])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--preset", choices=["train", "eval"], default="train")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="FisheyeOdometryConfig fields")
+    ap.add_argument("--parts-mask", action="store_true", help="mask the rover's parts from its model")
     args = ap.parse_args(argv)
+    _Tap.parts_mask = args.parts_mask
+    if args.set:
+        import ast
+        import dataclasses
+
+        kv = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.set)}
+        _Tap.config = dataclasses.replace(FisheyeOdometryConfig(), **kv)
+        print(f"fisheye odometry: {kv}")
     print(f"preset {args.preset}, seeds {args.seeds}, path follower on the estimates, no IMU\n")
     print(
         "| mission | camera | v_x MAE [m/s] | v_y MAE [m/s] | omega MAE [rad/s] | valid pairs |"

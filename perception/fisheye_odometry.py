@@ -227,6 +227,7 @@ class FisheyeOdometry:
         """Forget the last frame and the learned mask of the rover's parts."""
         self._prev: np.ndarray | None = None
         self._t_prev: float | None = None
+        self._prev_plane: tuple[float, float, float] | None = None
         self._hits[:] = 0
 
     @property
@@ -267,18 +268,31 @@ class FisheyeOdometry:
             dt = float(t) - self._t_prev
             if not dt > 0.0:
                 raise ValueError(f"t: {t!r} s is not after the last frame's {self._t_prev!r} s")
-            est = self.estimate(self._prev, gray, dt, plane, t=t)
-        self._prev, self._t_prev = gray, float(t)
+            est = self.estimate(self._prev, gray, dt, plane, t=t, prev_plane=self._prev_plane)
+        self._prev, self._t_prev, self._prev_plane = gray, float(t), plane
         return est
 
     def estimate(
-        self, prev: np.ndarray, curr: np.ndarray, dt: float, ground_plane, t: float | None = None
+        self,
+        prev: np.ndarray,
+        curr: np.ndarray,
+        dt: float,
+        ground_plane,
+        t: float | None = None,
+        prev_plane=None,
     ) -> OdometryEstimate:
-        """The twist between two grey frames ``dt`` [s] apart over the ground plane (body frame)."""
+        """The twist between two grey frames ``dt`` [s] apart over the ground plane (body frame).
+
+        ``ground_plane`` is the ground under ``curr``; ``prev_plane`` under ``prev`` (default the
+        same). With two planes each frame's points lie on its own, and the fit is of the full
+        rigid motion (the body's roll and pitch between the frames, which a camera this close
+        to the ground sees as much as its travel, are told apart from its planar motion).
+        """
         c = self.cfg
         prev = to_gray(prev, self.camera.image_size)
         curr = to_gray(curr, self.camera.image_size)
         plane = _plane(ground_plane)
+        plane0 = plane if prev_plane is None else _plane(prev_plane)
 
         def invalid(reason: str, **kw) -> OdometryEstimate:
             base = dict(n_features=0, n_tracked=0, n_inliers=0, inlier_ratio=0.0, residual=math.nan)
@@ -303,7 +317,7 @@ class FisheyeOdometry:
         fb = np.linalg.norm(p0 - p0b, axis=1)
         ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < c.fb_max)
         P0, P1 = p0[ok].astype(np.float64), p1[ok].astype(np.float64)
-        G0 = rays_to_ground(self.camera, P0, plane, c.min_depression_deg)
+        G0 = rays_to_ground(self.camera, P0, plane0, c.min_depression_deg)
         G1 = rays_to_ground(self.camera, P1, plane, c.min_depression_deg)
         o = self.camera.T_body_cam[:3, 3]
         near = (
@@ -330,7 +344,8 @@ class FisheyeOdometry:
                 curr_px=P1,
                 inliers=inl,
             )
-        vel, rms, cov = velocity_from_points(G0[inl, :2], G1[inl, :2], dt, return_cov=True)
+        pts = slice(None) if plane0 != plane else slice(0, 2)  # 3-D: each frame on its own plane
+        vel, rms, cov = velocity_from_points(G0[inl, pts], G1[inl, pts], dt, return_cov=True)
         self._learn_static(P0, P1, inl)
         quality = min(1.0, n_inl / (2.0 * c.min_inliers)) * ratio
         return OdometryEstimate(
