@@ -344,8 +344,8 @@ class FisheyeOdometry:
                 curr_px=P1,
                 inliers=inl,
             )
-        pts = slice(None) if plane0 != plane else slice(0, 2)  # 3-D: each frame on its own plane
-        vel, rms, cov = velocity_from_points(G0[inl, pts], G1[inl, pts], dt, return_cov=True)
+        dims = 3 if plane0 != plane else 2  # 3-D: each frame on its own plane
+        vel, rms, cov = velocity_from_points(G0[inl, :dims], G1[inl, :dims], dt, return_cov=True)
         self._learn_static(P0, P1, inl)
         quality = min(1.0, n_inl / (2.0 * c.min_inliers)) * ratio
         return OdometryEstimate(
