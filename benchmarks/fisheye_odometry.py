@@ -35,7 +35,7 @@ class _Tap(RoverEstimator):
         super().__init__(rig, fisheye_window=None, **kw)
         mask = None
         if self.parts_mask:
-            from rover_env.sensors.cameras import kinematics_roi
+            from perception.rover_parts import kinematics_roi
             from rover_env.sim.geometry import RoverGeometry
 
             g = RoverGeometry()

@@ -3,8 +3,10 @@
 The wheels (tread and side discs), steering arms, tie-rod markers and the balls about the eight
 marker centres of a :class:`perception.kinematics.RoverKinematicModel` at a joint state
 (:func:`kinematic_parts`), and the points that bound where they can be a frame later
-(:func:`joint_window_parts`): what an estimator asks a camera with a windowed readout to show.
-Nothing here knows how an image is made.
+(:func:`joint_window_parts`): what an estimator asks a camera with a windowed readout to show;
+and the fisheye pixels where any of them can appear over the joints' ranges
+(:func:`kinematics_roi`: a sensor's region of interest, and the rover's parts to leave out of
+the fisheye's odometry). Nothing here knows how an image is made.
 """
 
 from __future__ import annotations
@@ -12,8 +14,10 @@ from __future__ import annotations
 import functools
 import math
 
+import cv2
 import numpy as np
 
+from perception.cameras import OmniCamera
 from perception.kinematics import AXLES, PLATE, WHEELS
 
 
@@ -146,3 +150,50 @@ def _window_shapes(model, wheel: np.ndarray) -> tuple[dict, dict]:
             _WINDOW_SHAPES.clear()
         entry = _WINDOW_SHAPES[id(model)] = (model, knuckles, plates)
     return entry[1], entry[2]
+
+
+def kinematics_roi(
+    camera: OmniCamera,
+    model,
+    roll_limit: float,
+    travel_limit: float,
+    steer_limit: float,
+    margin: float = 0.04,
+) -> np.ndarray:
+    """Fisheye pixels in which the kinematics estimator can find a wheel, marker or steering arm.
+
+    The wheels' treads and side discs, the eight markers and the steering arms
+    (:func:`kinematic_parts`) are projected over the whole joint range (axle roll, travel and
+    steering at their limits and between); the convex hull of each part's image is filled, and
+    the union is grown by ``margin``: nothing the estimator reads lies outside it.
+
+    Args:
+        camera: The fisheye model (its ``T_body_cam`` is the mount).
+        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
+        roll_limit: Axle roll range +- [rad].
+        travel_limit: Axle travel range +- about ``model.nominal_depth`` [m].
+        steer_limit: Axle steering range +- [rad].
+        margin: Growth of the region, as a share of the image width.
+
+    Returns:
+        (H, W) bool mask.
+    """
+    w, h = camera.image_size
+    T_cam_body = np.linalg.inv(camera.T_body_cam)
+    mask = np.zeros((h, w), np.uint8)
+    for psi in np.linspace(-roll_limit, roll_limit, 9):
+        for d in model.nominal_depth + np.linspace(-travel_limit, travel_limit, 5):
+            for lam in np.linspace(-steer_limit, steer_limit, 13):
+                delta = model.wheel_angles(lam, -lam)  # both axles through their range
+                parts = kinematic_parts(model, (psi, -psi), (d, d), delta)
+                sizes = np.cumsum([len(q) for q in parts])[:-1]
+                body = np.vstack(parts)
+                pix = camera.world2cam(body @ T_cam_body[:3, :3].T + T_cam_body[:3, 3])
+                for q in np.split(pix, sizes):
+                    q = q[np.all(np.isfinite(q), axis=1)]
+                    if len(q):
+                        hull = cv2.convexHull(np.rint(q * 16).astype(np.int32))
+                        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
+    k = max(2, int(round(margin * w)))
+    grown = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
+    return np.asarray(grown).astype(bool)

@@ -126,7 +126,7 @@ class FisheyeCameraConfig(CameraConfig):
             (0.47: the circle spans the width and is cut by the top and bottom edges).
         oversample: Cube-face resolution relative to the fisheye's finest angular resolution.
         roi: Render only the region of interest of the kinematics estimator
-            (:func:`rover_env.sensors.cameras.kinematics_roi`: wheels, markers and steering arms
+            (:func:`perception.rover_parts.kinematics_roi`: wheels, markers and steering arms
             over the joint range);
             the rest of the image is black. Faster in proportion to the pixels saved.
 

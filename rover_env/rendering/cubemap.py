@@ -8,7 +8,7 @@ every fisheye pixel is looked up through one precomputed fixed-point ``cv2.remap
 exact :class:`perception.OmniCamera` model that the estimators receive.
 
 A region of interest renders less (a mask of the fisheye pixels to draw, such as
-:func:`rover_env.sensors.cameras.kinematics_roi`), like a sensor's ROI readout; the rest of the
+:func:`perception.rover_parts.kinematics_roi`), like a sensor's ROI readout; the rest of the
 image is black. Rendering time is proportional to the rendered pixels.
 """
 

@@ -16,8 +16,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.cameras import OmniCamera, PinholeCamera
-from perception.rover_parts import kinematic_parts
+from perception.cameras import PinholeCamera
+from perception.rover_parts import kinematics_roi
 from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.io import ConfigError
 from rover_env.rendering import focus_on_rover, renderer_for
@@ -457,53 +457,6 @@ class DownwardCamera(_RoverCamera):
         if span * (sensor.exposure_s + s.rolling_shutter_s) > self.BLUR_REACH_PX:
             view = renderer.render_pinhole(self._render_model, T, lighting, segmentation=False, motion=motion)
         return view
-
-
-def kinematics_roi(
-    camera: OmniCamera,
-    model,
-    roll_limit: float,
-    travel_limit: float,
-    steer_limit: float,
-    margin: float = 0.04,
-) -> np.ndarray:
-    """Fisheye pixels in which the kinematics estimator can find a wheel, marker or steering arm.
-
-    The wheels' treads and side discs, the eight markers and the steering arms
-    (:func:`kinematic_parts`) are projected over the whole joint range (axle roll, travel and
-    steering at their limits and between); the convex hull of each part's image is filled, and
-    the union is grown by ``margin``: nothing the estimator reads lies outside it.
-
-    Args:
-        camera: The fisheye model (its ``T_body_cam`` is the mount).
-        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
-        roll_limit: Axle roll range +- [rad].
-        travel_limit: Axle travel range +- about ``model.nominal_depth`` [m].
-        steer_limit: Axle steering range +- [rad].
-        margin: Growth of the region, as a share of the image width.
-
-    Returns:
-        (H, W) bool mask.
-    """
-    w, h = camera.image_size
-    T_cam_body = np.linalg.inv(camera.T_body_cam)
-    mask = np.zeros((h, w), np.uint8)
-    for psi in np.linspace(-roll_limit, roll_limit, 9):
-        for d in model.nominal_depth + np.linspace(-travel_limit, travel_limit, 5):
-            for lam in np.linspace(-steer_limit, steer_limit, 13):
-                delta = model.wheel_angles(lam, -lam)  # both axles through their range
-                parts = kinematic_parts(model, (psi, -psi), (d, d), delta)
-                sizes = np.cumsum([len(q) for q in parts])[:-1]
-                body = np.vstack(parts)
-                pix = camera.world2cam(body @ T_cam_body[:3, :3].T + T_cam_body[:3, 3])
-                for q in np.split(pix, sizes):
-                    q = q[np.all(np.isfinite(q), axis=1)]
-                    if len(q):
-                        hull = cv2.convexHull(np.rint(q * 16).astype(np.int32))
-                        cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
-    k = max(2, int(round(margin * w)))
-    grown = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
-    return np.asarray(grown).astype(bool)
 
 
 @functools.lru_cache(maxsize=8)
