@@ -21,7 +21,6 @@ import numpy as np
 from controllers import PathFollower
 from perception import RoverEstimator
 from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
-from perception.odometry import ground_plane_from_wheels
 from rover_env.envs import RoverEnv
 
 
@@ -48,13 +47,8 @@ class _Tap(RoverEstimator):
         self.fish_odo.reset()
         self.records = {"downward": [], "fisheye": []}
 
-    def _plane(self):
-        s = self.kinematics.state
-        centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
-        return ground_plane_from_wheels(centres, self.model.wheel_radius)
-
     def _on_fisheye(self, img, t) -> None:
-        est = self.fish_odo.update(img, t, ground_plane=self._plane())
+        est = self.fish_odo.update(img, t, ground_plane=self.wheel_ground_plane())
         super()._on_fisheye(img, t)
         if est is not None:
             self.records["fisheye"].append((t, est.dt, est.valid, *est.twist))
@@ -66,7 +60,7 @@ class _Tap(RoverEstimator):
             self.records["downward"].append((t, est.dt, est.valid, *est.twist))
 
 
-def run(mission: str, seed: int, preset: str) -> tuple[dict, np.ndarray, np.ndarray]:
+def run(mission: str, seed: int, preset: str) -> tuple[dict, np.ndarray]:
     """One drive: the two cameras' records and the truth (t, v_x, v_y, omega) per control step."""
     holder: dict = {}
 
@@ -103,7 +97,7 @@ def run(mission: str, seed: int, preset: str) -> tuple[dict, np.ndarray, np.ndar
     finally:
         env.close()
     rec = holder["est"].records
-    return rec, np.array(truth), np.array([0.0])
+    return rec, np.array(truth)
 
 
 def errors(records, truth: np.ndarray) -> tuple[np.ndarray, float]:
@@ -147,7 +141,7 @@ def main(argv=None) -> int:
         recs: dict[str, list] = {"downward": [], "fisheye": []}
         truths = []
         for seed in args.seeds:
-            rec, truth, _ = run(mission, seed, args.preset)
+            rec, truth = run(mission, seed, args.preset)
             truths.append(truth)
             for k in recs:
                 recs[k].append(rec[k])

@@ -219,6 +219,7 @@ class FisheyeOdometry:
         yy, xx = np.mgrid[0:h, 0:w]
         inside = np.isfinite(camera.cam2world(np.column_stack([xx.ravel(), yy.ravel()]))[:, 0]).reshape(h, w)
         self._mask[~inside] = 0
+        self._view: np.ndarray | None = None  # the mask at the shadow's pyramid level
         cell = self.cfg.static_cell
         self._hits = np.zeros((-(-h // cell), -(-w // cell)), np.int32)
         self.reset()
@@ -229,6 +230,7 @@ class FisheyeOdometry:
         self._t_prev: float | None = None
         self._prev_plane: tuple[float, float, float] | None = None
         self._hits[:] = 0
+        self._allowed: np.ndarray | None = None  # the selection mask, until a cell is learned
 
     @property
     def learned_mask(self) -> np.ndarray:
@@ -236,10 +238,14 @@ class FisheyeOdometry:
         return self._selection_mask() > 0
 
     def _selection_mask(self) -> np.ndarray:
+        if self._allowed is not None:
+            return self._allowed
         cell = self.cfg.static_cell
         h, w = self._mask.shape
         bad = np.kron(self._hits >= self.cfg.static_hits, np.ones((cell, cell), bool))[:h, :w]
-        return np.where(bad, 0, self._mask).astype(np.uint8)
+        self._allowed = np.where(bad, 0, self._mask).astype(np.uint8)
+        self._allowed.setflags(write=False)
+        return self._allowed
 
     def update(self, image: np.ndarray, t: float, ground_plane=None) -> OdometryEstimate | None:
         """Add a frame taken at ``t`` [s]; the estimate over the interval since the last, or None.
@@ -302,7 +308,9 @@ class FisheyeOdometry:
 
         allowed = self._selection_mask()
         if c.shadow_mask:
-            allowed[self._shadow_edges(prev)] = 0
+            edges = self._shadow_edges(prev)
+            if edges.any():
+                allowed = np.where(edges, 0, allowed).astype(np.uint8)
         pts = cv2.goodFeaturesToTrack(
             prev, c.max_features, c.quality_level, c.min_distance, mask=allowed, blockSize=5
         )
@@ -383,7 +391,7 @@ class FisheyeOdometry:
         small = gray
         for _ in range(level):
             small = cv2.pyrDown(small)
-        view = cv2.resize(self._mask, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+        view = self._view_at(small.shape)
         if view.sum() < 16:
             return np.zeros((h, w), bool)
         labels_bright, centres, sigmas = kmeans_1d(small[view])
@@ -408,6 +416,13 @@ class FisheyeOdometry:
         band = cv2.dilate(parsed.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
         return cv2.resize(band.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
 
+    def _view_at(self, shape: tuple[int, ...]) -> np.ndarray:
+        """The given mask (and the field of view) at a pyramid level's ``shape``, made once."""
+        if self._view is None or self._view.shape != shape[:2]:
+            small = cv2.resize(self._mask, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+            self._view = small > 0
+        return self._view
+
     def _learn_static(self, P0: np.ndarray, P1: np.ndarray, inl: np.ndarray) -> None:
         """Count features that stayed put while the ground moved, per cell of the image."""
         c = self.cfg
@@ -419,3 +434,4 @@ class FisheyeOdometry:
             return
         cells = np.floor(P0[fixed] / c.static_cell).astype(int)
         np.add.at(self._hits, (cells[:, 1], cells[:, 0]), 1)
+        self._allowed = None  # built again at the next selection

@@ -376,10 +376,14 @@ class RoverEstimator:
         self._request = (t + self.fish.period, self._window_parts())
         self.timing["readout"] += time.perf_counter() - t0
 
-    def _on_downward(self, img: np.ndarray, t: float) -> None:
+    def wheel_ground_plane(self) -> tuple[float, float, float]:
+        """The ground under the wheels of the kinematics' latest state, z = a x + b y + c (body) [-, -, m]."""
         s = self.kinematics.state
         centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
-        plane = ground_plane_from_wheels(centres, self.model.wheel_radius)
+        return ground_plane_from_wheels(centres, self.model.wheel_radius)
+
+    def _on_downward(self, img: np.ndarray, t: float) -> None:
+        plane = self.wheel_ground_plane()
         est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
         if est is not None:
             self._last_odom = est
