@@ -40,6 +40,7 @@ from perception.cameras import OmniCamera
 from perception.odometry import (
     OdometryEstimate,
     _plane,
+    _rotation,
     kmeans_1d,
     label_fragmentation,
     mask_radius,
@@ -50,7 +51,13 @@ from perception.odometry import (
     velocity_from_points,
 )
 
-__all__ = ["FisheyeOdometryConfig", "FisheyeOdometry", "rays_to_ground"]
+#: Speeds below this [m/s] keep the two-view fit's own translation (its scale is undefined at rest).
+_SCALE_EPS = 0.01
+
+#: Speeds below this [m/s] keep the two-view fit's own translation (its scale is undefined at rest).
+_SCALE_EPS = 0.01
+
+__all__ = ["FisheyeOdometry", "FisheyeOdometryConfig", "TwoViewFit", "rays_to_ground", "two_view_motion"]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +97,25 @@ class FisheyeOdometryConfig:
         max_disp: Largest feature displacement between frames [px] (the paper's eq. 4 sizes the
             forbidden band around the shadow's edges with it and the window).
         noise_scale: Factor on the fit's covariance.
+        two_view: Refine the motion by :func:`two_view_motion` (each point's height off the plane
+            free): the rotation and the translation's direction from the rays, unbiased by the
+            ground's relief, the translation's length from the ground plane (below). False: the
+            rigid fit of the points on the plane alone.
+        pixel_std: A tracked feature's position error [px] (the two-view fit's weights).
+        height_std: Prior standard deviation of a point's height off the ground plane [m] (loose:
+            the relief is for the rays to tell).
+        rate_std: Prior standard deviation of the roll and pitch rates [rad/s] without a gyro.
+        gyro_rate_std: ... and about the gyro's roll and pitch rates when they are given [rad/s].
+        outlier_px: Points whose two-view residual exceeds this [px] are dropped and the fit is
+            repeated once.
+        height_cut: Points whose two-view height lies more than this many robust deviations
+            (1.4826 MAD) from the median are left out of the scale: the features on a shadow's
+            edge that stands still move less than the ground and look farther off, and so do
+            bumps and hollows that the plane does not follow.
+        scale_weight_power: The translation's length is the rigid fit of the remaining points on
+            the ground plane, each weighted by its horizontal distance from the camera to this
+            power: the plane is that of the wheels, and the ground nearer the wheels follows it
+            best (on the rough missions the speed's error fell by a fifth with 2).
     """
 
     max_features: int = 400
@@ -116,6 +142,14 @@ class FisheyeOdometryConfig:
     canny_low: float = 0.5
     max_disp: float = 12.0
     noise_scale: float = 1.0
+    two_view: bool = True
+    pixel_std: float = 0.3
+    height_std: float = 0.2
+    rate_std: float = 1.0
+    gyro_rate_std: float = 0.02
+    outlier_px: float = 1.2
+    height_cut: float = 3.0
+    scale_weight_power: float = 2.0
 
     def __post_init__(self) -> None:
         checks = {
@@ -142,6 +176,13 @@ class FisheyeOdometryConfig:
             "canny_low": 0.0 < self.canny_low <= 1.0,
             "max_disp": self.max_disp >= 0.0,
             "noise_scale": self.noise_scale > 0.0,
+            "pixel_std": self.pixel_std > 0.0,
+            "height_std": self.height_std > 0.0,
+            "rate_std": self.rate_std > 0.0,
+            "gyro_rate_std": self.gyro_rate_std > 0.0,
+            "outlier_px": self.outlier_px > 0.0,
+            "height_cut": self.height_cut > 0.0,
+            "scale_weight_power": 0.0 <= self.scale_weight_power <= 8.0,
         }
         for key, ok in checks.items():
             value = getattr(self, key)
@@ -174,6 +215,183 @@ def rays_to_ground(
     out = o + s[:, None] * d
     out[~ok] = np.nan
     return out
+
+
+@dataclass(frozen=True)
+class TwoViewFit:
+    """Result of :func:`two_view_motion`.
+
+    Attributes:
+        motion: (v_x, v_y, v_z, omega_x, omega_y, omega_z) of the body over the pair, in the
+            first frame's body frame [m/s, rad/s].
+        heights: (n,) each point's height off the first frame's ground plane, along its normal's
+            vertical [m] (positive: above).
+        residual_px: (n,) each point's reprojection error in the second frame [px] (angular
+            error times the camera's radial scale).
+        cov: (6, 6) covariance of ``motion`` with the heights eliminated, from the residuals.
+        iterations: Gauss-Newton steps taken.
+        camera_shift: (3,) the camera's displacement over the pair, first body frame [m]: what
+            the rays fix up to scale (the body origin's moves by it less the rotation's lever on
+            the mount, ``(R - I) o``).
+    """
+
+    motion: np.ndarray
+    heights: np.ndarray
+    residual_px: np.ndarray
+    cov: np.ndarray
+    iterations: int
+    camera_shift: np.ndarray
+
+
+def _tangent_basis(b: np.ndarray) -> np.ndarray:
+    """(n, 3, 2) two orthonormal vectors perpendicular to each unit vector of ``b`` (n, 3)."""
+    helper = np.where(np.abs(b[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+    u1 = np.cross(b, helper)
+    u1 /= np.linalg.norm(u1, axis=1, keepdims=True)
+    return np.stack([u1, np.cross(b, u1)], axis=2)
+
+
+def two_view_motion(
+    rays0: np.ndarray,
+    rays1: np.ndarray,
+    dt: float,
+    T_body_cam: np.ndarray,
+    ground_plane: tuple[float, float, float],
+    init,
+    *,
+    px_per_rad: float,
+    pixel_std: float = 0.3,
+    height_std: float = 0.2,
+    rate_xy=None,
+    rate_std: float = 1.0,
+    iterations: int = 8,
+) -> TwoViewFit | None:
+    """The body's rigid motion between two frames from the rays of points tracked in both.
+
+    Each point lies on its ray from the first frame's camera, at a height h off the ground plane
+    z = a x + b y + c (body frame) that is its own unknown, with the prior h ~ N(0, height_std);
+    the body moves by (v, omega) over ``dt`` (v the body origin's velocity, omega its rotation
+    rate); the point seen from the moved camera gives the second ray. The motion and the heights
+    are fitted by Gauss-Newton on the angles between the predicted and the observed second rays
+    (as pixels: ``px_per_rad``, each of weight 1 / ``pixel_std``), the heights eliminated by
+    their Schur complement (each touches only its own point). With free heights the rotation,
+    and the translation's direction, follow from the rays alone: relief off the plane, which a
+    camera this close to the ground sees as a fifth of its height, does not bias them. The
+    translation's length (the scale) rests on the heights' prior: with a loose prior it is weakly
+    set, and :class:`FisheyeOdometry` takes it from the ground plane instead.
+
+    Args:
+        rays0: (n, 3) unit rays of the points in the first frame, camera frame.
+        rays1: (n, 3) unit rays of the same points in the second frame, camera frame.
+        dt: Time between the frames [s].
+        T_body_cam: (4, 4) the camera in the body frame.
+        ground_plane: (a, b, c) of the ground under the first frame, body frame [-, -, m].
+        init: (v_x, v_y, v_z, omega_x, omega_y, omega_z) to start from [m/s, rad/s].
+        px_per_rad: The camera's image scale [px/rad] (an equidistant fisheye's radius per angle).
+        pixel_std: Standard deviation of a tracked point's position [px].
+        height_std: Prior standard deviation of a point's height off the plane [m].
+        rate_xy: Measured (omega_x, omega_y) over the pair (a gyro) [rad/s], or None: prior 0.
+        rate_std: Prior standard deviation of omega_x and omega_y [rad/s] (about ``rate_xy``
+            when given: its noise).
+        iterations: Most Gauss-Newton steps.
+
+    Returns:
+        The fit, or None if fewer than 6 points or a point's ray misses the plane.
+    """
+    r0 = np.asarray(rays0, dtype=np.float64).reshape(-1, 3)
+    r1 = np.asarray(rays1, dtype=np.float64).reshape(-1, 3)
+    n = len(r0)
+    if n < 6 or r1.shape != r0.shape:
+        return None
+    a, b, c = (float(v) for v in ground_plane)
+    R_bc, o = T_body_cam[:3, :3], T_body_cam[:3, 3]
+    d = r0 @ R_bc.T  # body-frame rays of the first frame
+    den = d[:, 2] - a * d[:, 0] - b * d[:, 1]  # d(height)/d(distance along the ray)
+    s0 = (c + a * o[0] + b * o[1] - o[2]) / den  # distance to the plane along the ray
+    if not np.all(np.isfinite(s0) & (s0 > 0.0)):
+        return None
+    dh = d / den[:, None]  # d(point)/d(height)
+    U = _tangent_basis(r1)
+    w_ang = px_per_rad / pixel_std
+    mu = np.zeros(2) if rate_xy is None else np.asarray(rate_xy, dtype=np.float64).reshape(2)
+    theta = np.asarray(init, dtype=np.float64).reshape(6).copy()
+    h = np.zeros(n)
+    inv_h2 = 1.0 / height_std**2
+    inv_r = 1.0 / rate_std
+
+    def predict(th: np.ndarray, hh: np.ndarray):
+        X = o + s0[:, None] * d + hh[:, None] * dh
+        R = _rotation(th[3:6] * dt)
+        Y = X - th[0:3] * dt
+        A = R_bc.T @ R.T  # body (moved) -> second camera
+        Xc = (Y @ A.T) - R_bc.T @ o
+        norm = np.linalg.norm(Xc, axis=1)
+        bp = Xc / norm[:, None]
+        e = np.einsum("nij,ni->nj", U, bp) * w_ang
+        return e, Y, A, norm, bp
+
+    def cost(e: np.ndarray, th: np.ndarray, hh: np.ndarray) -> float:
+        prior = (th[3:5] - mu) * inv_r
+        return float((e * e).sum() + inv_h2 * (hh * hh).sum() + prior @ prior)
+
+    e, Y, A, norm, bp = predict(theta, h)
+    current = cost(e, theta, h)
+    S = np.eye(6)
+    steps = 0
+    for step in range(1, iterations + 1):
+        steps = step
+        # de/dXc = U^T (I - b b^T) / |Xc|
+        P = (np.eye(3)[None] - bp[:, :, None] * bp[:, None, :]) / norm[:, None, None]
+        G = np.einsum("nij,nik->njk", U, P) * w_ang  # (n, 2, 3)
+        GA = G @ A  # (n, 2, 3): d e / d(moved body point)
+        Jh = np.einsum("njk,nk->nj", GA, dh)  # (n, 2)
+        Jv = -dt * GA
+        # d(Y rotated)/d(omega) ~ dt [Y]x (first order in omega dt)
+        Jw = np.empty_like(GA)
+        Jw[:, :, 0] = dt * (GA[:, :, 1] * Y[:, None, 2] - GA[:, :, 2] * Y[:, None, 1])
+        Jw[:, :, 1] = dt * (GA[:, :, 2] * Y[:, None, 0] - GA[:, :, 0] * Y[:, None, 2])
+        Jw[:, :, 2] = dt * (GA[:, :, 0] * Y[:, None, 1] - GA[:, :, 1] * Y[:, None, 0])
+        Jm = np.concatenate([Jv, Jw], axis=2)  # (n, 2, 6)
+        Umat = np.einsum("nji,njk->ik", Jm, Jm)
+        Umat[3, 3] += inv_r**2
+        Umat[4, 4] += inv_r**2
+        gm = np.einsum("nji,nj->i", Jm, e)
+        gm[3:5] += (theta[3:5] - mu) * inv_r**2
+        W = np.einsum("nji,nj->ni", Jm, Jh)  # (n, 6)
+        V = (Jh * Jh).sum(axis=1) + inv_h2
+        gh = (Jh * e).sum(axis=1) + h * inv_h2
+        S = Umat - (W / V[:, None]).T @ W
+        rhs = -(gm - W.T @ (gh / V))
+        try:
+            dm = np.linalg.solve(S + 1e-12 * np.trace(S) * np.eye(6), rhs)
+        except np.linalg.LinAlgError:
+            return None
+        dhh = -(gh + W @ dm) / V
+        lam, accepted = 1.0, False
+        for _ in range(6):  # step halving
+            th2, h2 = theta + lam * dm, h + lam * dhh
+            out = predict(th2, h2)
+            c2 = cost(out[0], th2, h2)
+            if np.isfinite(c2) and c2 < current:
+                accepted = True
+                break
+            lam *= 0.5
+        if not accepted:
+            break
+        converged = c2 > current * (1.0 - 1e-9)
+        theta, h, current = th2, h2, c2
+        e, Y, A, norm, bp = out
+        if converged:
+            break
+    res_px = np.linalg.norm(e, axis=1) * pixel_std
+    dof = max(2 * n - 6 - n, 1)
+    scale = float((e * e).sum()) / dof
+    try:
+        cov = np.linalg.inv(S) * scale
+    except np.linalg.LinAlgError:
+        cov = np.full((6, 6), math.nan)
+    shift = theta[0:3] * dt + (_rotation(theta[3:6] * dt) - np.eye(3)) @ o
+    return TwoViewFit(theta.copy(), h.copy(), res_px, cov, steps, shift)
 
 
 class FisheyeOdometry:
@@ -220,6 +438,10 @@ class FisheyeOdometry:
         inside = np.isfinite(camera.cam2world(np.column_stack([xx.ravel(), yy.ravel()]))[:, 0]).reshape(h, w)
         self._mask[~inside] = 0
         self._view: np.ndarray | None = None  # the mask at the shadow's pyramid level
+        # the image scale [px/rad] at 45 degrees off the axis (an equidistant fisheye's is uniform)
+        ray = np.array([[math.sqrt(0.5), 0.0, math.sqrt(0.5)]])
+        px = camera.world2cam(ray)[0]
+        self._px_per_rad = math.hypot(px[0] - camera.center[0], px[1] - camera.center[1]) / (math.pi / 4)
         cell = self.cfg.static_cell
         self._hits = np.zeros((-(-h // cell), -(-w // cell)), np.int32)
         self.reset()
@@ -247,7 +469,7 @@ class FisheyeOdometry:
         self._allowed.setflags(write=False)
         return self._allowed
 
-    def update(self, image: np.ndarray, t: float, ground_plane=None) -> OdometryEstimate | None:
+    def update(self, image: np.ndarray, t: float, ground_plane=None, rate_xy=None) -> OdometryEstimate | None:
         """Add a frame taken at ``t`` [s]; the estimate over the interval since the last, or None.
 
         Args:
@@ -255,6 +477,8 @@ class FisheyeOdometry:
             t: Its time [s], increasing.
             ground_plane: The ground z = a x + b y + c (body frame) [-, -, m] now (default the
                 constructor's).
+            rate_xy: The body's mean roll and pitch rates since the last frame (a gyro) [rad/s],
+                or None.
 
         Raises:
             ValueError: Neither a ground plane here nor in the constructor (the fisheye's
@@ -274,7 +498,9 @@ class FisheyeOdometry:
             dt = float(t) - self._t_prev
             if not dt > 0.0:
                 raise ValueError(f"t: {t!r} s is not after the last frame's {self._t_prev!r} s")
-            est = self.estimate(self._prev, gray, dt, plane, t=t, prev_plane=self._prev_plane)
+            est = self.estimate(
+                self._prev, gray, dt, plane, t=t, prev_plane=self._prev_plane, rate_xy=rate_xy
+            )
         self._prev, self._t_prev, self._prev_plane = gray, float(t), plane
         return est
 
@@ -286,19 +512,30 @@ class FisheyeOdometry:
         ground_plane,
         t: float | None = None,
         prev_plane=None,
+        rate_xy=None,
     ) -> OdometryEstimate:
         """The twist between two grey frames ``dt`` [s] apart over the ground plane (body frame).
 
         ``ground_plane`` is the ground under ``curr``; ``prev_plane`` under ``prev`` (default the
-        same). With two planes each frame's points lie on its own, and the fit is of the full
-        rigid motion (the body's roll and pitch between the frames, which a camera this close
+        same). With two planes each frame's points lie on its own, and the rigid fit is of the
+        full motion (the body's roll and pitch between the frames, which a camera this close
         to the ground sees as much as its travel, are told apart from its planar motion).
+        ``rate_xy``: the gyro's roll and pitch rates over the pair [rad/s], or None.
+
+        Steps: corners on ``prev`` (outside the mask, the learned cells and the shadow's edges)
+        tracked into ``curr`` and back; their rays met with the planes; RANSAC on the rigid
+        motion of the ground points; then, with ``two_view``, :func:`two_view_motion` on the
+        inliers' rays gives the rotation and the translation's direction, and the rigid fit of
+        the points whose heights are not outliers, weighted toward the wheels, its length.
         """
         c = self.cfg
         prev = to_gray(prev, self.camera.image_size)
         curr = to_gray(curr, self.camera.image_size)
         plane = _plane(ground_plane)
         plane0 = plane if prev_plane is None else _plane(prev_plane)
+        rates = None if rate_xy is None else np.asarray(rate_xy, dtype=np.float64).reshape(2)
+        if rates is not None and not np.all(np.isfinite(rates)):
+            raise ValueError(f"rate_xy: {rate_xy!r}; give finite roll and pitch rates [rad/s] or None")
 
         def invalid(reason: str, **kw) -> OdometryEstimate:
             base = dict(n_features=0, n_tracked=0, n_inliers=0, inlier_ratio=0.0, residual=math.nan)
@@ -328,13 +565,14 @@ class FisheyeOdometry:
         G0 = rays_to_ground(self.camera, P0, plane0, c.min_depression_deg)
         G1 = rays_to_ground(self.camera, P1, plane, c.min_depression_deg)
         o = self.camera.T_body_cam[:3, 3]
+        r0 = np.hypot(G0[:, 0] - o[0], G0[:, 1] - o[1])
         near = (
             np.isfinite(G0[:, 0])
             & np.isfinite(G1[:, 0])
-            & (np.hypot(G0[:, 0] - o[0], G0[:, 1] - o[1]) <= c.max_range)
+            & (r0 <= c.max_range)
             & (np.hypot(G1[:, 0] - o[0], G1[:, 1] - o[1]) <= c.max_range)
         )
-        P0, P1, G0, G1 = P0[near], P1[near], G0[near], G1[near]
+        P0, P1, G0, G1, r0 = P0[near], P1[near], G0[near], G1[near], r0[near]
         n_tr = len(P0)
         if n_tr < c.min_inliers:
             return invalid("too few tracked ground features", n_features=n_feat, n_tracked=n_tr)
@@ -353,8 +591,15 @@ class FisheyeOdometry:
                 inliers=inl,
             )
         dims = 3 if plane0 != plane else 2  # 3-D: each frame on its own plane
-        vel, rms, cov = velocity_from_points(G0[inl, :dims], G1[inl, :dims], dt, return_cov=True)
+        fit_rates = rates if dims == 3 else None
+        vel, rms, cov = velocity_from_points(
+            G0[inl, :dims], G1[inl, :dims], dt, return_cov=True, rate_xy=fit_rates
+        )
         self._learn_static(P0, P1, inl)
+        if c.two_view:
+            refined = self._two_view(P0, P1, G0, G1, r0, inl, dt, plane0, dims, vel, rates)
+            if refined is not None:
+                vel, cov, rms = refined
         quality = min(1.0, n_inl / (2.0 * c.min_inliers)) * ratio
         return OdometryEstimate(
             float(vel[0]),
@@ -375,6 +620,65 @@ class FisheyeOdometry:
             n_inliers=n_inl,
             inlier_ratio=ratio,
         )
+
+    def _two_view(self, P0, P1, G0, G1, r0, inl, dt, plane0, dims, vel, rates):
+        """The two-view refinement of :meth:`estimate`: (twist, its covariance, RMS) or None (kept planar)."""
+        c = self.cfg
+        cam = self.camera
+        b0, b1 = cam.cam2world(P0[inl]), cam.cam2world(P1[inl])
+        init = np.array([vel[0], vel[1], 0.0, 0.0, 0.0, vel[2]])
+        if rates is not None:
+            init[3:5] = rates
+        kw = dict(
+            px_per_rad=self._px_per_rad,
+            pixel_std=c.pixel_std,
+            height_std=c.height_std,
+            rate_xy=rates,
+            rate_std=c.rate_std if rates is None else c.gyro_rate_std,
+        )
+        use = np.ones(len(b0), bool)
+        for attempt in range(2):
+            fit = two_view_motion(b0[use], b1[use], dt, cam.T_body_cam, plane0, init, **kw)
+            if fit is None or not np.all(np.isfinite(fit.motion)):
+                return None
+            fitted = use.copy()  # the points of this fit
+            bad = fit.residual_px > c.outlier_px
+            if attempt == 1 or not bad.any() or int(use.sum() - bad.sum()) < c.min_inliers:
+                break
+            use[np.flatnonzero(use)[bad]] = False
+            init = fit.motion
+        # the scale: the rigid fit on the plane of the points whose residuals and heights are not outliers
+        h = fit.heights
+        hk = h[~bad] if np.any(~bad) else h
+        med = float(np.median(hk))
+        mad = 1.4826 * float(np.median(np.abs(hk - med))) + 1e-4
+        good = (~bad) & (np.abs(h - med) <= c.height_cut * mad)
+        keep = np.flatnonzero(inl)[np.flatnonzero(fitted)[good]]
+        if len(keep) < c.min_inliers:
+            return None
+        weights = np.maximum(r0[keep], 0.01) ** c.scale_weight_power
+        fit_rates = rates if dims == 3 else None
+        vp, rms, cov_p = velocity_from_points(
+            G0[keep, :dims], G1[keep, :dims], dt, return_cov=True, rate_xy=fit_rates, weights=weights
+        )
+        # the rays fix the camera's displacement up to scale: scale it, then back to the body origin
+        m = fit.motion
+        lever = (fit.camera_shift[:2] - m[0:2] * dt) / dt  # the camera's velocity less the body's
+        vb = m[0:2] + lever  # the camera's velocity (horizontal)
+        vc = vp[:2] + lever  # ... as the plane fit puts it
+        eps2 = _SCALE_EPS**2
+        scale = (float(vc @ vb) + eps2) / (float(vb @ vb) + eps2)
+        twist = np.array([scale * vb[0] - lever[0], scale * vb[1] - lever[1], m[5]])
+        # covariance: the speed along the motion from the plane fit, the rest from the two-view fit
+        speed = math.hypot(vb[0], vb[1])
+        u = vb / speed if speed > _SCALE_EPS else np.array([1.0, 0.0])
+        perp = np.eye(2) - np.outer(u, u)
+        cb = fit.cov[np.ix_([0, 1, 5], [0, 1, 5])]
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = float(u @ cov_p[:2, :2] @ u) * np.outer(u, u) + scale**2 * perp @ cb[:2, :2] @ perp
+        cov[:2, 2] = cov[2, :2] = scale * perp @ cb[:2, 2]
+        cov[2, 2] = cb[2, 2]
+        return twist, cov, rms
 
     def _shadow_edges(self, gray: np.ndarray) -> np.ndarray:
         """(H, W) bool: the band about the rover's shadow's edges where no feature is selected.

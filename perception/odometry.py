@@ -234,14 +234,14 @@ def rigid_ransac(
 
 @overload
 def velocity_from_points(
-    P: np.ndarray, C: np.ndarray, dt: float, return_cov: Literal[False] = False, rate_xy=None
+    P: np.ndarray, C: np.ndarray, dt: float, return_cov: Literal[False] = False, rate_xy=None, weights=None
 ) -> tuple[np.ndarray, float]: ...
 @overload
 def velocity_from_points(
-    P: np.ndarray, C: np.ndarray, dt: float, return_cov: Literal[True], rate_xy=None
+    P: np.ndarray, C: np.ndarray, dt: float, return_cov: Literal[True], rate_xy=None, weights=None
 ) -> tuple[np.ndarray, float, np.ndarray]: ...
 def velocity_from_points(
-    P: np.ndarray, C: np.ndarray, dt: float, return_cov: bool = False, rate_xy=None
+    P: np.ndarray, C: np.ndarray, dt: float, return_cov: bool = False, rate_xy=None, weights=None
 ) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray]:
     """(v_x, v_y, omega) of the body from ground points seen at P then C (body frame, m), eqs. 18-19.
 
@@ -261,6 +261,10 @@ def velocity_from_points(
     planes' tilt rate goes into the velocity times h. With them given, the fit is of
     (v_x, v_y, v_z, omega_z).
 
+    ``weights``: (n,) relative weights of the points (None: equal); the fit is then weighted
+    least squares, its RMS residual and covariance those of the weighted problem rescaled to
+    the points' mean weight.
+
     Returns:
         (3,) velocity [m/s, m/s, rad/s] and the RMS residual of the fit (per horizontal
         coordinate) [m/s]; with ``return_cov`` also the velocity's (3, 3) covariance from the
@@ -271,9 +275,18 @@ def velocity_from_points(
     v = -(C - P) / dt
     r = 0.5 * (P + C)
     n = len(P)
+    if weights is None:
+        sw = None
+    else:
+        w = np.asarray(weights, dtype=np.float64).reshape(-1)
+        if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
+            raise ValueError(f"weights: give {n} finite weights >= 0, not all 0")
+        sw = np.sqrt(w / w.mean())
     if P.shape[1] == 2:
         A = _planar_design(r)
         b = v.reshape(-1)
+        if sw is not None:
+            A, b = A * np.repeat(sw, 2)[:, None], b * np.repeat(sw, 2)
         sol, *_ = np.linalg.lstsq(A, b, rcond=None)
         res = A @ sol - b
         rms = float(np.sqrt(np.mean(res**2)))
@@ -286,6 +299,8 @@ def velocity_from_points(
     A[1::3] = np.column_stack([zero, one, zero, -z, zero, x])
     A[2::3] = np.column_stack([zero, zero, one, y, -x, zero])
     b = v.reshape(-1)
+    if sw is not None:
+        A, b = A * np.repeat(sw, 3)[:, None], b * np.repeat(sw, 3)
     if rate_xy is None:
         sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     else:  # the known roll and pitch rates moved to the right-hand side
@@ -297,7 +312,8 @@ def velocity_from_points(
     if not return_cov:
         return sol[[0, 1, 5]], rms
     # the horizontal rows carry the noise (the heights follow from the planes)
-    return sol[[0, 1, 5]], rms, _covariance(_planar_design(r), res)
+    Ah = _planar_design(r) if sw is None else _planar_design(r) * np.repeat(sw, 2)[:, None]
+    return sol[[0, 1, 5]], rms, _covariance(Ah, res)
 
 
 # ---------------------------------------------------------------------------------------- local plane
