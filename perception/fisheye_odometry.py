@@ -70,7 +70,9 @@ class FisheyeOdometryConfig:
         max_features: Corners selected per frame.
         quality_level: Shi-Tomasi quality level (a share of the strongest corner's response).
         min_distance: Least distance between corners [px].
-        window: Lucas-Kanade window [px] (odd).
+        window: Lucas-Kanade window [px] (odd). Small: a ground patch this close to the camera
+            changes its shape between frames (at the train preset 11 px gave a third less speed
+            error than 21 px, and took half the time).
         levels: Pyramid levels above the full image.
         fb_max: Largest forward-backward tracking error [px].
         min_depression_deg: Rays nearer than this to the camera's horizon are not used [deg].
@@ -118,10 +120,10 @@ class FisheyeOdometryConfig:
             best (on the rough missions the speed's error fell by a fifth with 2).
     """
 
-    max_features: int = 400
+    max_features: int = 300
     quality_level: float = 0.005
     min_distance: int = 6
-    window: int = 21
+    window: int = 11
     levels: int = 3
     fb_max: float = 0.5
     min_depression_deg: float = 20.0
