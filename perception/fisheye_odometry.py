@@ -75,7 +75,12 @@ class FisheyeOdometryConfig:
             error than 21 px, and took half the time).
         levels: Pyramid levels above the full image.
         fb_max: Largest forward-backward tracking error [px].
-        min_depression_deg: Rays nearer than this to the camera's horizon are not used [deg].
+        min_depression_deg: Rays nearer than this to the ground plane's horizon are not used [deg].
+        view_limit_deg: Features are selected only where the ray is within this angle of the
+            body's -z [deg]; None: ``95 - min_depression_deg`` (5 degrees to spare for a tilted
+            plane). A fisheye that renders only the ground near the axis (the one-camera rig's
+            region of interest) sets it inside that region, so that no corner is taken on its
+            edge.
         max_range: Ground points farther than this from the camera, horizontally, are not used [m].
         ransac_threshold: Inlier distance of the rigid ground motion [m].
         ransac_iterations: RANSAC iterations.
@@ -127,6 +132,7 @@ class FisheyeOdometryConfig:
     levels: int = 3
     fb_max: float = 0.5
     min_depression_deg: float = 20.0
+    view_limit_deg: float | None = None
     max_range: float = 1.5
     ransac_threshold: float = 0.01
     ransac_iterations: int = 100
@@ -162,6 +168,7 @@ class FisheyeOdometryConfig:
             "levels": 0 <= self.levels <= 8,
             "fb_max": self.fb_max > 0.0,
             "min_depression_deg": 0.0 <= self.min_depression_deg < 90.0,
+            "view_limit_deg": self.view_limit_deg is None or 0.0 < self.view_limit_deg <= 180.0,
             "max_range": self.max_range > 0.0,
             "ransac_threshold": self.ransac_threshold > 0.0,
             "ransac_iterations": self.ransac_iterations >= 1,
@@ -188,7 +195,7 @@ class FisheyeOdometryConfig:
         }
         for key, ok in checks.items():
             value = getattr(self, key)
-            if not (ok and math.isfinite(float(value))):
+            if not (ok and (value is None or math.isfinite(float(value)))):
                 raise ValueError(f"FisheyeOdometryConfig.{key}: {value!r} is out of range")
 
 
@@ -435,10 +442,27 @@ class FisheyeOdometry:
             self._mask = np.where(m != 0, 255, 0).astype(np.uint8)
         else:
             self._mask = np.full((h, w), 255, np.uint8)
-        # the rays' own limit: pixels inside the field of view only
+        # the rays' own limit: pixels inside the field of view whose rays point down enough to
+        # meet the ground (within view_limit_deg of the body's -z)
         yy, xx = np.mgrid[0:h, 0:w]
-        inside = np.isfinite(camera.cam2world(np.column_stack([xx.ravel(), yy.ravel()]))[:, 0]).reshape(h, w)
-        self._mask[~inside] = 0
+        rays = camera.cam2world(np.column_stack([xx.ravel(), yy.ravel()]).astype(np.float64))
+        down = -(rays @ camera.T_body_cam[:3, :3].T)[:, 2]
+        limit = self.cfg.view_limit_deg
+        limit = min(95.0 - self.cfg.min_depression_deg, 90.0) if limit is None else limit
+        with np.errstate(invalid="ignore"):
+            usable = down >= math.cos(math.radians(limit))
+        self._mask[~usable.reshape(h, w)] = 0
+        ys, xs = np.nonzero(self._mask)
+        grow = int(math.ceil(self.cfg.max_disp + self.cfg.window))  # a feature's motion and window
+        if len(xs):
+            self._box = (
+                max(int(xs.min()) - grow, 0),
+                max(int(ys.min()) - grow, 0),
+                min(int(xs.max()) + grow + 1, w),
+                min(int(ys.max()) + grow + 1, h),
+            )
+        else:
+            self._box = (0, 0, w, h)
         self._view: np.ndarray | None = None  # the mask at the shadow's pyramid level
         # the image scale [px/rad] at 45 degrees off the axis (an equidistant fisheye's is uniform)
         ray = np.array([[math.sqrt(0.5), 0.0, math.sqrt(0.5)]])
@@ -447,6 +471,11 @@ class FisheyeOdometry:
         cell = self.cfg.static_cell
         self._hits = np.zeros((-(-h // cell), -(-w // cell)), np.int32)
         self.reset()
+
+    @property
+    def config(self) -> FisheyeOdometryConfig:
+        """The settings (as :attr:`perception.odometry.FlowOdometry.config`)."""
+        return self.cfg
 
     def reset(self) -> None:
         """Forget the last frame and the learned mask of the rover's parts."""
@@ -550,8 +579,15 @@ class FisheyeOdometry:
             edges = self._shadow_edges(prev)
             if edges.any():
                 allowed = np.where(edges, 0, allowed).astype(np.uint8)
+        # the work is done on the box that holds the usable ground (and the motion's margin)
+        x0, y0, x1, y1 = self._box
         pts = cv2.goodFeaturesToTrack(
-            prev, c.max_features, c.quality_level, c.min_distance, mask=allowed, blockSize=5
+            np.ascontiguousarray(prev[y0:y1, x0:x1]),
+            c.max_features,
+            c.quality_level,
+            c.min_distance,
+            mask=np.ascontiguousarray(allowed[y0:y1, x0:x1]),
+            blockSize=5,
         )
         if pts is None or len(pts) < c.min_inliers:
             return invalid("too few features", n_features=0 if pts is None else len(pts))
@@ -559,11 +595,14 @@ class FisheyeOdometry:
         n_feat = len(p0)
         win, crit = (c.window, c.window), (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
         lk = {"winSize": win, "maxLevel": c.levels, "criteria": crit}
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, curr, p0, None, **lk)  # type: ignore[call-overload]
-        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(curr, prev, p1, None, **lk)  # type: ignore[call-overload]
+        box0 = np.ascontiguousarray(prev[y0:y1, x0:x1])
+        box1 = np.ascontiguousarray(curr[y0:y1, x0:x1])
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(box0, box1, p0, None, **lk)  # type: ignore[call-overload]
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(box1, box0, p1, None, **lk)  # type: ignore[call-overload]
         fb = np.linalg.norm(p0 - p0b, axis=1)
         ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < c.fb_max)
-        P0, P1 = p0[ok].astype(np.float64), p1[ok].astype(np.float64)
+        shift = np.array([x0, y0], np.float64)
+        P0, P1 = p0[ok].astype(np.float64) + shift, p1[ok].astype(np.float64) + shift
         G0 = rays_to_ground(self.camera, P0, plane0, c.min_depression_deg)
         G1 = rays_to_ground(self.camera, P1, plane, c.min_depression_deg)
         o = self.camera.T_body_cam[:3, 3]

@@ -75,6 +75,10 @@ class RoverKinematicModel:
             nose-up pitch [m], the rear's shrinking as much: the weight's component along body
             x, acting at the body's height over the ground, moves load between the axles
             (0: unknown). See :meth:`rest_depths`.
+        joint_limits: (axle roll [rad], axle travel about ``nominal_depth`` [m], axle steering
+            [rad]) ranges +-, or None (unknown). With them the fisheye's odometry leaves out the
+            image of the wheels, markers and arms over the whole range
+            (:func:`perception.rover_parts.kinematics_roi`).
     """
 
     axle_x: float
@@ -91,6 +95,7 @@ class RoverKinematicModel:
     T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
     rest_sag: float = 0.0
     pitch_sag: float = 0.0
+    joint_limits: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         for name in ("axle_x", "nominal_depth", "track", "wheel_radius", "wheel_width", "marker_size"):
@@ -112,6 +117,14 @@ class RoverKinematicModel:
             )
         object.__setattr__(self, "arm_tip", tuple(float(v) for v in as_array(self.arm_tip, (3,), "arm_tip")))
         object.__setattr__(self, "T_body_cam", check_rigid(self.T_body_cam, "T_body_cam"))
+        if self.joint_limits is not None:
+            lim = tuple(float(v) for v in as_array(self.joint_limits, (3,), "joint_limits"))
+            if not all(math.isfinite(v) and v > 0 for v in lim):
+                raise CalibrationError(
+                    f"joint_limits: {self.joint_limits!r}; give the roll [rad], travel [m] and steering "
+                    "[rad] ranges, each > 0, or None"
+                )
+            object.__setattr__(self, "joint_limits", lim)
 
     def rest_depths(self, roll: float, pitch: float) -> np.ndarray:
         """The axle depths (d_F, d_R) of the rover at rest on its wheels, its body tilted [m].
@@ -269,11 +282,13 @@ class RoverKinematicModel:
 
     @classmethod
     def load(cls, path: str | Path) -> RoverKinematicModel:
-        """Read a model written by :meth:`save` (every key required but the sags; unknown keys are errors)."""
-        d = read_mapping(path, set(cls._KEYS), set(cls._OPTIONAL))
+        """Read a model written by :meth:`save` (the sags and joint limits optional; no unknown keys)."""
+        d = read_mapping(path, set(cls._KEYS), set(cls._OPTIONAL) | {"joint_limits"})
         try:
-            kw = {k: real_number(k, d[k]) for k in cls._KEYS - {"arm_tip", "T_body_cam"}}
+            kw: dict = {k: real_number(k, d[k]) for k in cls._KEYS - {"arm_tip", "T_body_cam"}}
             kw.update({k: real_number(k, d[k]) for k in cls._OPTIONAL if k in d})
+            if d.get("joint_limits") is not None:
+                kw["joint_limits"] = tuple(as_array(d["joint_limits"], (3,), "joint_limits"))
             return cls(
                 arm_tip=tuple(as_array(d["arm_tip"], (3,), "arm_tip")),
                 T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),
@@ -286,4 +301,6 @@ class RoverKinematicModel:
         """Write every field to YAML."""
         data = {k: getattr(self, k) for k in sorted(self._KEYS | set(self._OPTIONAL))}
         data["arm_tip"] = list(self.arm_tip)
+        if self.joint_limits is not None:
+            data["joint_limits"] = list(self.joint_limits)
         return write_mapping(path, data)

@@ -119,6 +119,9 @@ class SensorSpec:
             calibrated), of the radial model of
             :func:`perception.photometry.relative_illumination`. The odometry flat-fields its
             frames with it.
+        ground_view_deg: A fisheye that reads out a region of interest: the ground it delivers
+            lies within this angle of the body's -z [deg] (beyond, only the parts the
+            kinematics reads); None: all it sees. Its own odometry selects features inside it.
     """
 
     name: str
@@ -130,6 +133,7 @@ class SensorSpec:
     gamma: float = 1.0
     bayer: str | None = None
     vignetting: float = 1.0
+    ground_view_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in SENSOR_KINDS:
@@ -150,6 +154,13 @@ class SensorSpec:
             raise ConfigError(
                 f"{self.name}.bayer: {self.bayer!r}; use one of {sorted(CFA_PATTERNS)} or None (full colour)"
             )
+        if self.ground_view_deg is not None:
+            g = real_number(f"{self.name}.ground_view_deg", self.ground_view_deg)
+            if self.kind != "fisheye" or not 0.0 < g <= 180.0:
+                raise ConfigError(
+                    f"{self.name}.ground_view_deg: {self.ground_view_deg!r}; a fisheye's ground view is an "
+                    "angle in (0, 180] deg from the body's -z, or None"
+                )
         rate = real_number(f"{self.name}.rate_hz", self.rate_hz)
         if not rate > 0:
             raise ConfigError(f"{self.name}.rate_hz: {self.rate_hz!r}; give a rate above 0 [Hz]")

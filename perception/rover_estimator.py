@@ -5,7 +5,9 @@ rig (:class:`perception.rig.Rig`) of one downward pinhole camera, one downward f
 optionally, one IMU:
 
 - the downward camera (chained frame pairs) -> :class:`perception.FlowOdometry` -> body twist,
-  with the ground plane from the fisheye's latest axle roll, height and steering;
+  with the ground plane from the fisheye's latest axle roll, height and steering; on a rig with
+  no downward camera (the one-camera rig) the fisheye's own frames ->
+  :class:`perception.fisheye_odometry.FisheyeOdometry` -> body twist, on the same plane;
 - the fisheye -> :class:`perception.KinematicStateEstimator` -> psi, d, lambda, theta, theta_dot;
 - both (and the gyro and accelerometer) -> :class:`perception.SlipEstimator` -> fused twist and
   wheel rates, slip ratio and angle; the IMU -> :class:`perception.inertial.AttitudeFilter`;
@@ -27,6 +29,7 @@ import numpy as np
 
 from perception.drive_geometry import AXLES, WHEELS
 from perception.fisheye_kinematics import KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
 from perception.inertial import AttitudeFilter, G, tilted_step
 from perception.kinematics import MARKERS
 from perception.odometry import (
@@ -37,7 +40,7 @@ from perception.odometry import (
     ground_plane_from_wheels,
 )
 from perception.rig import Rig, SensorMessage
-from perception.rover_parts import joint_window_parts
+from perception.rover_parts import joint_window_parts, kinematics_roi
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.sun_heading import HeadingConfig, HeadingFilter
 from perception.validation import ConfigError
@@ -148,9 +151,10 @@ class RoverEstimator:
     :data:`perception.estimator.ESTIMATE_FIELDS` and :meth:`step_estimate` the full state.
 
     Args:
-        rig: The sensors (one ``"pinhole"``, one ``"fisheye"``, at most one ``"imu"`` and one
-            ``"sun"`` sensor) and the rover's kinematic model. A sun sensor is used only with an
-            IMU (the sun's direction is levelled by its tilt).
+        rig: The sensors (one ``"fisheye"``, at most one ``"pinhole"``, one ``"imu"`` and one
+            ``"sun"`` sensor) and the rover's kinematic model. Without a pinhole camera the
+            fisheye gives the odometry too (the one-camera rig). A sun sensor is used only with
+            an IMU (the sun's direction is levelled by its tilt).
         odometry: Odometry parameters (default: :meth:`FlowOdometryConfig.for_camera` of the
             downward camera, with ``odometry_overrides``).
         kinematics: Fisheye-kinematics parameters.
@@ -175,9 +179,16 @@ class RoverEstimator:
             anywhere).
         heading: The sun-heading filter's parameters (:class:`perception.sun_heading.HeadingConfig`;
             its ``start_std_deg`` is the start fix's heading uncertainty).
+        odometry_camera: ``"auto"`` (the downward camera if the rig has one, else the fisheye),
+            ``"downward"`` or ``"fisheye"`` (the fisheye's odometry even beside a downward
+            camera, which is then not used).
+        fisheye_odometry: The fisheye odometry's parameters (when it is the odometry). None: the
+            defaults, or for a fisheye that reads out only the ground near its axis
+            (``SensorSpec.ground_view_deg``) features 5 degrees inside that view.
 
     Raises:
-        ConfigError: The rig lacks a downward camera or a fisheye, or has two of a kind.
+        ConfigError: The rig lacks a fisheye, or the downward camera ``odometry_camera`` asks
+            for, or has two of a kind.
     """
 
     def __init__(
@@ -191,6 +202,8 @@ class RoverEstimator:
         odometry_gyro: bool = True,
         zero_steering_at_start: bool = False,
         heading: HeadingConfig | None = None,
+        odometry_camera: str = "auto",
+        fisheye_odometry: FisheyeOdometryConfig | None = None,
     ) -> None:
         down, fish, imu, sun = (
             rig.one("pinhole", "RoverEstimator"),
@@ -198,10 +211,17 @@ class RoverEstimator:
             rig.one("imu", "RoverEstimator"),
             rig.one("sun", "RoverEstimator"),
         )
-        if down is None or fish is None:
+        if odometry_camera not in ("auto", "downward", "fisheye"):
+            raise ConfigError(f"odometry_camera: {odometry_camera!r}; use 'auto', 'downward' or 'fisheye'")
+        if fish is None:
             raise ConfigError(
-                f"rig: RoverEstimator needs a 'pinhole' and a 'fisheye' sensor; this rig has {rig!r}"
+                f"rig: RoverEstimator needs a 'fisheye' sensor (and a 'pinhole' one, or the fisheye "
+                f"gives the odometry too); this rig has {rig!r}"
             )
+        if odometry_camera == "downward" and down is None:
+            raise ConfigError(f"odometry_camera='downward': this rig has no 'pinhole' sensor ({rig!r})")
+        if odometry_camera == "fisheye" or down is None:
+            down = None  # the one-camera rig: the fisheye's odometry
         if rig.vehicle is None:
             raise ConfigError("rig: RoverEstimator needs the rover's kinematic model (Rig.vehicle)")
         self.rig = rig
@@ -212,14 +232,31 @@ class RoverEstimator:
         self.zero_steering_at_start = bool(zero_steering_at_start)
         self._zero_at: float | None = None  # the start's time, until its fisheye frame is seen
         self._steer_max_rate = rig.steer_max_rate
-        width = down.model.image_size[0]
         nominal = self.model.wheel_frames(np.zeros(2), np.full(2, self.model.nominal_depth), np.zeros(4))
-        odo = odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {}))
-        if odo.plane_anchor is None:  # the ground in view keeps its height at the front axle
-            front = max(c[0] for _, c in nominal)
-            ys = [c[1] for _, c in nominal if c[0] > front - 1e-6]
-            odo = dataclasses.replace(odo, plane_anchor=(float(front), float(np.mean(ys))))
-        self.odometry = FlowOdometry(down.model, odo, vignetting=down.vignetting, gamma=down.gamma)
+        self.odometry: FlowOdometry | FisheyeOdometry
+        if down is not None:
+            width = down.model.image_size[0]
+            odo = odometry or FlowOdometryConfig.for_camera(width, down.rate_hz, **(odometry_overrides or {}))
+            if odo.plane_anchor is None:  # the ground in view keeps its height at the front axle
+                front = max(c[0] for _, c in nominal)
+                ys = [c[1] for _, c in nominal if c[0] > front - 1e-6]
+                odo = dataclasses.replace(odo, plane_anchor=(float(front), float(np.mean(ys))))
+            self.odometry = FlowOdometry(down.model, odo, vignetting=down.vignetting, gamma=down.gamma)
+        else:
+            # the rover's parts over their joint range are left out (learned if the range is unknown)
+            lim = self.model.joint_limits
+            mask = None if lim is None else ~kinematics_roi(fish.model, self.model, *lim)
+            fo = fisheye_odometry
+            if fo is None and fish.ground_view_deg is not None:
+                # a region-of-interest readout: features 5 degrees inside its edge, on rays down to
+                # 5 degrees less depression (a tilted plane)
+                view = fish.ground_view_deg - 5.0
+                fo = FisheyeOdometryConfig(
+                    view_limit_deg=view, min_depression_deg=float(np.clip(85.0 - view, 0.0, 89.0))
+                )
+            self.odometry = FisheyeOdometry(fish.model, fo, mask=mask)
+        #: Which camera gives the odometry: ``"downward"`` or ``"fisheye"``.
+        self.odometry_camera = "downward" if down is not None else "fisheye"
         self.kinematics = KinematicStateEstimator(
             fish.model, self.model, kinematics, gamma=fish.gamma, bayer=fish.bayer
         )
@@ -350,9 +387,10 @@ class RoverEstimator:
         roll, travel, steer = rates
         steer = max(steer, 1.25 * self._steer_max_rate)
         period = self.fish.period
-        return joint_window_parts(
+        parts = joint_window_parts(
             self.model, s.psi, s.depth, s.delta, (roll * period, travel * period, steer * period)
         )
+        return parts
 
     def _on_fisheye(self, img: np.ndarray, t: float) -> None:
         if self._zero_at is not None:
@@ -364,6 +402,8 @@ class RoverEstimator:
                 self.kinematics.zero_depth(img, rest)
             self._zero_at = None
         state = self.kinematics.update(img, t)
+        if self.down is None:  # the one-camera rig: the fisheye's odometry on the wheels' plane now
+            self._odometry_frame(img, t)
         self.slip.add_wheels(
             t,
             state.theta_dot,
@@ -383,6 +423,10 @@ class RoverEstimator:
         return ground_plane_from_wheels(centres, self.model.wheel_radius)
 
     def _on_downward(self, img: np.ndarray, t: float) -> None:
+        self._odometry_frame(img, t)
+
+    def _odometry_frame(self, img: np.ndarray, t: float) -> None:
+        """One frame of the odometry's camera: its estimate to the slip filter."""
         plane = self.wheel_ground_plane()
         est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
         if est is not None:
@@ -413,7 +457,7 @@ class RoverEstimator:
         return (vx - vx0) / (t - t0), (vy - vy0) / (t - t0)
 
     def _frame_rate_xy(self) -> np.ndarray | None:
-        """The gyro's mean body roll and pitch rates since the last downward frame (None: no gyro)."""
+        """The gyro's mean body roll and pitch rates since the odometry's last frame (None: no gyro)."""
         if self.imu is None or not self.odometry_gyro or not self._gyro_xy:
             self._gyro_xy = []
             return None
@@ -480,10 +524,9 @@ class RoverEstimator:
             t: The time the step ended [s].
         """
         t0 = time.perf_counter()
-        handlers: dict[str, Callable[[np.ndarray, float], None]] = {
-            self.fish.name: self._on_fisheye,
-            self.down.name: self._on_downward,
-        }
+        handlers: dict[str, Callable[[np.ndarray, float], None]] = {self.fish.name: self._on_fisheye}
+        if self.down is not None:
+            handlers[self.down.name] = self._on_downward
         if self.imu is not None:
             handlers[self.imu.name] = self._on_imu
         if self.sun is not None:

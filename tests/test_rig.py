@@ -110,7 +110,7 @@ def test_a_scenario_adds_moves_and_drops_sensors_and_their_messages_arrive_at_th
 
 def test_the_built_in_estimator_says_what_a_rig_lacks(tmp_path):
     path = scenario_file(tmp_path, [{"name": "downward", "kind": "pinhole"}])
-    with pytest.raises(ConfigError, match="RoverEstimator needs a 'pinhole' and a 'fisheye'"):
+    with pytest.raises(ConfigError, match="RoverEstimator needs a 'fisheye' sensor"):
         gym.make("Rover-v0", scenario=str(path), renderer="tiny")
 
 

@@ -129,6 +129,9 @@ class FisheyeCameraConfig(CameraConfig):
             (:func:`perception.rover_parts.kinematics_roi`: wheels, markers and steering arms
             over the joint range);
             the rest of the image is black. Faster in proportion to the pixels saved.
+        roi_ground_deg: With ``roi``, the region also holds the rays within this angle of the
+            body's -z [deg]: the ground that the fisheye's own odometry tracks on a one-camera
+            rig (72: its rays at 20 degrees' depression and more, 2 to spare). 0: none.
 
     Its width runs along the body's x axis, its height across the body.
     """
@@ -137,12 +140,14 @@ class FisheyeCameraConfig(CameraConfig):
     radius_frac: float = 0.47
     oversample: float = 1.0
     roi: bool = False
+    roi_ground_deg: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_range("fov_deg", self.fov_deg, 185.0, 250.0)
         check_range("radius_frac", self.radius_frac, 0.1, 1.0)
         check_range("oversample", self.oversample, 0.25, 4.0)
+        check_range("roi_ground_deg", self.roi_ground_deg, 0.0, 90.0)
 
     def model(self, T_body_cam: np.ndarray) -> OmniCamera:
         """The ideal (equidistant, 4th-order polynomial) model of this configuration."""

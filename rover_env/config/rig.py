@@ -247,6 +247,41 @@ def standard_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
     return rig + (SensorConfig("imu", "imu", imu=imu), SensorConfig("sun", "sun"))
 
 
+#: The rigs the environment's ``rig`` keyword names (:func:`named_rig`).
+RIG_NAMES: tuple[str, ...] = ("standard", "fisheye_only")
+
+#: The one-camera rig's fisheye also renders the ground its odometry tracks: the rays within
+#: this angle of the body's -z [deg], as one view along the axis (wider, the view would be split
+#: into the cube's faces and cost three times the kinematics' parts; the odometry keeps 5 degrees
+#: inside it). Its odometry then sees the ground within 0.15 m of the camera's foot.
+FISHEYE_ONLY_GROUND_DEG = 50.0
+
+
+def fisheye_only_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
+    """The one-camera rig: the fisheye alone (its odometry, kinematics and wheels), ``imu`` and a sun sensor.
+
+    The fisheye renders the ground its odometry tracks as well as the parts the kinematics reads
+    (``roi_ground_deg``). With ``imu`` None, neither an IMU nor a sun sensor.
+    """
+    rig: tuple[SensorConfig, ...] = (
+        SensorConfig("fisheye", "fisheye", camera={"roi_ground_deg": FISHEYE_ONLY_GROUND_DEG}),
+    )
+    if imu is None:
+        return rig
+    return rig + (SensorConfig("imu", "imu", imu=imu), SensorConfig("sun", "sun"))
+
+
+def named_rig(name: str, imu: Any = None) -> tuple[SensorConfig, ...]:
+    """The rig called ``name`` (:data:`RIG_NAMES`) with ``imu`` (and then a sun sensor), or ConfigError."""
+    if name == "standard":
+        return standard_rig(imu)
+    if name == "fisheye_only":
+        return fisheye_only_rig(imu)
+    raise ConfigError(
+        f"rig: {name!r}; use one of {list(RIG_NAMES)} (or declare the sensors in the scenario's rig)"
+    )
+
+
 @dataclass(frozen=True)
 class PerceptionPreset:
     """Camera configurations of the estimator in the loop.

@@ -18,7 +18,7 @@ from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
 from rover_env.config.imu import ImuConfig
 from rover_env.config.randomize import RandomizeConfig, WorldDraw, randomize_config
-from rover_env.config.rig import PresetName, imu_config, standard_rig, with_imu
+from rover_env.config.rig import RIG_NAMES, PresetName, imu_config, named_rig, standard_rig, with_imu
 from rover_env.config.scenario import ScenarioConfig, load_scenario, scenario_rig
 from rover_env.envs.chase_view import ChaseView
 from rover_env.rendering import resolve_renderer
@@ -193,6 +193,12 @@ class RoverEnv(gym.Env):
             episode from the reset's seed. None (default): the scenario's ``imu``, if any. The
             standard rig carries a sun sensor (``"sun"``) with its IMU
             (:func:`~rover_env.config.rig.standard_rig`); a declared rig only what it declares.
+        rig: With ``obs_source="estimated"``, a named rig in place of the scenario's sensors
+            (:data:`~rover_env.config.rig.RIG_NAMES`): ``"standard"`` (the fisheye and the
+            downward camera) or ``"fisheye_only"`` (the one-camera rig: the fisheye gives the
+            odometry as well as the joints and wheels, :func:`~rover_env.config.rig.fisheye_only_rig`),
+            each with ``imu`` (or the scenario's) and then a sun sensor. None (default): the
+            scenario's ``rig``, or the standard one. A scenario that declares a rig takes no name.
         estimator: With ``obs_source="estimated"``, a factory (class or callable) called once
             with the sensor rig (:attr:`rig`) that makes the estimator
             (:mod:`perception.estimator`: ``reset(start_fix)``, ``update(messages, t)``); the
@@ -232,6 +238,7 @@ class RoverEnv(gym.Env):
         imu: str | dict | ImuConfig | None = None,
         estimator: EstimatorFactory | None = None,
         camera_effects: CameraEffectsName = "field",
+        rig: str | None = None,
         randomize: str | dict | RandomizeConfig | None = None,
     ) -> None:
         super().__init__()
@@ -262,6 +269,16 @@ class RoverEnv(gym.Env):
         if len(render_size) != 2 or min(render_size) < 96 or max(render_size) > 4096:
             raise ValueError(f"render_size={render_size}: use (width, height) of 96 to 4096 px")
         self.scenario = load_scenario(scenario)
+        if rig is not None:
+            if rig not in RIG_NAMES:
+                raise ValueError(f"rig={rig!r}: use one of {list(RIG_NAMES)} or None (the scenario's)")
+            if self.obs_source is not ObsSource.ESTIMATED:
+                raise ValueError("rig: the sensors feed the estimator; use it with obs_source='estimated'")
+            if self.scenario.rig is not None:
+                raise ValueError(
+                    f"rig={rig!r}: scenario {self.scenario.name!r} declares its own rig; leave rig=None "
+                    "or drop the scenario's rig"
+                )
         #: The ranges of domain randomisation, or None (off).
         self.randomize: RandomizeConfig | None = randomize_config(
             self.scenario.randomize if randomize is None else randomize
@@ -297,20 +314,25 @@ class RoverEnv(gym.Env):
         if camera_effects not in ("field", "ideal"):
             raise ValueError(f"camera_effects={camera_effects!r}: use 'field' or 'ideal'")
         self.camera_effects = camera_effects
+        #: The named rig the sensors come from (None: the scenario's rig, or the standard one).
+        self.rig_name = rig
         if self.obs_source is ObsSource.ESTIMATED:
-            if imu is None:
-                rig = scenario_rig(self.scenario)
+            if rig is not None:
+                named = imu_config(imu) if imu is not None else self.scenario.imu
+                sensors = named_rig(rig, named)
+            elif imu is None:
+                sensors = scenario_rig(self.scenario)
             elif self.scenario.rig is None:  # the keyword's IMU, and with it the sun sensor
-                rig = standard_rig(imu_config(imu))
+                sensors = standard_rig(imu_config(imu))
             else:  # the keyword's IMU in place of the declared rig's
-                rig = with_imu(self.scenario.rig, imu_config(imu))
+                sensors = with_imu(self.scenario.rig, imu_config(imu))
             declared = self.scenario.rig is not None
             try:
                 self.pipeline = PerceptionPipeline(
                     self.sim,
                     preset,
                     estimator=estimator,
-                    rig=rig,
+                    rig=sensors,
                     declared=declared,
                     camera_effects=camera_effects == "field",
                 )

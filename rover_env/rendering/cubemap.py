@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -85,7 +86,10 @@ class CubemapRemap:
         cube_roll: Rotation of the cube about the optical axis [rad] (moves the face edges; the
             image must not change, which is how the seam test works).
         roi: (H, W) bool mask of the fisheye pixels to render (None: all); each connected part
-            of it is rendered as one pinhole view aimed at it, the other pixels stay black.
+            of it is rendered as one pinhole view aimed at it, the other pixels stay black. A
+            sequence of masks is a region of interest in parts: each mask's connected parts are
+            views of their own even where they touch another mask's (a pixel in several is the
+            first one's), so that a readout window can take each separately.
     """
 
     def __init__(
@@ -94,7 +98,7 @@ class CubemapRemap:
         margin: int = 2,
         oversample: float = 1.0,
         cube_roll: float = 0.0,
-        roi: np.ndarray | None = None,
+        roi: np.ndarray | Sequence[np.ndarray] | None = None,
     ) -> None:
         if margin < 1:
             raise ValueError(f"margin: {margin} px; use >= 1 (2 recommended) so faces can be interpolated")
@@ -102,11 +106,17 @@ class CubemapRemap:
             raise ValueError(f"oversample: {oversample!r} must be > 0")
         self.model = model
         w, h = model.image_size
+        regions: list[np.ndarray] = []
         if roi is not None:
-            roi = np.asarray(roi)
-            if roi.shape != (h, w):
-                raise ValueError(f"roi: shape {roi.shape}, expected the image's ({h}, {w})")
-            roi = roi.astype(bool)
+            masks = [roi] if isinstance(roi, np.ndarray) else list(roi)
+            for m in masks:
+                m = np.asarray(m)
+                if m.shape != (h, w):
+                    raise ValueError(f"roi: shape {m.shape}, expected the image's ({h}, {w})")
+                regions.append(m.astype(bool))
+            if not regions:
+                raise ValueError("roi: an empty sequence of masks; give a mask, masks, or None")
+            roi = np.logical_or.reduce(regions)
         xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         rays = model.cam2world(np.stack([xs, ys], -1)).reshape(-1, 3)
         valid = np.isfinite(rays[:, 0])
@@ -129,35 +139,50 @@ class CubemapRemap:
         owner = np.where(valid, np.argmax(np.nan_to_num(rays @ R_cam_cube) @ axes.T, axis=1), -1)
         face_R = [R_cam_cube @ np.stack([np.cross(down, axis), down, axis], 1) for _, axis, down in _FACES]
         views: list[tuple[str, np.ndarray, np.ndarray]] = []  # (name, R_cam_view, pixel indices)
+        region_of: dict[int, int] = {}  # ROI part -> its region
+        view_region: list[int] = []  # the region of each view
         if roi is None:
             for i, (name, _, _) in enumerate(_FACES):
                 views.append((name, face_R[i], np.flatnonzero(owner == i)))
         else:
             # one view per connected part of the ROI, aimed at its middle; a part wider than
             # +-MAX_VIEW_HALF_ANGLE is split along the cube faces instead
-            _, parts = cv2.connectedComponents(self.rendered.astype(np.uint8), connectivity=8)
-            parts = parts.reshape(-1)
+            labels = np.zeros((h, w), np.int32)
+            part_region = [0]  # the region of each part
+            taken = ~self.valid
+            for r, region in enumerate(regions):
+                n, lab = cv2.connectedComponents((region & ~taken).astype(np.uint8), connectivity=8)
+                top = int(labels.max())
+                labels = np.where(lab > 0, lab + top, labels)
+                part_region += [r] * (n - 1)
+                taken = taken | region
+            parts = labels.reshape(-1)
             for k in range(1, int(parts.max()) + 1):
                 sel = np.flatnonzero(parts == k)
+                region_of[k] = part_region[k]
                 z = rays[sel].mean(axis=0)
                 z /= np.linalg.norm(z)
                 if np.min(rays[sel] @ z) >= math.cos(MAX_VIEW_HALF_ANGLE):
                     x = np.array([1.0, 0.0, 0.0]) - z[0] * z
                     x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-6 else np.array([0.0, 1.0, 0.0])
                     views.append((f"roi{k}", np.stack([x, np.cross(z, x), z], 1), sel))
+                    view_region.append(region_of[k])
                     continue
                 for i, (name, _, _) in enumerate(_FACES):
                     if np.any(owner[sel] == i):
                         views.append((name, face_R[i], sel[owner[sel] == i]))
+                        view_region.append(region_of[k])
         faces: list[CubeFace] = []
         face_of = np.full(w * h, -1)
         map_x = np.full(w * h, -10.0, dtype=np.float32)
         map_y = np.full(w * h, -10.0, dtype=np.float32)
         row = 0
         width = 0
-        for name, R, sel in views:
+        regions_kept: list[int] = []
+        for j, (name, R, sel) in enumerate(views):
             if len(sel) == 0:
                 continue
+            regions_kept.append(view_region[j] if view_region else 0)
             local = rays[sel] @ R  # view optical-frame rays
             u = f * local[:, 0] / local[:, 2]
             v = f * local[:, 1] / local[:, 2]
@@ -174,6 +199,8 @@ class CubemapRemap:
             row += size[1]
             width = max(width, size[0])
         self.faces: tuple[CubeFace, ...] = tuple(faces)
+        #: The ROI region (index into a sequence of masks; 0 for one mask or none) of each face.
+        self.face_region: tuple[int, ...] = tuple(regions_kept)
         self.face_index = face_of.reshape(h, w)  # index into faces of each pixel, -1 outside
         self.atlas_size = (width, row)
         #: Float atlas coordinates [atlas px] of every fisheye pixel, (H, W) each; -10 where

@@ -460,12 +460,26 @@ class DownwardCamera(_RoverCamera):
 
 
 @functools.lru_cache(maxsize=8)
-def _kinematics_roi(cfg: FisheyeCameraConfig, g: RoverGeometry, mount: tuple[float, ...]) -> np.ndarray:
-    """:func:`kinematics_roi` of this fisheye on this rover (0.6 s to build, so built once)."""
+def _kinematics_roi(
+    cfg: FisheyeCameraConfig, g: RoverGeometry, mount: tuple[float, ...]
+) -> tuple[np.ndarray, ...]:
+    """:func:`kinematics_roi` of this fisheye on this rover (0.6 s to build, so built once).
+
+    With ``roi_ground_deg``, a second region: the ground the fisheye's own odometry tracks (its
+    own views, which a readout window takes whole while the kinematics' are windowed).
+    """
     T = np.array(mount, dtype=np.float64).reshape(4, 4)
-    roi = kinematics_roi(cfg.model(T), g.kinematic_model(T), g.roll_limit, g.travel_limit, g.steer_limit)
+    model = cfg.model(T)
+    roi = kinematics_roi(model, g.kinematic_model(T), g.roll_limit, g.travel_limit, g.steer_limit)
     roi.setflags(write=False)
-    return roi
+    if cfg.roi_ground_deg <= 0.0:
+        return (roi,)
+    w, h = model.image_size
+    down = -(model.cam2world(_pixels(w, h)) @ T[:3, :3].T)[..., 2]  # (H, W)
+    with np.errstate(invalid="ignore"):
+        ground = down >= math.cos(math.radians(cfg.roi_ground_deg))
+    ground.setflags(write=False)
+    return roi, ground
 
 
 class FisheyeCamera(_RoverCamera):
@@ -549,11 +563,17 @@ class FisheyeCamera(_RoverCamera):
     def windows(self, parts: np.ndarray) -> list[tuple[int, int, int, int]]:
         """The rectangle of each view (:attr:`remapper` faces) that holds the images of ``parts``.
 
-        ``parts``: (N, 3) body-frame points [m]. See :meth:`CubemapRemap.windows`.
+        ``parts``: (N, 3) body-frame points [m]. See :meth:`CubemapRemap.windows`. The views of
+        the ground region (``roi_ground_deg``) are whole.
         """
         T = self._T_cam_body
         pts = np.asarray(parts, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
-        return self.remapper.windows(pts, self.window_margin)
+        wins = self.remapper.windows(pts, self.window_margin)
+        # the ground region (roi_ground_deg) is read whole: the fisheye's own odometry tracks it
+        return [
+            (0, 0, *fc.size) if region > 0 else win
+            for win, fc, region in zip(wins, self.remapper.faces, self.remapper.face_region, strict=True)
+        ]
 
     @property
     def _T_cam_body(self) -> np.ndarray:

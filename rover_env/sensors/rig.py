@@ -29,6 +29,7 @@ from perception.slip import SlipConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError
 from rover_env.config.rig import (
+    FISHEYE_ONLY_GROUND_DEG,
     PERCEPTION_PRESETS,
     PerceptionPreset,
     PresetName,
@@ -173,8 +174,12 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             sun = SunSensorModel(c.fov_deg, c.accuracy_deg, c.noise_deg)
             specs.append(SensorSpec(name, "sun", c.rate_hz, sensor.T_body_sensor, sun))
         elif isinstance(sensor, FisheyeCamera):
-            rate, T = sensor.config.rate_hz, sensor.T_body_cam
-            specs.append(SensorSpec(name, "fisheye", rate, T, sensor.model, True, **_photometry(sensor)))
+            c = sensor.config
+            rate, T = c.rate_hz, sensor.T_body_cam
+            kw = _photometry(sensor)
+            if c.roi and c.roi_ground_deg > 0.0:  # it reads out the ground within this angle
+                kw["ground_view_deg"] = float(c.roi_ground_deg)
+            specs.append(SensorSpec(name, "fisheye", rate, T, sensor.model, True, **kw))
         elif isinstance(sensor, DownwardCamera):
             rate, T = sensor.config.rate_hz, sensor.T_body_cam
             specs.append(SensorSpec(name, "pinhole", rate, T, sensor.model, **_photometry(sensor)))
@@ -288,6 +293,17 @@ class PerceptionPipeline:
         elif imu is not None:
             raise ValueError("imu: this pipeline is given a rig; declare the IMU in it (kind: imu)")
         check_rig(rig)
+        if not any(c.kind == "pinhole" for c in rig):
+            # a rig without a downward camera: its fisheye gives the odometry too, and renders the
+            # ground for it unless the declaration says otherwise
+            rig = tuple(
+                dataclasses.replace(
+                    c, camera={"roi_ground_deg": FISHEYE_ONLY_GROUND_DEG} | dict(c.camera or {})
+                )
+                if c.kind == "fisheye"
+                else c
+                for c in rig
+            )
         #: The simulated sensors by name, in the order the simulation samples them.
         self.sensors: dict[str, SimSensor] = {}
         for i, config in enumerate(rig):

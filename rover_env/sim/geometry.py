@@ -322,6 +322,7 @@ class RoverGeometry:
             * GRAVITY
             * (-self.axle_z + self.wheel_radius)
             / (2.0 * self.axle_x * self.travel_stiffness),
+            joint_limits=(self.roll_limit, self.travel_limit, self.steer_limit),
         )
 
     def fiducial(self, name: str) -> Fiducial:
