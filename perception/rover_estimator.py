@@ -246,14 +246,7 @@ class RoverEstimator:
             # the rover's parts over their joint range are left out (learned if the range is unknown)
             lim = self.model.joint_limits
             mask = None if lim is None else ~kinematics_roi(fish.model, self.model, *lim)
-            fo = fisheye_odometry
-            if fo is None and fish.ground_view_deg is not None:
-                # a region-of-interest readout: features 5 degrees inside its edge, on rays down to
-                # 5 degrees less depression (a tilted plane)
-                view = fish.ground_view_deg - 5.0
-                fo = FisheyeOdometryConfig(
-                    view_limit_deg=view, min_depression_deg=float(np.clip(85.0 - view, 0.0, 89.0))
-                )
+            fo = fisheye_odometry or FisheyeOdometryConfig.for_ground_view(fish.ground_view_deg)
             self.odometry = FisheyeOdometry(fish.model, fo, mask=mask)
         #: Which camera gives the odometry: ``"downward"`` or ``"fisheye"``.
         self.odometry_camera = "downward" if down is not None else "fisheye"

@@ -254,7 +254,7 @@ RIG_NAMES: tuple[str, ...] = ("standard", "fisheye_only")
 #: this angle of the body's -z [deg], as one view along the axis (wider, the view would be split
 #: into the cube's faces and cost three times the kinematics' parts; the odometry keeps 5 degrees
 #: inside it). Its odometry then sees the ground within 0.15 m of the camera's foot.
-FISHEYE_ONLY_GROUND_DEG = 50.0
+FISHEYE_ONLY_GROUND_DEG = 65.0
 
 
 def fisheye_only_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
