@@ -347,6 +347,12 @@ class OmniCamera:
         poly: (a0, ..., aN), N >= 2 [px^(1-k)].
         max_fov: Full field of view [rad] (rays further than max_fov / 2 from the axis are invalid).
         T_body_cam: 4x4 transform from the camera optical frame to the body frame [m].
+        ground_plane: (a, b, c): the ground z = a x + b y + c in the body frame [-, -, m] for the
+            fisheye's own odometry (:class:`perception.fisheye_odometry.FisheyeOdometry`); None:
+            not given (the kinematics does not need it).
+        mask_file: An image of the camera's size, non-zero where the ground may be seen and zero
+            on the rover's own parts, for the fisheye's odometry (None: none; the parts are then
+            learned). A relative path in a calibration file is relative to the file.
     """
 
     image_size: tuple[int, int]
@@ -355,6 +361,8 @@ class OmniCamera:
     poly: tuple[float, ...]
     max_fov: float
     T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    ground_plane: tuple[float, float, float] | None = None
+    mask_file: Path | None = None
     _inv: np.ndarray = field(init=False, repr=False, compare=False)
     _dpoly: np.ndarray = field(init=False, repr=False, compare=False)
 
@@ -381,6 +389,11 @@ class OmniCamera:
         object.__setattr__(self, "affine", tuple(float(v) for v in affine))
         object.__setattr__(self, "poly", tuple(float(v) for v in poly))
         object.__setattr__(self, "T_body_cam", check_rigid(self.T_body_cam, "T_body_cam"))
+        if self.ground_plane is not None:
+            gp = as_array(self.ground_plane, (3,), "ground_plane")
+            object.__setattr__(self, "ground_plane", tuple(float(v) for v in gp))
+        if self.mask_file is not None:
+            object.__setattr__(self, "mask_file", Path(self.mask_file))
         # f'(rho), highest power first (np.polyval)
         object.__setattr__(self, "_dpoly", (np.arange(1, len(poly)) * poly[1:])[::-1].copy())
         # f(rho) must fall monotonically relative to rho up to the edge of the field of view
@@ -543,15 +556,27 @@ class OmniCamera:
 
     # ------------------------------------------------------------------ YAML
     _REQUIRED = frozenset({"model", "image_size", "center", "affine", "poly", "max_fov_deg", "T_body_cam"})
+    _OPTIONAL = frozenset({"ground_plane", "mask"})
 
     @classmethod
     def load(cls, path: str | Path) -> OmniCamera:
         """Read an omnidirectional calibration YAML (see :meth:`save` for the keys).
 
+        Optional keys, for the fisheye's own odometry: ``ground_plane: [a, b, c]`` (as the
+        downward camera's) and ``mask: FILE`` (an image of the rover's parts, zero on them;
+        relative to the YAML's folder).
+
         Raises:
             CalibrationError: Missing file, missing or unknown key, or an impossible value.
         """
-        d = read_mapping(path, set(cls._REQUIRED), set())
+        d = read_mapping(path, set(cls._REQUIRED), set(cls._OPTIONAL))
+        mask = d.get("mask")
+        if mask is not None:
+            if not isinstance(mask, str) or not mask.strip():
+                raise CalibrationError(
+                    f"{path}: mask: {mask!r}; give the path of a mask image, or leave it out"
+                )
+            mask = Path(mask) if Path(mask).is_absolute() else Path(path).parent / mask
         if d["model"] != "scaramuzza":
             raise CalibrationError(f"{path}: model: expected 'scaramuzza', got {d['model']!r}")
         try:
@@ -563,21 +588,28 @@ class OmniCamera:
                 poly=tuple(as_array(d["poly"], (-1,), "poly")),
                 max_fov=math.radians(fov),
                 T_body_cam=as_array(d["T_body_cam"], (4, 4), "T_body_cam"),
+                ground_plane=d.get("ground_plane"),
+                mask_file=mask,
             )
         except CalibrationError as exc:
             raise CalibrationError(f"{path}: {exc}") from exc
 
     def save(self, path: str | Path) -> Path:
-        """Write ``model, image_size, center, affine (c, d, e), poly (a0..aN), max_fov_deg, T_body_cam``."""
-        return write_mapping(
-            path,
-            {
-                "model": "scaramuzza",
-                "image_size": list(self.image_size),
-                "center": list(self.center),
-                "affine": list(self.affine),
-                "poly": list(self.poly),
-                "max_fov_deg": math.degrees(self.max_fov),
-                "T_body_cam": self.T_body_cam,
-            },
-        )
+        """Write ``model, image_size, center, affine (c, d, e), poly (a0..aN), max_fov_deg, T_body_cam``.
+
+        And ``ground_plane`` and ``mask`` (the mask file's absolute path) when set.
+        """
+        data = {
+            "model": "scaramuzza",
+            "image_size": list(self.image_size),
+            "center": list(self.center),
+            "affine": list(self.affine),
+            "poly": list(self.poly),
+            "max_fov_deg": math.degrees(self.max_fov),
+            "T_body_cam": self.T_body_cam,
+        }
+        if self.ground_plane is not None:
+            data["ground_plane"] = list(self.ground_plane)
+        if self.mask_file is not None:
+            data["mask"] = str(Path(self.mask_file).resolve())
+        return write_mapping(path, data)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -63,7 +64,14 @@ MAX_PREDICTION_S = 0.2
 #: Speeds below this [m/s] keep the two-view fit's own translation (its scale is undefined at rest).
 _SCALE_EPS = 0.01
 
-__all__ = ["FisheyeOdometry", "FisheyeOdometryConfig", "TwoViewFit", "rays_to_ground", "two_view_motion"]
+__all__ = [
+    "FisheyeOdometry",
+    "FisheyeOdometryConfig",
+    "TwoViewFit",
+    "rays_to_ground",
+    "read_mask",
+    "two_view_motion",
+]
 
 log = logging.getLogger(__name__)
 
@@ -232,6 +240,24 @@ class FisheyeOdometryConfig:
             value = getattr(self, key)
             if not (ok and (value is None or math.isfinite(float(value)))):
                 raise ValueError(f"FisheyeOdometryConfig.{key}: {value!r} is out of range")
+
+
+def read_mask(path: str | Path) -> np.ndarray:
+    """(H, W) bool mask image: True (non-zero) where the ground may be seen, False on the rover's parts.
+
+    Raises:
+        CalibrationError: The file is missing or not an image.
+    """
+    from perception.calib_io import CalibrationError
+
+    p = Path(path)
+    img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) if p.is_file() else None
+    if img is None:
+        raise CalibrationError(
+            f"mask: {p} is {'not a readable image' if p.exists() else 'missing'}; give an image of the "
+            "fisheye's size, non-zero where the ground may be seen and zero on the rover's parts"
+        )
+    return img > 0
 
 
 def rays_to_ground(

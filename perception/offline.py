@@ -37,6 +37,7 @@ from perception.bags import LogFrame
 from perception.cameras import OmniCamera, PinholeCamera
 from perception.drive_geometry import WHEELS
 from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
+from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
 from perception.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
 from perception.kinematics import RoverKinematicModel
 from perception.log_time import Placed, in_stamp_order, place
@@ -301,12 +302,45 @@ def _grey8(img: np.ndarray, depth: int | None) -> tuple[np.ndarray | None, str]:
     return img, ""
 
 
+def load_odometry_camera(path: str | Path) -> PinholeCamera | OmniCamera:
+    """The camera of an odometry calibration YAML: omnidirectional (``model: scaramuzza``) or pinhole."""
+    return OmniCamera.load(path) if _is_omni(path) else PinholeCamera.load(path)
+
+
+def _is_omni(calibration) -> bool:
+    """Whether ``calibration`` (a camera or a YAML path) is omnidirectional (``model: scaramuzza``)."""
+    if isinstance(calibration, OmniCamera | PinholeCamera):
+        return isinstance(calibration, OmniCamera)
+    from perception.calib_io import CalibrationError, read_yaml
+
+    d = read_yaml(Path(calibration), CalibrationError, "calibration file")
+    return isinstance(d, dict) and d.get("model") == "scaramuzza"
+
+
+def _path(calibration) -> str | Path:
+    """``calibration`` as a path (TypeError if it is a camera of the other kind)."""
+    if isinstance(calibration, str | Path):
+        return calibration
+    raise TypeError(
+        f"calibration: a {type(calibration).__name__} where a YAML path or the other camera was due"
+    )
+
+
+def _need_ground_plane(camera, name: str) -> None:
+    """The odometry's scale: a camera without a ground plane is refused before any frame."""
+    if camera.ground_plane is None:
+        from perception.calib_io import CalibrationError
+        from perception.cameras import GROUND_PLANE_MISSING
+
+        raise CalibrationError(f"{name}: {GROUND_PLANE_MISSING}")
+
+
 def run_folder_odometry(
     images: str | Path,
-    calibration: str | Path | PinholeCamera,
+    calibration: str | Path | PinholeCamera | OmniCamera,
     fps: float | None,
     out: str | Path,
-    config: FlowOdometryConfig | None = None,
+    config: FlowOdometryConfig | FisheyeOdometryConfig | None = None,
     progress: Callable[[float], None] | None = None,
     imu: str | Path | None = None,
     imu_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0),
@@ -316,19 +350,23 @@ def run_folder_odometry(
     mcap: bool = True,
     overwrite: bool = False,
 ) -> FolderOdometryResult:
-    """Chained optical-flow odometry over a folder of downward-camera images or a robot log.
+    """Chained visual odometry over a folder of downward-camera or fisheye images or a robot log.
 
     Args:
         images: Folder of images (name order is time order), or a ROS 1 bag, ROS 2 bag folder
             or MCAP file (:mod:`perception.bags`; times from the messages' stamps).
-        calibration: Calibration YAML (docs/odometry.md; with ``ground_plane``) or a camera. For
-            a log with a ``CameraInfo`` beside the images, the YAML's intrinsics (``image_size``,
-            ``K``, ``distortion``) may be left out: the log's fill them.
+        calibration: Calibration YAML (docs/odometry.md; with ``ground_plane``) or a camera. A
+            pinhole camera runs :class:`FlowOdometry`; for a log with a ``CameraInfo`` beside the
+            images, the YAML's intrinsics (``image_size``, ``K``, ``distortion``) may be left out:
+            the log's fill them. An omnidirectional calibration (``model: scaramuzza``, its
+            ``ground_plane`` and optional ``mask`` of the rover's parts) runs
+            :class:`perception.fisheye_odometry.FisheyeOdometry` on fisheye images.
         fps: Frame rate of the images [Hz] (image folders only; ignored for logs).
         out: Output folder (:class:`perception.outputs.OutputFolder`): ``odometry.csv``,
             ``trajectory.tum`` and, with ``mcap``, ``odometry.mcap`` (one ``nav_msgs/Odometry``
             per estimate). Written only when the run succeeds; a user's files there stay.
-        config: Estimator parameters.
+        config: Estimator parameters (:class:`FlowOdometryConfig` for a pinhole camera,
+            :class:`~perception.fisheye_odometry.FisheyeOdometryConfig` for a fisheye).
         progress: Called with the finished share (0..1).
         imu: An IMU CSV (:func:`perception.inertial.read_imu_csv`; times on the images' clock,
             t = 0 at the first image of a folder).
@@ -359,23 +397,50 @@ def run_folder_odometry(
 
     bags.new_run()
     is_log = bags.is_log(images)
-    if is_log:
+    name = "camera" if isinstance(calibration, PinholeCamera | OmniCamera) else str(calibration)
+    camera: PinholeCamera | OmniCamera
+    if _is_omni(calibration):  # the fisheye's odometry
+        camera = calibration if isinstance(calibration, OmniCamera) else OmniCamera.load(_path(calibration))
+        _need_ground_plane(camera, name)
+        source = _log_source(bags.log_images(images, topic), images) if is_log else None
+    elif is_log:
         src = bags.log_images(images, topic)
         camera = _log_camera(calibration, src)
         source = _log_source(src, images)
     else:
-        camera = calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(calibration)
+        camera = (
+            calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(_path(calibration))
+        )
+        source = None
+    _need_ground_plane(camera, name)
+    if source is None:
         source = _folder_source(images, fps, camera.image_size)
-    if camera.ground_plane is None:  # the scale of every estimate: refused before any frame
-        from perception.calib_io import CalibrationError
-        from perception.cameras import GROUND_PLANE_MISSING
+    _check_config(camera, config)
+    mask = None
+    if isinstance(camera, OmniCamera) and camera.mask_file is not None:
+        from perception.fisheye_odometry import read_mask
 
-        raise CalibrationError(f"{calibration if not isinstance(calibration, PinholeCamera) else 'camera'}: "
-                               f"{GROUND_PLANE_MISSING}")  # fmt: skip
+        try:
+            mask = read_mask(camera.mask_file)
+            FisheyeOdometry(camera, mask=mask)  # its size, checked before any frame
+        except (ValueError, OSError) as exc:
+            from perception.calib_io import CalibrationError
+
+            raise CalibrationError(f"{name}: {exc}") from exc
     imu_in = _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, source.span)
     with OutputFolder(out, ODOMETRY_PRODUCTS, overwrite, inputs=(images,)) as folder:
         res = _odometry(
-            source, camera, config, progress, imu_in, imu_still, imu or imu_topic, mcap, folder, str(images)
+            source,
+            camera,
+            config,
+            progress,
+            imu_in,
+            imu_still,
+            imu or imu_topic,
+            mcap,
+            folder,
+            str(images),
+            mask,
         )
     if not res.valid:
         raise NothingValidError(
@@ -415,9 +480,24 @@ def _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, span) -> tuple
     return imu_in
 
 
-def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mcap, folder, name):
+def _check_config(camera, config) -> None:
+    """A configuration of the camera's odometry, or TypeError naming the one to give."""
+    if config is None:
+        return
+    want = FisheyeOdometryConfig if isinstance(camera, OmniCamera) else FlowOdometryConfig
+    if not isinstance(config, want):
+        raise TypeError(
+            f"config: {type(config).__name__} for a {type(camera).__name__}; give a {want.__name__}"
+        )
+
+
+def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mcap, folder, name, mask=None):
     """The odometry loop and its files (staged in ``folder``, committed at the end)."""
-    odo = FlowOdometry(camera, config)
+    odo: FlowOdometry | FisheyeOdometry
+    if isinstance(camera, OmniCamera):
+        odo = FisheyeOdometry(camera, config, ground_plane=camera.ground_plane, mask=mask)
+    else:
+        odo = FlowOdometry(camera, config)
     rows, pair_start = [], []
     times, twists, covs = [], [], []
     reasons = _Reasons()

@@ -227,3 +227,37 @@ def test_rover_demo_logs_both_runs_to_rerun(tmp_path):
         for entity in ("cameras/downward", "cameras/fisheye", "world/truth_path", "world/estimate_path",
                        "twist/v_x/estimate", "slip/FL/truth", "joints/steering_F/estimate"):  # fmt: skip
             assert f"/{run}/{entity}" in dump.stdout, (run, entity)
+
+
+def test_rover_odometry_cli_on_a_folder_of_fisheye_images(tmp_path, capsys):
+    from dataclasses import replace
+
+    from test_fisheye_odometry import ROVER_PLANE, _fisheye_folder
+
+    cam, folder = _fisheye_folder(tmp_path, twist=(0.3, 0.05, -0.1))
+    calib = replace(cam, ground_plane=ROVER_PLANE).save(tmp_path / "omni.yaml")
+    out = tmp_path / "out"
+    code = main(["odometry", str(folder), "--camera", str(calib), "--fps", "30", "--out", str(out)])
+    assert code == 0
+    rows = np.genfromtxt(out / "odometry.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    assert len(rows) == 7 and rows["valid"].all()
+    np.testing.assert_allclose(rows["v_x"], 0.3, atol=0.015)
+    np.testing.assert_allclose(rows["omega"], -0.1, atol=0.015)
+    assert (out / "trajectory.tum").is_file() and (out / "odometry.mcap").is_file()
+    # a fisheye calibration without its ground plane: one line that says how to measure it
+    cam.save(tmp_path / "bare.yaml")
+    code = main(
+        [
+            "odometry",
+            str(folder),
+            "--camera",
+            str(tmp_path / "bare.yaml"),
+            "--fps",
+            "30",
+            "--out",
+            str(tmp_path / "o2"),
+        ]
+    )
+    err = capsys.readouterr().err
+    assert code != 0 and "ground_plane: not set" in err and "measure" in err
+    assert not (tmp_path / "o2").exists()

@@ -288,3 +288,55 @@ def test_relief_under_the_fisheye_does_not_bias_the_yaw_rate():
     assert mae[True][2] < 0.01 and mae[True][1] < 0.005
     assert mae[False][2] > 3.0 * mae[True][2]  # the plane alone takes the relief into the yaw rate
     assert mae[True][0] < 0.05  # the speed's scale still rests on the plane (at most an eighth)
+
+
+def _fisheye_folder(tmp_path, twist=(0.4, 0.0, 0.2), n=8, dt=1.0 / 30.0):
+    """A folder of the rover fisheye's views of a textured plane driven at ``twist``, and its calibration."""
+    cam, tex = _rover_fisheye(), _texture(5)
+    folder = tmp_path / "fisheye"
+    folder.mkdir()
+    pose = np.array([0.2, -0.1, 0.3])
+    for k in range(n):
+        cv2.imwrite(str(folder / f"{k:04d}.png"), render_relief(cam, tex, tuple(pose), 0.0))
+        x, y, a = _after(twist, dt)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        pose = pose + np.array([c * x - s * y, s * x + c * y, a])
+    return cam, folder
+
+
+def test_the_fisheye_odometry_runs_on_an_image_folder(tmp_path):
+    import csv
+    from dataclasses import replace
+
+    from perception.calib_io import CalibrationError
+    from perception.offline import run_folder_odometry
+
+    cam, folder = _fisheye_folder(tmp_path)
+    calib = tmp_path / "omni.yaml"
+    replace(cam, ground_plane=ROVER_PLANE).save(calib)
+    res = run_folder_odometry(folder, calib, 30.0, tmp_path / "out", mcap=False)
+    assert res.frames == 8 and res.valid == 7
+    rows = list(csv.DictReader(open(res.csv_path)))
+    vx = np.array([float(r["v_x"]) for r in rows[1:]])
+    w = np.array([float(r["omega"]) for r in rows[1:]])
+    assert np.abs(vx - 0.4).max() < 0.02 and np.abs(w - 0.2).max() < 0.02
+    # a mask of the rover's parts beside the calibration: the features keep off it
+    mask = np.full((240, 320), 255, np.uint8)
+    mask[:, :40] = 0
+    cv2.imwrite(str(tmp_path / "parts.png"), mask)
+    text = calib.read_text() + "mask: parts.png\n"
+    (tmp_path / "masked.yaml").write_text(text)
+    res = run_folder_odometry(folder, tmp_path / "masked.yaml", 30.0, tmp_path / "out2", mcap=False)
+    assert res.valid == 7
+    # bad input: no ground plane, a mask of another size, a missing mask; nothing is written
+    cam.save(tmp_path / "bare.yaml")
+    with pytest.raises(CalibrationError, match="ground_plane: not set.*add ground_plane: \\[0, 0, -h\\]"):
+        run_folder_odometry(folder, tmp_path / "bare.yaml", 30.0, tmp_path / "out3")
+    cv2.imwrite(str(tmp_path / "small.png"), mask[:100, :100])
+    (tmp_path / "small.yaml").write_text(calib.read_text() + "mask: small.png\n")
+    with pytest.raises(CalibrationError, match="mask: 100 x 100 px, but the fisheye's images are 320 x 240"):
+        run_folder_odometry(folder, tmp_path / "small.yaml", 30.0, tmp_path / "out4")
+    (tmp_path / "gone.yaml").write_text(calib.read_text() + "mask: gone.png\n")
+    with pytest.raises(CalibrationError, match="gone.png is missing"):
+        run_folder_odometry(folder, tmp_path / "gone.yaml", 30.0, tmp_path / "out5")
+    assert not any((tmp_path / f"out{k}").exists() for k in (3, 4, 5))

@@ -344,9 +344,15 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     from perception.offline import run_folder_odometry
 
     _need_source(args.source)
+    calib = args.calib if args.calib is not None else args.camera
+    if args.camera is not None:  # the fisheye's odometry: its calibration, checked before the output
+        from perception.cameras import GROUND_PLANE_MISSING, OmniCamera
+
+        if OmniCamera.load(args.camera).ground_plane is None:
+            raise ValueError(f"{args.camera}: {GROUND_PLANE_MISSING}")
     if not bags.is_log(args.source):
         _need_fps(args)
-        if PinholeCamera.load(args.calib).ground_plane is None:  # the input before the output
+        if args.calib is not None and PinholeCamera.load(args.calib).ground_plane is None:
             from perception.cameras import GROUND_PLANE_MISSING
 
             raise ValueError(f"{args.calib}: {GROUND_PLANE_MISSING}")
@@ -358,7 +364,7 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     try:
         res = run_folder_odometry(
             args.source,
-            args.calib,
+            calib,
             args.fps,
             args.out,
             progress=bar.share,
@@ -606,14 +612,20 @@ def build_parser() -> argparse.ArgumentParser:
     o = sub.add_parser(
         "odometry",
         formatter_class=fmt,
-        help="optical-flow odometry on downward-camera images: a folder, a ROS 1 or 2 bag, or an MCAP file",
+        help="visual odometry on downward-camera (--calib) or fisheye (--camera) images: a folder, a ROS 1 "
+        "or 2 bag, or an MCAP file",
     )
     o.add_argument("source", help=SOURCE_HELP)
-    o.add_argument(
+    which = o.add_mutually_exclusive_group(required=True)
+    which.add_argument(
         "--calib",
-        required=True,
-        help="calibration YAML (K, distortion, image_size, T_body_cam, ground_plane; a log's CameraInfo "
-        "fills K, distortion and image_size where the YAML leaves them out)",
+        help="downward camera's calibration YAML (K, distortion, image_size, T_body_cam, ground_plane; a "
+        "log's CameraInfo fills K, distortion and image_size where the YAML leaves them out)",
+    )
+    which.add_argument(
+        "--camera",
+        help="fisheye's omnidirectional calibration YAML (model: scaramuzza, ..., ground_plane; optional "
+        "mask: an image of the rover's parts, zero on them): the fisheye's own odometry",
     )
     o.add_argument(
         "--fps", type=_float_in(0.0, 10_000.0), default=None,
