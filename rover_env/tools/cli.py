@@ -201,6 +201,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         args.estimator,
         args.camera_effects,
         args.randomize,
+        args.rig,
     )
     check_jobs(jobs)  # every input before the output folder is touched
     products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
@@ -529,6 +530,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--randomize", default=None, choices=("off", "on"),
                    help="domain randomisation, each run's world drawn from its seed "
                         "(default: each scenario's randomize key)")  # fmt: skip
+    e.add_argument("--rig", default=None, choices=("standard", "fisheye_only"),
+                   help="estimated runs' sensors: the standard rig or the one-camera rig (the fisheye "
+                        "alone; @imu adds an IMU) (default: each mission's)")  # fmt: skip
     e.add_argument(
         "--estimator", metavar="MODULE:FACTORY",
         help="the estimator on the estimated-observation runs: a factory called with the rig "

@@ -68,6 +68,8 @@ class EvalJob:
         randomize: Domain randomisation of the world: ``"off"``, ``"on"`` or None (the
             mission's scenario says; the environment's ``randomize``). The episode's seed draws
             the world.
+        rig: The sensors of estimated-observation runs: a named rig (the environment's ``rig``:
+            ``"standard"`` or ``"fisheye_only"``, the one-camera rig) or None (the mission's).
     """
 
     controller: str
@@ -80,6 +82,7 @@ class EvalJob:
     estimator: str | None = None
     camera_effects: str = "field"
     randomize: str | None = None
+    rig: str | None = None
 
     @property
     def name(self) -> str:
@@ -123,6 +126,8 @@ def run_job(job: EvalJob) -> dict:
         extra["estimator"] = load_estimator(job.estimator)
     if source == "estimated":
         extra["camera_effects"] = job.camera_effects
+        if job.rig is not None:
+            extra["rig"] = job.rig
     env = make_mission_env(
         job.mission,
         obs_source=source,
@@ -159,6 +164,7 @@ def run_job(job: EvalJob) -> dict:
     row["estimator"] = (job.estimator or "built-in") if source == "estimated" else "none"
     row["camera_effects"] = job.camera_effects if source == "estimated" else "none"
     row["randomize"] = "on" if randomized else "off"
+    row["rig"] = (job.rig or "mission") if source == "estimated" else "none"
     row.update(asdict(result.metrics))
     row["wall_time"] = time.perf_counter() - start
     for k, v in (result.estimator or {}).items():
@@ -191,6 +197,11 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
             raise ValueError(f"camera_effects {job.camera_effects!r}: use 'ideal' or 'field'")
         if job.randomize not in (None, "off", "on"):
             raise ValueError(f"randomize {job.randomize!r}: use 'off', 'on' or None (the scenario's)")
+        if job.rig is not None:
+            from rover_env.config.rig import RIG_NAMES
+
+            if job.rig not in RIG_NAMES:
+                raise ValueError(f"rig {job.rig!r}: use one of {list(RIG_NAMES)} or None (the mission's)")
         if job.preset not in PERCEPTION_PRESETS:
             raise ValueError(f"preset {job.preset!r}: use one of {sorted(PERCEPTION_PRESETS)}")
         if job.mission not in missions and job.mission not in rover_env.ENV_IDS:
@@ -227,6 +238,7 @@ def finished_row(job: EvalJob) -> dict | None:
         )
         if job.randomize is not None:
             same = same and row.get("randomize") == job.randomize
+        same = same and row.get("rig", "mission") in ("none", job.rig or "mission")
     return row if same else None
 
 
@@ -330,6 +342,7 @@ def jobs_for(
     estimator: str | None = None,
     camera_effects: str = "field",
     randomize: str | None = None,
+    rig: str | None = None,
 ) -> list[EvalJob]:
     """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""
     jobs = []
@@ -339,7 +352,9 @@ def jobs_for(
                 job = EvalJob(c, m, int(s), preset, estimator=estimator)
                 where = None if out is None else str(Path(out) / "runs" / job.name)
                 jobs.append(
-                    EvalJob(c, m, int(s), preset, where, video, rerun, estimator, camera_effects, randomize)
+                    EvalJob(
+                        c, m, int(s), preset, where, video, rerun, estimator, camera_effects, randomize, rig
+                    )
                 )
     return jobs
 
@@ -481,6 +496,9 @@ def write_report(
     estimators = sorted({str(r.get("estimator")) for r in rows if r.get("estimator") not in (None, "none")})
     if estimators:
         lines.append(f"Estimator on the estimated-observation runs: {', '.join(estimators)}.")
+    rigs = sorted({str(r.get("rig")) for r in rows if r.get("rig") not in (None, "none", "mission")})
+    if rigs:
+        lines.append(f"Sensors of the estimated-observation runs: the {', '.join(rigs)} rig.")
     for mission in dict.fromkeys(s["mission"] for s in summary):
         lines += ["", f"## {mission}", ""]
         lines.append("| controller | runs | " + " | ".join(h for _, h, _ in SUMMARY) + " |")
