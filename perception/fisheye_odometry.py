@@ -138,8 +138,8 @@ class FisheyeOdometryConfig:
         scale_std: The speed's relative error from the scale (the ground in view off the wheels'
             plane) on ground the plane holds [-], in the estimate's covariance, growing by
             ``scale_std_relief`` times the square root of how far the held fit's mean squared
-            residual exceeds 1.2 times the free fit's (at most 0.2): on the rough missions the
-            speed errs by 1 % to 17 % as that ratio goes from 1.2 to 10.
+            residual exceeds 1.3 times the free fit's (at most 0.2): on the train preset's
+            missions the speed errs by 1 % (flat) to 17 % as that ratio goes from 1.2 to 10.
         scale_std_relief: See ``scale_std``.
         rate_std: Prior standard deviation of the roll and pitch rates [rad/s] without a gyro.
         gyro_rate_std: ... and about the gyro's roll and pitch rates when they are given [rad/s].
@@ -186,7 +186,7 @@ class FisheyeOdometryConfig:
     height_std: float = 0.2
     plane_test: float = 1.4
     min_height_std: float = 0.005
-    scale_std: float = 0.01
+    scale_std: float = 0.005
     scale_std_relief: float = 0.06
     rate_std: float = 1.0
     gyro_rate_std: float = 0.02
