@@ -30,8 +30,12 @@ import rover_env
 ACTION = np.array([0.5, 0.1, -0.1], dtype=np.float32)
 
 
-def run(env_id: str, obs_source: str, preset: str, steps: int, renderer: str = "gl") -> dict:
-    env = gym.make(env_id, obs_source=obs_source, preset=preset, renderer=renderer)
+def run(env_id: str, obs_source: str, preset: str, steps: int, renderer: str = "gl", **kwargs) -> dict:
+    """Milliseconds per step (``ms``), real-time factor, the pipeline's split (``parts``) of one drive.
+
+    ``kwargs`` go to ``gym.make`` (``rig="fisheye_only"``, ``imu="bmi088"``, ...).
+    """
+    env = gym.make(env_id, obs_source=obs_source, preset=preset, renderer=renderer, **kwargs)
     try:
         env.reset(seed=0)
         for _ in range(10):  # warm-up

@@ -48,7 +48,8 @@ class _Tap(RoverEstimator):
         super().__init__(rig, **kw)
         lim = self.model.joint_limits
         mask = None if lim is None else ~kinematics_roi(self.fish.model, self.model, *lim)
-        cfg = FisheyeOdometryConfig.for_ground_view(self.fish.ground_view_deg, **self.overrides)
+        w = self.fish.model.image_size[0]
+        cfg = FisheyeOdometryConfig.for_ground_view(self.fish.ground_view_deg, w, **self.overrides)
         self.fish_odo = FisheyeOdometry(self.fish.model, cfg, mask=mask)
         self.records: dict[str, list] = {c: [] for c in CAMERAS}
 

@@ -23,8 +23,10 @@ randomisation's ranges (``rover_env.config.randomize``) with that seed.
 
 Writes a markdown table (``--out``/table1.md) and a figure of the paths (``--out``/table1_paths.png).
 
+With ``--rig fisheye_only`` the rover carries the one-camera rig and the odometry is the fisheye's.
+
 Run: LP_NUM_THREADS=1 python benchmarks/odometry_table1.py [--distance 300] [--out benchmarks/results/imu]
-[--camera-effects field] [--randomize-light 7]
+[--camera-effects field] [--randomize-light 7] [--rig fisheye_only]
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from perception.odometry import integrate_twist
 from perception.trajectory import path_segment_errors
 from rover_env.config.imu import ImuConfig
 from rover_env.config.randomize import RandomizeConfig, WorldDraw
+from rover_env.config.rig import named_rig
 from rover_env.config.scenario import load_scenario
 from rover_env.sensors.rig import PerceptionPipeline
 from rover_env.sim.simulation import RoverSim, quat_to_yaw
@@ -58,10 +61,12 @@ def drive(
     preset: str,
     field: bool = False,
     light: WorldDraw | None = None,
+    rig: str = "standard",
 ) -> dict:
     """Laps of a circle: the truth, the odometry's twists and the fused heading at each frame.
 
-    ``field``: field cameras; ``light``: a world draw whose sun, haze and sky light are used.
+    ``field``: field cameras; ``light``: a world draw whose sun, haze and sky light are used;
+    ``rig``: ``"standard"`` (the downward camera's odometry) or ``"fisheye_only"`` (the fisheye's).
     """
     scn = load_scenario(scenario)
     if light is not None:
@@ -72,9 +77,8 @@ def drive(
         sim.haze, sim.ambient = light.sun_transmission, light.ambient
     try:
         # the paper's method: vision-only velocities in both columns (no gyro rates in the fit)
-        pipe = PerceptionPipeline(
-            sim, preset, imu=ImuConfig.preset(imu), odometry_gyro=False, camera_effects=field
-        )
+        sensors = named_rig(rig, ImuConfig.preset(imu))
+        pipe = PerceptionPipeline(sim, preset, rig=sensors, odometry_gyro=False, camera_effects=field)
         pipe.imu.reset(0)
         for k, cam in enumerate(pipe.cameras):
             cam.reset_effects(k)
@@ -142,6 +146,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="benchmarks/results/imu")
     ap.add_argument("--camera-effects", default="ideal", choices=("ideal", "field"))
     ap.add_argument("--randomize-light", type=int, default=None, metavar="SEED")
+    ap.add_argument(
+        "--rig", default="standard", choices=("standard", "fisheye_only"),
+        help="the downward camera's odometry, or the one-camera rig's (the fisheye's)",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     if not (args.distance > 0 and args.radius >= 3 and 0 < args.speed <= 2):
         ap.error("--distance > 0, --radius >= 3 m and --speed in (0, 2] m/s")
@@ -151,7 +159,7 @@ def main(argv=None) -> int:
     lines = [
         f"Path-segment endpoint error, {args.preset} preset, IMU {args.imu}, laps of a {args.radius:g} m "
         f"circle at {args.speed:g} m/s, {args.distance:g} m per terrain (mean +- std, % of length), "
-        f"{args.camera_effects} cameras"
+        f"{args.camera_effects} cameras, {args.rig} rig"
         + ("" if args.randomize_light is None else f", light randomised (seed {args.randomize_light})"),
         "",
         "| terrain | yaw | " + " | ".join(f"{L:g} m" for L in LENGTHS) + " |",
@@ -185,6 +193,7 @@ def main(argv=None) -> int:
             args.preset,
             args.camera_effects == "field",
             light,
+            args.rig,
         )
         odo, imu = paths(run)
         for label, est in (("odometry", odo), ("IMU", imu)):

@@ -246,7 +246,9 @@ class RoverEstimator:
             # the rover's parts over their joint range are left out (learned if the range is unknown)
             lim = self.model.joint_limits
             mask = None if lim is None else ~kinematics_roi(fish.model, self.model, *lim)
-            fo = fisheye_odometry or FisheyeOdometryConfig.for_ground_view(fish.ground_view_deg)
+            fo = fisheye_odometry or FisheyeOdometryConfig.for_ground_view(
+                fish.ground_view_deg, fish.model.image_size[0]
+            )
             self.odometry = FisheyeOdometry(fish.model, fo, mask=mask)
         #: Which camera gives the odometry: ``"downward"`` or ``"fisheye"``.
         self.odometry_camera = "downward" if down is not None else "fisheye"

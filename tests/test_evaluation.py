@@ -224,3 +224,18 @@ def test_resume_takes_a_finished_run_only_for_the_same_cameras_estimator_and_wor
     gt = {**base, "controller": "slip_aware@ground_truth", "camera_effects": "none", "estimator": "none"}
     write({**gt, "randomize": "on"})
     assert finished_row(EvalJob("slip_aware@ground_truth", "Rover-v0", 3, out=str(tmp_path), randomize="on"))
+
+
+def test_a_sweep_names_its_rig_and_resumes_only_the_same_rig(tmp_path):
+    from rover_env.tools.evaluation import check_jobs, finished_row
+
+    jobs = jobs_for(["slip_aware@imu"], ["Rover-v0"], [0], rig="fisheye_only")
+    assert jobs[0].rig == "fisheye_only"
+    with pytest.raises(ValueError, match="rig 'two_fisheyes': use one of"):
+        check_jobs(jobs_for(["slip_aware@imu"], ["Rover-v0"], [0], rig="two_fisheyes"))
+    row = {"controller": "slip_aware@imu", "mission": "Rover-v0", "seed": 0, "preset": "train"}
+    row |= {"camera_effects": "field", "estimator": "built-in", "randomize": "off", "rig": "mission"}
+    (tmp_path / "row.json").write_text(json.dumps(row))
+    one = EvalJob("slip_aware@imu", "Rover-v0", 0, out=str(tmp_path), rig="fisheye_only")
+    assert finished_row(one) is None  # a two-camera run is not the one-camera rig's
+    assert finished_row(EvalJob("slip_aware@imu", "Rover-v0", 0, out=str(tmp_path))) is not None

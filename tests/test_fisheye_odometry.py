@@ -340,3 +340,28 @@ def test_the_fisheye_odometry_runs_on_an_image_folder(tmp_path):
     with pytest.raises(CalibrationError, match="gone.png is missing"):
         run_folder_odometry(folder, tmp_path / "gone.yaml", 30.0, tmp_path / "out5")
     assert not any((tmp_path / f"out{k}").exists() for k in (3, 4, 5))
+
+
+def test_the_omnidirectional_calibration_keeps_its_ground_plane_and_mask(tmp_path):
+    from dataclasses import replace
+
+    from perception.calib_io import CalibrationError
+    from perception.fisheye_odometry import read_mask
+
+    cam = replace(_rover_fisheye(), ground_plane=ROVER_PLANE, mask_file=tmp_path / "parts.png")
+    back = OmniCamera.load(cam.save(tmp_path / "omni.yaml"))
+    assert (
+        back.ground_plane == pytest.approx(ROVER_PLANE)
+        and back.mask_file == (tmp_path / "parts.png").resolve()
+    )
+    assert OmniCamera.load(_rover_fisheye().save(tmp_path / "bare.yaml")).ground_plane is None
+    (tmp_path / "bad.yaml").write_text((tmp_path / "bare.yaml").read_text() + "mask: 3\n")
+    with pytest.raises(CalibrationError, match="mask: 3; give the path of a mask image"):
+        OmniCamera.load(tmp_path / "bad.yaml")
+    (tmp_path / "junk.png").write_bytes(b"not an image")
+    with pytest.raises(CalibrationError, match="junk.png is not a readable image"):
+        read_mask(tmp_path / "junk.png")
+    # the one-camera rig's settings: inside the fisheye's ground view, more features on a finer image
+    cfg = FisheyeOdometryConfig.for_ground_view(65.0, 640)
+    assert cfg.view_limit_deg == 60.0 and cfg.min_depression_deg == 25.0 and cfg.max_features == 600
+    assert FisheyeOdometryConfig.for_ground_view(None).view_limit_deg is None

@@ -463,3 +463,16 @@ def test_the_correction_marker_measures_the_treads_rate_scale(monkeypatch, reads
     scale, rate, _ = results[0.0]
     np.testing.assert_array_equal(scale, 1.0)
     np.testing.assert_allclose(rate, step * reads / dt, rtol=1e-9)
+
+
+def test_the_kinematic_model_keeps_its_joint_limits(tmp_path):
+    from dataclasses import replace
+
+    from perception.calib_io import CalibrationError
+
+    model = replace(rover_model(), joint_limits=(0.35, 0.05, 0.52))
+    back = RoverKinematicModel.load(model.save(tmp_path / "rover.yaml"))
+    assert back.joint_limits == pytest.approx((0.35, 0.05, 0.52))
+    assert RoverKinematicModel.load(rover_model().save(tmp_path / "none.yaml")).joint_limits is None
+    with pytest.raises(CalibrationError, match="joint_limits"):
+        replace(rover_model(), joint_limits=(0.35, -0.05, 0.52))
