@@ -1,6 +1,7 @@
-"""Per-wheel slip from two cameras: ground velocity (downward camera) against wheel spin (fisheye).
+"""Per-wheel slip from vision: ground velocity (visual odometry) against wheel spin (fisheye).
 
-The odometry gives the body twist (v_x, v_y, omega) over each downward-camera frame pair; the
+The odometry gives the body twist (v_x, v_y, omega) over each frame pair of its camera (the
+downward camera, or on the one-camera rig the fisheye itself); the
 fisheye gives each wheel's spin rate theta_dot over each fisheye frame interval and the wheels'
 steering angles. A Kalman filter over x = (v_x, v_y, omega, theta_dot_FL, ..., theta_dot_RR)
 with a random-walk (constant-velocity) model fuses both streams in time order; each measurement

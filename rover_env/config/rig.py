@@ -13,9 +13,10 @@ the IMU and a sun sensor. Example (the downward camera moved forward at 60 Hz, a
       - {name: imu, kind: imu, rate_hz: 120, imu: bmi088}
       - {name: sun, kind: sun, sun: nfss411}
 
-The built-in estimator takes one pinhole camera and one fisheye (and an IMU and a sun sensor
-if there are); a rig with other sensors, more of them or fewer needs an estimator of your own
-that takes it.
+The built-in estimator takes one fisheye and at most one pinhole camera (and an IMU and a sun
+sensor if there are): without the pinhole camera it is the one-camera rig
+(:func:`fisheye_only_rig`), the fisheye giving the odometry too; a rig with other sensors or
+more of them needs an estimator of your own that takes it.
 
 Frames: a mount is the sensor's frame in the body frame (x forward, y left, z up), "body from
 sensor", as a 4 x 4 matrix or as ``position`` [m] and ``rpy`` [rad] (roll, pitch, yaw about the
