@@ -24,7 +24,9 @@ What a fisheye sees that a downward pinhole does not, and what is done about it:
 The estimate is an :class:`~perception.odometry.OdometryEstimate` with the same validity rules
 as :class:`~perception.odometry.FlowOdometry`: at least ``min_inliers`` RANSAC inliers and an
 inlier ratio of ``min_inlier_ratio``; the quality is the inlier count against twice the
-minimum times the ratio; the covariance is the fit's.
+minimum times the ratio; the covariance is the fits' with the scale's error on the speed
+(``FisheyeOdometryConfig.scale_std``). With ``two_view`` the motion is refined by
+:func:`two_view_motion` (each point's height off the plane free; docs/fisheye_odometry.md).
 """
 
 from __future__ import annotations
@@ -51,12 +53,6 @@ from perception.odometry import (
     to_gray,
     velocity_from_points,
 )
-
-#: The last twist predicts the features' motion over at most this long [s].
-MAX_PREDICTION_S = 0.2
-
-#: Speeds below this [m/s] keep the two-view fit's own translation (its scale is undefined at rest).
-_SCALE_EPS = 0.01
 
 #: The last twist predicts the features' motion over at most this long [s].
 MAX_PREDICTION_S = 0.2
@@ -95,8 +91,8 @@ class FisheyeOdometryConfig:
         fb_max: Largest forward-backward tracking error [px].
         min_depression_deg: Rays nearer than this to the ground plane's horizon are not used [deg].
         view_limit_deg: Features are selected only where the ray is within this angle of the
-            body's -z [deg]; None: ``95 - min_depression_deg`` (5 degrees to spare for a tilted
-            plane). A fisheye that renders only the ground near the axis (the one-camera rig's
+            body's -z [deg]; None: ``95 - min_depression_deg``, at most 90 (5 degrees to spare for
+            a tilted plane). A fisheye that renders only the ground near the axis (the one-camera rig's
             region of interest) sets it inside that region, so that no corner is taken on its
             edge.
         max_range: Ground points farther than this from the camera, horizontally, are not used [m].
@@ -136,7 +132,8 @@ class FisheyeOdometryConfig:
             the relief out of the yaw rate. 0: the free fit always.
         min_height_std: The heights' prior in the held fit [m].
         scale_std: The speed's relative error from the scale (the ground in view off the wheels'
-            plane) on ground the plane holds [-], in the estimate's covariance, growing by
+            plane) on ground the plane holds [-], in the estimate's covariance (0.05 without
+            the plane test), growing by
             ``scale_std_relief`` times the square root of how far the held fit's mean squared
             residual exceeds 1.3 times the free fit's (at most 0.2): on the train preset's
             missions the speed errs by 1 % (flat) to 17 % as that ratio goes from 1.2 to 10.
@@ -200,8 +197,9 @@ class FisheyeOdometryConfig:
     ) -> FisheyeOdometryConfig:
         """The settings for a fisheye that delivers the ground within ``ground_view_deg`` of the body's -z.
 
-        Features are selected 5 degrees inside that view (clear of its edge), on rays down to 5
-        degrees less depression than its edge (a tilted plane); None: the whole view. With
+        Features are selected 5 degrees inside that view (clear of its edge), on rays down to the
+        depression of its edge (5 degrees less than the selection's, for a tilted plane); None:
+        the whole view. With
         ``image_width`` [px], ``max_features`` grows with it from 300 at 320 px (at 640 px, 600
         features took the yaw rate's error on flat ground from 0.0028 to 0.0021 rad/s).
         """
@@ -309,7 +307,8 @@ class TwoViewFit:
 
     Attributes:
         motion: (v_x, v_y, v_z, omega_x, omega_y, omega_z) of the body over the pair, in the
-            first frame's body frame [m/s, rad/s].
+            first frame's body frame [m/s, rad/s]: v is the chord (displacement over ``dt``),
+            which the velocity at mid-pair is turned from by omega dt / 2.
         heights: (n,) each point's height off the first frame's ground plane, along its normal's
             vertical [m] (positive: above).
         residual_px: (n,) each point's reprojection error in the second frame [px] (angular
@@ -359,8 +358,10 @@ def two_view_motion(
 
     Each point lies on its ray from the first frame's camera, at a height h off the ground plane
     z = a x + b y + c (body frame) that is its own unknown, with the prior h ~ N(0, height_std);
-    the body moves by (v, omega) over ``dt`` (v the body origin's velocity, omega its rotation
-    rate); the point seen from the moved camera gives the second ray. The motion and the heights
+    the body moves by (v, omega) over ``dt`` (v dt the body origin's displacement, the chord, in
+    the first frame's axes; omega its rotation rate: the moved frame is R(omega dt) = exp(omega
+    dt) and a point X there is R^T (X - v dt)); the point seen from the moved camera gives the
+    second ray. The motion and the heights
     are fitted by Gauss-Newton on the angles between the predicted and the observed second rays
     (as pixels: ``px_per_rad``, each of weight 1 / ``pixel_std``), the heights eliminated by
     their Schur complement (each touches only its own point). With free heights the rotation,
@@ -548,10 +549,11 @@ class FisheyeOdometry:
         else:
             self._box = (0, 0, w, h)
         self._view: np.ndarray | None = None  # the mask at the shadow's pyramid level
-        # the image scale [px/rad] at 45 degrees off the axis (an equidistant fisheye's is uniform)
-        ray = np.array([[math.sqrt(0.5), 0.0, math.sqrt(0.5)]])
-        px = camera.world2cam(ray)[0]
-        self._px_per_rad = math.hypot(px[0] - camera.center[0], px[1] - camera.center[1]) / (math.pi / 4)
+        # the image scale [px/rad] at 45 degrees off the axis, or inside a narrower field of view
+        # (an equidistant fisheye's is uniform)
+        off = min(math.pi / 4, camera.max_fov / 4)
+        px = camera.world2cam(np.array([[math.sin(off), 0.0, math.cos(off)]]))[0]
+        self._px_per_rad = math.hypot(px[0] - camera.center[0], px[1] - camera.center[1]) / off
         cell = self.cfg.static_cell
         self._hits = np.zeros((-(-h // cell), -(-w // cell)), np.int32)
         self.reset()
@@ -612,10 +614,17 @@ class FisheyeOdometry:
         est = None
         if self._prev is not None and self._t_prev is not None:
             dt = float(t) - self._t_prev
-            if not dt > 0.0:
-                raise ValueError(f"t: {t!r} s is not after the last frame's {self._t_prev!r} s")
+            if not (dt > 0.0 and math.isfinite(dt)):
+                raise ValueError(f"t: {t!r} s is not a finite time after the last frame's {self._t_prev!r} s")
             est = self.estimate(
-                self._prev, gray, dt, plane, t=t, prev_plane=self._prev_plane, rate_xy=rate_xy
+                self._prev,
+                gray,
+                dt,
+                plane,
+                t=t,
+                prev_plane=self._prev_plane,
+                rate_xy=rate_xy,
+                predict=self._last if dt <= MAX_PREDICTION_S else None,
             )
             self._last = est.twist.copy() if est.valid else None
         self._prev, self._t_prev, self._prev_plane = gray, float(t), plane
@@ -630,6 +639,7 @@ class FisheyeOdometry:
         t: float | None = None,
         prev_plane=None,
         rate_xy=None,
+        predict=None,
     ) -> OdometryEstimate:
         """The twist between two grey frames ``dt`` [s] apart over the ground plane (body frame).
 
@@ -637,7 +647,9 @@ class FisheyeOdometry:
         same). With two planes each frame's points lie on its own, and the rigid fit is of the
         full motion (the body's roll and pitch between the frames, which a camera this close
         to the ground sees as much as its travel, are told apart from its planar motion).
-        ``rate_xy``: the gyro's roll and pitch rates over the pair [rad/s], or None.
+        ``rate_xy``: the gyro's roll and pitch rates over the pair [rad/s], or None. ``predict``:
+        a twist (v_x, v_y, omega) [m/s, rad/s] that the features are tracked from (their ground
+        points moved by it; :meth:`update` gives the last valid estimate's), or None.
 
         Steps: corners on ``prev`` (outside the mask, the learned cells and the shadow's edges)
         tracked into ``curr`` and back; their rays met with the planes; RANSAC on the rigid
@@ -683,12 +695,15 @@ class FisheyeOdometry:
         lk = {"winSize": win, "maxLevel": c.levels, "criteria": crit}
         box0 = np.ascontiguousarray(prev[y0:y1, x0:x1])
         box1 = np.ascontiguousarray(curr[y0:y1, x0:x1])
-        guess = self._predicted(p0 + np.array([x0, y0], np.float32), dt, plane0, plane)
-        if guess is not None:  # from where the last twist puts them
+        guess = None
+        if predict is not None:
+            guess = self._predicted(p0 + np.array([x0, y0], np.float32), dt, plane0, plane, predict)
+        if guess is not None:  # from where the given twist puts them
             guess -= np.array([x0, y0], np.float32)
             lk_p = lk | {"maxLevel": c.predict_levels, "flags": cv2.OPTFLOW_USE_INITIAL_FLOW}
             p1, st1, _ = cv2.calcOpticalFlowPyrLK(box0, box1, p0, guess, **lk_p)  # type: ignore[call-overload]
-            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(box1, box0, p1, p0.copy(), **lk_p)  # type: ignore[call-overload]
+            back = (p1 - (guess - p0)).astype(np.float32)  # the same prediction, backwards
+            p0b, st2, _ = cv2.calcOpticalFlowPyrLK(box1, box0, p1, back, **lk_p)  # type: ignore[call-overload]
         else:
             p1, st1, _ = cv2.calcOpticalFlowPyrLK(box0, box1, p0, None, **lk)  # type: ignore[call-overload]
             p0b, st2, _ = cv2.calcOpticalFlowPyrLK(box1, box0, p1, None, **lk)  # type: ignore[call-overload]
@@ -755,18 +770,18 @@ class FisheyeOdometry:
             inlier_ratio=ratio,
         )
 
-    def _predicted(self, px: np.ndarray, dt: float, plane0, plane) -> np.ndarray | None:
-        """(n, 2) float32 where the last valid twist moves the ground seen at ``px`` in ``dt``, or None.
-
-        None without a last estimate, or when it is older than ``MAX_PREDICTION_S``.
-        """
-        last = self._last
-        if last is None or not (0.0 < dt <= MAX_PREDICTION_S):
+    def _predicted(self, px: np.ndarray, dt: float, plane0, plane, twist) -> np.ndarray | None:
+        """(n, 2) float32 where ``twist`` (mid-pair) moves the ground seen at ``px`` in ``dt``, or None."""
+        tw = np.asarray(twist, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(tw)):
             return None
         G = rays_to_ground(self.camera, px.astype(np.float64), plane0)
-        vx, vy, w = last
+        w = float(tw[2])
         a = w * dt
         c, s = math.cos(a), math.sin(a)
+        h = 0.5 * a  # the chord is the mid-pair velocity turned by omega dt / 2
+        vx = math.cos(h) * tw[0] - math.sin(h) * tw[1]
+        vy = math.sin(h) * tw[0] + math.cos(h) * tw[1]
         x, y = G[:, 0] - vx * dt, G[:, 1] - vy * dt  # the body moved, then turned by a
         moved = np.column_stack([c * x + s * y, -s * x + c * y, G[:, 2]])
         A, B, C = plane
@@ -796,7 +811,7 @@ class FisheyeOdometry:
         use = np.ones(len(b0), bool)
         for attempt in range(2):
             fit = two_view_motion(b0[use], b1[use], dt, cam.T_body_cam, plane0, init, **kw)
-            if fit is None or not np.all(np.isfinite(fit.motion)):
+            if fit is None or not (np.all(np.isfinite(fit.motion)) and np.all(np.isfinite(fit.cov))):
                 return None
             fitted = use.copy()  # the points of this fit
             bad = fit.residual_px > c.outlier_px
@@ -810,7 +825,7 @@ class FisheyeOdometry:
             idx = np.flatnonzero(fitted)[good]
             kw2 = kw | {"height_std": c.min_height_std}
             tight = two_view_motion(b0[idx], b1[idx], dt, cam.T_body_cam, plane0, fit.motion, **kw2)
-            if tight is not None and np.all(np.isfinite(tight.motion)):
+            if tight is not None and np.all(np.isfinite(tight.motion)) and np.all(np.isfinite(tight.cov)):
                 free_ms = float(np.mean(fit.residual_px[good] ** 2))
                 # (residuals below 0.1 px are as good as none: a noise-free image holds either fit)
                 ratio = max(float(np.mean(tight.residual_px**2)), 0.01) / max(free_ms, 0.01)
@@ -840,14 +855,21 @@ class FisheyeOdometry:
         vc = vp[:2] + lever  # ... as the plane fit puts it
         eps2 = _SCALE_EPS**2
         scale = (float(vc @ vb) + eps2) / (float(vb @ vb) + eps2)
-        twist = np.array([scale * vb[0] - lever[0], scale * vb[1] - lever[1], m[5]])
+        if not (0.5 <= scale <= 2.0):  # the plane and the rays disagree: keep the plane's fit
+            return None
+        # the fit's v is the chord over the pair in the first frame's axes; the rigid fits' (and
+        # the truth's) the velocity at mid-pair, turned by omega dt / 2 from it
+        half = -0.5 * m[5] * dt
+        rot = np.array([[math.cos(half), -math.sin(half)], [math.sin(half), math.cos(half)]])
+        chord = np.array([scale * vb[0] - lever[0], scale * vb[1] - lever[1]])
+        twist = np.array([*(rot @ chord), m[5]])
         # covariance: the speed along the motion from the plane fit, the rest from the two-view fit
         speed = math.hypot(vb[0], vb[1])
         u = vb / speed if speed > _SCALE_EPS else np.array([1.0, 0.0])
         perp = np.eye(2) - np.outer(u, u)
         cb = fit.cov[np.ix_([0, 1, 5], [0, 1, 5])]
         rel = (
-            c.scale_std + c.scale_std_relief * math.sqrt(max(ratio - 1.2, 0.0)) if c.plane_test > 0 else 0.05
+            c.scale_std + c.scale_std_relief * math.sqrt(max(ratio - 1.3, 0.0)) if c.plane_test > 0 else 0.05
         )
         rel = min(rel, 0.2)
         speed_var = float(u @ cov_p[:2, :2] @ u) + (rel * scale * speed) ** 2
@@ -855,7 +877,9 @@ class FisheyeOdometry:
         cov[:2, :2] = speed_var * np.outer(u, u) + scale**2 * perp @ cb[:2, :2] @ perp
         cov[:2, 2] = cov[2, :2] = scale * perp @ cb[:2, 2]
         cov[2, 2] = cb[2, 2]
-        return twist, cov, rms
+        J = np.eye(3)
+        J[:2, :2] = rot
+        return twist, J @ cov @ J.T, rms
 
     def _shadow_edges(self, gray: np.ndarray) -> np.ndarray:
         """(H, W) bool: the band about the rover's shadow's edges where no feature is selected.

@@ -149,7 +149,7 @@ def test_bad_input_is_refused_with_a_clear_error():
         FisheyeOdometryConfig(window=8)
     odo = FisheyeOdometry(cam, ground_plane=PLANE)
     odo.update(np.zeros((SIZE, SIZE), np.uint8), 1.0)
-    with pytest.raises(ValueError, match="not after"):
+    with pytest.raises(ValueError, match="not a finite time after"):
         odo.update(np.zeros((SIZE, SIZE), np.uint8), 1.0)
 
 
@@ -365,3 +365,16 @@ def test_the_omnidirectional_calibration_keeps_its_ground_plane_and_mask(tmp_pat
     cfg = FisheyeOdometryConfig.for_ground_view(65.0, 640)
     assert cfg.view_limit_deg == 60.0 and cfg.min_depression_deg == 25.0 and cfg.max_features == 600
     assert FisheyeOdometryConfig.for_ground_view(None).view_limit_deg is None
+
+
+@pytest.mark.parametrize("omega", [0.6, -0.6])
+def test_a_turn_leaves_no_sideways_velocity(omega):
+    """The two-view chord turned to the mid-pair velocity: a turn has v_y 0, not v_x omega dt / 2."""
+    cam, tex, dt, twist = _camera(), _texture(), 1.0 / 30.0, (0.5, 0.0, omega)
+    odo = FisheyeOdometry(cam, ground_plane=PLANE)
+    odo.update(_render(cam, tex, (0.1, -0.2, 0.3)), 0.0)
+    x, y, a = _after(twist, dt)
+    c, s = math.cos(0.3), math.sin(0.3)
+    est = odo.update(_render(cam, tex, (0.1 + c * x - s * y, -0.2 + s * x + c * y, 0.3 + a)), dt)
+    assert est.valid and abs(est.v_y) < 0.002 < 0.5 * abs(omega) * dt * 0.5  # the chord's would be 0.005
+    assert est.v_x == pytest.approx(0.5, abs=0.003) and est.omega == pytest.approx(omega, abs=0.003)
