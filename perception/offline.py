@@ -304,10 +304,10 @@ def _grey8(img: np.ndarray, depth: int | None) -> tuple[np.ndarray | None, str]:
 
 def load_odometry_camera(path: str | Path) -> PinholeCamera | OmniCamera:
     """The camera of an odometry calibration YAML: omnidirectional (``model: scaramuzza``) or pinhole."""
-    return OmniCamera.load(path) if _is_omni(path) else PinholeCamera.load(path)
+    return OmniCamera.load(path) if is_omni(path) else PinholeCamera.load(path)
 
 
-def _is_omni(calibration) -> bool:
+def is_omni(calibration) -> bool:
     """Whether ``calibration`` (a camera or a YAML path) is omnidirectional (``model: scaramuzza``)."""
     if isinstance(calibration, OmniCamera | PinholeCamera):
         return isinstance(calibration, OmniCamera)
@@ -399,7 +399,7 @@ def run_folder_odometry(
     is_log = bags.is_log(images)
     name = "camera" if isinstance(calibration, PinholeCamera | OmniCamera) else str(calibration)
     camera: PinholeCamera | OmniCamera
-    if _is_omni(calibration):  # the fisheye's odometry
+    if is_omni(calibration):  # the fisheye's odometry
         camera = calibration if isinstance(calibration, OmniCamera) else OmniCamera.load(_path(calibration))
         _need_ground_plane(camera, name)
         source = _log_source(bags.log_images(images, topic), images) if is_log else None

@@ -117,8 +117,9 @@ class SensorSpec:
             The fisheye kinematics then reads the treads from each pixel's own sample.
         vignetting: A camera's relative illumination at its image corners (1: none, or not
             calibrated), of the radial model of
-            :func:`perception.photometry.relative_illumination`. The odometry flat-fields its
-            frames with it.
+            :func:`perception.photometry.relative_illumination`. The downward camera's odometry
+            flat-fields its frames with it (the fisheye's does not: it tracks features, which a
+            smooth shading does not move).
         ground_view_deg: A fisheye that reads out a region of interest: the ground it delivers
             lies within this angle of the body's -z [deg] (beyond, only the parts the
             kinematics reads); None: all it sees. Its own odometry selects features inside it.
@@ -156,10 +157,10 @@ class SensorSpec:
             )
         if self.ground_view_deg is not None:
             g = real_number(f"{self.name}.ground_view_deg", self.ground_view_deg)
-            if self.kind != "fisheye" or not 0.0 < g <= 180.0:
+            if self.kind != "fisheye" or not 10.0 <= g <= 180.0:
                 raise ConfigError(
                     f"{self.name}.ground_view_deg: {self.ground_view_deg!r}; a fisheye's ground view is an "
-                    "angle in (0, 180] deg from the body's -z, or None"
+                    "angle in [10, 180] deg from the body's -z, or None"
                 )
         rate = real_number(f"{self.name}.rate_hz", self.rate_hz)
         if not rate > 0:

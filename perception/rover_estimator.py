@@ -222,6 +222,16 @@ class RoverEstimator:
             raise ConfigError(f"odometry_camera='downward': this rig has no 'pinhole' sensor ({rig!r})")
         if odometry_camera == "fisheye" or down is None:
             down = None  # the one-camera rig: the fisheye's odometry
+            if odometry is not None:
+                raise ConfigError(
+                    "odometry: a FlowOdometryConfig is the downward camera's, and this estimator takes its "
+                    "odometry from the fisheye; give fisheye_odometry= instead"
+                )
+        elif fisheye_odometry is not None:
+            raise ConfigError(
+                "fisheye_odometry: this estimator takes its odometry from the downward camera "
+                f"{down.name!r}; give odometry_camera='fisheye' to use the fisheye's"
+            )
         if rig.vehicle is None:
             raise ConfigError("rig: RoverEstimator needs the rover's kinematic model (Rig.vehicle)")
         self.rig = rig

@@ -261,3 +261,23 @@ def test_rover_odometry_cli_on_a_folder_of_fisheye_images(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code != 0 and "ground_plane: not set" in err and "measure" in err
     assert not (tmp_path / "o2").exists()
+
+
+def test_rover_odometry_cli_says_which_option_takes_a_fisheye_calibration(tmp_path, capsys):
+    from test_fisheye_odometry import _rover_fisheye
+
+    calib = _rover_fisheye().save(tmp_path / "omni.yaml")
+    (tmp_path / "imgs").mkdir()
+    code = main(
+        [
+            "odometry",
+            str(tmp_path / "imgs"),
+            "--calib",
+            str(calib),
+            "--fps",
+            "30",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert code != 0 and "give it as --camera" in capsys.readouterr().err

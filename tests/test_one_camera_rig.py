@@ -36,7 +36,7 @@ def test_the_fisheye_alone_estimates_the_twist_on_the_same_physics():
     poses1, truth1, est1, rig1, pipe1 = _drive("fisheye_only")
     poses2, truth2, est2, rig2, pipe2 = _drive(None)
     # the rig: one fisheye, which renders the ground for its odometry; no downward camera
-    assert list(rig1) == ["fisheye"] and rig1["fisheye"].ground_view_deg == pytest.approx(50.0)
+    assert list(rig1) == ["fisheye"] and rig1["fisheye"].ground_view_deg == pytest.approx(65.0)
     assert isinstance(pipe1.estimator.odometry, FisheyeOdometry)
     assert isinstance(pipe2.estimator.odometry, FlowOdometry)
     assert pipe1.frames["fisheye_windowed"] > 0.8 * len(ACTIONS)  # the kinematics' windows still work
@@ -72,7 +72,7 @@ def test_a_declared_rig_without_a_downward_camera_gets_the_fisheyes_odometry(tmp
     env = gym.make("Rover-v0", scenario=str(path))
     try:
         u = env.unwrapped
-        assert u.rig["fish"].ground_view_deg == pytest.approx(50.0)  # the ground rendered for it
+        assert u.rig["fish"].ground_view_deg == pytest.approx(65.0)  # the ground rendered for it
         assert u.pipeline.estimator.odometry_camera == "fisheye"
         env.reset(seed=0)
         for _ in range(40):
@@ -102,3 +102,18 @@ def test_a_region_of_interest_in_parts_keeps_its_parts_apart():
     assert np.array_equal(apart.rendered, merged.rendered)  # the same pixels, in two views
     with pytest.raises(ValueError, match="roi: shape"):
         CubemapRemap(cam, roi=(blob, disk[:100]))
+
+
+def test_settings_for_the_other_camera_are_refused():
+    from perception.estimator import EstimatorError
+    from perception.fisheye_odometry import FisheyeOdometryConfig
+    from perception.odometry import FlowOdometryConfig
+    from rover_env.sensors.rig import builtin_estimator
+
+    with pytest.raises(
+        EstimatorError, match="fisheye_odometry: this estimator takes its odometry from the downward"
+    ):
+        gym.make("Rover-v0", estimator=builtin_estimator(fisheye_odometry=FisheyeOdometryConfig()))
+    odo = FlowOdometryConfig.for_camera(160, 30.0)
+    with pytest.raises(EstimatorError, match="odometry: a FlowOdometryConfig is the downward camera's"):
+        gym.make("Rover-v0", rig="fisheye_only", estimator=builtin_estimator(odometry=odo))

@@ -131,7 +131,8 @@ class FisheyeCameraConfig(CameraConfig):
             the rest of the image is black. Faster in proportion to the pixels saved.
         roi_ground_deg: With ``roi``, the region also holds the rays within this angle of the
             body's -z [deg]: the ground that the fisheye's own odometry tracks on a one-camera
-            rig (72: its rays at 20 degrees' depression and more, 2 to spare). 0: none.
+            rig (65 there, :data:`rover_env.config.rig.FISHEYE_ONLY_GROUND_DEG`; the odometry
+            selects features 5 degrees inside it). 0: none.
 
     Its width runs along the body's x axis, its height across the body.
     """

@@ -238,8 +238,8 @@ class RoverEnv(gym.Env):
         imu: str | dict | ImuConfig | None = None,
         estimator: EstimatorFactory | None = None,
         camera_effects: CameraEffectsName = "field",
-        rig: str | None = None,
         randomize: str | dict | RandomizeConfig | None = None,
+        rig: str | None = None,
     ) -> None:
         super().__init__()
         try:

@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from perception.estimator import EstimatorError, check_estimate, estimator_name
 from perception.fisheye_kinematics import KinematicsConfig
+from perception.fisheye_odometry import FisheyeOdometryConfig
 from perception.odometry import FlowOdometryConfig
 from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
@@ -205,6 +206,7 @@ def builtin_estimator(
     odometry_gyro: bool = True,
     odometry_overrides: Mapping[str, Any] | None = None,
     fisheye_window: tuple[float, float, float] | None | Literal["preset"] = "preset",
+    fisheye_odometry: FisheyeOdometryConfig | None = None,
 ) -> EstimatorFactory:
     """A factory of the built-in :class:`perception.RoverEstimator` as ``preset`` sets it up, with changes.
 
@@ -222,6 +224,8 @@ def builtin_estimator(
         odometry_overrides: :class:`FlowOdometryConfig` fields set over the preset's.
         fisheye_window: The fisheye's windowed readout (see :class:`PerceptionPreset`):
             ``"preset"``, None (whole frames) or (roll [rad/s], travel [m/s], steering [rad/s]).
+        fisheye_odometry: The fisheye odometry's parameters on a rig without a downward camera
+            (None: :meth:`FisheyeOdometryConfig.for_ground_view` of the fisheye's ground view).
     """
     if isinstance(preset, str):
         if preset not in PERCEPTION_PRESETS:
@@ -234,7 +238,15 @@ def builtin_estimator(
     def factory(rig: Rig) -> RoverEstimator:
         # a simulated mission starts at rest, steering centred: the fisheye's first frame zeroes it
         return RoverEstimator(
-            rig, odometry, kinematics, slip, overrides, window, odometry_gyro, zero_steering_at_start=True
+            rig,
+            odometry,
+            kinematics,
+            slip,
+            overrides,
+            window,
+            odometry_gyro,
+            zero_steering_at_start=True,
+            fisheye_odometry=fisheye_odometry,
         )
 
     factory.__qualname__ = f"builtin_estimator({preset.name!r})"
@@ -293,9 +305,10 @@ class PerceptionPipeline:
         elif imu is not None:
             raise ValueError("imu: this pipeline is given a rig; declare the IMU in it (kind: imu)")
         check_rig(rig)
-        if not any(c.kind == "pinhole" for c in rig):
-            # a rig without a downward camera: its fisheye gives the odometry too, and renders the
-            # ground for it unless the declaration says otherwise
+        if estimator is None and not any(c.kind == "pinhole" for c in rig):
+            # a rig without a downward camera: the built-in estimator takes its odometry from the
+            # fisheye, which renders the ground for it unless the declaration says otherwise (an
+            # estimator of your own gets what its rig declares: camera: {roi_ground_deg: 65})
             rig = tuple(
                 dataclasses.replace(
                     c, camera={"roi_ground_deg": FISHEYE_ONLY_GROUND_DEG} | dict(c.camera or {})
@@ -364,7 +377,7 @@ class PerceptionPipeline:
     # the built-in estimator's parts, for benchmarks and tests
     @property
     def odometry(self):
-        """The built-in estimator's :class:`perception.FlowOdometry`."""
+        """The built-in estimator's odometry (on the one-camera rig, the fisheye's)."""
         return self._builtin().odometry
 
     @property

@@ -346,6 +346,14 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
 
     _need_source(args.source)
     calib = args.calib if args.calib is not None else args.camera
+    if args.calib is not None:
+        from perception.offline import is_omni
+
+        if is_omni(args.calib):
+            raise ValueError(
+                f"{args.calib}: an omnidirectional calibration (model: scaramuzza); give it as --camera "
+                "for the fisheye's odometry (--calib is the downward camera's)"
+            )
     if args.camera is not None:  # the fisheye's odometry: its calibration, checked before the output
         from perception.cameras import GROUND_PLANE_MISSING, OmniCamera
 

@@ -93,6 +93,8 @@ class EvalJob:
         if base.startswith("policy:"):
             base = "policy-" + _path_label(base[len("policy:") :])
         ctrl = f"{base}-{source.replace(':', '-')}" if at else base
+        if self.rig is not None:
+            ctrl += f"-{self.rig}"
         mission = _path_label(self.mission) if self.mission.endswith((".yaml", ".yml")) else self.mission
         return f"{ctrl}_{mission}_{self.seed}"
 
@@ -212,6 +214,11 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
                     f"mission {job.mission!r}: not an environment id ({', '.join(rover_env.ENV_IDS)}), "
                     f"scenario preset or readable scenario file ({exc})"
                 ) from None
+        scenario = missions.get(job.mission)
+        if job.rig is not None and scenario is not None and scenario.rig is not None:
+            raise ValueError(
+                f"rig {job.rig!r}: mission {job.mission!r} declares its own rig; leave --rig out for it"
+            )
 
 
 def finished_row(job: EvalJob) -> dict | None:
@@ -349,7 +356,7 @@ def jobs_for(
     for c in controllers:
         for m in missions:
             for s in seeds:
-                job = EvalJob(c, m, int(s), preset, estimator=estimator)
+                job = EvalJob(c, m, int(s), preset, estimator=estimator, rig=rig)
                 where = None if out is None else str(Path(out) / "runs" / job.name)
                 jobs.append(
                     EvalJob(
