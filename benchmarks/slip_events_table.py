@@ -1,7 +1,8 @@
 """Slip events in closed loop, per controller and mission, from a ``rover eval`` sweep's ``results.csv``.
 
 Recall is the true events caught over the true events; false events and events "in band" (on
-true slip that rose above 0.15 but made no true event) are per run. The scoring is
+true slip that rose above 0.15 but made no true event) are per run. A second table pools every
+controller's runs per mission and over the sweep into the F1 score. The scoring is
 ``rover_env.tools.estimator_metrics.slip_metrics`` (hysteresis band, two frames of grace), as
 ``rover eval`` applies it to each estimated-observation run.
 
@@ -47,11 +48,37 @@ def table(path: str) -> list[str]:
     return out
 
 
+def f1_table(path: str) -> list[str]:
+    """Markdown rows of the slip-event F1 per mission and over the sweep, every controller's runs pooled.
+
+    F1 = 2 caught / (2 caught + false events + missed events); events in band count on neither side.
+    """
+    with open(path, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("obs_source") == "estimated"]
+    if not rows:
+        raise ValueError(f"{path}: no estimated-observation runs (slip events are scored on those only)")
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for r in rows:
+        groups[f"`{r['mission']}`"].append(r)
+    groups["all missions"] = rows
+    out = ["| missions | runs | true events | caught | false events | F1 |", "|---|---:|---:|---:|---:|---:|"]
+    for name, rs in groups.items():
+        events = sum(int(float(r["est_slip_events"])) for r in rs)
+        caught = sum(int(float(r["est_slip_events_matched"])) for r in rs)
+        false = sum(float(r["est_slip_events_false"]) for r in rs)
+        den = 2 * caught + false + (events - caught)
+        f1 = f"{2 * caught / den:.3f}" if den else "–"
+        out.append(f"| {name} | {len(rs)} | {events} | {caught} | {false:g} | {f1} |")
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", help="a rover eval sweep's results.csv")
     args = ap.parse_args(argv)
     print("\n".join(table(args.results)))
+    print()
+    print("\n".join(f1_table(args.results)))
     return 0
 
 

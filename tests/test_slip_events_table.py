@@ -47,3 +47,20 @@ def test_a_sweep_without_estimated_runs_is_refused(tmp_path):
     _write(path, [("slip_aware", "Rover-v0", "ground_truth", "True", 0, 0, 0, 0)])
     with pytest.raises(ValueError, match="no estimated-observation runs"):
         slip_events_table.table(str(path))
+
+
+def test_the_f1_pools_every_controller_per_mission_and_over_the_sweep(tmp_path):
+    path = tmp_path / "results.csv"
+    _write(
+        path,
+        [
+            ("slip_unaware", "Rover-v0", "estimated", "True", 3, 3, 1, 0),
+            ("slip_aware", "Rover-v0", "estimated", "True", 0, 0, 2, 1),
+            ("slip_unaware", "RoverSlopeLoose-v0", "estimated", "False", 4, 2, 0, 0),
+        ],
+    )
+    rows = slip_events_table.f1_table(str(path))
+    # Rover-v0: 3 caught, 3 false, 0 missed: 6 / 9; the slope: 2 caught, 2 missed: 4 / 6; all: 10 / 15
+    assert rows[2] == "| `Rover-v0` | 2 | 3 | 3 | 3 | 0.667 |"
+    assert rows[3] == "| `RoverSlopeLoose-v0` | 1 | 4 | 2 | 0 | 0.667 |"
+    assert rows[4] == "| all missions | 3 | 7 | 5 | 3 | 0.667 |"
