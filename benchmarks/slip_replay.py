@@ -73,6 +73,7 @@ def record(args) -> None:
             runs.append({"seed": seed, "run": run, "calls": list(calls)})
         tag = f"_{args.closed_loop}" if args.closed_loop else ""
         tag += "_randomized" if args.randomize == "on" else ""
+        tag += f"_{args.rig}" if args.rig else ""
         preset = "" if args.preset == "train" else f"_{args.preset}"
         path = out / f"{env_id}{tag}_{args.imu}_{args.camera_effects}{preset}_{args.seeds[0]}.pkl"
         with open(path, "wb") as fh:
@@ -89,6 +90,8 @@ def closed_loop(env_id: str, seed: int, args) -> dict:
     extra: dict = {"imu": args.imu} if args.imu else {}
     if args.estimator:
         extra["estimator"] = load_estimator(args.estimator)
+    if args.rig:
+        extra["rig"] = args.rig
     env = make_mission_env(
         env_id, obs_source=source, action_mode=spec.action_mode, preset=args.preset, randomize=args.randomize,
         camera_effects=args.camera_effects, renderer=args.renderer, **extra,
@@ -221,6 +224,7 @@ def main(argv=None) -> int:
         "--randomize", default="off", choices=("off", "on"), help="domain randomisation (closed loop)"
     )
     r.add_argument("--estimator", default=None, help="estimator factory, as rover eval's (closed loop)")
+    r.add_argument("--rig", default=None, help="the sensor rig, as rover eval's --rig (closed loop)")
     r.add_argument("--out", required=True, help="folder for the recordings")
     s = sub.add_parser("score", help="replay recordings through a filter's settings")
     s.add_argument("folder")

@@ -64,6 +64,14 @@ MAX_PREDICTION_S = 0.2
 #: Speeds below this [m/s] keep the two-view fit's own translation (its scale is undefined at rest).
 _SCALE_EPS = 0.01
 
+#: The plane's fit and the rays' disagree (the refinement is not used) where, both moving faster
+#: than _DIRECTION_SPEED [m/s], their directions differ by more than _MAX_TURN [rad], or where
+#: the scale between them leaves _SCALE_RANGE (the rays alone leave the scale free: a fit whose
+#: heights drifted toward the camera reads a shorter move, by a factor of 3 on the rough missions).
+_DIRECTION_SPEED = 0.05
+_MAX_TURN = math.radians(30.0)
+_SCALE_RANGE = (0.1, 10.0)
+
 __all__ = [
     "FisheyeOdometry",
     "FisheyeOdometryConfig",
@@ -338,6 +346,13 @@ class TwoViewFit:
     iterations: int
     camera_shift: np.ndarray
     height_noise: np.ndarray
+
+
+def _with_speed_error(cov: np.ndarray, v: np.ndarray, rel: float) -> np.ndarray:
+    """``cov`` of (v_x, v_y, omega) with a relative error ``rel`` of the speed along ``v`` added."""
+    out = np.array(cov, dtype=np.float64)
+    out[:2, :2] += rel**2 * np.outer(v, v)
+    return out
 
 
 def _tangent_basis(b: np.ndarray) -> np.ndarray:
@@ -769,6 +784,8 @@ class FisheyeOdometry:
             refined = self._two_view(P0, P1, G0, G1, r0, inl, dt, plane0, dims, vel, rates)
             if refined is not None:
                 vel, cov, rms = refined
+            else:  # the plane's fit, with the scale's error of the ground lately seen
+                cov = _with_speed_error(cov, vel[:2], self._scale_rel(math.nan))
         quality = min(1.0, n_inl / (2.0 * c.min_inliers)) * ratio
         return OdometryEstimate(
             float(vel[0]),
@@ -875,8 +892,12 @@ class FisheyeOdometry:
         vc = vp[:2] + lever  # ... as the plane fit puts it
         eps2 = _SCALE_EPS**2
         scale = (float(vc @ vb) + eps2) / (float(vb @ vb) + eps2)
-        if not (0.5 <= scale <= 2.0):  # the plane and the rays disagree: keep the plane's fit
-            return None
+        # (the rays leave the scale free: a fit whose heights all drifted toward the camera reads
+        # a shorter move, which the scale makes up; only a move in another direction disagrees)
+        nb, nc = math.hypot(vb[0], vb[1]), math.hypot(vc[0], vc[1])
+        turned = min(nb, nc) > _DIRECTION_SPEED and float(vc @ vb) < math.cos(_MAX_TURN) * nb * nc
+        if turned or not (_SCALE_RANGE[0] <= scale <= _SCALE_RANGE[1]):
+            return None  # the plane and the rays disagree: keep the plane's fit
         # the fit's v is the chord over the pair in the first frame's axes; the rigid fits' (and
         # the truth's) the velocity at mid-pair, turned by omega dt / 2 from it
         half = -0.5 * m[5] * dt
@@ -893,11 +914,7 @@ class FisheyeOdometry:
         if math.isfinite(ratio):
             a = min(dt / ROUGHNESS_S, 1.0)
             self._roughness = ratio if self._roughness is None else (1 - a) * self._roughness + a * ratio
-        rough = max(ratio if math.isfinite(ratio) else 0.0, self._roughness or 0.0)
-        rel = (
-            c.scale_std + c.scale_std_relief * math.sqrt(max(rough - 1.3, 0.0)) if c.plane_test > 0 else 0.05
-        )
-        rel = min(rel, 0.3)
+        rel = self._scale_rel(ratio)
         speed_var = float(u @ cov_p[:2, :2] @ u) + (rel * scale * speed) ** 2
         cov = np.zeros((3, 3))
         cov[:2, :2] = speed_var * np.outer(u, u) + scale**2 * perp @ cb[:2, :2] @ perp
@@ -906,6 +923,18 @@ class FisheyeOdometry:
         J = np.eye(3)
         J[:2, :2] = rot
         return twist, J @ cov @ J.T, rms
+
+    def _scale_rel(self, ratio: float) -> float:
+        """The speed's relative error from the scale, given this pair's plane-test ratio (NaN: none).
+
+        ``scale_std`` where the plane holds, growing with the roughness: this pair's ratio or
+        the last ``ROUGHNESS_S``'s mean if larger (``FisheyeOdometryConfig.scale_std``).
+        """
+        c = self.cfg
+        if c.plane_test <= 0:
+            return 0.05
+        rough = max(ratio if math.isfinite(ratio) else 0.0, self._roughness or 0.0)
+        return min(c.scale_std + c.scale_std_relief * math.sqrt(max(rough - 1.3, 0.0)), 0.3)
 
     def _shadow_edges(self, gray: np.ndarray) -> np.ndarray:
         """(H, W) bool: the band about the rover's shadow's edges where no feature is selected.

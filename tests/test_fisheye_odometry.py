@@ -378,3 +378,64 @@ def test_a_turn_leaves_no_sideways_velocity(omega):
     est = odo.update(_render(cam, tex, (0.1 + c * x - s * y, -0.2 + s * x + c * y, 0.3 + a)), dt)
     assert est.valid and abs(est.v_y) < 0.002 < 0.5 * abs(omega) * dt * 0.5  # the chord's would be 0.005
     assert est.v_x == pytest.approx(0.5, abs=0.003) and est.omega == pytest.approx(omega, abs=0.003)
+
+
+def _pair_estimate(twist=(0.5, 0.02, 0.2), config=None):
+    """The estimate of one known motion of the synthetic camera over the plane."""
+    cam, tex, dt = _camera(), _texture(3), 1.0 / 30.0
+    odo = FisheyeOdometry(cam, config, ground_plane=PLANE)
+    odo.update(_render(cam, tex, (0.0, 0.0, 0.0)), 0.0)
+    return odo.update(_render(cam, tex, _after(twist, dt)), dt)
+
+
+def test_a_free_fit_that_drifted_along_the_scale_is_still_used(monkeypatch):
+    """The rays leave the scale free: a fit whose heights all moved toward the camera reads a
+    shorter move (by 3 on the rough missions), which the ground plane's scale makes up. Over a
+    3 cm relief the refinement is still used: the yaw rate stays clear of the relief."""
+    import dataclasses
+
+    import perception.fisheye_odometry as fo
+
+    real = fo.two_view_motion
+
+    def drifted(*a, **k):
+        fit = real(*a, **k)
+        if fit is None:
+            return None
+        dt = a[2]
+        lever = fit.camera_shift - fit.motion[0:3] * dt  # the rotation's lever on the mount, (R - I) o
+        m = fit.motion.copy()
+        m[0:3] = (fit.camera_shift / 3.0 - lever) / dt  # the camera's move a third as long
+        return dataclasses.replace(fit, motion=m, camera_shift=fit.camera_shift / 3.0)
+
+    monkeypatch.setattr(fo, "two_view_motion", drifted)
+    cam, tex, dt, twist = _rover_fisheye(), _texture(3), 1.0 / 30.0, (0.4, 0.0, 0.2)
+    pose = np.array([0.3, -0.2, 0.4])
+    odo = FisheyeOdometry(cam, FisheyeOdometryConfig(plane_test=0.0), ground_plane=ROVER_PLANE)
+    errs = []
+    for k in range(10):
+        est = odo.update(render_relief(cam, tex, tuple(pose), 0.03), k * dt)
+        if est is not None:
+            assert est.valid, est.reason
+            errs.append(np.abs(est.twist - twist))
+        x, y, a = _after(twist, dt)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        pose = pose + np.array([c * x - s * y, s * x + c * y, a])
+    mae = np.mean(errs, axis=0)
+    assert mae[2] < 0.01 and mae[0] < 0.05  # (the plane's fit alone errs 3 times as much in yaw)
+
+
+def test_the_planes_fit_used_alone_carries_the_scales_error(monkeypatch):
+    """Where the two-view refinement fails, the rigid fit on the plane stands, and its speed's
+    deviation holds the scale's error (the plane is the wheels', not the ground's in view)."""
+    import perception.fisheye_odometry as fo
+
+    ref = _pair_estimate()
+    monkeypatch.setattr(fo, "two_view_motion", lambda *a, **k: None)
+    est = _pair_estimate()
+    assert est.valid, est.reason
+    assert est.v_x == pytest.approx(0.5, abs=0.01)
+    speed = math.hypot(est.v_x, est.v_y)
+    rel = FisheyeOdometryConfig().scale_std
+    assert est.twist_std[0] >= rel * speed * 0.99
+    assert est.twist_std[0] == pytest.approx(ref.twist_std[0], rel=0.5)
