@@ -310,9 +310,14 @@ def rays_to_ground(
     plane in front of the camera, leaves the field of view, or lies within
     ``min_depression_deg`` of the camera's horizon (the plane's).
     """
-    a, b, c = (float(v) for v in ground_plane)
     rays = camera.cam2world(np.asarray(pixels, dtype=np.float64).reshape(-1, 2))
-    R, o = camera.T_body_cam[:3, :3], camera.T_body_cam[:3, 3]
+    return _rays_to_ground(camera.T_body_cam, rays, ground_plane, min_depression_deg)
+
+
+def _rays_to_ground(T_body_cam: np.ndarray, rays: np.ndarray, ground_plane, min_depression_deg: float = 0.0):
+    """:func:`rays_to_ground` of camera-frame unit ``rays`` (n, 3)."""
+    a, b, c = (float(v) for v in ground_plane)
+    R, o = T_body_cam[:3, :3], T_body_cam[:3, 3]
     d = rays @ R.T
     n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)  # upward normal
     down = -(d @ n)  # sine of the ray's depression below the plane's horizon
@@ -363,10 +368,16 @@ def _with_speed_error(cov: np.ndarray, v: np.ndarray, rel: float) -> np.ndarray:
 
 def _tangent_basis(b: np.ndarray) -> np.ndarray:
     """(n, 3, 2) two orthonormal vectors perpendicular to each unit vector of ``b`` (n, 3)."""
-    helper = np.where(np.abs(b[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
-    u1 = np.cross(b, helper)
-    u1 /= np.linalg.norm(u1, axis=1, keepdims=True)
-    return np.stack([u1, np.cross(b, u1)], axis=2)
+    x, y, z = b[:, 0], b[:, 1], b[:, 2]
+    far = np.abs(z) < 0.9  # b x (0, 0, 1) where b is far from the z axis, else b x (1, 0, 0)
+    u1 = np.where(
+        far[:, None], np.column_stack([y, -x, np.zeros_like(x)]), np.column_stack([np.zeros_like(x), z, -y])
+    )
+    u1 /= np.sqrt(np.einsum("ij,ij->i", u1, u1))[:, None]
+    u2 = np.column_stack(
+        [y * u1[:, 2] - z * u1[:, 1], z * u1[:, 0] - x * u1[:, 2], x * u1[:, 1] - y * u1[:, 0]]
+    )  # b x u1
+    return np.stack([u1, u2], axis=2)
 
 
 def two_view_motion(
@@ -432,56 +443,61 @@ def two_view_motion(
         return None
     dh = d / den[:, None]  # d(point)/d(height)
     U = _tangent_basis(r1)
+    U1, U2 = np.ascontiguousarray(U[:, :, 0]), np.ascontiguousarray(U[:, :, 1])
     w_ang = px_per_rad / pixel_std
     mu = np.zeros(2) if rate_xy is None else np.asarray(rate_xy, dtype=np.float64).reshape(2)
     theta = np.asarray(init, dtype=np.float64).reshape(6).copy()
     h = np.zeros(n)
     inv_h2 = 1.0 / height_std**2
     inv_r = 1.0 / rate_std
+    X0 = o + s0[:, None] * d  # the points on the plane
+    o_cam = R_bc.T @ o
 
     def predict(th: np.ndarray, hh: np.ndarray):
-        X = o + s0[:, None] * d + hh[:, None] * dh
-        R = _rotation(th[3:6] * dt)
-        Y = X - th[0:3] * dt
-        A = R_bc.T @ R.T  # body (moved) -> second camera
-        Xc = (Y @ A.T) - R_bc.T @ o
-        norm = np.linalg.norm(Xc, axis=1)
+        Y = X0 + hh[:, None] * dh - th[0:3] * dt
+        A = R_bc.T @ _rotation(th[3:6] * dt).T  # body (moved) -> second camera
+        Xc = Y @ A.T - o_cam
+        norm = np.sqrt(np.einsum("ij,ij->i", Xc, Xc))
         bp = Xc / norm[:, None]
-        e = np.einsum("nij,ni->nj", U, bp) * w_ang
+        e = np.empty((len(bp), 2))
+        e[:, 0] = np.einsum("ij,ij->i", U1, bp) * w_ang
+        e[:, 1] = np.einsum("ij,ij->i", U2, bp) * w_ang
         return e, Y, A, norm, bp
 
     def cost(e: np.ndarray, th: np.ndarray, hh: np.ndarray) -> float:
         prior = (th[3:5] - mu) * inv_r
-        return float((e * e).sum() + inv_h2 * (hh * hh).sum() + prior @ prior)
+        return float(np.einsum("ij,ij->", e, e) + inv_h2 * (hh @ hh) + prior @ prior)
 
     e, Y, A, norm, bp = predict(theta, h)
     current = cost(e, theta, h)
     S = np.eye(6)
     info = np.zeros(n)
     steps = 0
+    J = np.empty((2, n, 6))  # d e / d(v, omega), one block per tangent direction
+    Jh = np.empty((2, n))  # d e / d(height)
     for step in range(1, iterations + 1):
         steps = step
-        # de/dXc = U^T (I - b b^T) / |Xc|
-        P = (np.eye(3)[None] - bp[:, :, None] * bp[:, None, :]) / norm[:, None, None]
-        G = np.einsum("nij,nik->njk", U, P) * w_ang  # (n, 2, 3)
-        GA = G @ A  # (n, 2, 3): d e / d(moved body point)
-        Jh = np.einsum("njk,nk->nj", GA, dh)  # (n, 2)
-        Jv = -dt * GA
-        # d(Y rotated)/d(omega) ~ dt [Y]x (first order in omega dt)
-        Jw = np.empty_like(GA)
-        Jw[:, :, 0] = dt * (GA[:, :, 1] * Y[:, None, 2] - GA[:, :, 2] * Y[:, None, 1])
-        Jw[:, :, 1] = dt * (GA[:, :, 2] * Y[:, None, 0] - GA[:, :, 0] * Y[:, None, 2])
-        Jw[:, :, 2] = dt * (GA[:, :, 0] * Y[:, None, 1] - GA[:, :, 1] * Y[:, None, 0])
-        Jm = np.concatenate([Jv, Jw], axis=2)  # (n, 2, 6)
-        Umat = np.einsum("nji,njk->ik", Jm, Jm)
+        # d e / d Xc = U^T (I - b b^T) / |Xc|, then through A to the moved body point
+        k = w_ang / norm
+        for j, Uj in enumerate((U1, U2)):
+            g = (Uj - (e[:, j] / w_ang)[:, None] * bp) * k[:, None]
+            GA = g @ A  # (n, 3)
+            Jh[j] = np.einsum("ij,ij->i", GA, dh)
+            J[j, :, 0:3] = -dt * GA
+            # d(Y rotated)/d(omega) ~ dt [Y]x (first order in omega dt): GA x Y
+            J[j, :, 3] = dt * (GA[:, 1] * Y[:, 2] - GA[:, 2] * Y[:, 1])
+            J[j, :, 4] = dt * (GA[:, 2] * Y[:, 0] - GA[:, 0] * Y[:, 2])
+            J[j, :, 5] = dt * (GA[:, 0] * Y[:, 1] - GA[:, 1] * Y[:, 0])
+        Jf = J.reshape(2 * n, 6)
+        Umat = Jf.T @ Jf
         Umat[3, 3] += inv_r**2
         Umat[4, 4] += inv_r**2
-        gm = np.einsum("nji,nj->i", Jm, e)
+        gm = J[0].T @ e[:, 0] + J[1].T @ e[:, 1]
         gm[3:5] += (theta[3:5] - mu) * inv_r**2
-        W = np.einsum("nji,nj->ni", Jm, Jh)  # (n, 6)
-        info = (Jh * Jh).sum(axis=1)
+        W = J[0] * Jh[0][:, None] + J[1] * Jh[1][:, None]  # (n, 6)
+        info = Jh[0] * Jh[0] + Jh[1] * Jh[1]
         V = info + inv_h2
-        gh = (Jh * e).sum(axis=1) + h * inv_h2
+        gh = Jh[0] * e[:, 0] + Jh[1] * e[:, 1] + h * inv_h2
         S = Umat - (W / V[:, None]).T @ W
         rhs = -(gm - W.T @ (gh / V))
         try:
@@ -500,7 +516,8 @@ def two_view_motion(
             lam *= 0.5
         if not accepted:
             break
-        converged = c2 > current * (1.0 - 1e-9)
+        # converged: the cost fell by under a thousandth (far below one unit of chi-square)
+        converged = c2 > current * (1.0 - 1e-3)
         theta, h, current = th2, h2, c2
         e, Y, A, norm, bp = out
         if converged:
@@ -728,8 +745,10 @@ class FisheyeOdometry:
         box0 = np.ascontiguousarray(prev[y0:y1, x0:x1])
         box1 = np.ascontiguousarray(curr[y0:y1, x0:x1])
         guess = None
+        shift = np.array([x0, y0], np.float64)
+        rays0 = self.camera.cam2world(p0.astype(np.float64) + shift)  # (computed once, used below)
         if predict is not None:
-            guess = self._predicted(p0 + np.array([x0, y0], np.float32), dt, plane0, plane, predict)
+            guess = self._predicted(p0 + np.array([x0, y0], np.float32), rays0, dt, (plane0, plane), predict)
         if guess is not None:  # from where the given twist puts them
             # the strongest corners whose ground stays in view (fast, the view's trailing part leaves it)
             gx, gy = np.rint(guess[:, 0]).astype(int), np.rint(guess[:, 1]).astype(int)
@@ -739,7 +758,7 @@ class FisheyeOdometry:
             keep = np.flatnonzero(inside)[: c.max_features]
             if len(keep) < c.min_inliers:
                 return invalid("too few features staying in view", n_features=len(keep))
-            p0, guess = p0[keep], guess[keep]
+            p0, guess, rays0 = p0[keep], guess[keep], rays0[keep]
             n_feat = len(p0)
             guess -= np.array([x0, y0], np.float32)
             lk_p = lk | {"maxLevel": c.predict_levels, "flags": cv2.OPTFLOW_USE_INITIAL_FLOW}
@@ -751,10 +770,11 @@ class FisheyeOdometry:
             p0b, st2, _ = cv2.calcOpticalFlowPyrLK(box1, box0, p1, None, **lk)  # type: ignore[call-overload]
         fb = np.linalg.norm(p0 - p0b, axis=1)
         ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < c.fb_max)
-        shift = np.array([x0, y0], np.float64)
         P0, P1 = p0[ok].astype(np.float64) + shift, p1[ok].astype(np.float64) + shift
-        G0 = rays_to_ground(self.camera, P0, plane0, c.min_depression_deg)
-        G1 = rays_to_ground(self.camera, P1, plane, c.min_depression_deg)
+        rays0, rays1 = rays0[ok], self.camera.cam2world(P1)
+        T_bc = self.camera.T_body_cam
+        G0 = _rays_to_ground(T_bc, rays0, plane0, c.min_depression_deg)
+        G1 = _rays_to_ground(T_bc, rays1, plane, c.min_depression_deg)
         o = self.camera.T_body_cam[:3, 3]
         r0 = np.hypot(G0[:, 0] - o[0], G0[:, 1] - o[1])
         near = (
@@ -764,6 +784,7 @@ class FisheyeOdometry:
             & (np.hypot(G1[:, 0] - o[0], G1[:, 1] - o[1]) <= c.max_range)
         )
         P0, P1, G0, G1, r0 = P0[near], P1[near], G0[near], G1[near], r0[near]
+        rays0, rays1 = rays0[near], rays1[near]
         n_tr = len(P0)
         if n_tr < c.min_inliers:
             return invalid("too few tracked ground features", n_features=n_feat, n_tracked=n_tr)
@@ -788,7 +809,7 @@ class FisheyeOdometry:
         )
         self._learn_static(P0, P1, inl)
         if c.two_view:
-            refined = self._two_view(P0, P1, G0, G1, r0, inl, dt, plane0, dims, vel, rates)
+            refined = self._two_view(rays0, rays1, G0, G1, r0, inl, dt, plane0, dims, vel, rates)
             if refined is not None:
                 vel, cov, rms = refined
             else:  # the plane's fit, with the scale's error of the ground lately seen
@@ -814,12 +835,16 @@ class FisheyeOdometry:
             inlier_ratio=ratio,
         )
 
-    def _predicted(self, px: np.ndarray, dt: float, plane0, plane, twist) -> np.ndarray | None:
-        """(n, 2) float32 where ``twist`` (mid-pair) moves the ground seen at ``px`` in ``dt``, or None."""
+    def _predicted(self, px: np.ndarray, rays: np.ndarray, dt: float, plane, twist) -> np.ndarray | None:
+        """(n, 2) float32 where ``twist`` (mid-pair) moves the ground seen at ``px`` in ``dt``, or None.
+
+        ``rays``: (n, 3) the pixels' camera-frame rays; ``plane`` the ground (body frame) of the
+        first frame and of the next.
+        """
         tw = np.asarray(twist, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(tw)):
             return None
-        G = rays_to_ground(self.camera, px.astype(np.float64), plane0)
+        G = _rays_to_ground(self.camera.T_body_cam, rays, plane[0])
         w = float(tw[2])
         a = w * dt
         c, s = math.cos(a), math.sin(a)
@@ -828,7 +853,7 @@ class FisheyeOdometry:
         vy = math.sin(h) * tw[0] + math.cos(h) * tw[1]
         x, y = G[:, 0] - vx * dt, G[:, 1] - vy * dt  # the body moved, then turned by a
         moved = np.column_stack([c * x + s * y, -s * x + c * y, G[:, 2]])
-        A, B, C = plane
+        A, B, C = plane[1]
         moved[:, 2] = A * moved[:, 0] + B * moved[:, 1] + C  # on the next frame's plane
         T = np.linalg.inv(self.camera.T_body_cam)
         pc = moved @ T[:3, :3].T + T[:3, 3]
@@ -837,11 +862,11 @@ class FisheyeOdometry:
         out[bad] = px[bad]  # no guess: where they were
         return out
 
-    def _two_view(self, P0, P1, G0, G1, r0, inl, dt, plane0, dims, vel, rates):
+    def _two_view(self, rays0, rays1, G0, G1, r0, inl, dt, plane0, dims, vel, rates):
         """The two-view refinement of :meth:`estimate`: (twist, its covariance, RMS) or None (kept planar)."""
         c = self.cfg
         cam = self.camera
-        b0, b1 = cam.cam2world(P0[inl]), cam.cam2world(P1[inl])
+        b0, b1 = rays0[inl], rays1[inl]
         init = np.array([vel[0], vel[1], 0.0, 0.0, 0.0, vel[2]])
         if rates is not None:
             init[3:5] = rates
