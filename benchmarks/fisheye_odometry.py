@@ -33,10 +33,13 @@ from controllers import PathFollower
 from perception import RoverEstimator
 from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
 from perception.rover_parts import kinematics_roi
-from rover_env.config.rig import FISHEYE_ONLY_GROUND_DEG
+from rover_env.config.rig import FISHEYE_ONLY_CAMERA
 from rover_env.envs import RoverEnv
 
 CAMERAS = ("downward", "fisheye")
+
+#: The fisheye's settings over the one-camera rig's (``--camera``).
+_camera_overrides: dict = {}
 
 
 class _Tap(RoverEstimator):
@@ -97,7 +100,7 @@ def run(mission: str, seed: int, preset: str, shadow_truth: bool = False):
 
     sc = load_scenario(rover_env.MISSIONS.get(mission, mission))
     rig = (
-        SensorConfig(name="fisheye", kind="fisheye", camera={"roi_ground_deg": FISHEYE_ONLY_GROUND_DEG}),
+        SensorConfig(name="fisheye", kind="fisheye", camera=FISHEYE_ONLY_CAMERA | _camera_overrides),
         SensorConfig(name="downward", kind="pinhole"),
     )
     sc = dataclasses.replace(sc, rig=rig)
@@ -146,16 +149,24 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--preset", choices=["train", "eval"], default="train")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="FisheyeOdometryConfig fields")
+    ap.add_argument(
+        "--camera", nargs="*", default=[], metavar="KEY=VALUE", help="fisheye camera fields over the rig's"
+    )
     ap.add_argument("--shadow-truth", action="store_true", help="valid share while the shadow is in view")
     ap.add_argument("--out", help="also write the tables to this Markdown file")
     args = ap.parse_args(argv)
     if args.set:
         _Tap.overrides = {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.set)}
+    _camera_overrides.update(
+        {k: ast.literal_eval(v) for k, v in (item.split("=", 1) for item in args.camera)}
+    )
+    camera = FISHEYE_ONLY_CAMERA | _camera_overrides
     lines = [
         f"`python benchmarks/fisheye_odometry.py {' '.join(argv if argv is not None else sys.argv[1:])}`",
         "",
         f"preset {args.preset}, seeds {args.seeds}, path follower on the estimates, no IMU; the fisheye "
-        f"odometry of the one-camera rig (ground view {FISHEYE_ONLY_GROUND_DEG:g} deg"
+        f"odometry of the one-camera rig (ground view {camera['roi_ground_deg']:g} deg, rendered at "
+        f"{camera['ground_oversample']:g} of the parts' resolution"
         + (f", {_Tap.overrides}" if _Tap.overrides else "")
         + ")",
         "",

@@ -44,6 +44,7 @@ from perception.rover_parts import joint_window_parts, kinematics_roi
 from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.sun_heading import HeadingConfig, HeadingFilter
 from perception.validation import ConfigError
+from perception.wheel_tracks import wheel_contacts
 
 #: The rover's state under the names the simulator's ground truth uses too (besides its pose).
 STATE_KEYS: tuple[str, ...] = (
@@ -433,7 +434,15 @@ class RoverEstimator:
     def _odometry_frame(self, img: np.ndarray, t: float) -> None:
         """One frame of the odometry's camera: its estimate to the slip filter."""
         plane = self.wheel_ground_plane()
-        est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
+        if isinstance(self.odometry, FisheyeOdometry):  # the wheels' tracks anchor its scale
+            s = self.kinematics.state
+            frames = self.model.wheel_frames(s.psi, s.depth, s.delta)
+            contacts = wheel_contacts(frames, self.model.wheel_radius, plane)
+            est = self.odometry.update(
+                img, t, ground_plane=plane, rate_xy=self._frame_rate_xy(), contacts=contacts
+            )
+        else:
+            est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
         if est is not None:
             self._last_odom = est
             if est.valid:

@@ -11,6 +11,7 @@ import pytest
 import rover_env  # noqa: F401  (registers the environments)
 from perception.fisheye_odometry import FisheyeOdometry
 from perception.odometry import FlowOdometry
+from rover_env.config.rig import FISHEYE_ONLY_GROUND_DEG
 
 ACTIONS = [np.array([0.3, 0.12, -0.12], np.float32)] * 45 + [np.array([0.3, 0.0, 0.0], np.float32)] * 30
 
@@ -36,7 +37,8 @@ def test_the_fisheye_alone_estimates_the_twist_on_the_same_physics():
     poses1, truth1, est1, rig1, pipe1 = _drive("fisheye_only")
     poses2, truth2, est2, rig2, pipe2 = _drive(None)
     # the rig: one fisheye, which renders the ground for its odometry; no downward camera
-    assert list(rig1) == ["fisheye"] and rig1["fisheye"].ground_view_deg == pytest.approx(65.0)
+    assert list(rig1) == ["fisheye"]
+    assert rig1["fisheye"].ground_view_deg == pytest.approx(FISHEYE_ONLY_GROUND_DEG)
     assert isinstance(pipe1.estimator.odometry, FisheyeOdometry)
     assert isinstance(pipe2.estimator.odometry, FlowOdometry)
     assert pipe1.frames["fisheye_windowed"] > 0.8 * len(ACTIONS)  # the kinematics' windows still work
@@ -72,7 +74,8 @@ def test_a_declared_rig_without_a_downward_camera_gets_the_fisheyes_odometry(tmp
     env = gym.make("Rover-v0", scenario=str(path))
     try:
         u = env.unwrapped
-        assert u.rig["fish"].ground_view_deg == pytest.approx(65.0)  # the ground rendered for it
+        # the ground rendered for it
+        assert u.rig["fish"].ground_view_deg == pytest.approx(FISHEYE_ONLY_GROUND_DEG)
         assert u.pipeline.estimator.odometry_camera == "fisheye"
         env.reset(seed=0)
         for _ in range(40):

@@ -131,8 +131,10 @@ class FisheyeCameraConfig(CameraConfig):
             the rest of the image is black. Faster in proportion to the pixels saved.
         roi_ground_deg: With ``roi``, the region also holds the rays within this angle of the
             body's -z [deg]: the ground that the fisheye's own odometry tracks on a one-camera
-            rig (65 there, :data:`rover_env.config.rig.FISHEYE_ONLY_GROUND_DEG`; the odometry
+            rig (75 there, :data:`rover_env.config.rig.FISHEYE_ONLY_GROUND_DEG`; the odometry
             selects features 5 degrees inside it). 0: none.
+        ground_oversample: The ground region's cube-face resolution relative to ``oversample``'s
+            (its faces are rendered at this factor squared of the pixels).
 
     Its width runs along the body's x axis, its height across the body.
     """
@@ -142,12 +144,14 @@ class FisheyeCameraConfig(CameraConfig):
     oversample: float = 1.0
     roi: bool = False
     roi_ground_deg: float = 0.0
+    ground_oversample: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_range("fov_deg", self.fov_deg, 185.0, 250.0)
         check_range("radius_frac", self.radius_frac, 0.1, 1.0)
         check_range("oversample", self.oversample, 0.25, 4.0)
+        check_range("ground_oversample", self.ground_oversample, 0.25, 4.0)
         check_range("roi_ground_deg", self.roi_ground_deg, 0.0, 90.0)
 
     def model(self, T_body_cam: np.ndarray) -> OmniCamera:

@@ -252,10 +252,15 @@ def standard_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
 RIG_NAMES: tuple[str, ...] = ("standard", "fisheye_only")
 
 #: The one-camera rig's fisheye also renders the ground its odometry tracks: the rays within
-#: this angle of the body's -z [deg], as one view along the axis (wider, the view would be split
-#: into the cube's faces and cost three times the kinematics' parts; the odometry keeps 5 degrees
-#: inside it). Its odometry then sees the ground within 0.15 m of the camera's foot.
-FISHEYE_ONLY_GROUND_DEG = 65.0
+#: this angle of the body's -z [deg] (split into the cube's faces). Its odometry fits the motion
+#: to the ground within 60 degrees (0.25 m of the camera's foot) and finds the wheels' tracks in
+#: the ring beyond, to 70 degrees (:data:`perception.fisheye_odometry.TRACK_FREE_DEG`): the
+#: ground there has the height of the wheels' contacts, which sets its scale on rough ground.
+FISHEYE_ONLY_GROUND_DEG = 75.0
+
+#: The one-camera rig's fisheye settings (:class:`rover_env.config.cameras.FisheyeCameraConfig`
+#: fields): the ground view above, rendered at the same resolution as the kinematics' parts.
+FISHEYE_ONLY_CAMERA: dict[str, float] = {"roi_ground_deg": FISHEYE_ONLY_GROUND_DEG, "ground_oversample": 1.0}
 
 
 def fisheye_only_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
@@ -264,9 +269,7 @@ def fisheye_only_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
     The fisheye renders the ground its odometry tracks as well as the parts the kinematics reads
     (``roi_ground_deg``). With ``imu`` None, neither an IMU nor a sun sensor.
     """
-    rig: tuple[SensorConfig, ...] = (
-        SensorConfig("fisheye", "fisheye", camera={"roi_ground_deg": FISHEYE_ONLY_GROUND_DEG}),
-    )
+    rig: tuple[SensorConfig, ...] = (SensorConfig("fisheye", "fisheye", camera=dict(FISHEYE_ONLY_CAMERA)),)
     if imu is None:
         return rig
     return rig + (SensorConfig("imu", "imu", imu=imu), SensorConfig("sun", "sun"))

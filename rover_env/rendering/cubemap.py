@@ -90,6 +90,11 @@ class CubemapRemap:
             sequence of masks is a region of interest in parts: each mask's connected parts are
             views of their own even where they touch another mask's (a pixel in several is the
             first one's), so that a readout window can take each separately.
+        region_oversample: With ``roi`` masks, each region's views' focal length relative to
+            ``oversample``'s (None: all 1). A cube face is finest at its centre, where its
+            resolution matches the fisheye's, and oversamples the fisheye twice at its edges; a
+            region whose detail matters less (the ground the one-camera rig's odometry tracks)
+            can be rendered coarser, at that factor squared of the pixels.
     """
 
     def __init__(
@@ -99,6 +104,7 @@ class CubemapRemap:
         oversample: float = 1.0,
         cube_roll: float = 0.0,
         roi: np.ndarray | Sequence[np.ndarray] | None = None,
+        region_oversample: Sequence[float] | None = None,
     ) -> None:
         if margin < 1:
             raise ValueError(f"margin: {margin} px; use >= 1 (2 recommended) so faces can be interpolated")
@@ -117,6 +123,16 @@ class CubemapRemap:
             if not regions:
                 raise ValueError("roi: an empty sequence of masks; give a mask, masks, or None")
             roi = np.logical_or.reduce(regions)
+        factors = (
+            [1.0] * max(len(regions), 1)
+            if region_oversample is None
+            else [float(v) for v in region_oversample]
+        )
+        if len(factors) != max(len(regions), 1) or not all(math.isfinite(v) and v > 0 for v in factors):
+            raise ValueError(
+                f"region_oversample: {region_oversample!r}; give one factor > 0 per roi mask "
+                f"({max(len(regions), 1)})"
+            )
         xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         rays = model.cam2world(np.stack([xs, ys], -1)).reshape(-1, 3)
         valid = np.isfinite(rays[:, 0])
@@ -183,14 +199,15 @@ class CubemapRemap:
             if len(sel) == 0:
                 continue
             regions_kept.append(view_region[j] if view_region else 0)
+            fv = max(1, round(f * factors[regions_kept[-1]]))  # this view's focal length [px]
             local = rays[sel] @ R  # view optical-frame rays
-            u = f * local[:, 0] / local[:, 2]
-            v = f * local[:, 1] / local[:, 2]
+            u = fv * local[:, 0] / local[:, 2]
+            v = fv * local[:, 1] / local[:, 2]
             u0 = int(math.floor(u.min())) - margin
             v0 = int(math.floor(v.min())) - margin
             u1 = int(math.ceil(u.max())) + margin
             v1 = int(math.ceil(v.max())) + margin
-            K = np.array([[f, 0.0, -u0], [0.0, f, -v0], [0.0, 0.0, 1.0]], dtype=np.float64)
+            K = np.array([[fv, 0.0, -u0], [0.0, fv, -v0], [0.0, 0.0, 1.0]], dtype=np.float64)
             size = (u1 - u0 + 1, v1 - v0 + 1)
             face_of[sel] = len(faces)
             faces.append(CubeFace(name, R, K, size, row))

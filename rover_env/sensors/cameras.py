@@ -507,7 +507,10 @@ class FisheyeCamera(_RoverCamera):
         super().__init__(sim, cfg, T)
         self.model = cfg.model(T)
         roi = _kinematics_roi(cfg, g, tuple(T.ravel().tolist())) if cfg.roi else None
-        self.remapper = CubemapRemap(self.model, oversample=cfg.oversample, roi=roi)
+        factors = None if roi is None or len(roi) < 2 else (1.0, cfg.ground_oversample)
+        self.remapper = CubemapRemap(
+            self.model, oversample=cfg.oversample, roi=roi, region_oversample=factors
+        )
         self._window: tuple[float, np.ndarray] | None = None
         self._cam_body: tuple[bytes, np.ndarray] | None = None
         #: Frames sampled so far: all, and those rendered in windows.

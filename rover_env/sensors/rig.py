@@ -30,7 +30,7 @@ from perception.slip import SlipConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError
 from rover_env.config.rig import (
-    FISHEYE_ONLY_GROUND_DEG,
+    FISHEYE_ONLY_CAMERA,
     PERCEPTION_PRESETS,
     PerceptionPreset,
     PresetName,
@@ -308,11 +308,9 @@ class PerceptionPipeline:
         if estimator is None and not any(c.kind == "pinhole" for c in rig):
             # a rig without a downward camera: the built-in estimator takes its odometry from the
             # fisheye, which renders the ground for it unless the declaration says otherwise (an
-            # estimator of your own gets what its rig declares: camera: {roi_ground_deg: 65})
+            # estimator of your own gets what its rig declares: camera: {roi_ground_deg: 75})
             rig = tuple(
-                dataclasses.replace(
-                    c, camera={"roi_ground_deg": FISHEYE_ONLY_GROUND_DEG} | dict(c.camera or {})
-                )
+                dataclasses.replace(c, camera=dict(FISHEYE_ONLY_CAMERA) | dict(c.camera or {}))
                 if c.kind == "fisheye"
                 else c
                 for c in rig
