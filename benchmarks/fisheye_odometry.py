@@ -33,6 +33,7 @@ from controllers import PathFollower
 from perception import RoverEstimator
 from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
 from perception.rover_parts import kinematics_roi
+from perception.wheel_tracks import wheel_contacts
 from rover_env.config.rig import FISHEYE_ONLY_CAMERA
 from rover_env.envs import RoverEnv
 
@@ -63,7 +64,12 @@ class _Tap(RoverEstimator):
 
     def _on_fisheye(self, img, t) -> None:
         super()._on_fisheye(img, t)  # the kinematics first: the plane under this frame
-        est = self.fish_odo.update(img, t, ground_plane=self.wheel_ground_plane())
+        plane = self.wheel_ground_plane()
+        s = self.kinematics.state
+        contacts = wheel_contacts(
+            self.model.wheel_frames(s.psi, s.depth, s.delta), self.model.wheel_radius, plane
+        )
+        est = self.fish_odo.update(img, t, ground_plane=plane, contacts=contacts)
         if est is not None:
             self.records["fisheye"].append((t, est.dt, est.valid, *est.twist))
 
