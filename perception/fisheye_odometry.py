@@ -552,8 +552,9 @@ def two_view_motion(
             lam *= 0.5
         if not accepted:
             break
-        # converged: the cost fell by under a thousandth (far below one unit of chi-square)
-        converged = c2 > current * (1.0 - 1e-3)
+        # converged: the cost (in units of chi-square) fell by under 0.05, or a thousandth of it
+        # (what the next step could still change is then well inside the fit's deviations)
+        converged = current - c2 < max(0.05, 1e-3 * current)
         theta, h, current = th2, h2, c2
         e, Y, A, norm, bp = out
         if converged:
@@ -580,13 +581,32 @@ def heights_given_motion(
     motion: np.ndarray,
     *,
     px_per_rad: float,
-    iterations: int = 4,
+    scale: float = 1.0,
+    iterations: int = 6,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each point's height off the plane, the body's motion given: (heights (n,) [m], residuals (n,) [px]).
 
-    The points of :func:`two_view_motion`'s model, their heights found one by one (Gauss-Newton
-    on each point's two angular residuals) with the motion (v, omega) held, in the motion's own
-    scale. Points whose ray misses the plane get NaN.
+    The points of :func:`two_view_motion`'s model, each found on its first ray (Gauss-Newton on
+    its two angular residuals in the second frame, in the inverse of its distance along the ray,
+    which stays finite however far the point) with the motion held, in the motion's own scale.
+
+    Args:
+        rays0: (n, 3) unit rays of the points in the first frame, camera frame.
+        rays1: (n, 3) ... and in the second.
+        dt: Time between the frames [s].
+        T_body_cam: (4, 4) the camera in the body frame.
+        ground_plane: (a, b, c) of the ground under the first frame, body frame [-, -, m].
+        motion: (v_x, v_y, v_z, omega_x, omega_y, omega_z) of the body over the pair, first
+            frame's body frame [m/s, rad/s] (:attr:`TwoViewFit.motion`).
+        px_per_rad: The image scale [px/rad] of the residuals.
+        scale: The true scale over the motion's (the points start on the plane at that scale:
+            a fit that reads a third of the move puts the ground a third as far).
+        iterations: Gauss-Newton steps.
+
+    Returns:
+        Heights (n,) off the plane along its normal's vertical in the motion's scale [m] (NaN
+        where the ray misses the plane or the point ends behind the camera), and each point's
+        residual [px].
     """
     r0 = np.asarray(rays0, dtype=np.float64).reshape(-1, 3)
     r1 = np.asarray(rays1, dtype=np.float64).reshape(-1, 3)
@@ -595,29 +615,35 @@ def heights_given_motion(
     d = r0 @ R_bc.T
     den = d[:, 2] - a * d[:, 0] - b * d[:, 1]
     with np.errstate(divide="ignore", invalid="ignore"):
-        s0 = (c + a * o[0] + b * o[1] - o[2]) / den
-        dh = d / den[:, None]
+        s0 = (c + a * o[0] + b * o[1] - o[2]) / den  # the plane along the ray
     ok = np.isfinite(s0) & (s0 > 0.0)
     m = np.asarray(motion, dtype=np.float64).reshape(6)
     A = R_bc.T @ _rotation(m[3:6] * dt).T
-    o_cam = R_bc.T @ o
+    P = A @ (o - m[0:3] * dt) - R_bc.T @ o  # Xc = P + Q / rho
+    Q = d @ A.T
     U = _tangent_basis(r1)
-    base = np.where(ok[:, None], o + s0[:, None] * d - m[0:3] * dt, 0.0) @ A.T - o_cam  # at h = 0
-    step = np.where(ok[:, None], dh, 0.0) @ A.T  # d Xc / d h
-    h = np.zeros(len(r0))
-    e = np.zeros((len(r0), 2))
-    for _ in range(iterations):
-        Xc = base + h[:, None] * step
+    rho = np.where(ok, max(scale, 1e-3) / np.where(ok, s0, 1.0), 1.0)  # on the plane, in the fit's scale
+
+    def residual(rho: np.ndarray):
+        Xc = P + Q / rho[:, None]
         norm = np.sqrt(np.einsum("ij,ij->i", Xc, Xc))
         bp = Xc / norm[:, None]
-        e = np.einsum("nij,ni->nj", U, bp)  # angular residuals [rad]
-        dbp = (step - np.einsum("ij,ij->i", step, bp)[:, None] * bp) / norm[:, None]
+        return np.einsum("nij,ni->nj", U, bp), Xc, norm, bp
+
+    for _ in range(iterations):
+        e, Xc, norm, bp = residual(rho)
+        dX = -Q / (rho * rho)[:, None]
+        dbp = (dX - np.einsum("ij,ij->i", dX, bp)[:, None] * bp) / norm[:, None]
         J = np.einsum("nij,ni->nj", U, dbp)
         jj = np.einsum("ij,ij->i", J, J)
         with np.errstate(divide="ignore", invalid="ignore"):
-            h = h - np.where(jj > 0, np.einsum("ij,ij->i", J, e) / jj, 0.0)
-    h[~ok] = np.nan
-    return h, np.linalg.norm(e, axis=1) * px_per_rad
+            step = np.where(jj > 0, np.einsum("ij,ij->i", J, e) / jj, 0.0)
+        rho = np.clip(rho - step, 1e-3, None)  # (no farther than 1 km)
+    e, _, _, bp = residual(rho)
+    h = (1.0 / rho - s0) * den
+    bad = ~ok | (np.einsum("ij,ij->i", bp, r1) <= 0.0)  # seen behind the second camera
+    h[bad] = np.nan
+    return h, np.where(bad, np.inf, np.linalg.norm(e, axis=1) * px_per_rad)
 
 
 class FisheyeOdometry:
@@ -703,7 +729,7 @@ class FisheyeOdometry:
         return self.cfg
 
     def reset(self) -> None:
-        """Forget the last frame and the learned mask of the rover's parts."""
+        """Forget the last frame, the learned rover's parts, the wheels' tracks and the roughness."""
         self._prev: np.ndarray | None = None
         self._last: np.ndarray | None = None  # the last valid twist, for the features' prediction
         self._ratios: collections.deque[tuple[float, float]] = collections.deque()  # (dt, plane-test ratio)
@@ -713,12 +739,24 @@ class FisheyeOdometry:
         self._hits[:] = 0
         self._allowed: np.ndarray | None = None  # the selection mask, until a cell is learned
         self.tracks = WheelTracks(self.cfg.track_half_width)
+        #: What set the last estimate's scale: ``"tracks"`` (with the plane's), ``"plane"``, or ``""``.
+        self.last_scale_source = ""
         self._moved: tuple[np.ndarray, np.ndarray] | None = None  # the last pair's (R, D), body frame
 
     @property
     def learned_mask(self) -> np.ndarray:
         """(H, W) bool: where features are still selected (the given mask less the learned cells)."""
         return self._selection_mask() > 0
+
+    def _ring_allowed(self) -> np.ndarray:
+        """The ring's selection mask less the cells learned as the rover's (see :attr:`learned_mask`)."""
+        assert self._ring is not None
+        if not (self._hits >= self.cfg.static_hits).any():
+            return self._ring
+        cell = self.cfg.static_cell
+        h, w = self._ring.shape
+        bad = np.kron(self._hits >= self.cfg.static_hits, np.ones((cell, cell), bool))[:h, :w]
+        return np.where(bad, 0, self._ring).astype(np.uint8)
 
     def _selection_mask(self) -> np.ndarray:
         if self._allowed is not None:
@@ -766,6 +804,7 @@ class FisheyeOdometry:
             if not (dt > 0.0 and math.isfinite(dt)):
                 raise ValueError(f"t: {t!r} s is not a finite time after the last frame's {self._t_prev!r} s")
             self._moved = None
+            self.last_scale_source = ""
             est = self.estimate(
                 self._prev,
                 gray,
@@ -807,7 +846,9 @@ class FisheyeOdometry:
         to the ground sees as much as its travel, are told apart from its planar motion).
         ``rate_xy``: the gyro's roll and pitch rates over the pair [rad/s], or None. ``predict``:
         a twist (v_x, v_y, omega) [m/s, rad/s] that the features are tracked from (their ground
-        points moved by it; :meth:`update` gives the last valid estimate's), or None.
+        points moved by it; :meth:`update` gives the last valid estimate's), or None. ``t0``: the
+        time of ``prev`` [s], at which the wheels' tracks (:attr:`tracks`, kept by :meth:`update`)
+        are looked up; None: not.
 
         Steps: corners on ``prev`` (outside the mask, the learned cells and the shadow's edges)
         tracked into ``curr`` and back; their rays met with the planes; RANSAC on the rigid
@@ -945,6 +986,11 @@ class FisheyeOdometry:
                 vel, cov, rms = refined
             else:  # the plane's fit, with the scale's error of the ground lately seen
                 cov = _with_speed_error(cov, vel[:2], self._scale_rel(math.nan))
+        if self._moved is None:  # the plane's fit carries the tracks: a turn about z, a level move
+            half = 0.5 * float(vel[2]) * dt
+            ch, sh = math.cos(half), math.sin(half)
+            chord = np.array([ch * vel[0] - sh * vel[1], sh * vel[0] + ch * vel[1], 0.0]) * dt
+            self._moved = (_rotation(np.array([0.0, 0.0, float(vel[2]) * dt])), chord)
         quality = min(1.0, n_inl / (2.0 * c.min_inliers)) * ratio
         return OdometryEstimate(
             float(vel[0]),
@@ -1029,8 +1075,9 @@ class FisheyeOdometry:
             else:
                 merged.append(b)
         found = []
+        ring = self._ring_allowed()
         for bx0, by0, bx1, by1 in merged:
-            mask = self._ring[by0:by1, bx0:bx1]
+            mask = ring[by0:by1, bx0:bx1]
             if edges is not None:
                 mask = np.where(edges[by0:by1, bx0:bx1], 0, mask).astype(np.uint8)
             pts = cv2.goodFeaturesToTrack(
@@ -1132,12 +1179,14 @@ class FisheyeOdometry:
             ar, ah = b0[fitted][good], h[good]
             if ring is not None:  # the ring's points, their heights with the motion held
                 hr, res = heights_given_motion(
-                    ring[0], ring[1], dt, cam.T_body_cam, plane0, m, px_per_rad=self._px_per_rad
+                    ring[0], ring[1], dt, cam.T_body_cam, plane0, m, px_per_rad=self._px_per_rad, scale=scale
                 )
                 fine = np.isfinite(hr) & (res <= c.outlier_px)
                 ar, ah = np.vstack([ar, ring[0][fine]]), np.concatenate([ah, hr[fine]])
             anchor = self._track_scale(ar, ah, plane0, scale, t0)
+        self.last_scale_source = "plane"
         if anchor is not None:
+            self.last_scale_source = "tracks"
             k_a, rel_a = anchor
             var_p = speed_var / max(scale * speed, _SCALE_EPS) ** 2  # the plane's, relative
             # weighed against the plane's error from the relief of the ground lately seen (the

@@ -20,6 +20,11 @@ import numpy as np
 
 __all__ = ["WheelTracks", "wheel_contacts"]
 
+#: A track's drift is taken as at most this per metre of travel [m/m] (one wrong contact aside) ...
+MAX_DRIFT = 0.02
+#: ... and fades by this factor each frame it is not measured again.
+DRIFT_DECAY = 0.95
+
 
 def wheel_contacts(wheel_frames, wheel_radius: float, ground_plane) -> np.ndarray:
     """(n, 3) body-frame points where the wheels touch the ground [m].
@@ -138,10 +143,14 @@ class WheelTracks:
         older track gives that track's drift per metre, taken out in :meth:`heights_at`.
         """
         z, d, travel, track = self._nearest(contacts[:, :2], t)
+        closed = np.zeros(len(self._drift), bool)
         for j in range(len(contacts)):  # wheel j's contact on track i (another wheel's)
             i = int(track[j])
             if i >= 0 and i != j and d[j] <= self.half_width and travel[j] > 0.2:
-                self._drift[i] = (z[j] - contacts[j, 2]) / travel[j]
+                new = float(np.clip((z[j] - contacts[j, 2]) / travel[j], -MAX_DRIFT, MAX_DRIFT))
+                self._drift[i] = 0.5 * (self._drift[i] + new)  # (one contact's error halved)
+                closed[i] = True
+        self._drift[~closed] *= DRIFT_DECAY  # a drift not measured again fades
 
     def heights_at(self, xy: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The tracks' heights under body-frame points (n, 2) [m] at time ``t`` [s].
@@ -150,9 +159,11 @@ class WheelTracks:
             (z, on, travel): (n,) the height of the track at each point [m] (NaN off every
             track), whether the point lies on one (within ``half_width`` across the centre
             line, between two contacts at least ``min_age`` old), and the body's travel since
-            that contact [m] (what the track's error grows with).
+            the newer of those two contacts [m] (what the track's error grows with).
         """
         z, d, travel, track = self._nearest(np.asarray(xy, dtype=np.float64).reshape(-1, 2), t)
+        if len(self._drift) == 0:  # no tracks
+            return z, np.zeros(len(z), bool), travel
         on = d <= self.half_width
         z = np.where(on, z - self._drift[np.maximum(track, 0)] * travel, np.nan)
         return z, on, np.where(on, travel, np.nan)

@@ -37,6 +37,18 @@ def _drive(tracks: WheelTracks, twist, dt: float, steps: int, error=None):
     return pose, steps * dt
 
 
+def _laid_contacts(twist, dt: float, steps: int) -> list[np.ndarray]:
+    """World (x, y) of each wheel's contact at every step of :func:`_drive`'s true motion."""
+    pose, out = np.zeros(3), [[] for _ in WHEELS_XY]
+    for _ in range(steps):
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        for i, (x, y) in enumerate(WHEELS_XY):
+            out[i].append((pose[0] + c * x - s * y, pose[1] + s * x + c * y))
+        vx, vy, w = twist
+        pose = pose + np.array([(c * vx - s * vy) * dt, (s * vx + c * vy) * dt, w * dt])
+    return [np.array(o) for o in out]
+
+
 def _world_height(pose, xy):
     c, s = math.cos(pose[2]), math.sin(pose[2])
     return -0.265 + ground(pose[0] + c * xy[:, 0] - s * xy[:, 1], pose[1] + s * xy[:, 0] + c * xy[:, 1])
@@ -47,6 +59,18 @@ def test_the_tracks_give_the_grounds_height_where_the_wheels_rolled(twist):
     tracks = WheelTracks(0.03, max_travel=2.0)
     pose, t = _drive(tracks, twist, 1 / 30, 45)
     # points on the front wheels' tracks now: where the front wheels were 0.2-0.6 s ago
+    # every carried contact sits where its ground is, seen from the body now
+    c, s_ = math.cos(pose[2]), math.sin(pose[2])
+    for side in range(4):
+        kept = tracks.tracks(t + 1.0)[side]  # all of them
+        assert len(kept) > 10
+    world = _laid_contacts(twist, 1 / 30, 45)
+    for side in range(4):
+        kept = tracks.tracks(t + 1.0)[side]
+        dx, dy = world[side][:, 0] - pose[0], world[side][:, 1] - pose[1]
+        body = np.column_stack([c * dx + s_ * dy, -s_ * dx + c * dy])  # every contact laid
+        gap = np.linalg.norm(kept[:, None, :2] - body[None, :, :], axis=2).min(axis=1)
+        assert gap.max() < 1e-9  # (kept every 3 cm: each is one of them, exactly)
     hits, travels = [], []
     for back in (3, 5, 8):  # contacts kept every 3 cm or more of travel
         for side in (0, 1):

@@ -253,8 +253,8 @@ RIG_NAMES: tuple[str, ...] = ("standard", "fisheye_only")
 
 #: The one-camera rig's fisheye also renders the ground its odometry tracks: the rays within
 #: this angle of the body's -z [deg] (split into the cube's faces). Its odometry fits the motion
-#: to the ground within 60 degrees (0.25 m of the camera's foot) and finds the wheels' tracks in
-#: the ring beyond, to 70 degrees (:data:`perception.fisheye_odometry.TRACK_FREE_DEG`): the
+#: to the ground within 60 degrees (:data:`perception.fisheye_odometry.TRACK_FREE_DEG`; 0.25 m
+#: of the camera's foot) and finds the wheels' tracks in the ring beyond, to 70 degrees: the
 #: ground there has the height of the wheels' contacts, which sets its scale on rough ground.
 FISHEYE_ONLY_GROUND_DEG = 75.0
 

@@ -146,6 +146,7 @@ class CubemapRemap:
         ring = alpha > 0.05
         k = float(np.max(dist[ring] / alpha[ring])) if ring.any() else float(max(w, h))
         f = math.ceil(k * oversample)
+        #: The faces' focal length [px] before ``region_oversample`` (what the shadow map's detail follows).
         self.focal = f
 
         cr, sr = math.cos(cube_roll), math.sin(cube_roll)
