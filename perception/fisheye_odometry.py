@@ -738,6 +738,7 @@ class FisheyeOdometry:
         self._prev_plane: tuple[float, float, float] | None = None
         self._hits[:] = 0
         self._allowed: np.ndarray | None = None  # the selection mask, until a cell is learned
+        self._ring_ok: np.ndarray | None = None  # ... and the ring's
         self.tracks = WheelTracks(self.cfg.track_half_width)
         #: What set the last estimate's scale: ``"tracks"`` (with the plane's), ``"plane"``, or ``""``.
         self.last_scale_source = ""
@@ -749,24 +750,25 @@ class FisheyeOdometry:
         return self._selection_mask() > 0
 
     def _ring_allowed(self) -> np.ndarray:
-        """The ring's selection mask less the cells learned as the rover's (see :attr:`learned_mask`)."""
+        """The ring's selection mask less the cells learned as the rover's (kept until one is learned)."""
         assert self._ring is not None
-        if not (self._hits >= self.cfg.static_hits).any():
-            return self._ring
-        cell = self.cfg.static_cell
-        h, w = self._ring.shape
-        bad = np.kron(self._hits >= self.cfg.static_hits, np.ones((cell, cell), bool))[:h, :w]
-        return np.where(bad, 0, self._ring).astype(np.uint8)
+        if self._ring_ok is None:
+            self._ring_ok = self._less_learned(self._ring)
+        return self._ring_ok
 
     def _selection_mask(self) -> np.ndarray:
-        if self._allowed is not None:
-            return self._allowed
-        cell = self.cfg.static_cell
-        h, w = self._mask.shape
-        bad = np.kron(self._hits >= self.cfg.static_hits, np.ones((cell, cell), bool))[:h, :w]
-        self._allowed = np.where(bad, 0, self._mask).astype(np.uint8)
-        self._allowed.setflags(write=False)
+        if self._allowed is None:
+            self._allowed = self._less_learned(self._mask)
         return self._allowed
+
+    def _less_learned(self, mask: np.ndarray) -> np.ndarray:
+        """``mask`` (uint8) with the cells learned as the rover's zeroed, read-only."""
+        cell = self.cfg.static_cell
+        h, w = mask.shape
+        bad = np.kron(self._hits >= self.cfg.static_hits, np.ones((cell, cell), bool))[:h, :w]
+        out = np.where(bad, 0, mask).astype(np.uint8)
+        out.setflags(write=False)
+        return out
 
     def update(
         self, image: np.ndarray, t: float, ground_plane=None, rate_xy=None, contacts=None
@@ -1323,4 +1325,4 @@ class FisheyeOdometry:
             return
         cells = np.floor(P0[fixed] / c.static_cell).astype(int)
         np.add.at(self._hits, (cells[:, 1], cells[:, 0]), 1)
-        self._allowed = None  # built again at the next selection
+        self._allowed = self._ring_ok = None  # built again at the next selection
