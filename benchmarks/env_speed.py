@@ -30,16 +30,21 @@ import rover_env
 ACTION = np.array([0.5, 0.1, -0.1], dtype=np.float32)
 
 
-def run(env_id: str, obs_source: str, preset: str, steps: int, renderer: str = "gl", **kwargs) -> dict:
+def run(
+    env_id: str, obs_source: str, preset: str, steps: int, renderer: str = "gl", after_warmup=None, **kwargs
+) -> dict:
     """Milliseconds per step (``ms``), real-time factor, the pipeline's split (``parts``) of one drive.
 
-    ``kwargs`` go to ``gym.make`` (``rig="fisheye_only"``, ``imu="bmi088"``, ...).
+    ``after_warmup``: called with no arguments once the warm-up steps are done (a caller's own
+    clocks start there). ``kwargs`` go to ``gym.make`` (``rig="fisheye_only"``, ``imu="bmi088"``, ...).
     """
     env = gym.make(env_id, obs_source=obs_source, preset=preset, renderer=renderer, **kwargs)
     try:
         env.reset(seed=0)
         for _ in range(10):  # warm-up
             env.step(ACTION)
+        if after_warmup is not None:
+            after_warmup()
         pipe = env.unwrapped.pipeline
         before = dict(pipe.timing) if pipe is not None else {}
         frames = dict(pipe.frames) if pipe is not None else {}
