@@ -383,7 +383,10 @@ class OmniCamera:
         if not (0 < center[0] < w and 0 < center[1] < h):
             raise CalibrationError(f"center: ({center[0]}, {center[1]}) lies outside the {w}x{h} image")
         if not (0.0 < self.max_fov < 2 * math.pi):
-            raise CalibrationError(f"max_fov: {self.max_fov!r} rad is impossible; use (0, 2 pi)")
+            raise CalibrationError(
+                f"max_fov_deg: {math.degrees(self.max_fov):g} deg is impossible; use (0, 360) (max_fov: "
+                "(0, 2 pi) rad)"
+            )
         object.__setattr__(self, "image_size", (w, h))
         object.__setattr__(self, "center", (float(center[0]), float(center[1])))
         object.__setattr__(self, "affine", tuple(float(v) for v in affine))
@@ -392,6 +395,9 @@ class OmniCamera:
         if self.ground_plane is not None:
             gp = as_array(self.ground_plane, (3,), "ground_plane")
             object.__setattr__(self, "ground_plane", tuple(float(v) for v in gp))
+            problem = self.ground_view_error()
+            if problem:
+                raise CalibrationError(problem)
         if self.mask_file is not None:
             object.__setattr__(self, "mask_file", Path(self.mask_file))
         # f'(rho), highest power first (np.polyval)
@@ -404,6 +410,52 @@ class OmniCamera:
                 "with a one-to-one mapping; check the coefficients or lower max_fov"
             )
         object.__setattr__(self, "_inv", self._fit_inverse(rho_max))
+
+    def ground_view_error(
+        self, ground_plane: tuple[float, float, float] | None = None, max_height: float | None = None
+    ) -> str:
+        """Why this fisheye cannot see the ground plane under it, or "" if it can.
+
+        The camera must stand above the plane z = a x + b y + c (body frame), and the point of
+        the plane straight below it (along the plane's normal) must lie inside the field of view;
+        otherwise every ground point of the odometry lies behind the camera or off its image.
+
+        Args:
+            ground_plane: (a, b, c) [-, -, m]; default :attr:`ground_plane`.
+            max_height: The most the camera may stand above the plane [m] (the odometry's
+                ``max_range``: higher, no ground it uses is in view; a plane given in millimetres
+                puts it there), or None: no limit.
+        """
+        plane = ground_plane if ground_plane is not None else self.ground_plane
+        if plane is None:
+            return GROUND_PLANE_MISSING
+        a, b, c = (float(v) for v in plane)
+        if not all(math.isfinite(v) for v in (a, b, c)):
+            return f"ground_plane: {plane!r} is not finite"
+        n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)  # upward normal
+        centre = self.T_body_cam[:3, 3]
+        height = float(n @ (centre - np.array([0.0, 0.0, c])))
+        if height <= 0:
+            return (
+                f"the camera (at z = {centre[2]:.3f} m in the body frame) is {-height:.3f} m below the "
+                f"ground plane z = {a:g} x + {b:g} y + {c:g}: check ground_plane's sign (c is minus the "
+                "body origin's height above the ground, [m]) and T_body_cam"
+            )
+        if max_height is not None and height > max_height:
+            return (
+                f"the camera stands {height:g} m above the ground plane z = {a:g} x + {b:g} y + {c:g}, "
+                f"more than the {max_height:g} m of ground the odometry uses about it: give the plane "
+                "in metres (c is minus the body origin's height above the ground)"
+            )
+        down = -(self.T_body_cam[:3, :3].T @ n)  # straight down, in the camera frame
+        off = math.degrees(math.acos(max(-1.0, min(1.0, float(down[2])))))
+        if off >= math.degrees(self.max_fov) / 2.0:
+            return (
+                f"T_body_cam: the ground straight below the camera is {off:.0f} deg off its optical axis, "
+                f"outside its {math.degrees(self.max_fov):.0f} deg field of view; a downward fisheye's z "
+                "axis points down"
+            )
+        return ""
 
     # ------------------------------------------------------------------ construction
     @classmethod

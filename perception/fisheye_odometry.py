@@ -318,19 +318,33 @@ class FisheyeOdometryConfig:
 def read_mask(path: str | Path) -> np.ndarray:
     """(H, W) bool mask image: True (non-zero) where the ground may be seen, False on the rover's parts.
 
+    The image is read as stored (8 or 16 bits): grey, non-zero on the ground; colour, any
+    channel non-zero; with an alpha channel, also opaque (a part marked by transparency is a part).
+
     Raises:
-        CalibrationError: The file is missing or not an image.
+        CalibrationError: The file is missing or not an image, or it marks no ground at all.
     """
     from perception.calib_io import CalibrationError
 
     p = Path(path)
-    img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) if p.is_file() else None
-    if img is None:
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED) if p.is_file() else None
+    if img is None or img.ndim not in (2, 3):
         raise CalibrationError(
             f"mask: {p} is {'not a readable image' if p.exists() else 'missing'}; give an image of the "
             "fisheye's size, non-zero where the ground may be seen and zero on the rover's parts"
         )
-    return img > 0
+    if img.ndim == 2:
+        mask = img != 0
+    elif img.shape[2] == 4:
+        mask = np.any(img[..., :3] != 0, axis=2) & (img[..., 3] != 0)
+    else:
+        mask = np.any(img != 0, axis=2)
+    if not mask.any():
+        raise CalibrationError(
+            f"mask: {p} is zero everywhere, so no ground is left to track; it must be non-zero where "
+            "the ground may be seen and zero only on the rover's parts"
+        )
+    return mask
 
 
 def rays_to_ground(
@@ -672,6 +686,10 @@ class FisheyeOdometry:
         self.cfg = config or FisheyeOdometryConfig()
         w, h = camera.image_size
         self.ground_plane = None if ground_plane is None else _plane(ground_plane)
+        if self.ground_plane is not None:
+            problem = camera.ground_view_error(self.ground_plane, self.cfg.max_range)
+            if problem:
+                raise ValueError(f"ground_plane: {problem}")
         if mask is not None:
             m = np.asarray(mask)
             if m.ndim == 3:
@@ -681,6 +699,11 @@ class FisheyeOdometry:
                     f"mask: {m.shape[1] if m.ndim == 2 else '?'} x {m.shape[0]} px, but the fisheye's "
                     f"images are {w} x {h} px; give a mask of the camera's image size (True or non-zero "
                     "where the ground may be seen)"
+                )
+            if not np.any(m != 0):
+                raise ValueError(
+                    "mask: zero everywhere, so no ground is left to track; it must be True (non-zero) "
+                    "where the ground may be seen and False only on the rover's parts"
                 )
             self._mask = np.where(m != 0, 255, 0).astype(np.uint8)
         else:
@@ -873,6 +896,10 @@ class FisheyeOdometry:
                 math.nan, math.nan, math.nan, False, reason, 0.0, dt=dt, t=t, **(base | kw)
             )
 
+        for which, pl in (("this", plane), ("the last", plane0)):
+            problem = self.camera.ground_view_error(pl, c.max_range)
+            if problem:
+                return invalid(f"the ground is not in view in {which} frame: {problem}")
         allowed = self._selection_mask()
         edges = None
         if c.shadow_mask:

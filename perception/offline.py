@@ -167,20 +167,29 @@ def to_8bit(image: np.ndarray, bits: int) -> np.ndarray:
 
 
 def _open_run(images, fps: float | None, image_size: tuple[int, int]) -> list[Path]:
-    """Checks shared by the folder runs: frame rate, images, the first image's size."""
+    """Checks shared by the folder runs: frame rate, images, and that some image has the calibration's size.
+
+    A folder of which no image has the calibration's size (the wrong calibration) is refused;
+    an odd image among good ones, the first included, is an invalid row of the run.
+    """
     if fps is None or not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps: {fps!r}; give the camera's frame rate in Hz (> 0) for a folder of images")
     files = list_images(images)
-    first = image_file_size(files[0])  # from the header: nothing decoded yet
+    first: tuple[Path, tuple[int, int]] | None = None  # the first readable image and its size
+    for path in files:  # from the headers, until one fits: nothing decoded yet
+        size = image_file_size(path)
+        if size == tuple(image_size):
+            return files
+        if size is not None and first is None:
+            first = (path, size)
     if first is None:
-        raise ValueError(f"{files[0]}: not a readable image")
-    if first != tuple(image_size):
-        w, h = image_size
-        raise ValueError(
-            f"{files[0]}: {first[0]}x{first[1]} px, but the calibration is for {w}x{h} px; "
-            "use the calibration of this camera and resolution"
-        )
-    return files
+        raise ValueError(f"{images}: none of its {len(files)} images is readable")
+    w, h = image_size
+    (fw, fh) = first[1]
+    raise ValueError(
+        f"{first[0]}: {fw}x{fh} px, and no image of {images} has the calibration's {w}x{h} px; use the "
+        "calibration of this camera and resolution"
+    )
 
 
 def _cell(text: str) -> str:
@@ -326,13 +335,21 @@ def _path(calibration) -> str | Path:
     )
 
 
-def _need_ground_plane(camera, name: str) -> None:
-    """The odometry's scale: a camera without a ground plane is refused before any frame."""
+def _need_ground_plane(camera, name: str, config=None) -> None:
+    """The odometry's scale: a camera without a ground plane it can see is refused before any frame."""
+    from perception.calib_io import CalibrationError
+
     if camera.ground_plane is None:
-        from perception.calib_io import CalibrationError
         from perception.cameras import GROUND_PLANE_MISSING
 
         raise CalibrationError(f"{name}: {GROUND_PLANE_MISSING}")
+    if isinstance(camera, OmniCamera):
+        reach = (config if isinstance(config, FisheyeOdometryConfig) else FisheyeOdometryConfig()).max_range
+        problem = camera.ground_view_error(max_height=reach)
+    else:
+        problem = camera.ground_view_error()
+    if problem:
+        raise CalibrationError(f"{name}: {problem}")
 
 
 def run_folder_odometry(
@@ -401,7 +418,7 @@ def run_folder_odometry(
     camera: PinholeCamera | OmniCamera
     if is_omni(calibration):  # the fisheye's odometry
         camera = calibration if isinstance(calibration, OmniCamera) else OmniCamera.load(_path(calibration))
-        _need_ground_plane(camera, name)
+        _need_ground_plane(camera, name, config)
         source = _log_source(bags.log_images(images, topic), images) if is_log else None
     elif is_log:
         src = bags.log_images(images, topic)
@@ -412,7 +429,7 @@ def run_folder_odometry(
             calibration if isinstance(calibration, PinholeCamera) else PinholeCamera.load(_path(calibration))
         )
         source = None
-    _need_ground_plane(camera, name)
+    _need_ground_plane(camera, name, config)
     if source is None:
         source = _folder_source(images, fps, camera.image_size)
     _check_config(camera, config)

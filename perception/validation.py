@@ -129,6 +129,8 @@ def read_yaml(path, error: type[ConfigError] = ConfigError, what: str = "file"):
     import yaml
 
     p = Path(path)
+    if p.is_dir():
+        raise error(f"{p}: a folder, not a {what}; give the YAML file's path")
     if not p.is_file():
         raise error(f"{p}: {what} not found")
     try:

@@ -151,6 +151,51 @@ def test_bad_input_is_refused_with_a_clear_error():
     odo.update(np.zeros((SIZE, SIZE), np.uint8), 1.0)
     with pytest.raises(ValueError, match="not a finite time after"):
         odo.update(np.zeros((SIZE, SIZE), np.uint8), 1.0)
+    # a plane the camera cannot stand over: the sign turned (the camera 0.6 m up, the plane 0.9 m
+    # up), or in millimetres (the camera 300 m above it, past the 1.5 m of ground used)
+    with pytest.raises(ValueError, match="0.300 m below the ground plane.*check ground_plane's sign"):
+        FisheyeOdometry(cam, ground_plane=(0.0, 0.0, 0.9))
+    with pytest.raises(ValueError, match="stands 300.6 m above.*give the plane in metres"):
+        FisheyeOdometry(cam, ground_plane=(0.0, 0.0, -300.0))
+    with pytest.raises(ValueError, match="mask: zero everywhere"):
+        FisheyeOdometry(cam, ground_plane=PLANE, mask=np.zeros((SIZE, SIZE), bool))
+    # ... given for one frame (the kinematics' plane), the pair is invalid and says why
+    tex = _texture()
+    odo = FisheyeOdometry(cam)
+    odo.update(_render(cam, tex, (0.0, 0.0, 0.0)), 0.0, ground_plane=PLANE)
+    est = odo.update(_render(cam, tex, (0.01, 0.0, 0.0)), 1.0 / 30.0, ground_plane=(0.0, 0.0, 0.9))
+    assert not est.valid and "the ground is not in view in this frame" in est.reason and math.isnan(est.v_x)
+
+
+def test_an_omnidirectional_calibration_that_cannot_see_its_ground_plane_is_refused(tmp_path):
+    from dataclasses import replace
+
+    from perception.calib_io import CalibrationError, read_yaml
+
+    cam = _rover_fisheye()
+    assert cam.ground_view_error(ROVER_PLANE) == ""
+    assert "ground_plane: not set" in cam.ground_view_error()
+    with pytest.raises(CalibrationError, match="0.385 m below the ground plane"):
+        replace(cam, ground_plane=(0.0, 0.0, 0.265))
+    up = cam.T_body_cam.copy()
+    up[:3, :3] = np.eye(3)  # the optical axis along the body's +z: the ground 180 deg off it
+    with pytest.raises(CalibrationError, match="180 deg off its optical axis, outside its 185 deg"):
+        replace(cam, T_body_cam=up, ground_plane=ROVER_PLANE)
+    tilted = cam.T_body_cam.copy()  # tilted by 80 deg: the ground below still in the 185 deg view
+    tilted[:3, :3] = tilted[:3, :3] @ np.array(
+        [[math.cos(1.396), 0.0, math.sin(1.396)], [0.0, 1.0, 0.0], [-math.sin(1.396), 0.0, math.cos(1.396)]]
+    )
+    assert replace(cam, T_body_cam=tilted, ground_plane=ROVER_PLANE).ground_view_error() == ""
+    assert "more than the 0.1 m" in cam.ground_view_error(ROVER_PLANE, max_height=0.1)
+    # the field of view in the file's own key and unit; a folder given for the file
+    text = cam.save(tmp_path / "omni.yaml").read_text()
+    (tmp_path / "wide.yaml").write_text(
+        "\n".join("max_fov_deg: 400.0" if ln.startswith("max_fov_deg") else ln for ln in text.splitlines())
+    )
+    with pytest.raises(CalibrationError, match="max_fov_deg: 400 deg is impossible; use \\(0, 360\\)"):
+        OmniCamera.load(tmp_path / "wide.yaml")
+    with pytest.raises(CalibrationError, match="a folder, not a calibration file"):
+        read_yaml(tmp_path, CalibrationError, "calibration file")
 
 
 def test_rays_meet_the_ground_where_projection_puts_them():
@@ -340,6 +385,23 @@ def test_the_fisheye_odometry_runs_on_an_image_folder(tmp_path):
     with pytest.raises(CalibrationError, match="gone.png is missing"):
         run_folder_odometry(folder, tmp_path / "gone.yaml", 30.0, tmp_path / "out5")
     assert not any((tmp_path / f"out{k}").exists() for k in (3, 4, 5))
+    # a sign turned in the plane is refused before any frame; so is a folder with no image of
+    # the calibration's size; an odd first image among good ones is only left out
+    (tmp_path / "flipped.yaml").write_text(calib.read_text().replace("-0.265", "0.265"))
+    with pytest.raises(CalibrationError, match="below the ground plane.*check ground_plane's sign"):
+        run_folder_odometry(folder, tmp_path / "flipped.yaml", 30.0, tmp_path / "out6")
+    big, odd = tmp_path / "big", tmp_path / "odd"
+    big.mkdir()
+    odd.mkdir()
+    for k, f in enumerate(sorted(folder.iterdir())):
+        img = cv2.imread(str(f))
+        cv2.imwrite(str(big / f.name), cv2.resize(img, (640, 480)))
+        cv2.imwrite(str(odd / f.name), cv2.resize(img, (640, 480)) if k == 0 else img)
+    with pytest.raises(ValueError, match="640x480 px, and no image of .*big has the calibration's 320x240"):
+        run_folder_odometry(big, calib, 30.0, tmp_path / "out7")
+    assert not any((tmp_path / f"out{k}").exists() for k in (6, 7))
+    res = run_folder_odometry(odd, calib, 30.0, tmp_path / "out8", mcap=False)
+    assert res.valid == 6  # the 6 pairs of the 7 good frames
 
 
 def test_the_omnidirectional_calibration_keeps_its_ground_plane_and_mask(tmp_path):
@@ -361,6 +423,21 @@ def test_the_omnidirectional_calibration_keeps_its_ground_plane_and_mask(tmp_pat
     (tmp_path / "junk.png").write_bytes(b"not an image")
     with pytest.raises(CalibrationError, match="junk.png is not a readable image"):
         read_mask(tmp_path / "junk.png")
+    # read as stored: 16 bits with 1 on the ground, colour, and parts marked by transparency
+    m16 = np.ones((240, 320), np.uint16)
+    m16[:, :40] = 0
+    cv2.imwrite(str(tmp_path / "m16.png"), m16)
+    assert np.array_equal(read_mask(tmp_path / "m16.png"), m16 > 0)
+    rgba = np.full((240, 320, 4), 255, np.uint8)
+    rgba[:50, :, 3] = 0  # transparent: a part
+    rgba[:, 300:, :3] = 0  # black, opaque: a part
+    cv2.imwrite(str(tmp_path / "rgba.png"), rgba)
+    want = np.ones((240, 320), bool)
+    want[:50], want[:, 300:] = False, False
+    assert np.array_equal(read_mask(tmp_path / "rgba.png"), want)
+    cv2.imwrite(str(tmp_path / "zeros.png"), np.zeros((240, 320), np.uint8))
+    with pytest.raises(CalibrationError, match="zeros.png is zero everywhere, so no ground is left"):
+        read_mask(tmp_path / "zeros.png")
     # the one-camera rig's settings: inside the fisheye's ground view, more features on a finer image
     cfg = FisheyeOdometryConfig.for_ground_view(65.0, 640)
     assert cfg.view_limit_deg == 60.0 and cfg.min_depression_deg == 25.0 and cfg.max_features == 600

@@ -357,8 +357,14 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     if args.camera is not None:  # the fisheye's odometry: its calibration, checked before the output
         from perception.cameras import GROUND_PLANE_MISSING, OmniCamera
 
-        if OmniCamera.load(args.camera).ground_plane is None:
+        omni = OmniCamera.load(args.camera)
+        if omni.ground_plane is None:
             raise ValueError(f"{args.camera}: {GROUND_PLANE_MISSING}")
+        from perception.fisheye_odometry import FisheyeOdometryConfig
+
+        problem = omni.ground_view_error(max_height=FisheyeOdometryConfig().max_range)
+        if problem:
+            raise ValueError(f"{args.camera}: {problem}")
     if not bags.is_log(args.source):
         _need_fps(args)
         if args.calib is not None and PinholeCamera.load(args.calib).ground_plane is None:
