@@ -45,6 +45,31 @@ GROUND_PLANE_MISSING = (
 )
 
 
+def _above_plane(T_body_cam: np.ndarray, plane) -> tuple[str, float, np.ndarray]:
+    """Why the camera is not above ``plane`` ("" if it is), its height over it [m], the upward normal.
+
+    ``plane``: (a, b, c) of z = a x + b y + c in the body frame [-, -, m], or None (not given).
+    """
+    up = np.array([0.0, 0.0, 1.0])
+    if plane is None:
+        return GROUND_PLANE_MISSING, math.nan, up
+    a, b, c = (float(v) for v in plane)
+    if not all(math.isfinite(v) for v in (a, b, c)):
+        return f"ground_plane: {plane!r} is not finite", math.nan, up
+    n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)
+    centre = T_body_cam[:3, 3]
+    height = float(n @ (centre - np.array([0.0, 0.0, c])))
+    if height <= 0:
+        return (
+            f"the camera (at z = {centre[2]:.3f} m in the body frame) is {-height:.3f} m below the "
+            f"ground plane z = {a:g} x + {b:g} y + {c:g}: check ground_plane's sign (c is minus the "
+            "body origin's height above the ground, [m]) and T_body_cam",
+            height,
+            n,
+        )
+    return "", height, n
+
+
 @dataclass(frozen=True, eq=False)
 class PinholeCamera:
     """Pinhole camera with OpenCV's radial-tangential distortion, plain or rational.
@@ -254,20 +279,11 @@ class PinholeCamera:
         Args:
             ground_plane: (a, b, c) [-, -, m]; default :attr:`ground_plane`.
         """
-        plane = ground_plane if ground_plane is not None else self.ground_plane
-        if plane is None:
-            return GROUND_PLANE_MISSING
-        a, b, c = (float(v) for v in plane)
-        if not all(math.isfinite(v) for v in (a, b, c)):
-            return f"ground_plane: {plane!r} is not finite"
-        n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)  # upward normal
-        centre = self.T_body_cam[:3, 3]
-        height = float(n @ (centre - np.array([0.0, 0.0, c])))
-        if height <= 0:
-            return (
-                f"the camera (at z = {centre[2]:.3f} m in the body frame) is {-height:.3f} m below the "
-                f"ground plane z = {a:g} x + {b:g} y + {c:g}: check ground_plane's sign and T_body_cam"
-            )
+        problem, height, n = _above_plane(
+            self.T_body_cam, ground_plane if ground_plane is not None else self.ground_plane
+        )
+        if problem:
+            return problem
         axis = self.T_body_cam[:3, :3] @ np.array([0.0, 0.0, 1.0])  # optical axis, body frame
         down = -float(n @ axis)
         if down <= height / 100.0:
@@ -427,21 +443,11 @@ class OmniCamera:
                 puts it there), or None: no limit.
         """
         plane = ground_plane if ground_plane is not None else self.ground_plane
-        if plane is None:
-            return GROUND_PLANE_MISSING
-        a, b, c = (float(v) for v in plane)
-        if not all(math.isfinite(v) for v in (a, b, c)):
-            return f"ground_plane: {plane!r} is not finite"
-        n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)  # upward normal
-        centre = self.T_body_cam[:3, 3]
-        height = float(n @ (centre - np.array([0.0, 0.0, c])))
-        if height <= 0:
-            return (
-                f"the camera (at z = {centre[2]:.3f} m in the body frame) is {-height:.3f} m below the "
-                f"ground plane z = {a:g} x + {b:g} y + {c:g}: check ground_plane's sign (c is minus the "
-                "body origin's height above the ground, [m]) and T_body_cam"
-            )
+        problem, height, n = _above_plane(self.T_body_cam, plane)
+        if problem:
+            return problem
         if max_height is not None and height > max_height:
+            a, b, c = (float(v) for v in plane)  # type: ignore[union-attr]
             return (
                 f"the camera stands {height:g} m above the ground plane z = {a:g} x + {b:g} y + {c:g}, "
                 f"more than the {max_height:g} m of ground the odometry uses about it: give the plane "
