@@ -507,7 +507,8 @@ class FisheyeCamera(_RoverCamera):
         super().__init__(sim, cfg, T)
         self.model = cfg.model(T)
         roi = _kinematics_roi(cfg, g, tuple(T.ravel().tolist())) if cfg.roi else None
-        factors = None if roi is None or len(roi) < 2 else (1.0, cfg.ground_oversample)
+        # the kinematics' region, then the ground's (in one mask or in parts)
+        factors = None if roi is None or len(roi) < 2 else (1.0,) + (cfg.ground_oversample,) * (len(roi) - 1)
         self.remapper = CubemapRemap(
             self.model, oversample=cfg.oversample, roi=roi, region_oversample=factors
         )
