@@ -112,7 +112,6 @@ if sys.argv[8].endswith("no_odometry"):
     import perception.fisheye_odometry as fo
     fo.FisheyeOdometry.update = lambda self, image, t, **kw: None  # its work left out
 if sys.argv[8].startswith("lean_"):
-    import math
     import numpy as np
     import rover_env.sensors.cameras as cams
     kin_roi = cams._kinematics_roi
@@ -121,16 +120,7 @@ if sys.argv[8].startswith("lean_"):
         roi = kin_roi(cfg, g, mount)
         if len(roi) < 2:
             return roi
-        kin, ground = roi
-        T = np.array(mount, dtype=np.float64).reshape(4, 4)
-        model = cfg.model(T)
-        w, h = model.image_size
-        d = model.cam2world(cams._pixels(w, h)) @ T[:3, :3].T  # body-frame rays
-        with np.errstate(invalid="ignore"):
-            disc = ground & (-d[..., 2] >= math.cos(math.radians(30.0)))
-        az = np.degrees(np.arctan2(d[..., 1], d[..., 0]))
-        sectors = [ground & ~disc & (((az + 45.0 - a) % 360.0) < 90.0) for a in (0.0, 90.0, 180.0, 270.0)]
-        return (kin, disc, *sectors)
+        return (roi[0], *cams.ground_in_parts(cfg, np.array(mount).reshape(4, 4), roi[1]))
 
     cams._kinematics_roi = lean
 def restart():

@@ -142,17 +142,7 @@ def test_the_ground_in_parts_renders_the_same_image_from_fewer_pixels(monkeypatc
 
         def in_parts(c, g, mount):
             kin, ground = whole(c, g, mount)
-            T = np.array(mount, dtype=np.float64).reshape(4, 4)
-            model = c.model(T)
-            d = model.cam2world(cams._pixels(*model.image_size)) @ T[:3, :3].T
-            with np.errstate(invalid="ignore"):
-                disc = ground & (-d[..., 2] >= math.cos(math.radians(30.0)))
-            az = np.degrees(np.arctan2(d[..., 1], d[..., 0]))
-            return (
-                kin,
-                disc,
-                *[ground & ~disc & (((az + 45.0 - a) % 360.0) < 90.0) for a in (0, 90, 180, 270)],
-            )
+            return (kin, *cams.ground_in_parts(c, np.array(mount).reshape(4, 4), ground))
 
         monkeypatch.setattr(cams, "_kinematics_roi", in_parts)
         parts = cams.FisheyeCamera(sim, cfg)

@@ -482,6 +482,28 @@ def _kinematics_roi(
     return roi, ground
 
 
+def ground_in_parts(
+    cfg: FisheyeCameraConfig, mount: np.ndarray, ground: np.ndarray, disc_deg: float = 30.0
+) -> tuple[np.ndarray, ...]:
+    """The ground region split into a disc and four sectors beyond it, each a view of its own.
+
+    ``ground`` (H, W) bool: the rays within ``roi_ground_deg`` of the body's -z; ``mount`` the
+    (4, 4) body-from-camera pose; ``disc_deg``: the disc's angle off the body's -z [deg]. The
+    sectors are centred on the body's +x, +y, -x and -y. Each part's view is aimed at its
+    middle, so the views oversample the fisheye less than the cube's faces (57,700 face pixels
+    against 71,500 at the train preset, for the same fisheye pixels; ``benchmarks/rig_speed.py
+    --floor``).
+    """
+    model = cfg.model(mount)
+    w, h = model.image_size
+    d = model.cam2world(_pixels(w, h)) @ mount[:3, :3].T  # body-frame rays
+    with np.errstate(invalid="ignore"):
+        disc = ground & (-d[..., 2] >= math.cos(math.radians(disc_deg)))
+    az = np.degrees(np.arctan2(d[..., 1], d[..., 0]))
+    sectors = [ground & ~disc & (((az + 45.0 - a) % 360.0) < 90.0) for a in (0.0, 90.0, 180.0, 270.0)]
+    return (disc, *sectors)
+
+
 class FisheyeCamera(_RoverCamera):
     """The fisheye under ``sim``'s rover body, looking down (kinematics paper).
 
