@@ -52,9 +52,9 @@ import observation_errors  # noqa: E402
 import slip_accuracy  # noqa: E402
 
 import rover_env  # noqa: E402
-from perception.fisheye_kinematics import KinematicsConfig  # noqa: E402
-from perception.slip import SlipConfig  # noqa: E402
-from perception.wheel_rotation import TreadConfig  # noqa: E402
+from perception.fusion.slip import SlipConfig  # noqa: E402
+from perception.kinematics.fisheye import KinematicsConfig  # noqa: E402
+from perception.kinematics.wheel_rotation import TreadConfig  # noqa: E402
 from rover_env.config.rig import standard_rig  # noqa: E402
 from rover_env.sensors.rig import builtin_estimator  # noqa: E402
 from rover_env.tools.estimator_metrics import FIELDS, START_UP, slip_metrics  # noqa: E402

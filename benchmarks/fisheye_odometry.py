@@ -3,8 +3,8 @@
 Drives missions on the estimates (the built-in estimator with both cameras, path follower, no
 IMU) with the fisheye rendering what the one-camera rig's fisheye renders (the kinematics'
 windows and the ground near its axis, ``roi_ground_deg``), and runs the one-camera rig's
-:class:`perception.fisheye_odometry.FisheyeOdometry` (the same settings and mask of the rover's
-parts) on every fisheye frame beside the downward camera's :class:`perception.odometry.FlowOdometry`,
+:class:`perception.odometry.fisheye.FisheyeOdometry` (the same settings and mask of the rover's
+parts) on every fisheye frame beside the downward camera's :class:`perception.odometry.flow.FlowOdometry`,
 both on the ground plane of the fisheye kinematics' current wheels. Each estimate is compared
 with the true body twist at the middle of its frame pair (interpolated between control steps).
 
@@ -31,9 +31,9 @@ import numpy as np
 
 from controllers import PathFollower
 from perception import RoverEstimator
-from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
-from perception.rover_parts import kinematics_roi
-from perception.wheel_tracks import wheel_contacts
+from perception.models.rover_parts import kinematics_roi
+from perception.odometry.fisheye import FisheyeOdometry, FisheyeOdometryConfig
+from perception.odometry.wheel_tracks import wheel_contacts
 from rover_env.config.rig import FISHEYE_ONLY_CAMERA
 from rover_env.envs import RoverEnv
 

@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
 
 import test_fisheye_odometry as T  # noqa: E402  (the test suite's texture and motion helpers)
 
-from perception.cameras import OmniCamera  # noqa: E402
-from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig  # noqa: E402
+from perception.models.cameras import OmniCamera  # noqa: E402
+from perception.odometry.fisheye import FisheyeOdometry, FisheyeOdometryConfig  # noqa: E402
 
 
 def camera() -> OmniCamera:

@@ -27,7 +27,7 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from perception.fisheye_kinematics import KinematicStateEstimator  # noqa: E402
+from perception.kinematics.fisheye import KinematicStateEstimator  # noqa: E402
 from rover_env.config.cameras import FisheyeCameraConfig  # noqa: E402
 from rover_env.config.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig  # noqa: E402
 from rover_env.sensors.cameras import FisheyeCamera  # noqa: E402

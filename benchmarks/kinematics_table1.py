@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.fisheye_kinematics import DOF_NAMES, KinematicStateEstimator
+from perception.kinematics.fisheye import DOF_NAMES, KinematicStateEstimator
 from rover_env.config.cameras import FisheyeCameraConfig
 from rover_env.config.scenario import FrictionMapConfig, ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.sensors.cameras import FisheyeCamera

@@ -1,6 +1,6 @@
-"""Reading speed of robot logs: perception.bags against rosbags' AnyReader, per kind of log.
+"""Reading speed of robot logs: perception.logs.bags against rosbags' AnyReader, per kind of log.
 
-perception.bags reads ROS 2 SQLite bags row by row (sqlite3) and MCAP files record by record
+perception.logs.bags reads ROS 2 SQLite bags row by row (sqlite3) and MCAP files record by record
 (mcap) so that damage loses only itself; ROS 1 bags go through rosbags as before. This prints,
 for each kind, the time to read every image message of a log and turn it into an image array,
 both ways, side by side in one process (one thread), and their ratio.
@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from test_bags import LogWriter  # noqa: E402
 
-from perception import bags  # noqa: E402
+from perception.logs import bags  # noqa: E402
 
 T0 = 1_700_000_000.0
 
@@ -75,7 +75,7 @@ def main() -> None:
     w, h = size
     print(f"{args.frames} mono8 frames of {w}x{h} px and as many IMU messages; best of {args.repeat}")
     print()
-    print("| log | perception.bags [ms/frame] | rosbags AnyReader [ms/frame] | ratio |")
+    print("| log | perception.logs.bags [ms/frame] | rosbags AnyReader [ms/frame] | ratio |")
     print("|---|---:|---:|---:|")
     with tempfile.TemporaryDirectory() as tmp:
         for kind, name in (("ros1", "a.bag"), ("ros2", "b_ros2"), ("mcap", "c.mcap")):

@@ -10,7 +10,7 @@ the motion is exact. For each contrast and each odometry variant it prints the v
 deviations (the covariance's calibration: about 1 when honest), and the reasons of the invalid.
 
 Variants: the shipped configuration, and one per ``--variant KEY=VALUE[,KEY=VALUE]`` (any
-:class:`perception.odometry.FlowOdometryConfig` fields).
+:class:`perception.odometry.flow.FlowOdometryConfig` fields).
 
 Run: python benchmarks/odometry_low_texture.py [--contrast 0.15 0.1 0.08 0.06] \\
     [--variant max_std=0.03 --variant harris_width=640,fb_levels=3]
@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from perception import PinholeCamera
-from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
+from perception.odometry.flow import FlowOdometry, FlowOdometryConfig, integrate_twist
 
 MM = 0.001  # ground texture resolution [m/px]
 

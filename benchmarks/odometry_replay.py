@@ -65,7 +65,7 @@ def _typed(config, fields: dict):
 
 
 def record(args) -> int:
-    from perception import odometry as od
+    from perception.odometry import flow as od
     from rover_env.envs.rover_env import RoverEnv
     from rover_env.sensors.rig import builtin_estimator
     from rover_env.tools import evaluation
@@ -129,7 +129,7 @@ def replay(args) -> int:
     import gymnasium as gym
 
     import rover_env  # noqa: F401
-    from perception.odometry import FlowOdometry
+    from perception.odometry.flow import FlowOdometry
 
     cv2.setNumThreads(1)
     d = np.load(args.recording)

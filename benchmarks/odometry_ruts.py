@@ -24,7 +24,7 @@ import numpy as np
 
 def drive(args, draw_ruts: bool) -> tuple[np.ndarray, np.ndarray]:
     """One run: the odometry's estimates (t, valid, v_x, omega) and the truth (t, v_x, omega, yaw)."""
-    from perception import odometry as od
+    from perception.odometry import flow as od
     from rover_env.config.scenario import FrictionMapConfig, FrictionPatch, load_scenario
     from rover_env.envs.rover_env import RoverEnv
     from rover_env.rendering import renderer_for

@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 import rover_env
-from perception import odometry as od
+from perception.odometry import flow as od
 
 
 def bias(

@@ -23,7 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.odometry import FlowOdometry, FlowOdometryConfig, ground_plane_from_wheels, integrate_twist
+from perception.odometry.flow import (
+    FlowOdometry,
+    FlowOdometryConfig,
+    ground_plane_from_wheels,
+    integrate_twist,
+)
 from rover_env.config.cameras import DownwardCameraConfig
 from rover_env.config.scenario import ScenarioConfig, SunConfig, TerrainConfig
 from rover_env.sensors.cameras import DownwardCamera

@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--width", type=int, default=640)
     args = ap.parse_args(argv)
-    from perception.odometry import FlowOdometry, FlowOdometryConfig
+    from perception.odometry.flow import FlowOdometry, FlowOdometryConfig
 
     cv2.setNumThreads(1)
     frames, model, period = render_frames(args.frames, args.width)

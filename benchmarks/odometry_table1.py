@@ -6,7 +6,7 @@ metres, with the eval preset's cameras (640x480 downward at 60 Hz, fisheye at 30
 alone (``rover_env.sensors.rig.PerceptionPipeline``), the truth is read for scoring only.
 
 Two dead-reckoned paths are scored against the truth by the paper's method
-(``perception.trajectory.path_segment_errors``, 20, 50, 100 and 150 m segments, 1 m stride):
+(``perception.odometry.trajectory.path_segment_errors``, 20, 50, 100 and 150 m segments, 1 m stride):
 
 * **odometry yaw**: the visual odometry's own twists (v_x, v_y, omega) integrated, as the paper's
   optical-flow column;
@@ -39,8 +39,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception.odometry import integrate_twist
-from perception.trajectory import path_segment_errors
+from perception.odometry.flow import integrate_twist
+from perception.odometry.trajectory import path_segment_errors
 from rover_env.config.imu import ImuConfig
 from rover_env.config.randomize import RandomizeConfig, WorldDraw
 from rover_env.config.rig import named_rig

@@ -57,9 +57,9 @@ if sys.argv[6] != "none":
 clock = {}
 if sys.argv[7] == "stages":
     import moderngl
-    import perception.fisheye_kinematics as fk
-    import perception.fisheye_odometry as fo
-    import perception.odometry as od
+    import perception.kinematics.fisheye as fk
+    import perception.odometry.fisheye as fo
+    import perception.odometry.flow as od
     import rover_env.rendering.gl as gl
     import rover_env.sensors.cameras as cams
 
@@ -109,7 +109,7 @@ if sys.argv[8] in ("coarse_no_odometry", "lean_coarse_no_odometry"):
     import rover_env.config.rig as rig_config
     rig_config.FISHEYE_ONLY_CAMERA["ground_oversample"] = 0.8  # (the same dict the rig module reads)
 if sys.argv[8].endswith("no_odometry"):
-    import perception.fisheye_odometry as fo
+    import perception.odometry.fisheye as fo
     fo.FisheyeOdometry.update = lambda self, image, t, **kw: None  # its work left out
 if sys.argv[8].startswith("lean_"):
     import numpy as np

@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-import perception.slip as ps  # noqa: E402
+import perception.fusion.slip as ps  # noqa: E402
 from rover_env.sim.geometry import RoverGeometry  # noqa: E402
 from rover_env.tools.estimator_metrics import slip_metrics  # noqa: E402
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from controllers import PathFollower, SlipAwareController
 from perception import RoverEstimator
-from perception.slip import SlipConfig
+from perception.fusion.slip import SlipConfig
 from rover_env.envs import RoverEnv
 
 

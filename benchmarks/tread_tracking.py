@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import slip_accuracy as sa  # noqa: E402
 
 import rover_env  # noqa: E402
-from perception.fisheye_kinematics import KinematicStateEstimator  # noqa: E402
+from perception.kinematics.fisheye import KinematicStateEstimator  # noqa: E402
 from rover_env.sensors.rig import builtin_estimator  # noqa: E402
 from rover_env.tools.estimator_metrics import FIELDS  # noqa: E402
 

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perception.models.validation import check_range
 from perception.observation import OBS_FIELDS, field_index
-from perception.validation import check_range
 
 
 @dataclass(frozen=True)

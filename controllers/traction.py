@@ -30,10 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.path_follower import PathFollower, PathFollowerConfig, _field_index, env_field_names
-from perception.drive_geometry import WHEELS, DriveGeometry
+from perception.models.drive_geometry import WHEELS, DriveGeometry
+from perception.models.validation import check_range
+from perception.models.wheel_kinematics import wheel_ground_velocity
 from perception.observation import OBS_FIELDS
-from perception.validation import check_range
-from perception.wheel_kinematics import wheel_ground_velocity
 
 
 @dataclass(frozen=True)

@@ -3,23 +3,23 @@
 This package depends on numpy, OpenCV and SciPy only; it never needs the simulator.
 """
 
-from perception.calib_io import CalibrationError
-from perception.calibration import ExtrinsicFit, OmniFit, calibrate_ground_camera, fit_omni_camera
-from perception.cameras import OmniCamera, PinholeCamera
 from perception.estimator import ESTIMATE_FIELDS, Estimator, EstimatorError
-from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicState, KinematicStateEstimator
-from perception.kinematics import RoverKinematicModel
-from perception.markers import SteeringCalibration
-from perception.odometry import FlowOdometry, FlowOdometryConfig, OdometryEstimate
-from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel
-from perception.rover_estimator import RoverEstimator
-from perception.slip import SlipConfig, SlipEstimate, SlipEstimator, slip_events
-from perception.wheel_kinematics import (
+from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator, slip_events
+from perception.kinematics.fisheye import DOF_NAMES, KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.kinematics.markers import SteeringCalibration
+from perception.models.calib_io import CalibrationError
+from perception.models.calibration import ExtrinsicFit, OmniFit, calibrate_ground_camera, fit_omni_camera
+from perception.models.cameras import OmniCamera, PinholeCamera
+from perception.models.rover import RoverKinematicModel
+from perception.models.wheel_kinematics import (
     SLIP_EPS,
     slip_angle,
     slip_ratio,
     wheel_ground_velocity,
 )
+from perception.odometry.flow import FlowOdometry, FlowOdometryConfig, OdometryEstimate
+from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel
+from perception.rover_estimator import RoverEstimator
 
 __all__ = [
     "DOF_NAMES",

@@ -29,7 +29,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from perception.drive_geometry import AXLES, WHEELS
+from perception.models.drive_geometry import AXLES, WHEELS
 from perception.rig import SensorMessage
 
 #: The state fields of the observation an estimator fills (the tracker's fields are the

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.drive_geometry import AXLES, WHEELS
+from perception.models.drive_geometry import AXLES, WHEELS
 
 
 @dataclass(frozen=True)

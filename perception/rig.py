@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from perception.calib_io import check_rigid
-from perception.photometry import CFA_PATTERNS
-from perception.validation import ConfigError, real_number
+from perception.models.calib_io import check_rigid
+from perception.models.photometry import CFA_PATTERNS
+from perception.models.validation import ConfigError, real_number
 
 #: The kinds of sensor a rig may hold, and what ``SensorSpec.model`` is for each.
 SENSOR_KINDS: dict[str, str] = {
@@ -113,11 +113,11 @@ class SensorSpec:
             linearise with it. Ignored for an IMU.
         bayer: A colour camera's colour-filter array when its images are demosaiced from one
             colour per pixel (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``;
-            :data:`perception.photometry.CFA_PATTERNS`), or None (full colour, or unknown).
+            :data:`perception.models.photometry.CFA_PATTERNS`), or None (full colour, or unknown).
             The fisheye kinematics then reads the treads from each pixel's own sample.
         vignetting: A camera's relative illumination at its image corners (1: none, or not
             calibrated), of the radial model of
-            :func:`perception.photometry.relative_illumination`. The downward camera's odometry
+            :func:`perception.models.photometry.relative_illumination`. The downward camera's odometry
             flat-fields its frames with it (the fisheye's does not: it tracks features, which a
             smooth shading does not move).
         ground_view_deg: A fisheye that reads out a region of interest: the ground it delivers
@@ -180,7 +180,7 @@ class Rig(Mapping[str, SensorSpec]):
 
     Args:
         sensors: The sensors (their names must differ).
-        vehicle: The rover's :class:`perception.kinematics.RoverKinematicModel` (wheels,
+        vehicle: The rover's :class:`perception.models.rover.RoverKinematicModel` (wheels,
             suspension, markers; its ``T_body_cam`` is the fisheye's mount).
         steer_max_rate: Fastest steering rate of the rover's axles [rad/s].
     """

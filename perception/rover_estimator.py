@@ -7,12 +7,12 @@ optionally, one IMU:
 - the downward camera (chained frame pairs) -> :class:`perception.FlowOdometry` -> body twist,
   with the ground plane from the fisheye's latest axle roll, height and steering; on a rig with
   no downward camera (the one-camera rig) the fisheye's own frames ->
-  :class:`perception.fisheye_odometry.FisheyeOdometry` -> body twist, on the same plane;
+  :class:`perception.odometry.fisheye.FisheyeOdometry` -> body twist, on the same plane;
 - the fisheye -> :class:`perception.KinematicStateEstimator` -> psi, d, lambda, theta, theta_dot;
 - both (and the gyro and accelerometer) -> :class:`perception.SlipEstimator` -> fused twist and
-  wheel rates, slip ratio and angle; the IMU -> :class:`perception.inertial.AttitudeFilter`;
+  wheel rates, slip ratio and angle; the IMU -> :class:`perception.fusion.inertial.AttitudeFilter`;
 - the fused twist integrated from the start fix -> the dead-reckoned pose; with a sun sensor and
-  an IMU its heading is corrected by the sun's (:mod:`perception.sun_heading`).
+  an IMU its heading is corrected by the sun's (:mod:`perception.fusion.sun_heading`).
 
 It sees sensor messages, the rig's calibrations and the start fix only.
 """
@@ -27,24 +27,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from perception.drive_geometry import AXLES, WHEELS
-from perception.fisheye_kinematics import KinematicsConfig, KinematicState, KinematicStateEstimator
-from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
-from perception.inertial import AttitudeFilter, G, tilted_step
-from perception.kinematics import MARKERS
-from perception.odometry import (
+from perception.fusion.inertial import AttitudeFilter, G, tilted_step
+from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator
+from perception.fusion.sun_heading import HeadingConfig, HeadingFilter
+from perception.kinematics.fisheye import KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.models.drive_geometry import AXLES, WHEELS
+from perception.models.rover import MARKERS
+from perception.models.rover_parts import joint_window_parts, kinematics_roi
+from perception.models.validation import ConfigError
+from perception.odometry.fisheye import FisheyeOdometry, FisheyeOdometryConfig
+from perception.odometry.flow import (
     FlowOdometry,
     FlowOdometryConfig,
     OdometryEstimate,
     arc_step,
     ground_plane_from_wheels,
 )
+from perception.odometry.wheel_tracks import wheel_contacts
 from perception.rig import Rig, SensorMessage
-from perception.rover_parts import joint_window_parts, kinematics_roi
-from perception.slip import SlipConfig, SlipEstimate, SlipEstimator
-from perception.sun_heading import HeadingConfig, HeadingFilter
-from perception.validation import ConfigError
-from perception.wheel_tracks import wheel_contacts
 
 #: The rover's state under the names the simulator's ground truth uses too (besides its pose).
 STATE_KEYS: tuple[str, ...] = (
@@ -164,7 +164,7 @@ class RoverEstimator:
         fisheye_window: (axle roll [rad/s], axle travel [m/s], wheel steering [rad/s]): while the
             kinematics tracks every marker and joint, the fisheye is asked to render only the
             windows that hold the parts over the joint states these rates reach in one frame
-            (:func:`perception.rover_parts.joint_window_parts`); None: never. The steering rate is
+            (:func:`perception.models.rover_parts.joint_window_parts`); None: never. The steering rate is
             raised to 1.25 times the rover's ``steer_max_rate`` if below (an inner wheel turns
             faster than its axle).
         odometry_gyro: With an IMU, give the odometry's 3-D fit the gyro's mean roll and pitch
@@ -173,12 +173,12 @@ class RoverEstimator:
             when the time line starts (a simulated mission does): the fisheye frame taken then
             sets the steering's zero (:meth:`KinematicStateEstimator.zero_steering`) and the axle
             depths' (:meth:`KinematicStateEstimator.zero_depth`: the rest depths of the model's
-            :meth:`~perception.kinematics.RoverKinematicModel.rest_depths` at the IMU's tilt,
+            :meth:`~perception.models.rover.RoverKinematicModel.rest_depths` at the IMU's tilt,
             or without an IMU only the two axles' mean), which takes out most of a fisheye mount
             error's effect on the steering, and on the downward odometry's scale through the
             ground plane. False (default): the calibrated mount is trusted (a log may start
             anywhere).
-        heading: The sun-heading filter's parameters (:class:`perception.sun_heading.HeadingConfig`;
+        heading: The sun-heading filter's parameters (:class:`perception.fusion.sun_heading.HeadingConfig`;
             its ``start_std_deg`` is the start fix's heading uncertainty).
         odometry_camera: ``"auto"`` (the downward camera if the rig has one, else the fisheye),
             ``"downward"`` or ``"fisheye"`` (the fisheye's odometry even beside a downward
@@ -453,7 +453,7 @@ class RoverEstimator:
 
         The fused velocity rests on the odometry at every frame, whatever the attitude's error
         (the slip filter's accelerometer bias state takes up the gravity that leaks through it).
-        In an odometry outage (:meth:`perception.slip.SlipEstimator.in_outage`) it does not, and
+        In an odometry outage (:meth:`perception.fusion.slip.SlipEstimator.in_outage`) it does not, and
         its rate would feed the attitude's error back into the velocity: none is given then.
         """
         t, (vx, vy, _) = self._t_pose, self._twist

@@ -20,7 +20,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from test_markers import fisheye, render_markers, rover_model  # noqa: E402
 from test_odometry import START, make_ground, mast_camera, pose_after, render  # noqa: E402
 
-from perception import bags  # noqa: E402
+from perception.logs import bags  # noqa: E402
 from rover_env.tools.cli import main  # noqa: E402
 
 T0 = 1_700_000_000.25  # stamps of a real log: seconds since 1970

@@ -11,8 +11,8 @@ import pytest
 from conftest import flat_scenario
 
 import rover_env  # noqa: F401
+from perception.models.validation import ConfigError
 from perception.rig import SensorSpec
-from perception.validation import ConfigError
 from rover_env.config.cameras import DownwardCameraConfig
 from rover_env.rendering import focus_on_rover
 from rover_env.rendering.base import MotionSpec

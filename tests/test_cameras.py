@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from perception.cameras import CalibrationError, OmniCamera, PinholeCamera
+from perception.models.cameras import CalibrationError, OmniCamera, PinholeCamera
 
 
 def down_looking_T(height: float, x: float = 0.0) -> np.ndarray:
@@ -143,7 +143,7 @@ def test_omni_affine_stretch_round_trip_and_yaml(omni, tmp_path):
 
 
 def test_omni_fit_recovers_a_known_model_from_noisy_corners():
-    from perception.calibration import fit_omni_camera
+    from perception.models.calibration import fit_omni_camera
 
     base = OmniCamera.equidistant((640, 480), math.radians(190), 300.8)
     true = OmniCamera(
@@ -172,7 +172,7 @@ def test_omni_fit_recovers_a_known_model_from_noisy_corners():
 
 
 def test_omni_fit_rejects_too_few_corners():
-    from perception.calibration import fit_omni_camera
+    from perception.models.calibration import fit_omni_camera
 
     with pytest.raises(CalibrationError, match="usable corners"):
         fit_omni_camera(np.ones((10, 2)), np.ones((10, 3)), (640, 480), math.radians(190))

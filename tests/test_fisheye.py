@@ -9,7 +9,7 @@ import pytest
 from conftest import flat_scenario
 from scipy.ndimage import maximum_filter, minimum_filter
 
-from perception.rover_parts import joint_window_parts, kinematic_parts
+from perception.models.rover_parts import joint_window_parts, kinematic_parts
 from rover_env.config.cameras import FisheyeCameraConfig
 from rover_env.config.io import ConfigError
 from rover_env.rendering import renderer_for
@@ -367,7 +367,7 @@ def checkerboard_corners(cam, view, square, reach=1.5, min_square_px=16.0):
 
 @pytest.mark.parametrize("renderer", RENDERERS)
 def test_omni_model_refits_from_rendered_checkerboard_corners(renderer):
-    from perception.calibration import fit_omni_camera
+    from perception.models.calibration import fit_omni_camera
     from rover_env.config.scenario import load_scenario
 
     scenario = load_scenario("calibration")

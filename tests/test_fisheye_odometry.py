@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.cameras import OmniCamera
-from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig, rays_to_ground
+from perception.models.cameras import OmniCamera
+from perception.odometry.fisheye import FisheyeOdometry, FisheyeOdometryConfig, rays_to_ground
 
 SIZE = 400
 PLANE = (0.0, 0.0, -0.3)  # the ground 0.3 m below the body origin
@@ -170,7 +170,7 @@ def test_bad_input_is_refused_with_a_clear_error():
 def test_an_omnidirectional_calibration_that_cannot_see_its_ground_plane_is_refused(tmp_path):
     from dataclasses import replace
 
-    from perception.calib_io import CalibrationError, read_yaml
+    from perception.models.calib_io import CalibrationError, read_yaml
 
     cam = _rover_fisheye()
     assert cam.ground_view_error(ROVER_PLANE) == ""
@@ -256,14 +256,14 @@ def render_relief(cam: OmniCamera, tex: np.ndarray, pose, amplitude: float) -> n
 
 def _moved(points_body, motion, dt):
     """Body-frame points of the first frame seen from the body moved by (v, omega) over dt."""
-    from perception.odometry import _rotation
+    from perception.odometry.flow import _rotation
 
     R = _rotation(np.asarray(motion[3:6]) * dt)
     return (points_body - np.asarray(motion[:3]) * dt) @ R  # R^T (X - v dt), row-wise
 
 
 def test_the_two_view_fit_recovers_a_known_motion_over_unknown_relief():
-    from perception.fisheye_odometry import two_view_motion
+    from perception.odometry.fisheye import two_view_motion
 
     cam = _rover_fisheye()
     rng = np.random.default_rng(4)
@@ -288,7 +288,7 @@ def test_the_two_view_fit_recovers_a_known_motion_over_unknown_relief():
     assert np.max(fit.residual_px) < 0.01
     # the rotation and the translation's direction are exact whatever the relief
     assert fit.motion[3:6] == pytest.approx(motion[3:6], abs=1e-4)
-    from perception.odometry import _rotation
+    from perception.odometry.flow import _rotation
 
     shift = motion[:3] * dt + (_rotation(motion[3:6] * dt) - np.eye(3)) @ o  # the camera's
     direction = fit.camera_shift / np.linalg.norm(fit.camera_shift)
@@ -353,8 +353,8 @@ def test_the_fisheye_odometry_runs_on_an_image_folder(tmp_path):
     import csv
     from dataclasses import replace
 
-    from perception.calib_io import CalibrationError
-    from perception.offline import run_folder_odometry
+    from perception.logs.offline import run_folder_odometry
+    from perception.models.calib_io import CalibrationError
 
     cam, folder = _fisheye_folder(tmp_path)
     calib = tmp_path / "omni.yaml"
@@ -407,8 +407,8 @@ def test_the_fisheye_odometry_runs_on_an_image_folder(tmp_path):
 def test_the_omnidirectional_calibration_keeps_its_ground_plane_and_mask(tmp_path):
     from dataclasses import replace
 
-    from perception.calib_io import CalibrationError
-    from perception.fisheye_odometry import read_mask
+    from perception.models.calib_io import CalibrationError
+    from perception.odometry.fisheye import read_mask
 
     cam = replace(_rover_fisheye(), ground_plane=ROVER_PLANE, mask_file=tmp_path / "parts.png")
     back = OmniCamera.load(cam.save(tmp_path / "omni.yaml"))
@@ -471,7 +471,7 @@ def test_a_free_fit_that_drifted_along_the_scale_is_still_used(monkeypatch):
     3 cm relief the refinement is still used: the yaw rate stays clear of the relief."""
     import dataclasses
 
-    import perception.fisheye_odometry as fo
+    import perception.odometry.fisheye as fo
 
     real = fo.two_view_motion
 
@@ -505,7 +505,7 @@ def test_a_free_fit_that_drifted_along_the_scale_is_still_used(monkeypatch):
 def test_the_planes_fit_used_alone_carries_the_scales_error(monkeypatch):
     """Where the two-view refinement fails, the rigid fit on the plane stands, and its speed's
     deviation holds the scale's error (the plane is the wheels', not the ground's in view)."""
-    import perception.fisheye_odometry as fo
+    import perception.odometry.fisheye as fo
 
     ref = _pair_estimate()
     monkeypatch.setattr(fo, "two_view_motion", lambda *a, **k: None)
@@ -524,7 +524,7 @@ def test_the_wheels_tracks_give_the_scale_over_relief():
     are in view, 0.7 s into the drive (the speed's mean error 0.015 m/s against the plane's 0.021
     from 0.8 s on: the tracks are carried with the estimated motion, whose scale erred by a tenth
     before, and their places along the drive with it; carried by the true motion, 0.005)."""
-    from perception.odometry import ground_plane_from_wheels
+    from perception.odometry.flow import ground_plane_from_wheels
 
     cam, tex, dt, speed = _rover_fisheye(), _texture(6), 1.0 / 30.0, 0.5
     wheels = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])

@@ -87,7 +87,7 @@ def test_gl_and_tiny_see_the_same_ground_and_rover(scenario):
     """A view from behind the rover: the same pixels are ground, rover and shadow, and ground and
     rover have the same mean brightness (TinyRenderer samples textures by nearest neighbour, GL
     filters them: pixels differ, the scene does not)."""
-    from perception.cameras import PinholeCamera
+    from perception.models.cameras import PinholeCamera
     from rover_env.rendering import focus_on_rover
     from rover_env.rendering.base import Lighting, look_at
 
@@ -148,7 +148,7 @@ def test_ruts_in_soil_are_shaded_by_the_slope_of_their_walls(renderer):
     the shading is that of the rut surface's slope (Lambert's law with the normal tilted by the
     depth's central difference over one cell), the wall facing the sun brighter, the other in
     its own shade (ambient light only). Both renderers."""
-    from perception.cameras import PinholeCamera
+    from perception.models.cameras import PinholeCamera
     from rover_env.config.scenario import FrictionPatch
     from rover_env.rendering import focus_on_rover
     from rover_env.rendering.base import Lighting, look_at

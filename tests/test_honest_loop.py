@@ -274,7 +274,7 @@ def test_a_bad_start_fix_std_is_a_config_error_naming_file_and_key(tmp_path, val
 def test_layering_controllers_and_perception_import_no_simulator():
     code = (
         "import sys\n"
-        "import perception, perception.observation, perception.drive_geometry\n"
+        "import perception, perception.observation, perception.models.drive_geometry\n"
         "sim = ('pybullet', 'gymnasium', 'rover_env', 'controllers')\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in sim]\n"
         "assert not bad, ('perception', bad)\n"

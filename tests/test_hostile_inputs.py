@@ -74,7 +74,7 @@ def _textured(size=(160, 120), seed=0):
 def _odometry(**cfg):
     from test_odometry import mast_camera
 
-    from perception.odometry import FlowOdometry, FlowOdometryConfig
+    from perception.odometry.flow import FlowOdometry, FlowOdometryConfig
 
     return FlowOdometry(mast_camera((160, 120)), FlowOdometryConfig.for_camera(160, 30.0, **cfg))
 
@@ -101,7 +101,7 @@ def test_a_frozen_camera_is_no_motion_observable_not_a_confident_zero():
 def test_the_kinematics_estimator_refuses_a_non_finite_or_backward_time():
     from test_markers import fisheye, rover_model
 
-    from perception.fisheye_kinematics import KinematicStateEstimator
+    from perception.kinematics.fisheye import KinematicStateEstimator
 
     model = rover_model()
     est = KinematicStateEstimator(fisheye(model), model)
@@ -117,7 +117,7 @@ def test_the_kinematics_estimator_refuses_a_non_finite_or_backward_time():
 
 
 def test_the_slip_filter_validates_odometry_noise_and_leaves_out_impossible_readings():
-    from perception.slip import SlipEstimator
+    from perception.fusion.slip import SlipEstimator
 
     xy = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])
     f = SlipEstimator(xy, 0.115)
@@ -143,7 +143,7 @@ def test_16_bit_images_are_scaled_by_the_logs_bit_depth_so_a_glint_costs_nothing
     import cv2
     from test_odometry import START, make_ground, mast_camera, pose_after, render
 
-    from perception.offline import bit_depth, run_folder_odometry
+    from perception.logs.offline import bit_depth, run_folder_odometry
 
     ground = make_ground()
     folder = tmp_path / "imgs"
@@ -226,7 +226,7 @@ def test_a_heightfield_beyond_the_memory_budget_is_refused_with_the_numbers(size
 
 
 def test_yaml_that_is_not_utf8_or_mixes_key_types_names_the_file(tmp_path):
-    from perception.calib_io import CalibrationError, read_mapping
+    from perception.models.calib_io import CalibrationError, read_mapping
     from rover_env.config.io import ConfigError
     from rover_env.config.scenario import load_scenario
 
@@ -265,8 +265,8 @@ def test_solver_iterations_out_of_range_are_refused_before_a_simulation_is_built
 def test_a_rover_geometry_with_an_impossible_marker_arc_is_refused(tmp_path):
     from test_markers import rover_model
 
-    from perception.calib_io import CalibrationError
-    from perception.kinematics import RoverKinematicModel
+    from perception.models.calib_io import CalibrationError
+    from perception.models.rover import RoverKinematicModel
 
     text = rover_model().save(tmp_path / "rover.yaml").read_text()
     for bad in (".inf", ".nan", "-0.2", "4.0"):
@@ -366,8 +366,8 @@ def test_a_calibration_that_cannot_see_the_ground_is_refused_at_load_and_per_est
     import yaml
     from test_odometry import mast_camera
 
-    from perception.calib_io import CalibrationError
-    from perception.cameras import PinholeCamera
+    from perception.models.calib_io import CalibrationError
+    from perception.models.cameras import PinholeCamera
 
     good = mast_camera((160, 120)).save(tmp_path / "calib.yaml")
     data = yaml.safe_load(good.read_text())
@@ -472,7 +472,7 @@ def test_an_image_bomb_is_refused_from_its_header_before_decoding(tmp_path):
     import struct
     import zlib
 
-    from perception.validation import MAX_IMAGE_PIXELS, image_file_size
+    from perception.models.validation import MAX_IMAGE_PIXELS, image_file_size
     from rover_env.config.io import ConfigError
     from rover_env.sim.textures import read_texture
 
@@ -593,8 +593,8 @@ def test_a_calibration_number_given_as_text_or_a_bool_names_the_key(tmp_path, ke
     import yaml
     from test_odometry import mast_camera
 
-    from perception.calib_io import CalibrationError
-    from perception.cameras import PinholeCamera
+    from perception.models.calib_io import CalibrationError
+    from perception.models.cameras import PinholeCamera
 
     data = yaml.safe_load(mast_camera().save(tmp_path / "c.yaml").read_text())
     data[key] = value
@@ -607,8 +607,8 @@ def test_a_rover_geometry_number_given_as_text_names_the_key(tmp_path):
     import yaml
     from test_markers import rover_model
 
-    from perception.calib_io import CalibrationError
-    from perception.kinematics import RoverKinematicModel
+    from perception.models.calib_io import CalibrationError
+    from perception.models.rover import RoverKinematicModel
 
     data = yaml.safe_load(rover_model().save(tmp_path / "r.yaml").read_text())
     data["track"] = "1.2"

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.photometry import flat_field, flat_field_gain, relative_illumination
+from perception.models.photometry import flat_field, flat_field_gain, relative_illumination
 from rover_env.config.image_sensor import ImageSensorConfig
 from rover_env.config.io import ConfigError
 from rover_env.sensors.image_sensor import ImageSensor

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import flat_scenario
 
-from perception.allan import allan_deviation, fit_allan
+from perception.fusion.allan import allan_deviation, fit_allan
 from rover_env.config.imu import G, ImuConfig, TriadNoise
 from rover_env.config.io import ConfigError
 from rover_env.sensors.imu import Imu, ImuNoise

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from perception.inertial import AttitudeFilter, G, tilt_from_gravity, tilted_step
+from perception.fusion.inertial import AttitudeFilter, G, tilt_from_gravity, tilted_step
 
 
 def rot_zyx(roll, pitch, yaw):

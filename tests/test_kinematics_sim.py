@@ -6,7 +6,7 @@ import math
 import numpy as np
 from test_fisheye import feasible_states, lifted_sim, set_joints  # noqa: F401  (fixture)
 
-from perception.markers import MarkerConfig, assign_markers, measure_axles, segment_magenta
+from perception.kinematics.markers import MarkerConfig, assign_markers, measure_axles, segment_magenta
 from rover_env.sensors.cameras import FisheyeCamera
 
 
@@ -47,7 +47,7 @@ def test_steering_sweep_calibration_in_the_simulator(tmp_path):
     from conftest import flat_scenario
     from test_fisheye import set_joints
 
-    from perception.markers import SteeringCalibration
+    from perception.kinematics.markers import SteeringCalibration
     from rover_env.sim.simulation import RoverSim
     from rover_env.tools.calibrate import write_steering_calibration
 
@@ -88,7 +88,7 @@ def test_wheel_rates_from_rendered_treads_within_3_percent_rms_at_half_and_two_m
     """
     from conftest import flat_scenario
 
-    from perception.fisheye_kinematics import KinematicStateEstimator
+    from perception.kinematics.fisheye import KinematicStateEstimator
     from rover_env.config.scenario import SunConfig
     from rover_env.sim.simulation import RoverSim
 

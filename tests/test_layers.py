@@ -1,7 +1,10 @@
 """The packages' layering, read from every import statement (function-level ones included).
 
 ``perception`` <- ``controllers`` <- ``rover_env``; inside ``rover_env`` the subpackages import
-downward only: config -> sim -> rendering -> sensors -> task -> envs -> tools.
+downward only: config -> sim -> rendering -> sensors -> task -> envs -> tools. Inside
+``perception``: models -> the algorithms (odometry, kinematics, fusion; none imports another)
+-> the estimator (the package's top-level modules: the interface, the rig, the observation
+table, the built-in estimator) -> logs.
 """
 
 from __future__ import annotations
@@ -17,6 +20,11 @@ PACKAGES = ("perception", "controllers", "rover_env")
 LAYERS = ("config", "sim", "rendering", "sensors", "task", "envs", "tools")
 #: What rover_env's top level may hold besides its subpackages.
 TOP_LEVEL = {"__init__.py"}
+#: perception's layers, lowest first; the algorithms share a rank and import none of each other.
+#: ``estimator`` is the package's top level (its modules and its ``__init__``).
+PERCEPTION_RANK = {"models": 0, "odometry": 1, "kinematics": 1, "fusion": 1, "estimator": 2, "logs": 3}
+#: The modules of perception's top level (the estimator layer).
+PERCEPTION_TOP = {"__init__.py", "estimator.py", "rig.py", "observation.py", "rover_estimator.py"}
 
 
 def _module_name(path: Path) -> str:
@@ -129,9 +137,51 @@ def test_rover_env_top_level_holds_only_entry_modules():
     assert subpackages == set(LAYERS), f"subpackages {sorted(subpackages)}, layers {LAYERS}"
 
 
-def test_no_module_cycles_inside_rover_env():
+def _perception_layer(module: str) -> str | None:
+    """The perception layer a module belongs to (None: not perception)."""
+    parts = module.split(".")
+    if parts[0] != "perception":
+        return None
+    return parts[1] if len(parts) > 1 and parts[1] in PERCEPTION_RANK else "estimator"
+
+
+def test_perception_layers_import_downward_only():
+    bad = []
+    for p in _sources("perception"):
+        src = _perception_layer(_module_name(p))
+        assert src is not None
+        for line, m in imports_of(p):
+            dst = _perception_layer(m)
+            if dst is None or dst == src:
+                continue
+            if PERCEPTION_RANK[dst] >= PERCEPTION_RANK[src]:
+                bad.append(f"{p.relative_to(ROOT)}:{line} ({src}) imports {m} ({dst}): not a lower layer")
+    assert not bad, "\n".join(bad)
+
+
+def test_perception_top_level_holds_only_the_estimator_layer():
+    top = {p.name for p in (ROOT / "perception").glob("*.py")}
+    assert top <= PERCEPTION_TOP, f"modules at perception's top level: {sorted(top - PERCEPTION_TOP)}"
+    subpackages = {p.parent.name for p in (ROOT / "perception").glob("*/__init__.py")}
+    assert subpackages == set(PERCEPTION_RANK) - {"estimator"}, subpackages
+
+
+def test_the_public_names_users_import_are_kept():
+    import perception
+    import perception.estimator
+    import perception.rig
+
+    for name in perception.__all__:
+        assert hasattr(perception, name), name
+    assert perception.RoverEstimator.__module__ == "perception.rover_estimator"
+    assert {"Estimator", "ESTIMATE_FIELDS", "check_estimate"} <= set(vars(perception.estimator))
+    assert {"Rig", "SensorSpec", "SensorMessage"} <= set(vars(perception.rig))
+
+
+@pytest.mark.parametrize("package", ["rover_env", "perception"])
+def test_no_module_cycles_inside_a_package(package):
     """Module-level cycles hide in function-level imports; there are none left."""
-    modules = {_module_name(p): p for p in _sources("rover_env")}
+    modules = {_module_name(p): p for p in _sources(package)}
     graph = {
         m: {d for _, d in imports_of(p) if d in modules and d != m and not modules[d].name == "__init__.py"}
         for m, p in modules.items()

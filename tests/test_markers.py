@@ -11,9 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.cameras import OmniCamera
-from perception.kinematics import MARKERS, PLATE, ROD, RoverKinematicModel
-from perception.markers import (
+from perception.kinematics.markers import (
     MarkerConfig,
     SteeringCalibration,
     assign_markers,
@@ -21,6 +19,8 @@ from perception.markers import (
     segment_magenta,
     steering_ratio,
 )
+from perception.models.cameras import OmniCamera
+from perception.models.rover import MARKERS, PLATE, ROD, RoverKinematicModel
 
 R_BODY_FISHEYE = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 MAGENTA = np.array([230.0, 30.0, 230.0])
@@ -128,7 +128,7 @@ def test_steering_ratio_calibration_round_trip(tmp_path):
     """The paper's eq. (5) map. On this rover the inner tie-rod end passes closest to its plate
     marker near full lock, where the ratio stops being monotonic: the sweep covers +-24 deg and a
     full-lock sweep is refused."""
-    from perception.calib_io import CalibrationError
+    from perception.models.calib_io import CalibrationError
 
     model = rover_model()
 
@@ -186,7 +186,7 @@ def test_no_markers_black_and_saturated_frames():
 
 
 def test_kinematic_model_yaml_round_trip_and_errors(tmp_path):
-    from perception.calib_io import CalibrationError
+    from perception.models.calib_io import CalibrationError
 
     model = rover_model()
     back = RoverKinematicModel.load(model.save(tmp_path / "rover.yaml"))
@@ -198,7 +198,7 @@ def test_kinematic_model_yaml_round_trip_and_errors(tmp_path):
 
 
 def test_estimator_flags_unusable_frames_and_stays_finite():
-    from perception.fisheye_kinematics import DOF_NAMES, KinematicStateEstimator
+    from perception.kinematics.fisheye import DOF_NAMES, KinematicStateEstimator
 
     model = rover_model()
     cam = fisheye(model)
@@ -229,7 +229,7 @@ def test_estimator_flags_unusable_frames_and_stays_finite():
 
 def test_correction_marker_reacquires_after_drift_beyond_the_limit():
     """Eq. 7: small corrections at once; a large one only when a later turn asks for the same."""
-    from perception.fisheye_kinematics import KinematicStateEstimator
+    from perception.kinematics.fisheye import KinematicStateEstimator
 
     model = rover_model()
     est = KinematicStateEstimator(fisheye(model), model)
@@ -271,8 +271,8 @@ def test_regions_of_interest_give_the_centres_of_the_whole_frame(pose):
 def test_a_lost_wheel_stays_tracked_for_track_hold_frames(monkeypatch):
     """After a missed rotation the wheel is searched near its last one (and may be taken on a
     decisive alignment) for ``track_hold`` frames; then the wide, feature-confirmed search starts."""
-    import perception.fisheye_kinematics as fk
-    from perception.wheel_rotation import RotationMeasurement
+    import perception.kinematics.fisheye as fk
+    from perception.kinematics.wheel_rotation import RotationMeasurement
 
     model = rover_model()
     cam = fisheye(model)
@@ -317,7 +317,7 @@ def test_zeroing_the_steering_at_rest_takes_out_a_fisheye_mount_error(caplog):
     """A fisheye mounted 0.3-0.45 degrees (and 2 mm) off its calibration reads up to 40 mrad of
     steering; a frame at rest with the steering centred takes out three quarters of it over rolled,
     sunk and steered states."""
-    from perception.fisheye_kinematics import KinematicStateEstimator
+    from perception.kinematics.fisheye import KinematicStateEstimator
 
     nominal = rover_model()
     cam = fisheye(nominal)
@@ -360,7 +360,7 @@ def test_zeroing_the_depths_at_rest_takes_out_a_fisheye_mount_error(caplog):
     over rolled, sunk and steered states (the mean of the two only, without the rest depths)."""
     import dataclasses
 
-    from perception.fisheye_kinematics import KinematicStateEstimator
+    from perception.kinematics.fisheye import KinematicStateEstimator
 
     nominal = dataclasses.replace(rover_model(), rest_sag=0.018, pitch_sag=0.014)
     cam = fisheye(nominal)
@@ -406,7 +406,7 @@ def test_the_rest_depths_follow_the_tilt_and_survive_a_round_trip(tmp_path):
     pitch), and nose up moves pitch_sag sin(pitch) from the rear axle's depth to the front's."""
     import dataclasses
 
-    from perception.calib_io import CalibrationError
+    from perception.models.calib_io import CalibrationError
 
     model = dataclasses.replace(rover_model(), rest_sag=0.0184, pitch_sag=0.0146)
     np.testing.assert_allclose(model.rest_depths(0.0, 0.0), [model.nominal_depth] * 2)
@@ -431,8 +431,8 @@ def test_the_correction_marker_measures_the_treads_rate_scale(monkeypatch, reads
     """Treads that read every rotation 2 % short (or 1.5 % long), as a fisheye mount error makes
     them, are scaled back by the rotation the white marker counts between its sightings: whole
     turns. The scale is within 0.2 % after twelve turns, and so are the rates; off, they stay off."""
-    import perception.fisheye_kinematics as fk
-    from perception.wheel_rotation import RotationMeasurement
+    import perception.kinematics.fisheye as fk
+    from perception.kinematics.wheel_rotation import RotationMeasurement
 
     model = rover_model()
     cam = fisheye(model)
@@ -468,7 +468,7 @@ def test_the_correction_marker_measures_the_treads_rate_scale(monkeypatch, reads
 def test_the_kinematic_model_keeps_its_joint_limits(tmp_path):
     from dataclasses import replace
 
-    from perception.calib_io import CalibrationError
+    from perception.models.calib_io import CalibrationError
 
     model = replace(rover_model(), joint_limits=(0.35, 0.05, 0.52))
     back = RoverKinematicModel.load(model.save(tmp_path / "rover.yaml"))

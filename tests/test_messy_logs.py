@@ -24,7 +24,7 @@ pytest.importorskip("rosbags")
 from test_bags import LogWriter  # noqa: E402
 from test_odometry import START, make_ground, mast_camera, pose_after, render  # noqa: E402
 
-from perception import bags  # noqa: E402
+from perception.logs import bags  # noqa: E402
 from rover_env.tools.cli import main  # noqa: E402
 
 T0 = 1_700_000_000.25
@@ -167,7 +167,7 @@ def test_a_repeated_stamp_is_flagged_as_such(tmp_path, frames):
 
 
 def _placed(pairs, **kw):
-    from perception.log_time import in_stamp_order, place
+    from perception.logs.log_time import in_stamp_order, place
 
     items = [SimpleNamespace(stamp=s, recv=r) for s, r in pairs]
     return place(in_stamp_order(items), **kw)
@@ -510,7 +510,7 @@ def test_overwrite_replaces_only_the_tools_own_results(tmp_path, frames, capsys)
 def test_a_full_disk_names_the_file_and_leaves_the_earlier_results_or_nothing(
     tmp_path, frames, monkeypatch, capsys
 ):
-    from perception.outputs import OutputFolder
+    from perception.logs.outputs import OutputFolder
 
     if not Path("/dev/full").exists():
         pytest.skip("no /dev/full")
@@ -590,7 +590,7 @@ def test_a_rational_polynomial_camera_info_is_modelled_not_truncated(tmp_path):
     the odometry is as accurate as on an ideal lens; cut to 5 it is not."""
     base = mast_camera()
     d = np.array([-0.25, 0.08, 0.001, -0.001, 0.01, 0.2, 0.02, 0.003])
-    from perception.cameras import PinholeCamera
+    from perception.models.cameras import PinholeCamera
 
     lens = PinholeCamera(K=base.K, distortion=d, image_size=base.image_size, T_body_cam=base.T_body_cam,
                          ground_plane=base.ground_plane)  # fmt: skip
@@ -625,8 +625,8 @@ def test_a_rational_polynomial_camera_info_is_modelled_not_truncated(tmp_path):
 
 
 def test_a_pinhole_of_eight_coefficients_round_trips_and_matches_opencv():
-    from perception.calib_io import CalibrationError
-    from perception.cameras import PinholeCamera
+    from perception.models.calib_io import CalibrationError
+    from perception.models.cameras import PinholeCamera
 
     K = np.array([[400.0, 0, 320], [0, 400, 240], [0, 0, 1]])
     d = np.array([-0.25, 0.08, 0.001, -0.001, 0.01, 0.2, 0.02, 0.003])
@@ -672,7 +672,7 @@ def test_a_bad_camera_info_is_blamed_on_the_log_not_the_calibration(
 
 
 def _with_distortion(cam, distortion):
-    from perception.cameras import PinholeCamera
+    from perception.models.cameras import PinholeCamera
 
     return PinholeCamera(K=cam.K, distortion=distortion, image_size=cam.image_size)
 
@@ -815,7 +815,7 @@ def test_sigterm_mid_run_leaves_nothing_half_written(tmp_path, frames, monkeypat
     import os
     import signal
 
-    from perception.odometry import FlowOdometry
+    from perception.odometry.flow import FlowOdometry
 
     calls = {"n": 0}
     update = FlowOdometry.update
@@ -886,7 +886,7 @@ def test_camera_info_binning_roi_and_a_compressed_topic_beside_it(tmp_path, fram
 def test_odd_yuv_a_bom_and_a_missing_source_are_one_line_each(tmp_path, frames, capsys):
     img, why = bags.decode_image(_image_msg(np.zeros((4, 5, 2), np.uint8), "yuv422"), "sensor_msgs/msg/Image")
     assert img is None and "odd width 5 px" in why
-    from perception.inertial import read_imu_csv
+    from perception.fusion.inertial import read_imu_csv
 
     bom = tmp_path / "bom.csv"
     bom.write_text(

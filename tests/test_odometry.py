@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from perception.cameras import PinholeCamera
-from perception.odometry import (
+from perception.models.cameras import PinholeCamera
+from perception.odometry.flow import (
     FlowOdometry,
     FlowOdometryConfig,
     build_pyramid,
@@ -507,7 +507,7 @@ def test_chained_mode_matches_pairs_and_integrates_an_arc(ground):
 
 def test_ground_camera_pose_calibration_recovers_a_tilted_mount():
     """Eq. (9): the 6-DOF camera pose from ground correspondences, off-normal like Zoe's camera."""
-    from perception.calibration import calibrate_ground_camera
+    from perception.models.calibration import calibrate_ground_camera
 
     true = mast_camera()
     tilt = cv2.Rodrigues(np.array([math.radians(15.0), math.radians(-2.0), math.radians(1.0)]))[0]
@@ -554,7 +554,7 @@ def write_arc_images(folder, ground, twist, n, dt, start=START, bad=()):
 
 
 def test_folder_odometry_writes_csv_and_tum_of_the_true_path(ground, tmp_path):
-    from perception.offline import run_folder_odometry
+    from perception.logs.offline import run_folder_odometry
 
     twist, fps, n = (1.2, 0.1, 0.3), 60.0, 31
     end = write_arc_images(tmp_path / "imgs", ground, twist, n, 1 / fps, bad=(12,))
@@ -578,8 +578,8 @@ def test_folder_odometry_writes_csv_and_tum_of_the_true_path(ground, tmp_path):
 
 
 def test_folder_odometry_bad_inputs(ground, tmp_path):
-    from perception.calib_io import CalibrationError
-    from perception.offline import run_folder_odometry
+    from perception.logs.offline import run_folder_odometry
+    from perception.models.calib_io import CalibrationError
 
     write_arc_images(tmp_path / "imgs", ground, (1.0, 0.0, 0.0), 3, 1 / 60)
     calib = mast_camera().save(tmp_path / "calib.yaml")
@@ -643,7 +643,7 @@ def test_local_contrast_equals_the_whole_image_variance_filter(size):
     """Both ways of computing the features' contrast (whole image, or patches for large images)
     give the blur-of-squared-deviation filter's values, at the border too."""
 
-    from perception.odometry import _local_contrast
+    from perception.odometry.flow import _local_contrast
 
     rng = np.random.default_rng(3)
     w, h = size
@@ -665,7 +665,7 @@ def write_imu_csv(path, t, gyro_z, bias, rng, header="t,gyro_x,gyro_y,gyro_z,acc
 
 
 def test_folder_odometry_with_an_imu_reports_both_yaw_sources(ground, tmp_path):
-    from perception.offline import run_folder_odometry
+    from perception.logs.offline import run_folder_odometry
 
     twist, fps, n = (1.2, 0.1, 0.3), 60.0, 31
     write_arc_images(tmp_path / "imgs", ground, twist, n, 1 / fps)
@@ -690,7 +690,7 @@ def test_folder_odometry_with_an_imu_reports_both_yaw_sources(ground, tmp_path):
 
 
 def test_imu_csv_bad_inputs(tmp_path):
-    from perception.inertial import read_imu_csv
+    from perception.fusion.inertial import read_imu_csv
 
     rng = np.random.default_rng(0)
     with pytest.raises(FileNotFoundError, match="no such IMU CSV"):

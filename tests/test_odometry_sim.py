@@ -35,8 +35,8 @@ def test_downward_camera_pose_calibrated_on_the_checkerboard_scenario():
     import cv2
     import numpy as np
 
-    from perception.calibration import calibrate_ground_camera
-    from perception.cameras import PinholeCamera
+    from perception.models.calibration import calibrate_ground_camera
+    from perception.models.cameras import PinholeCamera
     from rover_env.config.cameras import DownwardCameraConfig
     from rover_env.config.scenario import load_scenario
     from rover_env.sensors.cameras import DownwardCamera
@@ -97,7 +97,7 @@ def test_pair_mode_selects_on_the_first_frame_before_the_second_exists():
     import numpy as np
     from conftest import flat_scenario
 
-    from perception.odometry import FlowOdometry
+    from perception.odometry.flow import FlowOdometry
     from rover_env.config.cameras import DownwardCameraConfig
     from rover_env.sensors.cameras import DownwardCamera
     from rover_env.sim.simulation import RoverSim

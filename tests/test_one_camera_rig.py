@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import rover_env  # noqa: F401  (registers the environments)
-from perception.fisheye_odometry import FisheyeOdometry
-from perception.odometry import FlowOdometry
+from perception.odometry.fisheye import FisheyeOdometry
+from perception.odometry.flow import FlowOdometry
 from rover_env.config.rig import FISHEYE_ONLY_GROUND_DEG
 
 ACTIONS = [np.array([0.3, 0.12, -0.12], np.float32)] * 45 + [np.array([0.3, 0.0, 0.0], np.float32)] * 30
@@ -88,7 +88,7 @@ def test_a_declared_rig_without_a_downward_camera_gets_the_fisheyes_odometry(tmp
 
 
 def test_a_region_of_interest_in_parts_keeps_its_parts_apart():
-    from perception.cameras import OmniCamera
+    from perception.models.cameras import OmniCamera
     from rover_env.rendering.cubemap import CubemapRemap
 
     cam = OmniCamera.equidistant((320, 240), math.radians(190.0), 150.0)
@@ -109,8 +109,8 @@ def test_a_region_of_interest_in_parts_keeps_its_parts_apart():
 
 def test_settings_for_the_other_camera_are_refused():
     from perception.estimator import EstimatorError
-    from perception.fisheye_odometry import FisheyeOdometryConfig
-    from perception.odometry import FlowOdometryConfig
+    from perception.odometry.fisheye import FisheyeOdometryConfig
+    from perception.odometry.flow import FlowOdometryConfig
     from rover_env.sensors.rig import builtin_estimator
 
     with pytest.raises(

@@ -99,7 +99,7 @@ def test_the_true_trajectory_is_the_same_whatever_estimates():
 
 
 def test_builtin_estimator_is_the_default_unchanged_and_its_changes_take_effect():
-    from perception.slip import SlipConfig
+    from perception.fusion.slip import SlipConfig
     from rover_env.sensors.rig import builtin_estimator
 
     def observations(**kw):

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.photometry import CFA_PATTERNS, cfa_luminance, linear_gray
+from perception.models.photometry import CFA_PATTERNS, cfa_luminance, linear_gray
 
 # OpenCV names a Bayer pattern by the second row's second and third pixels
 _DEMOSAIC = {"RGGB": cv2.COLOR_BayerBG2RGB, "BGGR": cv2.COLOR_BayerRG2RGB, "GRBG": cv2.COLOR_BayerGB2RGB}

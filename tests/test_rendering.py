@@ -9,7 +9,7 @@ from conftest import flat_scenario
 from pybullet_utils.bullet_client import BulletClient
 from scipy.ndimage import minimum_filter
 
-from perception.cameras import PinholeCamera
+from perception.models.cameras import PinholeCamera
 from rover_env.config.cameras import DownwardCameraConfig
 from rover_env.rendering import renderer_for
 from rover_env.rendering.base import Lighting, look_at, view_planes

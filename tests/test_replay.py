@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import rover_env  # noqa: F401
-from perception.replay import CSV_COLUMNS, load_rig, save_rig
-from perception.validation import ConfigError
+from perception.logs.replay import CSV_COLUMNS, load_rig, save_rig
+from perception.models.validation import ConfigError
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_bags import LogWriter  # noqa: E402

@@ -1,8 +1,9 @@
 """The environments behave as they did when the baseline was recorded: the same rollouts.
 
-For every registered id (``rover_env.ENV_IDS``), in both observation sources, and with an IMU on the estimated one, a
-60-step rollout from a fixed seed and fixed actions gives the same observations, rewards,
-ground truth and estimates as the recorded baseline (``tests/data/rollouts_baseline.npz``).
+For every registered id (``rover_env.ENV_IDS``), in both observation sources, and with an IMU
+on the estimated one, a 60-step rollout from a fixed seed and fixed actions gives the same
+observations, rewards, ground truth and estimates as the recorded baseline
+(``tests/data/rollouts_baseline.npz``).
 Refactoring the package must not move them by more than the last bits that the float libraries
 below it leave to their versions: within 1e-6 (absolute and relative). A fresh install with
 NumPy 2.4 and OpenCV 5.0 moved the true state by at most 6e-16 from the values recorded with

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from perception import SlipConfig, SlipEstimator, slip_events, slip_ratio, wheel_ground_velocity
-from perception.slip import _ACC_BIAS, clipped_normal_std
+from perception.fusion.slip import _ACC_BIAS, clipped_normal_std
 
 R_WHEEL = 0.115
 XY = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])

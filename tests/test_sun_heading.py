@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from perception.sun_heading import HeadingConfig, HeadingFilter, level_direction, sun_heading, wrap
-from perception.validation import ConfigError
+from perception.fusion.sun_heading import HeadingConfig, HeadingFilter, level_direction, sun_heading, wrap
+from perception.models.validation import ConfigError
 
 
 def sun_dir(az: float, el: float) -> np.ndarray:

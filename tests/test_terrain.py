@@ -113,7 +113,7 @@ SMALL_ROUGH = TerrainConfig(kind="rough", size=(12.0, 12.0), cell=0.1, roughness
 
 def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhere():
     """Level of detail: the collision triangles near the rover, a lower 1 m mesh farther away."""
-    from perception.cameras import PinholeCamera
+    from perception.models.cameras import PinholeCamera
     from rover_env.config.cameras import FINE_RADIUS
     from rover_env.rendering.base import Lighting, look_at
     from rover_env.rendering.tiny import TinyRenderer
@@ -177,7 +177,7 @@ def test_rough_ground_is_drawn_exactly_near_the_focus_and_never_above_it_elsewhe
 )
 def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
     """focus(near=r): only ground within r is drawn, and it is the ground the full scene draws there."""
-    from perception.cameras import PinholeCamera
+    from perception.models.cameras import PinholeCamera
     from rover_env.rendering.base import Lighting, look_at
     from rover_env.rendering.tiny import TinyRenderer
     from rover_env.sim.terrain import FINE_CHUNK
@@ -215,7 +215,7 @@ def test_near_focus_draws_the_same_ground_within_range_and_nothing_beyond(cfg):
 
 def test_culling_chunks_outside_a_view_leaves_its_image_unchanged():
     """GroundDetail.cull hides the exact chunks a view cannot see; the image stays the same, to the pixel."""
-    from perception.cameras import PinholeCamera
+    from perception.models.cameras import PinholeCamera
     from rover_env.rendering.base import Lighting, look_at
     from rover_env.rendering.tiny import TinyRenderer
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from perception.trajectory import path_segment_errors
+from perception.odometry.trajectory import path_segment_errors
 
 
 def arc(n=3001, length=30.0, radius=math.inf):

@@ -1,10 +1,10 @@
-"""Slip definitions of perception.wheel_kinematics (perception, no simulator)."""
+"""Slip definitions of perception.models.wheel_kinematics (perception, no simulator)."""
 
 import numpy as np
 import pytest
 
 from perception import slip_angle, slip_ratio, wheel_ground_velocity
-from perception.wheel_kinematics import rolling_speeds
+from perception.models.wheel_kinematics import rolling_speeds
 
 
 def test_slip_ratio_values():

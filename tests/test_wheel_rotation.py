@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 from test_markers import fisheye, rover_model
 
-from perception.photometry import cfa_luminance, linear_gray
-from perception.wheel_rotation import (
+from perception.kinematics.wheel_rotation import (
     RotationMeasurement,
     StaticPattern,
     TreadConfig,
@@ -24,6 +23,7 @@ from perception.wheel_rotation import (
     track_strip_features,
     unwrap_tread,
 )
+from perception.models.photometry import cfa_luminance, linear_gray
 
 
 def tread_texture(rng) -> np.ndarray:
@@ -264,7 +264,7 @@ def test_a_still_tread_seen_by_a_turning_wheel_needs_the_features():
 
 def test_strips_of_all_wheels_together_equal_each_wheel_alone():
     """The wheels share one projection, resampling and band-pass, with gaps wider than its reach."""
-    from perception.wheel_rotation import _masked_blur, unwrap_treads
+    from perception.kinematics.wheel_rotation import _masked_blur, unwrap_treads
 
     model = rover_model()
     cam = fisheye(model)
@@ -312,7 +312,7 @@ def test_a_rotation_the_other_wheels_contradict_is_searched_for_near_theirs():
     """The rover's shadow on a tread does not turn: a wheel read near zero (or jumping from its own
     prediction with a weak correlation) while the others turn is measured again within
     ``peer_tolerance`` of their rotation, where its features must confirm it."""
-    from perception.fisheye_kinematics import KinematicStateEstimator
+    from perception.kinematics.fisheye import KinematicStateEstimator
 
     cfg = TreadConfig()
     tex = tread_texture(np.random.default_rng(4))

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from perception.odometry import _rotation
-from perception.wheel_tracks import WheelTracks, wheel_contacts
+from perception.odometry.flow import _rotation
+from perception.odometry.wheel_tracks import WheelTracks, wheel_contacts
 
 WHEELS_XY = np.array([[0.4, 0.3], [0.4, -0.3], [-0.4, 0.3], [-0.4, -0.3]])
 

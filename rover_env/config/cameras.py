@@ -12,7 +12,7 @@ from typing import Literal, TypeVar, cast, get_args
 
 import numpy as np
 
-from perception.cameras import OmniCamera
+from perception.models.cameras import OmniCamera
 from rover_env.config.image_sensor import ImageSensorConfig
 from rover_env.config.io import ConfigError, check_range
 
@@ -126,7 +126,7 @@ class FisheyeCameraConfig(CameraConfig):
             (0.47: the circle spans the width and is cut by the top and bottom edges).
         oversample: Cube-face resolution relative to the fisheye's finest angular resolution.
         roi: Render only the region of interest of the kinematics estimator
-            (:func:`perception.rover_parts.kinematics_roi`: wheels, markers and steering arms
+            (:func:`perception.models.rover_parts.kinematics_roi`: wheels, markers and steering arms
             over the joint range);
             the rest of the image is black. Faster in proportion to the pixels saved.
         roi_ground_deg: With ``roi``, the region also holds the rays within this angle of the

@@ -12,7 +12,7 @@ import typing
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
 
-from perception.validation import ConfigError, check_range, read_yaml, real_number
+from perception.models.validation import ConfigError, check_range, read_yaml, real_number
 
 __all__ = ["ConfigError", "check_range", "from_dict", "to_dict", "load_yaml_dataclass", "replace"]
 

@@ -34,7 +34,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from perception.calib_io import check_rigid
+from perception.models.calib_io import check_rigid
 from rover_env.config.cameras import CameraConfig, DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError, check_range, from_dict
@@ -253,7 +253,7 @@ RIG_NAMES: tuple[str, ...] = ("standard", "fisheye_only")
 
 #: The one-camera rig's fisheye also renders the ground its odometry tracks: the rays within
 #: this angle of the body's -z [deg] (split into the cube's faces). Its odometry fits the motion
-#: to the ground within 60 degrees (:data:`perception.fisheye_odometry.TRACK_FREE_DEG`; 0.25 m
+#: to the ground within 60 degrees (:data:`perception.odometry.fisheye.TRACK_FREE_DEG`; 0.25 m
 #: of the camera's foot) and finds the wheels' tracks in the ring beyond, to 70 degrees: the
 #: ground there has the height of the wheels' contacts, which sets its scale on rough ground.
 FISHEYE_ONLY_GROUND_DEG = 75.0
@@ -299,7 +299,8 @@ class PerceptionPreset:
         fisheye_window: (axle roll [rad/s], axle travel [m/s], wheel steering [rad/s]): while
             the kinematics estimator tracks every marker and joint, the fisheye renders only the
             windows that hold the wheels, arms and markers over the joint states these rates
-            reach in one frame from its last estimate (:func:`~perception.rover_parts.joint_window_parts`),
+            reach in one frame from its last estimate
+            (:func:`~perception.models.rover_parts.joint_window_parts`),
             as a sensor's tracker-driven windowed readout; otherwise, and with None, its whole
             image (or region of interest). The steering rate is raised to 1.25 times the
             rover's ``steer_max_rate`` if it is below (an inner wheel turns faster than its axle).

@@ -24,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from perception.validation import read_yaml
+from perception.models.validation import read_yaml
 from rover_env.config.io import ConfigError, check_range, from_dict, to_dict
 
 __all__ = ["SoilConfig", "SOIL_PRESETS", "load_soil", "list_soils"]

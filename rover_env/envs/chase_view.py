@@ -12,7 +12,7 @@ import math
 import cv2
 import numpy as np
 
-from perception.cameras import PinholeCamera
+from perception.models.cameras import PinholeCamera
 from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.scenario import ScenarioConfig
 from rover_env.rendering import focus_on_rover

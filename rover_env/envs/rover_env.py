@@ -14,8 +14,8 @@ import numpy as np
 from gymnasium import spaces
 
 from perception import observation as obs_table
-from perception.drive_geometry import WHEELS as WHEEL_NAMES
 from perception.estimator import qualities, state_arrays
+from perception.models.drive_geometry import WHEELS as WHEEL_NAMES
 from rover_env.config.imu import ImuConfig
 from rover_env.config.randomize import RandomizeConfig, WorldDraw, randomize_config
 from rover_env.config.rig import RIG_NAMES, PresetName, imu_config, named_rig, standard_rig, with_imu

@@ -16,7 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from perception.cameras import PinholeCamera
+from perception.models.cameras import PinholeCamera
 from rover_env.config.scenario import cloud_shade
 
 

@@ -8,7 +8,7 @@ every fisheye pixel is looked up through one precomputed fixed-point ``cv2.remap
 exact :class:`perception.OmniCamera` model that the estimators receive.
 
 A region of interest renders less (a mask of the fisheye pixels to draw, such as
-:func:`perception.rover_parts.kinematics_roi`), like a sensor's ROI readout; the rest of the
+:func:`perception.models.rover_parts.kinematics_roi`), like a sensor's ROI readout; the rest of the
 image is black. Rendering time is proportional to the rendered pixels.
 """
 
@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from perception.cameras import OmniCamera
+from perception.models.cameras import OmniCamera
 
 SHADOW_DETAIL_RANGE = 0.5  # [m] about the distance of wheels and markers from the fisheye
 MAX_VIEW_HALF_ANGLE = math.radians(55.0)  # widest ray of a ROI view from its axis

@@ -16,8 +16,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.cameras import PinholeCamera
-from perception.rover_parts import kinematics_roi
+from perception.models.cameras import PinholeCamera
+from perception.models.rover_parts import kinematics_roi
 from rover_env.config.cameras import DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.io import ConfigError
 from rover_env.rendering import focus_on_rover, renderer_for
@@ -573,7 +573,7 @@ class FisheyeCamera(_RoverCamera):
 
         Args:
             parts: (N, 3) body-frame points [m] that the frame must show, such as
-                :func:`perception.rover_parts.joint_window_parts` about a tracker's last state: each
+                :func:`perception.models.rover_parts.joint_window_parts` about a tracker's last state: each
                 view then renders only the rectangle that holds their images (plus
                 :attr:`window_margin`), like a sensor's windowed readout, and the rest of the
                 image is black. None: the whole image (or region of interest).

@@ -20,7 +20,7 @@ import math
 import cv2
 import numpy as np
 
-from perception.photometry import relative_illumination
+from perception.models.photometry import relative_illumination
 from rover_env.config.image_sensor import ImageSensorConfig
 
 #: Bayer pattern of the colour-filter array: R at (0, 0), G at (0, 1) and (1, 0), B at (1, 1).

@@ -21,12 +21,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from perception.estimator import EstimatorError, check_estimate, estimator_name
-from perception.fisheye_kinematics import KinematicsConfig
-from perception.fisheye_odometry import FisheyeOdometryConfig
-from perception.odometry import FlowOdometryConfig
+from perception.fusion.slip import SlipConfig
+from perception.kinematics.fisheye import KinematicsConfig
+from perception.odometry.fisheye import FisheyeOdometryConfig
+from perception.odometry.flow import FlowOdometryConfig
 from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
-from perception.slip import SlipConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError
 from rover_env.config.rig import (

@@ -12,8 +12,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from perception.drive_geometry import AXLES, WHEELS, DriveGeometry, ackermann_arms, wheel_steering_angles
-from perception.validation import ConfigError, check_range
+from perception.models.drive_geometry import (
+    AXLES,
+    WHEELS,
+    DriveGeometry,
+    ackermann_arms,
+    wheel_steering_angles,
+)
+from perception.models.validation import ConfigError, check_range
 
 GRAVITY = 9.81  # [m/s^2]
 
@@ -212,7 +218,7 @@ class RoverGeometry:
     def ackermann_angles(self, steer_front: float, steer_rear: float) -> np.ndarray:
         """Per-wheel steering angles for the axle commands, order FL, FR, RL, RR [rad].
 
-        See :func:`perception.drive_geometry.wheel_steering_angles`.
+        See :func:`perception.models.drive_geometry.wheel_steering_angles`.
         """
         return wheel_steering_angles(
             ackermann_arms(self.axle_x, self.track, self.ackermann_center_x), steer_front, steer_rear
@@ -294,11 +300,11 @@ class RoverGeometry:
         return np.asarray(f.position) + 0.5 * MARKER_THICKNESS * np.asarray(f.normal)
 
     def kinematic_model(self, T_body_fisheye: np.ndarray):
-        """The geometry the fisheye estimator needs, as a :class:`perception.kinematics.RoverKinematicModel`.
+        """The geometry the fisheye estimator needs: a :class:`~perception.models.rover.RoverKinematicModel`.
 
         Marker positions are the centres of their visible faces.
         """
-        from perception.kinematics import RoverKinematicModel
+        from perception.models.rover import RoverKinematicModel
 
         a1 = self.marker_face_centre(self.fiducial("A1"))  # front-left plate marker, axle frame
         b1 = self.marker_face_centre(self.fiducial("B1"))  # front-left tie-rod end, knuckle frame

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pybullet as pb
 
-from perception.drive_geometry import ackermann_arms, axle_steering_angles
-from perception.wheel_kinematics import slip_ratio
+from perception.models.drive_geometry import ackermann_arms, axle_steering_angles
+from perception.models.wheel_kinematics import slip_ratio
 from rover_env.sim.geometry import AXLES, GRAVITY, WHEELS, RoverGeometry
 from rover_env.sim.ground_truth import GroundTruth
 from rover_env.sim.ruts import RutMap
@@ -393,6 +393,6 @@ def axle_steering_from_wheels(
 ) -> np.ndarray:
     """(lambda_F, lambda_R) from 4 wheel angles [rad].
 
-    See :func:`perception.drive_geometry.axle_steering_angles`.
+    See :func:`perception.models.drive_geometry.axle_steering_angles`.
     """
     return axle_steering_angles(arms if arms is not None else _ackermann_arms(geom), wheel_steer)

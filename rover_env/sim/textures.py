@@ -231,7 +231,7 @@ def read_texture(path) -> np.ndarray:
     Raises:
         ConfigError: The file does not exist or is not a readable image; the message names it.
     """
-    from perception.validation import ConfigError, image_file_size
+    from perception.models.validation import ConfigError, image_file_size
 
     p = Path(path)
     if not p.is_file():

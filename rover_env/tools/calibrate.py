@@ -2,7 +2,7 @@
 
 ``sweep_steering`` is the kinematics paper's steering calibration: the axles are steered through
 a range of angles, the fisheye image of each pose gives the tie-rod distance ratio of eq. (5), and
-the (ratio, lambda) table becomes a :class:`perception.markers.SteeringCalibration`.
+the (ratio, lambda) table becomes a :class:`perception.kinematics.markers.SteeringCalibration`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.markers import (
+from perception.kinematics.markers import (
     MarkerConfig,
     SteeringCalibration,
     assign_markers,

@@ -318,8 +318,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_kinematics(args: argparse.Namespace) -> int:
-    from perception import bags
-    from perception.offline import run_folder_kinematics
+    from perception.logs import bags
+    from perception.logs.offline import run_folder_kinematics
 
     _need_source(args.source)
     if not bags.is_log(args.source):
@@ -340,14 +340,14 @@ def _cmd_kinematics(args: argparse.Namespace) -> int:
 
 
 def _cmd_odometry(args: argparse.Namespace) -> int:
-    from perception import bags
-    from perception.cameras import PinholeCamera
-    from perception.offline import run_folder_odometry
+    from perception.logs import bags
+    from perception.logs.offline import run_folder_odometry
+    from perception.models.cameras import PinholeCamera
 
     _need_source(args.source)
     calib = args.calib if args.calib is not None else args.camera
     if args.calib is not None:
-        from perception.offline import is_omni
+        from perception.logs.offline import is_omni
 
         if is_omni(args.calib):
             raise ValueError(
@@ -355,12 +355,12 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
                 "for the fisheye's odometry (--calib is the downward camera's)"
             )
     if args.camera is not None:  # the fisheye's odometry: its calibration, checked before the output
-        from perception.cameras import GROUND_PLANE_MISSING, OmniCamera
+        from perception.models.cameras import GROUND_PLANE_MISSING, OmniCamera
 
         omni = OmniCamera.load(args.camera)
         if omni.ground_plane is None:
             raise ValueError(f"{args.camera}: {GROUND_PLANE_MISSING}")
-        from perception.fisheye_odometry import FisheyeOdometryConfig
+        from perception.odometry.fisheye import FisheyeOdometryConfig
 
         problem = omni.ground_view_error(max_height=FisheyeOdometryConfig().max_range)
         if problem:
@@ -368,7 +368,7 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
     if not bags.is_log(args.source):
         _need_fps(args)
         if args.calib is not None and PinholeCamera.load(args.calib).ground_plane is None:
-            from perception.cameras import GROUND_PLANE_MISSING
+            from perception.models.cameras import GROUND_PLANE_MISSING
 
             raise ValueError(f"{args.calib}: {GROUND_PLANE_MISSING}")
     if args.imu and args.imu_topic:
@@ -402,10 +402,10 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from perception import bags
     from perception.estimator import EstimatorError, estimator_name
-    from perception.outputs import OutputFolder
-    from perception.replay import load_rig, replay, write_estimates
+    from perception.logs import bags
+    from perception.logs.outputs import OutputFolder
+    from perception.logs.replay import load_rig, replay, write_estimates
     from perception.rover_estimator import RoverEstimator
     from rover_env.tools.evaluation import load_estimator
 
@@ -745,7 +745,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rover`` command."""
-    from perception.offline import NothingValidError
+    from perception.logs.offline import NothingValidError
 
     args = build_parser().parse_args(argv)
     logging.basicConfig(

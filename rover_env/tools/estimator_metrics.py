@@ -7,7 +7,7 @@ dead-reckoned and true planar poses. From it:
 - :func:`field_errors`: per observation field, MAE and 95th percentile of |estimate - truth|;
 - :func:`slip_metrics`: per-wheel slip-ratio MAE while |s_true| > 0.1 and otherwise, and
   slip-event detection (precision, recall, F1, onset latency in camera frames);
-- :func:`perception.trajectory.path_segment_errors` on the logged poses (the odometry paper's
+- :func:`perception.odometry.trajectory.path_segment_errors` on the logged poses (the odometry paper's
   path-segment error).
 
 The first second of each episode (the filters' start-up) is left out of every figure.
@@ -19,10 +19,10 @@ import math
 
 import numpy as np
 
-from perception.drive_geometry import AXLES, WHEELS
+from perception.fusion.slip import SlipConfig, slip_events
+from perception.models.drive_geometry import AXLES, WHEELS
 from perception.observation import OBS_FIELDS, field_index
-from perception.slip import SlipConfig, slip_events
-from perception.trajectory import path_segment_errors
+from perception.odometry.trajectory import path_segment_errors
 from rover_env.sim.simulation import quat_to_yaw
 
 #: Observation fields with a ground truth, and the (ground-truth key, index) of each.
@@ -112,7 +112,7 @@ def slip_metrics(runs: list[dict]) -> dict:
     MAE of the four wheels' slip ratios while |s_true| > 0.1 and otherwise, over steps where the
     wheel's tread or ground speed is at least 5 cm/s. Events: the slip filter's own
     (``info["slip"]["events"]``) against the truth labelled by the same rule
-    (:func:`perception.slip.slip_events`: |s| >= 0.2 for two frames in a row on a wheel at 0.15 m/s
+    (:func:`perception.fusion.slip.slip_events`: |s| >= 0.2 for two frames in a row on a wheel at 0.15 m/s
     or more, ending below 0.1); an estimated event matches a true one it overlaps or that ended
     at most ``EVENT_FRAMES`` fisheye frames before it starts (the detector needs that long to
     confirm; F1 is NaN when neither side has one). The scoring has a hysteresis band: an

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from controllers.base import Controller
-from perception import trajectory as tum
-from perception.drive_geometry import WHEELS
-from perception.slip import SLIP_EVENT
+from perception.fusion.slip import SLIP_EVENT
+from perception.models.drive_geometry import WHEELS
+from perception.odometry import trajectory as tum
 from rover_env.envs.rover_env import RoverEnv
 from rover_env.tools.estimator_metrics import EstimateLog, estimator_summary
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.drive_geometry import WHEELS
+from perception.models.drive_geometry import WHEELS
 
 AXLES = ("F", "R")
 

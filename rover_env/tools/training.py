@@ -29,7 +29,7 @@ from controllers.rl import (
     check_base,
     observation_fields,
 )
-from perception.slip import SLIP_EVENT
+from perception.fusion.slip import SLIP_EVENT
 from rover_env.config.rig import PresetName
 from rover_env.envs.rover_env import ObsSourceName
 from rover_env.task.judge import RewardConfig

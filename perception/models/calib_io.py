@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from perception.validation import ConfigError, not_a_number, read_yaml
+from perception.models.validation import ConfigError, not_a_number, read_yaml
 
 
 class CalibrationError(ConfigError):

@@ -1,8 +1,8 @@
 """All 10 joint degrees of freedom from one downward fisheye (kinematics paper, Fig. 5).
 
 Per frame: the markers give axle roll, axle-body distance and steering
-(:mod:`perception.markers`); with them each wheel's tread cylinder is placed and its rotation
-since the last frame measured (:mod:`perception.wheel_rotation`); the white correction marker on
+(:mod:`perception.kinematics.markers`); with them each wheel's tread cylinder is placed and its rotation
+since the last frame measured (:mod:`perception.kinematics.wheel_rotation`); the white correction marker on
 each tread removes the accumulated rotation drift once per sighting (eq. 7). Degrees of freedom
 that cannot be measured in a frame keep their previous value (rotations continue at their last
 rate, or at the other wheels' until they have one) and are flagged.
@@ -19,9 +19,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.cameras import OmniCamera
-from perception.kinematics import AXLES, MARKERS, WHEELS, RoverKinematicModel
-from perception.markers import (
+from perception.kinematics.markers import (
     MarkerConfig,
     SteeringCalibration,
     assign_markers,
@@ -29,15 +27,17 @@ from perception.markers import (
     measure_axles,
     segment_magenta,
 )
-from perception.photometry import cfa_luminance, linear_gray
-from perception.wheel_kinematics import rolling_speeds
-from perception.wheel_rotation import (
+from perception.kinematics.wheel_rotation import (
     StaticPattern,
     TreadConfig,
     measure_pairs,
     strip_resolution,
     unwrap_treads,
 )
+from perception.models.cameras import OmniCamera
+from perception.models.photometry import cfa_luminance, linear_gray
+from perception.models.rover import AXLES, MARKERS, WHEELS, RoverKinematicModel
+from perception.models.wheel_kinematics import rolling_speeds
 
 DOF_NAMES: tuple[str, ...] = (
     "psi_F",
@@ -120,7 +120,7 @@ class KinematicsConfig:
         max_depth_zero: Largest axle-depth offset :meth:`KinematicStateEstimator.zero_depth`
             takes out [m]; a frame that measures more is not of the rover at rest.
         static_rate: Weight of a frame in the learnt static pattern of each tread
-            (:class:`~perception.wheel_rotation.StaticPattern`), taken out of the strips before
+            (:class:`~perception.kinematics.wheel_rotation.StaticPattern`), taken out of the strips before
             they are aligned; 0: off. Chosen on recorded drives of the shadow mission (train
             preset, field cameras, seeds 411-416): the frames that lost a wheel fell from 9.3 %
             to 1.8 % (to 1.2 % from 8.9 % on seeds 221-226, not used to choose), the wheel
@@ -178,7 +178,7 @@ class KinematicState:
         markers_found: Magenta markers identified.
         corrected: Wheels whose rotation the correction marker reset in this frame.
         theta_dot_std: Standard deviation of each wheel rate measured in this frame [rad/s]
-            (:meth:`~perception.wheel_rotation.RotationMeasurement.std` over the frame
+            (:meth:`~perception.kinematics.wheel_rotation.RotationMeasurement.std` over the frame
             interval; inf where not measured).
     """
 
@@ -213,7 +213,7 @@ class KinematicStateEstimator:
             divides by the local light level, sees light as a factor.
         bayer: The camera's colour-filter array (:attr:`perception.rig.SensorSpec.bayer`), or
             None: the treads are unwrapped from each pixel's own sample
-            (:func:`perception.photometry.cfa_luminance`).
+            (:func:`perception.models.photometry.cfa_luminance`).
     """
 
     def __init__(

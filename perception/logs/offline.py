@@ -9,9 +9,9 @@ Table I. ``run_folder_kinematics`` runs the fisheye kinematics estimator and wri
 ``kinematics.csv`` and ``kinematics.mcap``.
 
 Both treat a log as a stream that can be damaged or glitched (docs/logs.md): frame times come
-from the header stamps checked against the receive times (:mod:`perception.log_time`); a bad
+from the header stamps checked against the receive times (:mod:`perception.logs.log_time`); a bad
 frame becomes an invalid row with the reason and the frames after it are kept; outputs
-go through :class:`perception.outputs.OutputFolder` (staged files, one commit, nothing of the
+go through :class:`perception.logs.outputs.OutputFolder` (staged files, one commit, nothing of the
 user's removed).
 """
 
@@ -33,19 +33,19 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from perception.bags import LogFrame
-from perception.cameras import OmniCamera, PinholeCamera
-from perception.drive_geometry import WHEELS
-from perception.fisheye_kinematics import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
-from perception.fisheye_odometry import FisheyeOdometry, FisheyeOdometryConfig
-from perception.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
-from perception.kinematics import RoverKinematicModel
-from perception.log_time import Placed, in_stamp_order, place
-from perception.markers import SteeringCalibration
-from perception.odometry import FlowOdometry, FlowOdometryConfig, integrate_twist
-from perception.outputs import OutputFolder
-from perception.trajectory import format_planar_tum
-from perception.validation import image_file_size
+from perception.fusion.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
+from perception.kinematics.fisheye import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
+from perception.kinematics.markers import SteeringCalibration
+from perception.logs.bags import LogFrame
+from perception.logs.log_time import Placed, in_stamp_order, place
+from perception.logs.outputs import OutputFolder
+from perception.models.cameras import OmniCamera, PinholeCamera
+from perception.models.drive_geometry import WHEELS
+from perception.models.rover import RoverKinematicModel
+from perception.models.validation import image_file_size
+from perception.odometry.fisheye import FisheyeOdometry, FisheyeOdometryConfig
+from perception.odometry.flow import FlowOdometry, FlowOdometryConfig, integrate_twist
+from perception.odometry.trajectory import format_planar_tum
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ def read_frame(
 
     A file whose header is not an image's, or says another size than the calibration's
     ``size`` (width, height) [px], or more pixels than the budget
-    (:data:`perception.validation.MAX_IMAGE_PIXELS`), is not decoded.
+    (:data:`perception.models.validation.MAX_IMAGE_PIXELS`), is not decoded.
     """
     try:
         header = image_file_size(path)
@@ -320,7 +320,7 @@ def is_omni(calibration) -> bool:
     """Whether ``calibration`` (a camera or a YAML path) is omnidirectional (``model: scaramuzza``)."""
     if isinstance(calibration, OmniCamera | PinholeCamera):
         return isinstance(calibration, OmniCamera)
-    from perception.calib_io import CalibrationError, read_yaml
+    from perception.models.calib_io import CalibrationError, read_yaml
 
     d = read_yaml(Path(calibration), CalibrationError, "calibration file")
     return isinstance(d, dict) and d.get("model") == "scaramuzza"
@@ -337,10 +337,10 @@ def _path(calibration) -> str | Path:
 
 def _need_ground_plane(camera, name: str, config=None) -> None:
     """The odometry's scale: a camera without a ground plane it can see is refused before any frame."""
-    from perception.calib_io import CalibrationError
+    from perception.models.calib_io import CalibrationError
 
     if camera.ground_plane is None:
-        from perception.cameras import GROUND_PLANE_MISSING
+        from perception.models.cameras import GROUND_PLANE_MISSING
 
         raise CalibrationError(f"{name}: {GROUND_PLANE_MISSING}")
     if isinstance(camera, OmniCamera):
@@ -371,21 +371,21 @@ def run_folder_odometry(
 
     Args:
         images: Folder of images (name order is time order), or a ROS 1 bag, ROS 2 bag folder
-            or MCAP file (:mod:`perception.bags`; times from the messages' stamps).
+            or MCAP file (:mod:`perception.logs.bags`; times from the messages' stamps).
         calibration: Calibration YAML (docs/odometry.md; with ``ground_plane``) or a camera. A
             pinhole camera runs :class:`FlowOdometry`; for a log with a ``CameraInfo`` beside the
             images, the YAML's intrinsics (``image_size``, ``K``, ``distortion``) may be left out:
             the log's fill them. An omnidirectional calibration (``model: scaramuzza``, its
             ``ground_plane`` and optional ``mask`` of the rover's parts) runs
-            :class:`perception.fisheye_odometry.FisheyeOdometry` on fisheye images.
+            :class:`perception.odometry.fisheye.FisheyeOdometry` on fisheye images.
         fps: Frame rate of the images [Hz] (image folders only; ignored for logs).
-        out: Output folder (:class:`perception.outputs.OutputFolder`): ``odometry.csv``,
+        out: Output folder (:class:`perception.logs.outputs.OutputFolder`): ``odometry.csv``,
             ``trajectory.tum`` and, with ``mcap``, ``odometry.mcap`` (one ``nav_msgs/Odometry``
             per estimate). Written only when the run succeeds; a user's files there stay.
         config: Estimator parameters (:class:`FlowOdometryConfig` for a pinhole camera,
-            :class:`~perception.fisheye_odometry.FisheyeOdometryConfig` for a fisheye).
+            :class:`~perception.odometry.fisheye.FisheyeOdometryConfig` for a fisheye).
         progress: Called with the finished share (0..1).
-        imu: An IMU CSV (:func:`perception.inertial.read_imu_csv`; times on the images' clock,
+        imu: An IMU CSV (:func:`perception.fusion.inertial.read_imu_csv`; times on the images' clock,
             t = 0 at the first image of a folder).
         imu_rpy: The IMU's mount in the body frame, roll-pitch-yaw [rad].
         imu_still: Seconds of standstill at the start of the IMU log: the gyro's bias is their
@@ -406,11 +406,11 @@ def run_folder_odometry(
             say why).
 
     Unreadable images, images of another size and frames whose stamp is flagged
-    (:func:`perception.log_time.place`) do not stop the run: each is an invalid row with
+    (:func:`perception.logs.log_time.place`) do not stop the run: each is an invalid row with
     the reason, and the next good frame pairs with the last good one across it. Where the
     header clock jumps, the pair across the jump is the invalid row and the chain starts again.
     """
-    from perception import bags
+    from perception.logs import bags
 
     bags.new_run()
     is_log = bags.is_log(images)
@@ -435,13 +435,13 @@ def run_folder_odometry(
     _check_config(camera, config)
     mask = None
     if isinstance(camera, OmniCamera) and camera.mask_file is not None:
-        from perception.fisheye_odometry import read_mask
+        from perception.odometry.fisheye import read_mask
 
         try:
             mask = read_mask(camera.mask_file)
             FisheyeOdometry(camera, mask=mask)  # its size, checked before any frame
         except (ValueError, OSError) as exc:
-            from perception.calib_io import CalibrationError
+            from perception.models.calib_io import CalibrationError
 
             raise CalibrationError(f"{name}: {exc}") from exc
     imu_in = _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, source.span)
@@ -472,7 +472,7 @@ def _read_imu(images, is_log, imu, imu_topic, imu_rpy, imu_still, span) -> tuple
     if imu is not None and imu_topic is not None:
         raise ValueError("imu and imu_topic: give one IMU source")
     if imu_topic is not None:
-        from perception import bags
+        from perception.logs import bags
 
         if not is_log:
             raise ValueError("imu_topic: an IMU topic needs a log (bag or MCAP) as the image source")
@@ -610,7 +610,7 @@ def _odometry(source, camera, config, progress, imu_in, imu_still, imu_name, mca
     poses = integrate_twist(t_arr, np.array(twists), max_hold=MAX_HOLD)
     folder.write_text("trajectory.tum", format_planar_tum(t_arr, poses))
     if mcap:
-        from perception import bags
+        from perception.logs import bags
 
         with folder.writing("odometry.mcap") as tmp, bags.McapWriter(tmp) as mw:
             for t, pose, tw, cov in zip(times[1:], poses[1:], twists[1:], covs[1:], strict=True):
@@ -644,8 +644,8 @@ def _log_camera(calibration, source) -> PinholeCamera:
 
     A CameraInfo the camera cannot use is blamed on the log and its topic, not the calibration.
     """
-    from perception import bags
-    from perception.calib_io import CalibrationError, read_mapping
+    from perception.logs import bags
+    from perception.models.calib_io import CalibrationError, read_mapping
 
     if isinstance(calibration, PinholeCamera):
         return calibration
@@ -717,7 +717,7 @@ def _imu_rows(data: np.ndarray, imu_rpy, imu_still: float, name: str) -> tuple:
 
 def _imu_yaw_rates(imu_log, z_row, rows, pair_start, imu_still: float, name) -> tuple:
     """The gyro's body-z rate over each pair, less its bias: (rates, sample counts, bias) [rad/s]."""
-    from perception.inertial import GYRO_BIAS_MAX
+    from perception.fusion.inertial import GYRO_BIAS_MAX
 
     gyro_z = imu_log.gyro @ z_row
     raw = np.full(len(rows), math.nan)
@@ -787,12 +787,12 @@ def run_folder_kinematics(
 
     Args:
         images: Folder of colour images (name order is time order), or a ROS 1 bag, ROS 2 bag
-            folder or MCAP file (:mod:`perception.bags`; times from the messages' stamps).
+            folder or MCAP file (:mod:`perception.logs.bags`; times from the messages' stamps).
         camera: Omnidirectional calibration YAML (:meth:`OmniCamera.save`) or a camera.
         rover: Rover geometry YAML (:meth:`RoverKinematicModel.save`) or a model; its
             ``T_body_cam`` must be the camera's.
         fps: Frame rate of the images [Hz] (image folders only; ignored for logs).
-        out: Output folder (:class:`perception.outputs.OutputFolder`); ``kinematics.csv`` gets
+        out: Output folder (:class:`perception.logs.outputs.OutputFolder`); ``kinematics.csv`` gets
             one row per image: t, the 10 degrees of freedom (psi_F, psi_R [rad], d_F, d_R [m],
             lambda_F, lambda_R [rad], theta FL..RR [rad]), the four wheel rates [rad/s],
             quality, a validity flag per degree of freedom and a note. With ``mcap``,
@@ -818,7 +818,7 @@ def run_folder_kinematics(
     the run: the estimator carries its state over them with every flag down, and the row says
     why.
     """
-    from perception import bags
+    from perception.logs import bags
 
     cam = camera if isinstance(camera, OmniCamera) else OmniCamera.load(camera)
     model = rover if isinstance(rover, RoverKinematicModel) else RoverKinematicModel.load(rover)
@@ -843,7 +843,7 @@ def run_folder_kinematics(
 
 
 def _kinematics(source, cam, est, progress, mcap, folder, name) -> FolderKinematicsResult:
-    from perception import bags
+    from perception.logs import bags
 
     n_all = n_any = n_rows = 0
     reasons = _Reasons()

@@ -22,7 +22,7 @@ Paths are relative to the rig file. :func:`save_rig` writes one for a rig (the s
 ``env.unwrapped.rig``, for example).
 
 :func:`replay` reads the log's messages (each image and IMU sample placed on the log's time
-line by :func:`perception.log_time.place`, damaged messages left out with a warning), gives
+line by :func:`perception.logs.log_time.place`, damaged messages left out with a warning), gives
 them to the estimator in time order as :class:`~perception.rig.SensorMessage` (images as
 (H, W, 3) uint8 RGB, IMU samples as gyro xyz [rad/s], accel xyz [m/s^2] and a saturation flag 0)
 and calls its ``update`` at every control tick, as the simulation does: ``reset(start_fix)``,
@@ -43,12 +43,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.calib_io import CalibrationError, check_rigid, read_mapping, write_mapping
-from perception.cameras import OmniCamera, PinholeCamera
 from perception.estimator import ESTIMATE_FIELDS, check_estimate, estimator_name
-from perception.kinematics import RoverKinematicModel
+from perception.models.calib_io import CalibrationError, check_rigid, read_mapping, write_mapping
+from perception.models.cameras import OmniCamera, PinholeCamera
+from perception.models.rover import RoverKinematicModel
+from perception.models.validation import ConfigError, real_number
 from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, TriadFigures
-from perception.validation import ConfigError, real_number
 
 log = logging.getLogger(__name__)
 
@@ -243,7 +243,7 @@ def save_rig(
 
 def _rgb(img: np.ndarray, depth: int | None) -> np.ndarray:
     """A decoded log image (BGR, BGRA or grey; 8 or 16 bits) as (H, W, 3) uint8 RGB."""
-    from perception.offline import to_8bit
+    from perception.logs.offline import to_8bit
 
     if img.dtype != np.uint8:
         img = to_8bit(img, max(depth or 16, 10))
@@ -256,8 +256,8 @@ def _rgb(img: np.ndarray, depth: int | None) -> np.ndarray:
 
 def _camera_stream(log_path: Path, spec: SensorSpec, topic: str | None) -> Iterator[tuple[float, str, Any]]:
     """(t, sensor, RGB image) of a camera's topic, in time order; unusable frames left out."""
-    from perception.bags import log_images
-    from perception.offline import _log_source
+    from perception.logs.bags import log_images
+    from perception.logs.offline import _log_source
 
     src = log_images(log_path, topic)
     placed = _log_source(src, log_path)
@@ -282,7 +282,7 @@ def _camera_stream(log_path: Path, spec: SensorSpec, topic: str | None) -> Itera
 
 def _imu_stream(log_path: Path, spec: SensorSpec, topic: str | None) -> Iterator[tuple[float, str, Any]]:
     """(t, sensor, (7,) gyro, accel, saturation 0) of an IMU topic, in time order."""
-    from perception.bags import log_imu
+    from perception.logs.bags import log_imu
 
     rows, _ = log_imu(log_path, topic)
     for r in rows:

@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception.calib_io import (
+from perception.models.calib_io import (
     CalibrationError,
     as_array,
     check_distortion,
@@ -364,7 +364,7 @@ class OmniCamera:
         max_fov: Full field of view [rad] (rays further than max_fov / 2 from the axis are invalid).
         T_body_cam: 4x4 transform from the camera optical frame to the body frame [m].
         ground_plane: (a, b, c): the ground z = a x + b y + c in the body frame [-, -, m] for the
-            fisheye's own odometry (:class:`perception.fisheye_odometry.FisheyeOdometry`); None:
+            fisheye's own odometry (:class:`perception.odometry.fisheye.FisheyeOdometry`); None:
             not given (the kinematics does not need it).
         mask_file: An image of the camera's size, non-zero where the ground may be seen and zero
             on the rover's own parts, for the fisheye's odometry (None: none; the parts are then

@@ -32,8 +32,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.cameras import OmniCamera
-from perception.kinematics import RoverKinematicModel
+from perception.models.cameras import OmniCamera
+from perception.models.rover import RoverKinematicModel
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ class TreadConfig:
             correlation is at least this ...
         prior_tolerance: ... and it lies within this of the predicted rotation [rad] (the prior
             passed in: for a tracked wheel, its last rotation per frame carried on at its last
-            change, :class:`~perception.fisheye_kinematics.KinematicStateEstimator`). A wheel
+            change, :class:`~perception.kinematics.fisheye.KinematicStateEstimator`). A wheel
             spinning up or braking on sand turns 0.3-0.6 rad per frame at 30 Hz, where the
             correlation falls to 0.5-0.7 and the features rarely confirm it; on rendered slip
             drives (train preset, about 6,000 alignments) every alignment taken by this rule

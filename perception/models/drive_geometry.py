@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.validation import ConfigError, check_range
+from perception.models.validation import ConfigError, check_range
 
 WHEELS: tuple[str, ...] = ("FL", "FR", "RL", "RR")
 AXLES: tuple[str, ...] = ("F", "R")

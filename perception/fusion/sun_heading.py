@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.kinematics import rot_x, rot_y, rot_z
-from perception.validation import ConfigError
+from perception.models.rover import rot_x, rot_y, rot_z
+from perception.models.validation import ConfigError
 
 
 def wrap(angle: float) -> float:

@@ -16,7 +16,7 @@ its time. A damaged MCAP chunk or SQLite message row loses only itself. Damage t
 file's structure (a ROS 1 chunk, an SQLite b-tree page, a cut-off MCAP) ends the reading at
 the last good message, with a warning naming the file and the position (docs/logs.md). Frame
 times are the header stamps [s], checked against the log's receive times by
-:mod:`perception.log_time`.
+:mod:`perception.logs.log_time`.
 
 Writers of ``nav_msgs/Odometry`` and ``sensor_msgs/JointState`` into an MCAP file (ROS 2 CDR,
 playable by Foxglove and ``ros2 bag play``) are at the end.
@@ -999,7 +999,7 @@ class LogImages:
     def stamps(self) -> list[LogStamp]:
         """The stamp, receive time and a digest of every image message that deserialises.
 
-        A pass over the topic that decodes no image, for :func:`perception.log_time.place` to
+        A pass over the topic that decodes no image, for :func:`perception.logs.log_time.place` to
         see the whole stream before the images are processed.
         """
         out = []
@@ -1136,11 +1136,11 @@ def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str
     """(N, 7) IMU samples of a log (t [s], gyro xyz [rad/s], accel xyz [m/s^2]) and the topic.
 
     The times are the header stamps placed on the log's time line by
-    :func:`perception.log_time.place`, as the images' are: on one clock, the IMU and the camera
+    :func:`perception.logs.log_time.place`, as the images' are: on one clock, the IMU and the camera
     share the time line whatever each of them dropped. Samples with a non-finite value or a flagged stamp, and
     damaged messages, are left out (with a warning).
     """
-    from perception.log_time import in_stamp_order, place
+    from perception.logs.log_time import in_stamp_order, place
 
     p = Path(path)
     samples, bad = [], 0

@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from perception.calib_io import CalibrationError
-from perception.cameras import OmniCamera, PinholeCamera
+from perception.models.calib_io import CalibrationError
+from perception.models.cameras import OmniCamera, PinholeCamera
 
 log = logging.getLogger(__name__)
 

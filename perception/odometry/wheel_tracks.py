@@ -7,7 +7,7 @@ themselves touch the ground: where a wheel has rolled, the ground's height is th
 contact. :class:`WheelTracks` keeps each wheel's contacts (from the kinematics) as a polyline
 moved with the body (the odometry's own motion between frames), and gives the height of the
 track under any body-frame point on it: the odometry's scale then rests on ground of known
-height in view (:class:`perception.fisheye_odometry.FisheyeOdometry`).
+height in view (:class:`perception.odometry.fisheye.FisheyeOdometry`).
 
 Frames: body frame (x forward, y left, z up); points [m], times [s].
 """
@@ -35,7 +35,7 @@ def wheel_contacts(wheel_frames, wheel_radius: float, ground_plane) -> np.ndarra
 
     Args:
         wheel_frames: (R, centre) of each wheel in the body frame, the axle along R's y
-            (:meth:`perception.kinematics.RoverKinematicModel.wheel_frames`).
+            (:meth:`perception.models.rover.RoverKinematicModel.wheel_frames`).
         wheel_radius: [m].
         ground_plane: (a, b, c) of z = a x + b y + c, body frame [-, -, m] (the normal's tilt).
     """

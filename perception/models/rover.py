@@ -17,14 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.calib_io import CalibrationError, as_array, check_rigid, read_mapping, write_mapping
-from perception.drive_geometry import (
+from perception.models.calib_io import CalibrationError, as_array, check_rigid, read_mapping, write_mapping
+from perception.models.drive_geometry import (
     AXLES,
     WHEELS,
     ackermann_arms,
     wheel_steering_angles,
 )
-from perception.validation import real_number
+from perception.models.validation import real_number
 
 PLATE = {"F": ("A1", "A2"), "R": ("C1", "C2")}
 ROD = {"F": ("B1", "B2"), "R": ("D1", "D2")}
@@ -78,7 +78,7 @@ class RoverKinematicModel:
         joint_limits: (axle roll [rad], axle travel about ``nominal_depth`` [m], axle steering
             [rad]) ranges +-, or None (unknown). With them the fisheye's odometry leaves out the
             image of the wheels, markers and arms over the whole range
-            (:func:`perception.rover_parts.kinematics_roi`).
+            (:func:`perception.models.rover_parts.kinematics_roi`).
     """
 
     axle_x: float

@@ -4,10 +4,10 @@ The fisheye paper proposes that its downward fisheye also track terrain features
 camera gives both the joints and the odometry. This module does the odometry part: features
 on the ground in the fisheye image, tracked from frame to frame (pyramidal Lucas-Kanade with a
 forward-backward check), their pixels turned into viewing rays by the exact
-:class:`~perception.cameras.OmniCamera` model (Scaramuzza's polynomial) and the rays met with
+:class:`~perception.models.cameras.OmniCamera` model (Scaramuzza's polynomial) and the rays met with
 the ground plane (``z = a x + b y + c`` in the body frame, as the downward camera's
 ``ground_plane``). The ground points' rigid motion (RANSAC and least squares, the odometry
-paper's eqs. 10-19, shared with :mod:`perception.odometry`) is the body's planar twist.
+paper's eqs. 10-19, shared with :mod:`perception.odometry.flow`) is the body's planar twist.
 
 What a fisheye sees that a downward pinhole does not, and what is done about it:
 
@@ -21,8 +21,8 @@ What a fisheye sees that a downward pinhole does not, and what is done about it:
   only rays at least ``min_depression_deg`` below the camera's horizon and ground points within
   ``max_range`` of the camera (horizontally) are used.
 
-The estimate is an :class:`~perception.odometry.OdometryEstimate` with the same validity rules
-as :class:`~perception.odometry.FlowOdometry`: at least ``min_inliers`` RANSAC inliers and an
+The estimate is an :class:`~perception.odometry.flow.OdometryEstimate` with the same validity rules
+as :class:`~perception.odometry.flow.FlowOdometry`: at least ``min_inliers`` RANSAC inliers and an
 inlier ratio of ``min_inlier_ratio``; the quality is the inlier count against twice the
 minimum times the ratio; the covariance is the fits' with the scale's error on the speed
 (``FisheyeOdometryConfig.scale_std``). With ``two_view`` the motion is refined by
@@ -40,8 +40,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception.cameras import OmniCamera
-from perception.odometry import (
+from perception.models.cameras import OmniCamera
+from perception.odometry.flow import (
     OdometryEstimate,
     _plane,
     _rotation,
@@ -54,7 +54,7 @@ from perception.odometry import (
     to_gray,
     velocity_from_points,
 )
-from perception.wheel_tracks import WheelTracks
+from perception.odometry.wheel_tracks import WheelTracks
 
 #: The scale's error model takes the ground's roughness (the plane test's ratio, its median) over
 #: this long [s] (FisheyeOdometryConfig.scale_std).
@@ -129,7 +129,7 @@ class FisheyeOdometryConfig:
         bimodality_lambda: lambda of the paper's eq. (3): the grey levels are a shadow's two
             clusters when their centres differ by lambda times their deviations' sum.
         shadow_max_fragmentation: ... and when their labels are not noise (a share of
-            neighbouring pixel pairs that differ, :func:`~perception.odometry.label_fragmentation`).
+            neighbouring pixel pairs that differ, :func:`~perception.odometry.flow.label_fragmentation`).
         min_shadow_area: A dark segment is the rover's shadow (or part) when it covers at least
             this share of the view; smaller dark spots are the ground's texture. (The fisheye
             sees the shadow under the rover, which need not reach the image border, so the
@@ -324,7 +324,7 @@ def read_mask(path: str | Path) -> np.ndarray:
     Raises:
         CalibrationError: The file is missing or not an image, or it marks no ground at all.
     """
-    from perception.calib_io import CalibrationError
+    from perception.models.calib_io import CalibrationError
 
     p = Path(path)
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED) if p.is_file() else None
@@ -748,7 +748,7 @@ class FisheyeOdometry:
 
     @property
     def config(self) -> FisheyeOdometryConfig:
-        """The settings (as :attr:`perception.odometry.FlowOdometry.config`)."""
+        """The settings (as :attr:`perception.odometry.flow.FlowOdometry.config`)."""
         return self.cfg
 
     def reset(self) -> None:
@@ -806,7 +806,7 @@ class FisheyeOdometry:
             rate_xy: The body's mean roll and pitch rates since the last frame (a gyro) [rad/s],
                 or None.
             contacts: (n, 3) where the wheels touch the ground now, body frame [m]
-                (:func:`perception.wheel_tracks.wheel_contacts` of the kinematics), or None. The
+                (:func:`perception.odometry.wheel_tracks.wheel_contacts` of the kinematics), or None. The
                 tracks they leave, carried with the body's motion, give the ground's height
                 where the camera sees them again: the scale rests on it (``track_*``).
 

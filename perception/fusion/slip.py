@@ -43,8 +43,8 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr
 
-from perception.drive_geometry import WHEELS
-from perception.wheel_kinematics import slip_angle, slip_ratio, wheel_ground_velocity
+from perception.models.drive_geometry import WHEELS
+from perception.models.wheel_kinematics import slip_angle, slip_ratio, wheel_ground_velocity
 
 log = logging.getLogger(__name__)
 
@@ -525,7 +525,7 @@ class SlipEstimator:
             steering: (4,) wheel steering angles [rad], positive left; kept until the next.
             std: (4,) each rate's own standard deviation [rad/s] (inf or NaN: none); the rate's
                 noise is the larger of ``rate_std`` and ``rate_std_own`` times this (the
-                fisheye's :attr:`~perception.fisheye_kinematics.KinematicState.theta_dot_std`:
+                fisheye's :attr:`~perception.kinematics.fisheye.KinematicState.theta_dot_std`:
                 a wheel seen obliquely, on few cells, is measured far less well).
         """
         z = np.asarray(wheel_rate, dtype=np.float64).reshape(-1)
@@ -641,8 +641,8 @@ class SlipEstimator:
 
         Args:
             t: Query time [s].
-            odometry: A :class:`~perception.odometry.OdometryEstimate` (used when valid).
-            kinematics: A :class:`~perception.fisheye_kinematics.KinematicState`.
+            odometry: A :class:`~perception.odometry.flow.OdometryEstimate` (used when valid).
+            kinematics: A :class:`~perception.kinematics.fisheye.KinematicState`.
             fisheye_dt: The fisheye's frame interval [s] (the rates' averaging window).
         """
         if odometry is not None and odometry.valid:

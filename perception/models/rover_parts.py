@@ -1,7 +1,7 @@
 """What the kinematics estimator reads of the rover, as body-frame points: pure geometry.
 
 The wheels (tread and side discs), steering arms, tie-rod markers and the balls about the eight
-marker centres of a :class:`perception.kinematics.RoverKinematicModel` at a joint state
+marker centres of a :class:`perception.models.rover.RoverKinematicModel` at a joint state
 (:func:`kinematic_parts`), and the points that bound where they can be a frame later
 (:func:`joint_window_parts`): what an estimator asks a camera with a windowed readout to show;
 and the fisheye pixels where any of them can appear over the joints' ranges
@@ -17,8 +17,8 @@ import math
 import cv2
 import numpy as np
 
-from perception.cameras import OmniCamera
-from perception.kinematics import AXLES, PLATE, WHEELS
+from perception.models.cameras import OmniCamera
+from perception.models.rover import AXLES, PLATE, WHEELS
 
 
 @functools.lru_cache(maxsize=8)
@@ -64,7 +64,7 @@ def kinematic_parts(model, psi, depth, delta, outline: bool = False) -> list[np.
     steering arm and tie-rod marker, and a ball around each of the eight marker centres.
 
     Args:
-        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
+        model: The rover's :class:`perception.models.rover.RoverKinematicModel`.
         psi: Axle roll (F, R) [rad].
         depth: Axle-body distance (F, R) [m].
         delta: Wheel steering angles (FL, FR, RL, RR) [rad].
@@ -90,7 +90,7 @@ def joint_window_parts(model, psi, depth, delta, spread: tuple[float, float, flo
     curvature, which a window's pixel margin covers.
 
     Args:
-        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
+        model: The rover's :class:`perception.models.rover.RoverKinematicModel`.
         psi: Axle roll (F, R) [rad].
         depth: Axle-body distance (F, R) [m].
         delta: Wheel steering angles (FL, FR, RL, RR) [rad].
@@ -169,7 +169,7 @@ def kinematics_roi(
 
     Args:
         camera: The fisheye model (its ``T_body_cam`` is the mount).
-        model: The rover's :class:`perception.kinematics.RoverKinematicModel`.
+        model: The rover's :class:`perception.models.rover.RoverKinematicModel`.
         roll_limit: Axle roll range +- [rad].
         travel_limit: Axle travel range +- about ``model.nominal_depth`` [m].
         steer_limit: Axle steering range +- [rad].

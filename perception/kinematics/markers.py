@@ -26,9 +26,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception.calib_io import CalibrationError, as_array, read_mapping, write_mapping
-from perception.cameras import OmniCamera
-from perception.kinematics import AXLES, MARKERS, PLATE, ROD, WHEELS, RoverKinematicModel
+from perception.models.calib_io import CalibrationError, as_array, read_mapping, write_mapping
+from perception.models.cameras import OmniCamera
+from perception.models.rover import AXLES, MARKERS, PLATE, ROD, WHEELS, RoverKinematicModel
 
 
 @dataclass(frozen=True)

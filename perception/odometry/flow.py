@@ -34,8 +34,8 @@ from typing import Any, Literal, overload
 import cv2
 import numpy as np
 
-from perception.cameras import PinholeCamera
-from perception.photometry import flat_field, flat_field_gain
+from perception.models.cameras import PinholeCamera
+from perception.models.photometry import flat_field, flat_field_gain
 
 log = logging.getLogger(__name__)
 
@@ -1015,7 +1015,7 @@ class FlowOdometry:
         gamma: float = 1.0,
     ) -> None:
         if camera.ground_plane is None:
-            from perception.cameras import GROUND_PLANE_MISSING
+            from perception.models.cameras import GROUND_PLANE_MISSING
 
             raise ValueError(GROUND_PLANE_MISSING)
         self.camera = camera
