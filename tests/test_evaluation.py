@@ -77,7 +77,7 @@ def test_summary_and_report_from_known_rows(tmp_path):
         )
     assert summarize(rows)[0]["est_slip_f1"] == pytest.approx(2 * 3 / (2 * 3 + 1 + 1))  # pooled, not 0
     report = write_report(rows, tmp_path).read_text()
-    assert "| c | 3 | 0.667 | 15 | 0.1 | 10 |" in report
+    assert "| c | built-in | 3 | 0.667 | 15 | 0.1 | 10 |" in report
     with open(tmp_path / "results.csv") as fh:
         assert len(list(csv.DictReader(fh))) == 3
     assert len(json.loads((tmp_path / "results.json").read_text())) == 3
@@ -101,7 +101,7 @@ def test_rover_eval_writes_one_report_of_all_runs(tiny_scenario, tmp_path, capsy
     (run,) = (out / "runs").glob("slip_aware-ground_truth_tiny-*_1")  # the scenario file's stem and hash
     assert (run / "trajectory.png").stat().st_size > 1000
     report = (out / "report.md").read_text()
-    assert "## " + tiny_scenario in report and "slip_aware@ground_truth | 2 | 1 |" in report
+    assert "## " + tiny_scenario in report and "slip_aware@ground_truth | none | 2 | 1 |" in report
     assert "report.md" in capsys.readouterr().out
 
 

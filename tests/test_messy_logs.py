@@ -496,15 +496,22 @@ def test_nothing_the_user_put_in_out_is_removed_whatever_its_name(tmp_path, fram
     assert set(after) - set(before) == {out / n for n in ("odometry.csv", "trajectory.tum", "odometry.mcap")}
 
 
-def test_overwrite_replaces_only_the_tools_own_results(tmp_path, frames, capsys):
+def test_overwrite_replaces_only_what_this_run_writes(tmp_path, frames, capsys, caplog):
     log_path = write_log(tmp_path / "i.mcap", "mcap", frames[:12], imu=True)
     base = ["odometry", str(log_path), "--calib", str(calib(tmp_path)), "--out", str(tmp_path / "out")]
-    assert main([*base, "--imu-topic", "/imu/data"]) == 0
+    assert main(base) == 0
     (tmp_path / "out" / "mine.csv").write_text("keep")
+    (tmp_path / "out" / "trajectory_imu.tum").write_text("my own trajectory")  # a user's file of that name
+    before = (tmp_path / "out" / "odometry.csv").read_bytes()
     assert main(base) == 2 and "--overwrite" in one_error_line(capsys)
-    assert main([*base, "--overwrite"]) == 0  # this run has no IMU: the earlier IMU path must not stay
+    assert main([*base, "--overwrite"]) == 0  # no IMU this run: the file of the IMU path's name is kept
     names = {p.name for p in (tmp_path / "out").iterdir()}
-    assert names == {"odometry.csv", "trajectory.tum", "odometry.mcap", "mine.csv"}
+    assert names == {"odometry.csv", "trajectory.tum", "odometry.mcap", "mine.csv", "trajectory_imu.tum"}
+    assert (tmp_path / "out" / "trajectory_imu.tum").read_text() == "my own trajectory"
+    assert (tmp_path / "out" / "odometry.csv").read_bytes() == before  # remade, the same
+    assert "trajectory_imu.tum is not from this run" in caplog.text
+    assert main([*base, "--imu-topic", "/imu/data", "--overwrite"]) == 0  # this run writes it: replaced
+    assert (tmp_path / "out" / "trajectory_imu.tum").read_text() != "my own trajectory"
 
 
 def test_a_full_disk_names_the_file_and_leaves_the_earlier_results_or_nothing(
@@ -988,7 +995,7 @@ def test_two_glitches_in_a_row_keep_the_rows_in_time_order():
     assert np.all(np.diff([x.t for x in out]) > 0)
 
 
-def test_a_failed_commit_leaves_the_earlier_results(tmp_path, frames, capsys):
+def test_a_folder_in_the_way_of_a_result_is_refused_before_any_work(tmp_path, frames, capsys):
     log_path = write_log(tmp_path / "c.mcap", "mcap", frames[:6])
     argv = ["odometry", str(log_path), "--calib", str(calib(tmp_path)), "--out", str(tmp_path / "out")]
     assert main(argv) == 0
@@ -996,8 +1003,8 @@ def test_a_failed_commit_leaves_the_earlier_results(tmp_path, frames, capsys):
     (tmp_path / "out" / "trajectory.tum").unlink()
     (tmp_path / "out" / "trajectory.tum").mkdir()  # something the new result cannot replace
     del earlier["trajectory.tum"]
-    assert main([*argv, "--overwrite"]) == 2
-    assert "the folder is as it was" in one_error_line(capsys)
+    assert main([*argv, "--overwrite"]) == 2  # refused before any work
+    assert "trajectory.tum is a folder where this tool writes a file" in one_error_line(capsys)
     assert {p.name: p.read_bytes() for p in (tmp_path / "out").iterdir() if p.is_file()} == earlier
     assert not [p for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
 

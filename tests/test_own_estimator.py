@@ -236,7 +236,9 @@ def test_the_example_estimator_drives_a_mission_and_rover_eval_takes_it(
     assert (
         "Estimator on the estimated-observation runs: examples.own_estimator:LucasKanadeEstimator" in report
     )
-    assert "| pure_pursuit | 1 | 1 |" in report  # it reached the goal
+    assert (
+        "| pure_pursuit | examples.own_estimator:LucasKanadeEstimator | 1 | 1 |" in report
+    )  # it reached the goal
     bad = ["eval", "--missions", tiny_scenario, "--seeds", "0", "--out", str(tmp_path / "x")]
     assert main([*bad, "--estimator", "examples.own_estimator:Nope"]) == 2
     assert "has no callable 'Nope'" in capsys.readouterr().err

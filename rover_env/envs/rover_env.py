@@ -564,6 +564,18 @@ class RoverEnv(gym.Env):
         return self.pipeline.rig if self.pipeline is not None else None
 
     @property
+    def estimate_values(self) -> dict[str, Any] | None:
+        """What the estimator returned at the last step, by name (checked), or None with ground truth.
+
+        The names of :data:`perception.estimator.ESTIMATE_FIELDS` it returned (``"pose"``: a
+        (3,) array, the rest floats); a name it left out is absent. A copy: changing it changes
+        nothing.
+        """
+        if self._est is None:
+            return None
+        return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self._est.items()}
+
+    @property
     def renderer(self) -> str:
         """What draws the cameras: ``"gl"`` or ``"tiny"`` (see the ``renderer`` argument)."""
         return self.sim.renderer

@@ -11,11 +11,21 @@ lengths, as the soil's shear builds over one) and averages the last 40 %:
 - load: the soil's vertical force on the wheel,
 - sinkage: the depth of the grousers' tips (the rim for a smooth wheel) below the surface,
 - torque: the torque the wheel's motor applies.
+
+Before it runs, each slip's steady state (:func:`rover_env.sim.terramechanics.steady_state`)
+must be one the test bed can reach: the soil must carry the load before the wheel sinks past its
+axle, and the contact's stiffness at that sinkage must be one the physics step resolves (a soil
+whose sinkage barely changes with the load rings faster than the step, and the explicit contact
+blows up). After it runs, a result that cannot be physical (a negative or non-finite sinkage,
+no load carried, a wheel buried past its axle) is an error, not a row. The work is bounded:
+a run of more than :data:`MAX_STEPS` physics steps is refused before it starts.
 """
 
 from __future__ import annotations
 
 import logging
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,11 +36,17 @@ from rover_env.config.io import ConfigError, check_range
 from rover_env.config.soil import SoilConfig
 from rover_env.sim.geometry import GRAVITY
 from rover_env.sim.soil_contact import SoilContact
-from rover_env.sim.terramechanics import WheelSpec, slip_velocities
+from rover_env.sim.terramechanics import REST_SPEED, WheelSpec, contact_forces, slip_velocities, steady_state
 
 log = logging.getLogger(__name__)
 
 COLUMNS = ("slip", "drawbar_pull_N", "load_N", "sinkage_m", "torque_Nm")
+#: Most physics steps one test-bed run may take (all slips; 1e4 s of simulated travel at 240 Hz,
+#: a few minutes of computing).
+MAX_STEPS = 2_400_000
+#: Largest contact frequency times the physics step the test bed accepts, omega * dt (an explicit
+#: step of an undamped spring diverges at 2; this keeps a margin).
+MAX_OMEGA_DT = 1.0
 
 
 @dataclass(frozen=True)
@@ -54,6 +70,7 @@ def run_wheel_test(
     distance: float = 1.0,
     settle: float = 1.0,
     dt: float = 1.0 / 240.0,
+    progress: Callable[[float], None] | None = None,
 ) -> list[WheelTestRow]:
     """Drive ``wheel`` on ``soil`` under ``load`` [N] at each slip in ``slips``.
 
@@ -66,9 +83,14 @@ def run_wheel_test(
         distance: How far the carriage travels per slip [m]; the last 40 % is averaged.
         settle: Time the wheel settles at rest under its load before each run [s].
         dt: Physics step [s].
+        progress: Called with the finished share of the run (0..1).
 
     Raises:
-        ConfigError: A load <= 0, a slip outside [-1, 1], or another impossible figure.
+        ConfigError: A load <= 0, a slip outside [-1, 1], or another impossible figure; a
+            steady state the test bed cannot reach (the wheel buried past its axle, a contact
+            too stiff for the physics step), or a run longer than :data:`MAX_STEPS` (before
+            anything runs); a result that cannot be physical (after the run; the message names
+            the figure).
     """
     check_range("load", load, 0.0, 1e6, lo_open=True)
     slips = [float(s) for s in np.atleast_1d(np.asarray(slips, dtype=np.float64))]
@@ -80,12 +102,32 @@ def run_wheel_test(
     check_range("speed", speed, 0.0, 10.0, lo_open=True)
     check_range("distance", distance, 0.0, 100.0, lo_open=True)
     check_range("settle", settle, 0.0, 3600.0)
+    per_slip = int(round(distance / speed / dt))
+    total = len(slips) * per_slip + int(round(settle / dt))
+    if total > MAX_STEPS:
+        fastest = len(slips) * distance / (MAX_STEPS * dt)
+        raise ConfigError(
+            f"speed, distance: {speed:g} m/s over {distance:g} m is {distance / speed:.3g} s of travel for "
+            f"each of {len(slips)} slips ({total:.3g} physics steps at {1 / dt:g} Hz); the test bed runs "
+            f"at most {MAX_STEPS:.3g}: give a speed of at least {fastest:.3g} m/s or a shorter distance"
+        )
+    check_steady_state(soil, wheel, load, slips, speed, dt)
     bed = _Bed(soil, wheel, load, dt)
+    done = 0
+
+    def tick(n: int) -> None:
+        nonlocal done
+        done += n
+        if progress is not None:
+            progress(min(1.0, done / total))
+
     try:
         bed.settle(settle)
+        tick(int(round(settle / dt)))
         rows = []
         for s in slips:
-            rows.append(bed.run(s, speed, distance / speed))
+            rows.append(bed.run(s, speed, distance / speed, tick))
+            _check_row(rows[-1], load, wheel, soil)
             if abs(rows[-1].load_N / load - 1.0) > 0.01:
                 log.warning(
                     "slip %+.2f: the soil carried %.1f N of the %.1f N load (the wheel was still sinking);"
@@ -174,7 +216,9 @@ class _Bed:
         self._settled = self.c.saveState()
         self._soil_state = self.soil.snapshot()
 
-    def run(self, slip: float, speed: float, duration: float) -> WheelTestRow:
+    def run(
+        self, slip: float, speed: float, duration: float, tick: Callable[[int], None] | None = None
+    ) -> WheelTestRow:
         self.c.restoreState(self._settled)
         self.soil.restore(self._soil_state)
         v, w = slip_velocities(np.array([slip]), speed, self.wheel.radius)
@@ -183,6 +227,8 @@ class _Bed:
         keep = max(1, int(0.4 * n))
         acc = np.zeros(5)
         for k in range(n):
+            if tick is not None and k % 2400 == 2399:
+                tick(2400)
             f, sink = self._substep()
             if k >= n - keep:
                 carriage = self.c.getJointState(self.body, 0)[3]
@@ -202,6 +248,73 @@ class _Bed:
             self.c.disconnect()
         except pb.error:  # pragma: no cover
             pass
+
+
+def _soil_figures(soil: SoilConfig) -> str:
+    return f"k_c = {soil.k_c:g}, k_phi = {soil.k_phi:g}, n = {soil.n:g}"
+
+
+def check_steady_state(
+    soil: SoilConfig, wheel: WheelSpec, load: float, slips, speed: float, dt: float = 1.0 / 240.0
+) -> None:
+    """Refuse a test the bed cannot run: each slip's steady state must be reachable and resolvable.
+
+    The soil must carry ``load`` [N] before the wheel sinks past its axle (its radius), and the
+    contact's stiffness there, k = dF_z/dz, must ring slower than the physics step resolves:
+    sqrt(k / m) dt <= :data:`MAX_OMEGA_DT`, m the load's mass.
+
+    Raises:
+        ConfigError: Naming the slip, the figure and the soil's parameters.
+    """
+    s = np.atleast_1d(np.asarray(slips, dtype=np.float64))
+    v_ref = max(speed, 2 * REST_SPEED)  # the steady sinkage barely depends on the speed
+    ss = steady_state(soil, wheel, load, s, speed=v_ref)
+    mass = load / GRAVITY
+    for k, slip in enumerate(s):
+        h = float(ss.sinkage[k])
+        if not ss.converged[k] or h >= wheel.radius:
+            raise ConfigError(
+                f"soil {soil.name}: at slip {slip:+.2f} the soil carries the {load:g} N load only with the "
+                f"wheel buried past its axle (sinkage above the radius, {wheel.radius:g} m): it is too soft "
+                f"for this load ({_soil_figures(soil)}); lighten the load or check the soil's moduli"
+            )
+        v, w = slip_velocities(np.array([slip]), v_ref, wheel.radius)
+        dz = max(1e-3 * h, 1e-9)
+        f_up, f_dn = (
+            float(contact_forces(soil, wheel, np.array([z]), v, w, np.zeros(1)).normal[0])
+            for z in (h + dz, h - dz)
+        )
+        stiffness = (f_up - f_dn) / (2 * dz)  # [N/m]
+        omega = math.sqrt(max(stiffness, 0.0) / mass)
+        if omega * dt > MAX_OMEGA_DT:
+            raise ConfigError(
+                f"soil {soil.name}: at slip {slip:+.2f} the wheel's steady sinkage would be "
+                f"{1e3 * h:.3g} mm, where the soil's stiffness ({stiffness:.3g} N/m under {load:g} N) "
+                f"rings at {omega / (2 * math.pi):.0f} Hz, too fast for the {1 / dt:g} Hz physics step to "
+                f"resolve; a soil that barely yields ({_soil_figures(soil)}) is rigid ground: check it"
+            )
+
+
+def _check_row(row: WheelTestRow, load: float, wheel: WheelSpec, soil: SoilConfig) -> None:
+    """A result that cannot be physical is an error naming the figure."""
+    values = (row.drawbar_pull_N, row.load_N, row.sinkage_m, row.torque_Nm)
+    why = ""
+    if not all(math.isfinite(v) for v in values):
+        why = (
+            f"non-finite figures (drawbar pull {row.drawbar_pull_N}, load {row.load_N}, "
+            f"sinkage {row.sinkage_m})"
+        )
+    elif row.sinkage_m < 0.0:
+        why = f"a negative sinkage, {row.sinkage_m:.4g} m (the wheel above the soil)"
+    elif row.load_N < 0.5 * load:
+        why = f"the soil carrying {row.load_N:.3g} N of the {load:g} N load"
+    elif row.sinkage_m >= wheel.radius:
+        why = f"a sinkage of {row.sinkage_m:.3g} m, past the wheel's axle (radius {wheel.radius:g} m)"
+    if why:
+        raise ConfigError(
+            f"soil {soil.name}: at slip {row.slip:+.2f} the test bed ended with {why}: not a physical steady "
+            f"state; check the soil's figures ({_soil_figures(soil)}) and the load"
+        )
 
 
 def wheel_test_table(rows: list[WheelTestRow]) -> str:

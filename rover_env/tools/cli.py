@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import math
@@ -43,36 +44,72 @@ class _Progress:
         self._bar.close()
 
 
+class _LazyProgress:
+    """A :class:`_Progress` that appears at its first report (not for a run refused before it starts)."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self._bar: _Progress | None = None
+
+    def share(self, frac: float) -> None:
+        """Report the finished share of the work (0..1)."""
+        if self._bar is None:
+            self._bar = _Progress(self.label)
+        self._bar.share(frac)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from rover_env.tools.mission import DEMO_RUNS, json_safe, run_demo
+    from perception.logs.outputs import OutputFolder, check_out
+    from rover_env.config.scenario import load_scenario
+    from rover_env.tools.mission import DEMO_RUNS, demo_products, run_demo
 
-    products = ("metrics.json", "demo.mp4", "slip.png", *(name for name, _ in DEMO_RUNS))
-    out = _prepare_out(args.out, products, args.overwrite)
-    bar = _Progress(f"demo {args.scenario}: simulated", unit="s sim", total=None)
-    start = time.perf_counter()
-    try:
-        if args.rerun:
-            from rover_env.tools.rerun_log import _rerun
+    check_out(args.out)
+    load_scenario(args.scenario)  # the inputs before the output
+    if args.rerun:
+        from rover_env.tools.rerun_log import _rerun
 
-            _rerun()  # the SDK is there, before anything runs
-        results = run_demo(
-            out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar.sim,
-            rerun=Path(args.rerun) if args.rerun else None,
-        )  # fmt: skip
-    finally:
-        bar.close()
-    summary = {name: {"metrics": asdict(r.metrics), "estimator": r.estimator} for name, r in results.items()}
-    print(json.dumps(json_safe(summary), indent=2))
+        _rerun()  # the SDK is there, before anything runs
+    rerun = Path(args.rerun) if args.rerun else None
+    with contextlib.ExitStack() as stack:
+        out = stack.enter_context(OutputFolder(args.out, demo_products(), args.overwrite))
+        rr = None
+        if rerun is not None:
+            rr = stack.enter_context(OutputFolder(rerun.parent, (rerun.name,), args.overwrite))
+        bar = _Progress(f"demo {args.scenario}: simulated", unit="s sim", total=None)
+        start = time.perf_counter()
+        try:
+            results = run_demo(
+                out, scenario=args.scenario, seed=args.seed, video=not args.no_video, progress=bar.sim,
+                rerun=rr.stage(rerun.name) if rr is not None and rerun is not None else None,
+            )  # fmt: skip
+        finally:
+            bar.close()
+        out.commit()
+        if rr is not None:
+            rr.commit()
     for name, label in DEMO_RUNS:
         m = results[name].metrics
-        print(f"{label}: {m.termination} after {m.time:.1f} s, goal error {m.goal_error:.2f} m")
+        est = results[name].estimator or {}
+        slip = est.get("slip_mae_slipping", math.nan)
+        print(
+            f"{label}: {m.termination} after {m.time:.1f} s, goal error {m.goal_error:.2f} m, energy "
+            f"{m.energy:.0f} J, slip MAE while slipping {_cell(slip)}"
+        )
     print(
-        f"wrote {'demo.mp4, ' if not args.no_video else ''}slip.png, metrics.json"
+        f"wrote {'demo.mp4, ' if not args.no_video else ''}slip.png, metrics.json (every metric)"
         f"{', ' + str(args.rerun) if args.rerun else ''} and per-run plots and TUM trajectories "
-        f"to {out.resolve()} "
-        f"in {time.perf_counter() - start:.0f} s"
+        f"to {Path(args.out).resolve()} in {time.perf_counter() - start:.0f} s"
     )
     return 0
+
+
+def _cell(v: float, fmt: str = ".3f") -> str:
+    """A number for the terminal: "–" where it is unknown (NaN)."""
+    return "–" if v is None or not math.isfinite(v) else format(v, fmt)
 
 
 #: Most seeds one ``--seeds`` range may name (a sweep runs one episode per seed and controller).
@@ -154,37 +191,11 @@ def _weight(text: str) -> tuple[str, float]:
     return key, w
 
 
-def _prepare_out(out: str, products: tuple[str, ...], overwrite: bool, keep: bool = False) -> Path:
-    """Make the output folder and check it is writable before any work; refuse to replace results.
-
-    ``products``: the files (or folders) a command writes there. If one exists, the command
-    stops unless ``overwrite`` (replace them) or ``keep`` (``--resume``: reuse them).
-    """
-    import tempfile
-
-    path = Path(out)
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
-    earlier = [p for p in products if (path / p).exists()]
-    if earlier and not (overwrite or keep):
-        raise ValueError(
-            f"--out {out} holds results of an earlier run ({', '.join(earlier)}); pass --overwrite to "
-            "replace them, or choose another folder"
-        )
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path):
-            pass
-    except OSError as exc:
-        raise OSError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
-    if earlier and overwrite:
-        logging.getLogger("rover").warning("--out %s: replacing %s", out, ", ".join(earlier))
-    return path
-
-
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from rover_env.tools.evaluation import check_jobs, finished_row, jobs_for, run_sweep, write_report
+    from perception.logs.outputs import OutputFolder, check_out
+    from rover_env.tools.evaluation import REPORT_FILES, check_jobs, jobs_for, preflight
 
+    check_out(args.out)
     seeds = sorted({s for part in args.seeds for s in part})
     if args.rerun:
         from rover_env.tools.rerun_log import _rerun
@@ -204,14 +215,16 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         args.rig,
     )
     check_jobs(jobs)  # every input before the output folder is touched
-    products = ("report.md", "results.csv", "results.json", "summary.csv", "runs")
-    _prepare_out(args.out, products, args.overwrite, keep=args.resume)
-    if args.overwrite and not args.resume:  # the earlier sweep's finished-run marks, nothing else
-        from rover_env.tools.evaluation import ROW_FILE
+    preflight(jobs)  # each estimator built once on each rig
+    with OutputFolder(args.out, (*REPORT_FILES, "runs/"), args.overwrite, keep=args.resume) as folder:
+        folder.subfolder("runs/")
+        return _sweep(args, jobs, folder)
 
-        for job in jobs:
-            if job.out is not None:
-                (Path(job.out) / ROW_FILE).unlink(missing_ok=True)
+
+def _sweep(args: argparse.Namespace, jobs: list, folder) -> int:
+    """``rover eval``'s sweep into ``folder``: its report committed at the end, or a partial one."""
+    from rover_env.tools.evaluation import finished_row, run_sweep, write_report
+
     fails = []
     sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
     bar = _Progress("eval: runs", unit="runs", total=len(jobs))
@@ -232,13 +245,17 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         done = [r for r in (finished_row(j) for j in jobs) if r is not None]
         if done:
             title = f"Mission evaluation (partial: {len(done)} of {len(jobs)} runs)"
-            write_report(done, args.out, title=title, command=command)
-        sys.stderr.write(
-            f"\nstopped after {len(done)} of {len(jobs)} runs; their report is in {args.out}; "
-            "the same command with --resume runs the rest\n"
-        )
+            write_report(done, folder, title=title, command=command)
+            folder.commit()
+            sys.stderr.write(
+                f"\nstopped after {len(done)} of {len(jobs)} runs; their report is in {args.out}; "
+                "the same command with --resume runs the rest\n"
+            )
+        else:
+            sys.stderr.write(f"\nstopped before any of the {len(jobs)} runs finished\n")
         raise
-    report = write_report(rows, args.out, command=command)
+    report = write_report(rows, folder, command=command)
+    folder.commit()
     print(report.read_text())
     print(f"wrote report.md, results.csv, results.json, summary.csv and runs/ to {Path(args.out).resolve()}")
     return 0
@@ -266,13 +283,28 @@ def _cmd_train(args: argparse.Namespace) -> int:
         episode_seeds=args.episode_seeds,
         imu=args.imu,
     )
-    outputs = ("policy.zip", "policy.json", "obs_stats.npz", "checkpoints", "episodes.csv")
-    _prepare_out(args.out, outputs, args.overwrite)
-    start = time.perf_counter()
-    sys.stderr.write(
-        f"training {args.algo} for {args.steps} steps on {args.envs} environments; logs: {args.out}/tb\n"
-    )
-    out = train(cfg, args.out, progress=True)
+    cfg.check()  # every mission's environment, here, before any worker starts
+    if cfg.steps_trained() != cfg.total_steps:
+        sys.stderr.write(
+            f"--steps {cfg.total_steps} is below one rollout of {cfg.algo.upper()} ({cfg.rollout()} steps: "
+            f"{cfg.rollout() // cfg.n_envs} on each of {cfg.n_envs} environments): it trains "
+            f"{cfg.steps_trained()} steps\n"
+        )
+    elif cfg.algo == "sac" and cfg.total_steps <= cfg.rollout():
+        sys.stderr.write(
+            f"--steps {cfg.total_steps}: SAC starts learning after {cfg.rollout()} steps of random actions; "
+            "this run gathers them and does not update the policy\n"
+        )
+    from perception.logs.outputs import OutputFolder
+    from rover_env.tools.training import TRAIN_PRODUCTS
+
+    with OutputFolder(args.out, TRAIN_PRODUCTS, args.overwrite) as folder:
+        start = time.perf_counter()
+        sys.stderr.write(
+            f"training {args.algo} for {cfg.steps_trained()} steps on {args.envs} environments; "
+            f"logs: {args.out}/tb\n"
+        )
+        out = train(cfg, folder, progress=True)
     imu = f"@imu:{args.imu}" if args.imu else ""
     flags = f" --camera-effects {args.camera_effects}"
     if args.randomize:
@@ -449,10 +481,16 @@ def _need_fps(args: argparse.Namespace) -> None:
 
 
 def _cmd_wheel_test(args: argparse.Namespace) -> int:
-    from rover_env.tools.wheel_test import PRODUCTS, run
+    from perception.logs.outputs import check_out
+    from rover_env.tools.wheel_test import run
 
-    out = _prepare_out(args.out, PRODUCTS, args.overwrite)
-    rows = run(args, out)
+    check_out(args.out)
+    bar = _LazyProgress("wheel-test")  # shown once the run starts (after the checks)
+    try:
+        rows = run(args, progress=bar.share)
+    finally:
+        bar.close()
+    out = Path(args.out)
     print(f"{'slip':>6} {'DP/W':>7} {'sinkage mm':>10} {'torque Nm':>9}")
     for r in rows:
         print(
@@ -548,9 +586,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="estimated runs' sensors: the standard rig or the one-camera rig (the fisheye "
                         "alone; @imu adds an IMU) (default: each mission's)")  # fmt: skip
     e.add_argument(
-        "--estimator", metavar="MODULE:FACTORY",
-        help="the estimator on the estimated-observation runs: a factory called with the rig "
-        "(module:NAME or path/file.py:NAME; see docs/own_estimator.md); default: the built-in",
+        "--estimator", metavar="[NAME=]MODULE:FACTORY", action="append",
+        help="an estimator on the estimated-observation runs: a factory called with the rig "
+        "(module:FACTORY or path/file.py:FACTORY; see docs/own_estimator.md), named NAME in the "
+        "report, or built-in; repeat it to compare estimators side by side (default: the built-in)",
     )  # fmt: skip
     e.add_argument("--executor", default="local", choices=("local", "ray"),
                    help="local processes, or a Ray cluster (RAY_ADDRESS, else a local one)")  # fmt: skip

@@ -1,8 +1,8 @@
 """Errors of the estimator in the loop against the simulator's truth: per field, slip, and path.
 
 :class:`EstimateLog` records, at every control step of an ``obs_source="estimated"`` episode,
-the observation's state fields, the slip filter's events, the truth of the same fields and the
-dead-reckoned and true planar poses. From it:
+the state fields and slip events the estimator returned (by name; NaN where it returned none),
+the truth of the same fields and the dead-reckoned and true planar poses. From it:
 
 - :func:`field_errors`: per observation field, MAE and 95th percentile of |estimate - truth|;
 - :func:`slip_metrics`: per-wheel slip-ratio MAE while |s_true| > 0.1 and otherwise, and
@@ -10,18 +10,22 @@ dead-reckoned and true planar poses. From it:
 - :func:`perception.odometry.trajectory.path_segment_errors` on the logged poses (the odometry paper's
   path-segment error).
 
-The first second of each episode (the filters' start-up) is left out of every figure.
+The first second of each episode (the filters' start-up) is left out of every figure. Each
+figure scores only what the estimator returned: a field it never returned has no error (NaN,
+"–" in the reports), never the error of a zero; slip events it never flagged are not scored.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
 from perception.fusion.slip import SlipConfig, slip_events
 from perception.models.drive_geometry import AXLES, WHEELS
-from perception.observation import OBS_FIELDS, field_index
+from perception.observation import OBS_FIELDS
 from perception.odometry.trajectory import path_segment_errors
 from rover_env.sim.simulation import quat_to_yaw
 
@@ -41,7 +45,15 @@ _TRUTH_OF: dict[str, tuple[str, int]] = {
 FIELDS: tuple[str, ...] = tuple(n for n in OBS_FIELDS if n in _TRUTH_OF)
 #: (ground-truth key, index) of each of :data:`FIELDS`.
 TRUTH: tuple[tuple[str, int], ...] = tuple(_TRUTH_OF[n] for n in FIELDS)
-_OBS_INDEX = np.array([field_index(OBS_FIELDS, n) for n in FIELDS])
+#: The columns of the slip ratios (FL, FR, RL, RR) in :meth:`EstimateLog.arrays`' ``est`` and ``tru``.
+SLIP_COLUMNS: list[int] = [FIELDS.index(f"slip_{w}") for w in WHEELS]
+
+
+def columns(*names: str) -> list[int]:
+    """The columns of the fields ``names`` (of :data:`FIELDS`) in ``est`` and ``tru``."""
+    return [FIELDS.index(n) for n in names]
+
+
 EVENT_FRAMES = 2  # frames in a row with |s| >= SLIP_EVENT that make a true event (SlipConfig.event_hold)
 EVENT_SPEED = SlipConfig().event_min_speed  # [m/s] no event on a slower wheel
 #: |s| of the hysteresis band's floor: true slip that rises above this but makes no true event
@@ -60,8 +72,8 @@ class EstimateLog:
 
     def __init__(self, radius: float) -> None:
         self.radius = radius
-        self.est: list[np.ndarray] = []  # estimated fields (_OBS_INDEX)
-        self.events: list[list[bool]] = []  # per-wheel slip events flagged by the estimator
+        self.est: list[np.ndarray] = []  # estimated fields (FIELDS; NaN: not returned)
+        self.events: list[list[float]] = []  # per-wheel slip events flagged (1/0; NaN: not returned)
         self.tru: list[list[float]] = []  # true values of the same fields (TRUTH)
         self.speed: list[np.ndarray] = []  # per-wheel tread or body speed [m/s]
         self.t: list[float] = []  # time [s]
@@ -69,11 +81,14 @@ class EstimateLog:
         self.true_pose: list[tuple[float, float, float]] = []
         self.est_z: list[float] = []  # the body origin's height [m]
 
-    def add(self, obs: np.ndarray, info: dict) -> None:
-        """Record one step from the observation and ``info`` of ``env.step`` (estimated source)."""
+    def add(self, info: dict, values: Mapping[str, Any]) -> None:
+        """Record one step from ``info`` of ``env.step`` and the estimator's ``values`` by name.
+
+        ``values``: what the estimator returned at the step (``env.unwrapped.estimate_values``).
+        """
         gt = info["ground_truth"]
-        self.est.append(np.asarray(obs, dtype=np.float64)[_OBS_INDEX])
-        self.events.append(info["slip"]["events"])
+        self.est.append(np.array([values.get(n, math.nan) for n in FIELDS], dtype=np.float64))
+        self.events.append([values.get(f"slip_event_{w}", math.nan) for w in WHEELS])
         self.tru.append([gt[k][i] for k, i in TRUTH])
         self.speed.append(np.maximum(np.abs(gt["wheel_rate"] * self.radius), abs(gt["twist"][0])))
         self.t.append(info["t"])
@@ -91,13 +106,23 @@ class EstimateLog:
 
 
 def field_errors(runs: list[dict]) -> dict[str, tuple[float, float]]:
-    """Per field of :data:`FIELDS`: (MAE, 95th percentile) of |estimate - truth| over ``runs``."""
+    """Per field of :data:`FIELDS`: (MAE, 95th percentile) of |estimate - truth| over ``runs``.
+
+    Over the steps where the estimator returned the field; (NaN, NaN) where it never did.
+    """
     err = np.vstack([np.abs(r["est"] - r["tru"])[r["t"] >= START_UP] for r in runs])
-    if len(err) == 0:
-        return {name: (math.nan, math.nan) for name in FIELDS}
-    return {
-        name: (float(err[:, j].mean()), float(np.percentile(err[:, j], 95))) for j, name in enumerate(FIELDS)
-    }
+    out = {}
+    for j, name in enumerate(FIELDS):
+        col = err[:, j][np.isfinite(err[:, j])] if len(err) else np.zeros(0)
+        out[name] = (float(col.mean()), float(np.percentile(col, 95))) if col.size else (math.nan, math.nan)
+    return out
+
+
+def _mean_known(values) -> float:
+    """The mean of the finite ``values``; NaN if none is (nothing was estimated)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else math.nan
 
 
 def _runs_of(on: np.ndarray) -> list[tuple[int, int]]:
@@ -110,8 +135,10 @@ def slip_metrics(runs: list[dict]) -> dict:
     """Slip-ratio accuracy and slip-event detection over ``runs`` (:meth:`EstimateLog.arrays`).
 
     MAE of the four wheels' slip ratios while |s_true| > 0.1 and otherwise, over steps where the
-    wheel's tread or ground speed is at least 5 cm/s. Events: the slip filter's own
-    (``info["slip"]["events"]``) against the truth labelled by the same rule
+    wheel's tread or ground speed is at least 5 cm/s and the estimator returned the slip (NaN:
+    it never did). Events: the estimator's own (``slip_event_<wheel>``; a run in which it never
+    returned one is not scored, and every count is then NaN) against the truth labelled by the
+    same rule
     (:func:`perception.fusion.slip.slip_events`: |s| >= 0.2 for two frames in a row on a wheel at 0.15 m/s
     or more, ending below 0.1); an estimated event matches a true one it overlaps or that ended
     at most ``EVENT_FRAMES`` fisheye frames before it starts (the detector needs that long to
@@ -122,17 +149,23 @@ def slip_metrics(runs: list[dict]) -> dict:
     Latency runs from the truth's first frame at 0.2 and is counted in fisheye frames.
     """
     err_slip, err_calm, tp, fp, fn, band, lat = [], [], 0, 0, 0, 0, []
+    scored = True  # every run's events were returned
     for rr in runs:
         step_s = float(np.median(np.diff(rr["t"]))) if len(rr["t"]) > 1 else rr["frame"]
         grace = max(1, round(EVENT_FRAMES * rr["frame"] / step_s))  # steps a detection may trail by
         keep = rr["t"] >= START_UP
-        s_est, s_true = rr["est"][keep, 7:11], rr["tru"][keep, 7:11]
+        s_est, s_true = rr["est"][keep][:, SLIP_COLUMNS], rr["tru"][keep][:, SLIP_COLUMNS]
         moving = rr["speed"][keep] >= 0.05
         big = np.abs(s_true) > 0.1
         err = np.abs(s_est - s_true)
-        err_slip.extend(err[moving & big].tolist())
-        err_calm.extend(err[moving & ~big].tolist())
-        ev_est = np.asarray(rr["events"], bool)[keep]
+        known = np.isfinite(err)
+        err_slip.extend(err[moving & big & known].tolist())
+        err_calm.extend(err[moving & ~big & known].tolist())
+        flagged = np.asarray(rr["events"], dtype=np.float64)[keep]
+        if not np.isfinite(flagged).any():  # the estimator flags no events: not scored
+            scored = False
+            continue
+        ev_est = np.nan_to_num(flagged, nan=0.0) > 0.5  # not returned at a step: no event claimed
         ev_true = slip_events(s_true, min_frames=EVENT_FRAMES, speed=rr["speed"][keep], min_speed=EVENT_SPEED)
         s_abs = np.abs(s_true)
         for w in range(4):
@@ -154,6 +187,14 @@ def slip_metrics(runs: list[dict]) -> dict:
                         band += 1
                     else:
                         fp += 1
+    if not scored:
+        nan = math.nan
+        return dict(
+            mae_slip=float(np.mean(err_slip)) if err_slip else nan, n_slip=len(err_slip),
+            mae_calm=float(np.mean(err_calm)) if err_calm else nan, events=nan, matched=nan, false=nan,
+            in_band=nan, missed=nan, precision=nan, recall=nan, f1=nan, latency_median=nan,
+            latency_max=nan, within_2=nan,
+        )  # fmt: skip
     prec = tp / (tp + fp) if tp + fp else math.nan  # no estimated event: precision is undefined
     rec = tp / (tp + fn) if tp + fn else math.nan  # no true event: recall is undefined
     # no event on either side: detection is not scored
@@ -221,18 +262,22 @@ def estimator_summary(run: dict, segment_lengths=(2.0, 5.0, 10.0)) -> dict[str, 
         "axle_height": ["axle_height_F", "axle_height_R"],
         "steering": ["steering_F", "steering_R"],
     }
-    for g, names in groups.items():
-        out[f"mae_{g}"] = float(np.mean([errs[n][0] for n in names]))
-        out[f"p95_{g}"] = float(np.mean([errs[n][1] for n in names]))
+    for g, names in groups.items():  # a group's mean over the fields estimated (NaN: none was)
+        out[f"mae_{g}"] = _mean_known([errs[n][0] for n in names])
+        out[f"p95_{g}"] = _mean_known([errs[n][1] for n in names])
     s = slip_metrics([run])
+
+    def count(v: float) -> float:
+        return float(v) if math.isnan(v) else int(v)
+
     out.update(
         slip_mae_slipping=s["mae_slip"],
         slip_mae_otherwise=s["mae_calm"],
-        slip_events=int(s["events"]),
-        slip_events_matched=int(s["matched"]),
-        slip_events_false=int(s["false"]),
-        slip_events_missed=int(s["missed"]),
-        slip_events_in_band=int(s["in_band"]),
+        slip_events=count(s["events"]),
+        slip_events_matched=count(s["matched"]),
+        slip_events_false=count(s["false"]),
+        slip_events_missed=count(s["missed"]),
+        slip_events_in_band=count(s["in_band"]),
         slip_precision=s["precision"],
         slip_recall=s["recall"],
         slip_f1=s["f1"],

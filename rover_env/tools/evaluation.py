@@ -2,18 +2,21 @@
 
 A run is named by an :class:`EvalJob`: a controller name (:data:`CONTROLLERS`, optionally with
 ``@ground_truth`` to drive on the simulator's state instead of perception's estimates), a
-mission (a registered environment id or a scenario), a seed and a camera preset. Each run is a
+mission (a registered environment id or a scenario), a seed, a camera preset and, on estimated
+observations, the estimator (the built-in one, or a user's: several side by side). Each run is a
 fresh environment in its own process (:func:`run_job`); it returns one flat row of metrics
 (:class:`~rover_env.tools.mission.MissionMetrics`) and, on estimated observations, the estimator's
 errors (:func:`~rover_env.tools.estimator_metrics.estimator_summary`). :func:`run_sweep` runs the jobs
 with the ``local`` executor (a process pool; one worker runs them in this process) or the
 ``ray`` executor (``ray.init()`` joins the cluster named by ``RAY_ADDRESS`` or starts a local
 one); the rows are the same either way. :func:`write_report` writes ``results.csv``,
-``results.json``, ``summary.csv`` and ``report.md``.
+``results.json``, ``summary.csv`` and ``report.md``, one row of the tables per mission,
+controller and estimator. Every file goes through :class:`perception.logs.outputs.OutputFolder`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
@@ -27,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perception.logs.outputs import OutputFolder
 from rover_env.config.rig import PresetName
 from rover_env.tools.registry import (  # noqa: F401 (the sweep's names)
     CONTROLLERS,
@@ -61,8 +65,9 @@ class EvalJob:
         out: Folder for this run's metrics, TUM trajectories and plots (None: none written).
         video: Also write ``video.mp4`` there (composite camera view).
         rerun: Also write ``mission.rrd`` there (Rerun; :mod:`rover_env.tools.rerun_log`).
-        estimator: ``module:FACTORY`` (or ``path/file.py:FACTORY``) of the estimator on the
-            estimated-observation runs (:func:`load_estimator`); None: the built-in.
+        estimator: The estimator on the estimated-observation runs: ``[NAME=]module:FACTORY``
+            (or ``[NAME=]path/file.py:FACTORY``; :func:`load_estimator`), labelled NAME in the
+            report (:func:`estimator_label`); None: the built-in.
         camera_effects: The cameras of estimated-observation runs: ``"ideal"`` or ``"field"``
             (the environment's ``camera_effects``).
         randomize: Domain randomisation of the world: ``"off"``, ``"on"`` or None (the
@@ -86,17 +91,47 @@ class EvalJob:
 
     @property
     def name(self) -> str:
-        """A file-name-safe label: controller, mission and seed."""
+        """A file-name-safe label: controller (its estimator and rig), mission and seed."""
         base, at, source = (
             self.controller.rpartition("@") if "@" in self.controller else (self.controller, "", "")
         )
         if base.startswith("policy:"):
             base = "policy-" + _path_label(base[len("policy:") :])
         ctrl = f"{base}-{source.replace(':', '-')}" if at else base
+        if self.estimator is not None:
+            ctrl += "-" + _safe(estimator_label(self.estimator))
         if self.rig is not None:
             ctrl += f"-{self.rig}"
         mission = _path_label(self.mission) if self.mission.endswith((".yaml", ".yml")) else self.mission
         return f"{ctrl}_{mission}_{self.seed}"
+
+
+def _safe(text: str) -> str:
+    """``text`` as a file-name part: letters, digits, ``.``, ``_`` and ``-`` (others become ``-``)."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9._-]+", "-", text).strip("-.") or "estimator"
+
+
+#: How the built-in estimator is named in ``--estimator`` and in the reports.
+BUILTIN = "built-in"
+
+
+def split_estimator(spec: str) -> tuple[str, str]:
+    """``"NAME=module:FACTORY"`` -> (NAME, ``"module:FACTORY"``); without ``NAME=``: (spec, spec).
+
+    A name is what comes before the first ``=`` when that holds no path separator or ``:``
+    (a path may hold an ``=``).
+    """
+    name, sep, rest = spec.partition("=")
+    if sep and name and not any(c in name for c in "/\\:"):
+        return name.strip(), rest.strip()
+    return spec, spec
+
+
+def estimator_label(spec: str | None) -> str:
+    """The label of an estimator in reports: its NAME, else its spec; the built-in's is ``built-in``."""
+    return BUILTIN if spec is None else split_estimator(spec)[0]
 
 
 def make_mission_env(mission: str, **kwargs):
@@ -118,40 +153,24 @@ def run_job(job: EvalJob) -> dict:
     """
     import time
 
-    from rover_env.tools.mission import run_mission, write_outputs
+    from rover_env.tools.mission import RUN_FILES, run_mission, write_outputs
 
     spec, source = parse_controller(job.controller)
     render = "rgb_array" if (job.video and job.out) else None
-    imu = controller_imu(job.controller)
-    extra: dict = {"imu": imu} if imu else {}
-    if job.estimator and source == "estimated":
-        extra["estimator"] = load_estimator(job.estimator)
-    if source == "estimated":
-        extra["camera_effects"] = job.camera_effects
-        if job.rig is not None:
-            extra["rig"] = job.rig
-    env = make_mission_env(
-        job.mission,
-        obs_source=source,
-        action_mode=spec.action_mode,
-        preset=job.preset,
-        render_mode=render,
-        randomize=job.randomize,
-        **extra,
-    )
+    env = make_mission_env(job.mission, **_env_kwargs(job, spec.action_mode, source), render_mode=render)
     randomized = env.unwrapped.randomize is not None
     start = time.perf_counter()
-    try:
+    with contextlib.ExitStack() as stack:
+        stack.callback(env.close)
         ctrl = spec.make(env)
-        out = Path(job.out) if job.out else None
-        video = out / "video.mp4" if (out is not None and job.video) else None
-        if out is not None:
-            out.mkdir(parents=True, exist_ok=True)
+        # this run's files: staged, committed together when it ends (a failed run leaves none)
+        out = stack.enter_context(OutputFolder(job.out, RUN_FILES, True, announce=False)) if job.out else None
+        video = out.stage("video.mp4") if (out is not None and job.video) else None
         log_rr = None
         if job.rerun and out is not None:
             from rover_env.tools.rerun_log import RerunLog
 
-            log_rr = RerunLog(out / "mission.rrd")
+            log_rr = RerunLog(out.stage("mission.rrd"))
             log_rr.start_run(job.name, env.unwrapped.course.points)
         result = run_mission(env.unwrapped, ctrl, seed=job.seed, video_path=video, rerun=log_rr)
         if log_rr is not None:
@@ -159,11 +178,13 @@ def run_job(job: EvalJob) -> dict:
             log_rr.close()
         if out is not None:
             write_outputs(out, env.unwrapped, result)
-    finally:
-        env.close()
+            out.commit()
     row = {"controller": job.controller, "mission": job.mission, "seed": job.seed, "preset": job.preset}
     row["obs_source"] = source
-    row["estimator"] = (job.estimator or "built-in") if source == "estimated" else "none"
+    row["estimator"] = estimator_label(job.estimator) if source == "estimated" else "none"
+    row["estimator_spec"] = (
+        split_estimator(job.estimator)[1] if source == "estimated" and job.estimator else ""
+    )
     row["camera_effects"] = job.camera_effects if source == "estimated" else "none"
     row["randomize"] = "on" if randomized else "off"
     row["rig"] = (job.rig or "mission") if source == "estimated" else "none"
@@ -174,10 +195,31 @@ def run_job(job: EvalJob) -> dict:
     return row
 
 
+def _env_kwargs(job: EvalJob, action_mode: str, source: str) -> dict:
+    """The ``gymnasium.make`` keywords of a job's environment (its estimator loaded)."""
+    kwargs: dict = {
+        "obs_source": source, "action_mode": action_mode, "preset": job.preset, "randomize": job.randomize,
+    }  # fmt: skip
+    imu = controller_imu(job.controller)
+    if imu:
+        kwargs["imu"] = imu
+    if source == "estimated":
+        kwargs["camera_effects"] = job.camera_effects
+        if job.estimator is not None:
+            kwargs["estimator"] = load_estimator(job.estimator)
+        if job.rig is not None:
+            kwargs["rig"] = job.rig
+    return kwargs
+
+
 def _init_worker() -> None:
+    import signal
+
     import cv2
 
     cv2.setNumThreads(1)  # one core per run
+    # Ctrl-C reaches the whole process group: the parent stops the sweep, a worker is stopped by it
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 #: Each run's row, written into its folder as soon as it finishes (what ``resume`` reads).
@@ -191,7 +233,19 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
     from rover_env.sensors.rig import PERCEPTION_PRESETS
 
     missions = {}
-    for spec in {job.estimator for job in jobs if job.estimator}:
+    labels: dict[str, str] = {}
+    for spec in dict.fromkeys(job.estimator for job in jobs if job.estimator):
+        label = estimator_label(spec)
+        if label == BUILTIN:
+            raise ValueError(
+                f"--estimator {spec!r}: {BUILTIN!r} names the built-in estimator; name yours otherwise"
+            )
+        if label in labels and labels[label] != spec:
+            raise ValueError(
+                f"--estimator: {labels[label]!r} and {spec!r} are both named {label!r}; name them: "
+                "NAME=module:FACTORY"
+            )
+        labels[label] = spec
         load_estimator(spec)
     for job in jobs:
         parse_controller(job.controller)
@@ -241,7 +295,7 @@ def finished_row(job: EvalJob) -> dict | None:
         # the run's cameras, estimator and world ("none": a ground-truth run, which has neither)
         same = row.get("camera_effects") in ("none", job.camera_effects) and row.get("estimator") in (
             "none",
-            job.estimator or "built-in",
+            estimator_label(job.estimator),
         )
         if job.randomize is not None:
             same = same and row.get("randomize") == job.randomize
@@ -282,8 +336,9 @@ def run_sweep(
         rows[i] = row
         out = jobs[i].out
         if out is not None:
-            Path(out).mkdir(parents=True, exist_ok=True)
-            (Path(out) / ROW_FILE).write_text(json.dumps(row, default=float) + "\n")
+            with OutputFolder(out, (ROW_FILE,), overwrite=True, announce=False) as folder:
+                folder.write_text(ROW_FILE, json.dumps(row, default=float) + "\n")
+                folder.commit()
         if progress is not None:
             progress(sum(r is not None for r in rows), len(jobs), row)
 
@@ -346,42 +401,91 @@ def jobs_for(
     out: str | Path | None = None,
     video: bool = False,
     rerun: bool = False,
-    estimator: str | None = None,
+    estimator: str | Sequence[str | None] | None = None,
     camera_effects: str = "field",
     randomize: str | None = None,
     rig: str | None = None,
 ) -> list[EvalJob]:
-    """Every controller x mission x seed; with ``out``, each run writes into ``out/runs/<name>``."""
+    """Every controller x mission x seed (x estimator); with ``out``, runs write into ``out/runs/<name>``.
+
+    ``estimator``: one estimator spec, or several (None or ``"built-in"``: the built-in): every
+    controller on estimated observations runs with each; a controller on the ground truth
+    (``@ground_truth``) runs once.
+    """
+    specs = [estimator] if estimator is None or isinstance(estimator, str) else list(estimator)
+    specs = [None if s in (None, BUILTIN) else s for s in specs] or [None]
     jobs = []
     for c in controllers:
-        for m in missions:
-            for s in seeds:
-                job = EvalJob(c, m, int(s), preset, estimator=estimator, rig=rig)
-                where = None if out is None else str(Path(out) / "runs" / job.name)
-                jobs.append(
-                    EvalJob(
-                        c, m, int(s), preset, where, video, rerun, estimator, camera_effects, randomize, rig
+        on_truth = "@" in c and c.rpartition("@")[2] == "ground_truth"  # (checked by check_jobs)
+        for e in [None] if on_truth else list(dict.fromkeys(specs)):
+            for m in missions:
+                for s in seeds:
+                    job = EvalJob(c, m, int(s), preset, estimator=e, rig=rig)
+                    where = None if out is None else str(Path(out) / "runs" / job.name)
+                    jobs.append(
+                        EvalJob(c, m, int(s), preset, where, video, rerun, e, camera_effects, randomize, rig)
                     )
-                )
     return jobs
 
 
-def load_estimator(spec: str):
-    """The estimator factory named by ``spec``: ``package.module:NAME`` or ``path/to/file.py:NAME``.
+def preflight(jobs: Sequence[EvalJob]) -> None:
+    """Build each estimator once on each rig of ``jobs`` before any run: a refusal is one error now.
 
-    A module is imported with the current folder on the path (as ``python -m`` has it), so
-    ``examples.own_estimator:LucasKanadeEstimator`` works from the project's root.
+    One environment per distinct (estimator, mission, IMU, preset, cameras, rig, randomisation)
+    of the estimated-observation jobs is made and closed; its estimator factory is called with
+    the rig, and the object it returns checked for the interface.
 
     Raises:
-        ValueError: Not ``module:NAME``, the module does not import, or it has no callable NAME.
+        ValueError: A factory refused the rig, or what it made is not an estimator (the message
+            names the estimator and the mission).
+    """
+    from perception.estimator import EstimatorError
+
+    seen = set()
+    for job in jobs:
+        spec, source = parse_controller(job.controller)
+        if source != "estimated":
+            continue
+        kwargs = _env_kwargs(job, spec.action_mode, source)
+        key = (
+            job.estimator,
+            job.mission,
+            kwargs.get("imu"),
+            job.preset,
+            job.camera_effects,
+            job.rig,
+            job.randomize,
+        )
+        if key in seen:
+            continue
+        seen.add(key)
+        try:
+            make_mission_env(job.mission, **kwargs).close()
+        except (EstimatorError, TypeError) as exc:
+            raise ValueError(f"estimator {estimator_label(job.estimator)} on {job.mission}: {exc}") from None
+
+
+def load_estimator(spec: str):
+    """The estimator factory of ``spec``: ``[NAME=]module:FACTORY`` or ``[NAME=]path/file.py:FACTORY``.
+
+    A module is imported with the current folder on the path (as ``python -m`` has it), so
+    ``examples.own_estimator:LucasKanadeEstimator`` works from the project's root; from
+    anywhere else, give the file's path (``path/to/own_estimator.py:LucasKanadeEstimator``).
+
+    Raises:
+        ValueError: Not ``module:FACTORY``, the module does not import (or exits), or it has no
+            callable FACTORY.
     """
     import importlib
     import importlib.util
     import sys
 
+    spec = split_estimator(spec)[1]
     where, sep, name = spec.rpartition(":")
     if not sep or not where or not name:
-        raise ValueError(f"--estimator {spec!r}: give module:FACTORY or path/file.py:FACTORY")
+        raise ValueError(
+            f"--estimator {spec!r}: give [NAME=]module:FACTORY or [NAME=]path/file.py:FACTORY (or {BUILTIN})"
+        )
     try:
         if where.endswith(".py"):
             path = Path(where)
@@ -399,7 +503,17 @@ def load_estimator(spec: str):
             module = importlib.import_module(where)
     except ValueError:
         raise
-    except Exception as exc:  # the user's module: any error it raises at import
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and where.split(".")[0] == exc.name.split(".")[0]:
+            guess = where.replace(".", "/") + ".py"
+            raise ValueError(
+                f"--estimator {spec!r}: no module {where!r} from the current folder {Path.cwd()}; give the "
+                f"file's path instead: path/to/{guess}:{name}"
+            ) from None
+        raise ValueError(
+            f"--estimator {spec!r}: {where} does not import (ModuleNotFoundError: {exc})"
+        ) from None
+    except (Exception, SystemExit) as exc:  # the user's module: any error it raises at import
         raise ValueError(
             f"--estimator {spec!r}: {where} does not import ({type(exc).__name__}: {exc})"
         ) from None
@@ -438,17 +552,18 @@ def _num(v) -> float:
 
 
 def summarize(rows: Sequence[dict]) -> list[dict]:
-    """One row per (mission, controller): run count and the :data:`SUMMARY` and estimator columns.
+    """One row per (mission, controller, estimator): run count and the :data:`SUMMARY` and estimator columns.
 
     ``time`` is averaged over the successful runs only (NaN if none succeeded), the slip-event F1
-    is pooled over the runs' events, and the rest are means over all runs.
+    is pooled over the runs' events, and the rest are means over the runs that have the figure
+    (NaN where none has: an estimator that does not return a field has no error for it).
     """
-    groups: dict[tuple[str, str], list[dict]] = {}
+    groups: dict[tuple[str, str, str], list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["mission"], r["controller"]), []).append(r)
+        groups.setdefault((r["mission"], r["controller"], str(r.get("estimator", BUILTIN))), []).append(r)
     out = []
-    for (mission, ctrl), rs in groups.items():
-        s = {"mission": mission, "controller": ctrl, "runs": len(rs)}
+    for (mission, ctrl, est), rs in groups.items():
+        s = {"mission": mission, "controller": ctrl, "estimator": est, "runs": len(rs)}
         for key, _, how in SUMMARY:
             vals = [_num(r.get(key)) for r in rs if how != "success_mean" or r["success"]]
             vals = [v for v in vals if math.isfinite(v)]
@@ -470,26 +585,39 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def write_report(
-    rows: Sequence[dict], out: str | Path, title: str = "Mission evaluation", command: str | None = None
-) -> Path:
-    """Write ``results.csv``, ``results.json``, ``summary.csv`` and ``report.md`` into ``out``.
+#: The files :func:`write_report` writes.
+REPORT_FILES = ("report.md", "results.csv", "results.json", "summary.csv")
 
-    ``command``, if given, is quoted under the title (the command that produced the rows).
-    Returns the path of ``report.md``.
+
+def write_report(
+    rows: Sequence[dict],
+    out: str | Path | OutputFolder,
+    title: str = "Mission evaluation",
+    command: str | None = None,
+) -> Path:
+    """Write ``results.csv``, ``results.json``, ``summary.csv`` and ``report.md``.
+
+    ``out``: an :class:`OutputFolder` whose products include :data:`REPORT_FILES` (staged, the
+    caller commits), or a folder path (written and committed here, replacing an earlier
+    report). ``command``, if given, is quoted under the title (the command that produced the
+    rows). A figure nobody estimated is NaN in the CSV files, null in the JSON and "–" in the
+    report. Returns the path of ``report.md``.
     """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if not isinstance(out, OutputFolder):
+        with OutputFolder(out, REPORT_FILES, overwrite=True, announce=False) as folder:
+            path = write_report(rows, folder, title, command)
+            folder.commit()
+        return path
     keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(out / "results.csv", "w", newline="") as fh:
+    with out.open("results.csv", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=keys)
         w.writeheader()
         w.writerows(rows)
     from rover_env.tools.mission import json_safe
 
-    (out / "results.json").write_text(json.dumps(json_safe(list(rows)), indent=1) + "\n")
+    out.write_text("results.json", json.dumps(json_safe(list(rows)), indent=1) + "\n")
     summary = summarize(rows)
-    with open(out / "summary.csv", "w", newline="") as fh:
+    with out.open("summary.csv", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(summary[0]) if summary else ["mission"])
         w.writeheader()
         w.writerows(summary)
@@ -503,29 +631,38 @@ def write_report(
     estimators = sorted({str(r.get("estimator")) for r in rows if r.get("estimator") not in (None, "none")})
     if estimators:
         lines.append(f"Estimator on the estimated-observation runs: {', '.join(estimators)}.")
+    specs = {}
+    for r in rows:
+        if r.get("estimator_spec"):
+            specs[str(r.get("estimator"))] = str(r["estimator_spec"])
+    for label, spec in sorted(specs.items()):
+        if spec != label:
+            lines.append(f"- `{label}`: `{spec}`")
     rigs = sorted({str(r.get("rig")) for r in rows if r.get("rig") not in (None, "none", "mission")})
     if rigs:
         lines.append(f"Sensors of the estimated-observation runs: the {', '.join(rigs)} rig.")
     for mission in dict.fromkeys(s["mission"] for s in summary):
         lines += ["", f"## {mission}", ""]
-        lines.append("| controller | runs | " + " | ".join(h for _, h, _ in SUMMARY) + " |")
-        lines.append("|---|---:|" + "---:|" * len(SUMMARY))
+        lines.append("| controller | estimator | runs | " + " | ".join(h for _, h, _ in SUMMARY) + " |")
+        lines.append("|---|---|---:|" + "---:|" * len(SUMMARY))
         for s in summary:
             if s["mission"] == mission:
-                cells = [s["controller"], str(s["runs"])] + [_fmt(s[k]) for k, _, _ in SUMMARY]
+                cells = [s["controller"], s["estimator"], str(s["runs"])] + [
+                    _fmt(s[k]) for k, _, _ in SUMMARY
+                ]
                 lines.append("| " + " | ".join(cells) + " |")
-        est = [s for s in summary if s["mission"] == mission and np.isfinite(s["est_mae_v_x"])]
+        est = [s for s in summary if s["mission"] == mission and s["estimator"] != "none"]
         if est:
-            lines += ["", "Estimator errors on the estimated-observation runs (means over runs):", ""]
-            lines.append("| controller | " + " | ".join(h for _, h in ESTIMATOR_SUMMARY) + " |")
-            lines.append("|---|" + "---:|" * len(ESTIMATOR_SUMMARY))
+            lines += [
+                "",
+                "Estimator errors on the estimated-observation runs (means over runs; –: not estimated):",
+            ]
+            lines += ["", "| controller | estimator | " + " | ".join(h for _, h in ESTIMATOR_SUMMARY) + " |"]
+            lines.append("|---|---|" + "---:|" * len(ESTIMATOR_SUMMARY))
             for s in est:
-                lines.append(
-                    "| " + " | ".join([s["controller"]] + [_fmt(s[k]) for k, _ in ESTIMATOR_SUMMARY]) + " |"
-                )
-    path = out / "report.md"
-    path.write_text("\n".join(lines) + "\n")
-    return path
+                cells = [s["controller"], s["estimator"]] + [_fmt(s[k]) for k, _ in ESTIMATOR_SUMMARY]
+                lines.append("| " + " | ".join(cells) + " |")
+    return out.write_text("report.md", "\n".join(lines) + "\n")
 
 
 __all__ = [
@@ -536,6 +673,9 @@ __all__ = [
     "jobs_for",
     "controller_imu",
     "check_jobs",
+    "estimator_label",
+    "preflight",
+    "split_estimator",
     "finished_row",
     "parse_controller",
     "run_job",

@@ -12,10 +12,11 @@ import numpy as np
 
 from controllers.base import Controller
 from perception.fusion.slip import SLIP_EVENT
+from perception.logs.outputs import OutputFolder
 from perception.models.drive_geometry import WHEELS
 from perception.odometry import trajectory as tum
 from rover_env.envs.rover_env import RoverEnv
-from rover_env.tools.estimator_metrics import EstimateLog, estimator_summary
+from rover_env.tools.estimator_metrics import SLIP_COLUMNS, EstimateLog, columns, estimator_summary
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +147,7 @@ def run_mission(
             rec.cross_track.append(float(info["cross_track"]))
             energy += info["wheel_power"] * env.control_dt
             if rec.estimates is not None:
-                rec.estimates.add(obs, info)
+                rec.estimates.add(info, env.estimate_values or {})
             if rerun is not None:
                 rerun.log_step(info, env.pipeline.last_images if env.pipeline is not None else None)
             # stuck: commanding motion but the body barely moves for 2 s
@@ -220,18 +221,25 @@ def json_safe(obj):
     return obj
 
 
-def write_tum(path: Path, rec: MissionLog) -> None:
+def write_tum(path: str | Path, rec: MissionLog) -> None:
     """Trajectory in TUM format: ``t x y z qx qy qz qw`` per line (world frame)."""
     arr = rec.arrays()
     tum.write_tum(path, arr["t"], arr["pose"][:, :3], arr["pose"][:, 3:7])
 
 
-def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
+#: The plots of one mission (:func:`write_plots`).
+PLOT_FILES = ("trajectory.png", "velocity_slip.png", "joints.png")
+#: What :func:`write_outputs` may write for one mission (and a run's video and Rerun recording).
+RUN_FILES = ("metrics.json", "trajectory.tum", "estimate.tum", *PLOT_FILES, "video.mp4", "mission.rrd")
+
+
+def write_plots(out: OutputFolder, env: RoverEnv, result: MissionResult, prefix: str = "") -> list[Path]:
     """Trajectory, velocity and slip, and joint-angle plots (PNG), estimates against the truth.
 
-    Returns the written paths: ``trajectory.png`` (course, friction map, true and dead-reckoned
-    paths), ``velocity_slip.png`` (body twist and wheel slip ratios; the friction under each
-    wheel) and ``joints.png`` (axle roll and steering).
+    Staged in ``out`` under ``prefix`` (a subfolder's name and ``/``, or ""): ``trajectory.png``
+    (course, friction map, true and dead-reckoned paths), ``velocity_slip.png`` (body twist and
+    wheel slip ratios; the friction under each wheel) and ``joints.png`` (axle roll and
+    steering). Returns their final paths.
     """
     import matplotlib
 
@@ -280,8 +288,9 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
     ax.set_ylabel("y [m]")
     ax.set_title(f"{sc.name}: trajectory")
     ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.12), ncol=2, fontsize=8)  # below the map
-    paths.append(out / "trajectory.png")
-    fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+    with out.writing(prefix + "trajectory.png") as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    paths.append(out.path / (prefix + "trajectory.png"))
     plt.close(fig)
 
     names = WHEELS
@@ -290,38 +299,41 @@ def write_plots(out: Path, env: RoverEnv, result: MissionResult) -> list[Path]:
     for i, label in enumerate(("v_x [m/s]", "v_y [m/s]", "omega [rad/s]")):
         axes[0].plot(t, arr["twist"][:, i], colours[i], label=label)
         if est is not None:
-            axes[0].plot(est["t"], est["est"][:, i], colours[i], ls=":", lw=1)
+            axes[0].plot(est["t"], est["est"][:, columns("v_x", "v_y", "omega")[i]], colours[i], ls=":", lw=1)
     axes[0].set_ylabel("twist [m/s, rad/s]")
     axes[0].set_title("body twist" + (": truth (solid), estimate (dotted)" if est is not None else ""))
     for i, n in enumerate(names):
         axes[1].plot(t, arr["slip"][:, i], colours[i], label=n)
         if est is not None:
-            axes[1].plot(est["t"], est["est"][:, 7 + i], colours[i], ls=":", lw=1)
+            axes[1].plot(est["t"], est["est"][:, SLIP_COLUMNS[i]], colours[i], ls=":", lw=1)
         axes[2].plot(t, arr["friction"][:, i], colours[i], label=n)
     axes[1].set_ylabel("slip ratio [-]")
     axes[2].set_ylabel("friction μ under wheel [-]")
     axes[2].set_xlabel("time [s]")
     for ax in axes:  # legends beside the axes, off the data
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    paths.append(out / "velocity_slip.png")
-    fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+    with out.writing(prefix + "velocity_slip.png") as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    paths.append(out.path / (prefix + "velocity_slip.png"))
     plt.close(fig)
 
     fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
-    for ax, key, col, label in (
-        (axes[0], "axle_roll", 11, "axle roll [deg]"),
-        (axes[1], "steering", 15, "steering [deg]"),
+    for ax, key, label in (
+        (axes[0], "axle_roll", "axle roll [deg]"),
+        (axes[1], "steering", "steering [deg]"),
     ):
         for i, a in enumerate(("F", "R")):
             ax.plot(t, np.degrees(arr[key][:, i]), colours[i], label=f"{a}")
             if est is not None:
-                ax.plot(est["t"], np.degrees(est["est"][:, col + i]), colours[i], ls=":", lw=1)
+                col = columns(f"{key}_{a}")[0]
+                ax.plot(est["t"], np.degrees(est["est"][:, col]), colours[i], ls=":", lw=1)
         ax.set_ylabel(label)
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     axes[0].set_title("joints" + (": truth (solid), estimate (dotted)" if est is not None else ""))
     axes[1].set_xlabel("time [s]")
-    paths.append(out / "joints.png")
-    fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
+    with out.writing(prefix + "joints.png") as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    paths.append(out.path / (prefix + "joints.png"))
     plt.close(fig)
     return paths
 
@@ -344,23 +356,28 @@ def metric_units(result: MissionResult) -> dict[str, dict[str, str]]:
     return out
 
 
-def write_outputs(out: Path, env: RoverEnv, result: MissionResult, plots: bool = True) -> list[Path]:
-    """Write a mission's ``metrics.json`` (with the estimator's errors), TUM trajectories and plots.
+def write_outputs(
+    out: OutputFolder, env: RoverEnv, result: MissionResult, plots: bool = True, prefix: str = ""
+) -> list[Path]:
+    """Stage a mission's ``metrics.json`` (with the estimator's errors), TUM trajectories and plots.
 
-    ``trajectory.tum`` is the true pose; ``estimate.tum`` the dead-reckoned one (with estimates),
-    both readable by ``evo``. Returns the written paths.
+    Written into ``out`` under ``prefix`` (a subfolder's name and ``/``, or ""), committed with
+    the folder. ``trajectory.tum`` is the true pose; ``estimate.tum`` the dead-reckoned one
+    (with estimates), both readable by ``evo``. Returns the final paths.
     """
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / "metrics.json", out / "trajectory.tum"]
     data = {"metrics": asdict(result.metrics), "estimator": result.estimator, "units": metric_units(result)}
-    paths[0].write_text(json.dumps(json_safe(data), indent=2) + "\n")
-    write_tum(paths[1], result.log)
+    paths = [out.write_text(prefix + "metrics.json", json.dumps(json_safe(data), indent=2) + "\n")]
+    with out.writing(prefix + "trajectory.tum") as tmp:
+        write_tum(tmp, result.log)
+    paths.append(out.path / (prefix + "trajectory.tum"))
     if result.estimate_arrays is not None:
         e = result.estimate_arrays
         # the body origin's height, as in trajectory.tum: the start's plus the estimated change
-        paths.append(tum.write_planar_tum(out / "estimate.tum", e["t"], e["est_pose"], z=e["est_z"]))
+        with out.writing(prefix + "estimate.tum") as tmp:
+            tum.write_planar_tum(tmp, e["t"], e["est_pose"], z=e["est_z"])
+        paths.append(out.path / (prefix + "estimate.tum"))
     if plots:
-        paths += write_plots(out, env, result)
+        paths += write_plots(out, env, result, prefix)
     return paths
 
 
@@ -371,8 +388,16 @@ DEMO_RUNS = (
 )
 
 
+def demo_products() -> tuple[str, ...]:
+    """What :func:`run_demo` writes: the video, plots and metrics, and each driver's folder."""
+    files = [f for f in RUN_FILES if f not in ("video.mp4", "mission.rrd")]
+    runs = tuple(f"{name}/{f}" for name, _ in DEMO_RUNS for f in files)
+    clips = tuple(f"{name}/video.mp4" for name, _ in DEMO_RUNS)  # staged, stacked, never committed
+    return ("metrics.json", "demo.mp4", "slip.png", *runs, *clips)
+
+
 def run_demo(
-    out: Path,
+    out: OutputFolder,
     scenario: str = "slope_loose",
     seed: int = 0,
     video: bool = True,
@@ -394,7 +419,7 @@ def run_demo(
       (:func:`write_outputs`).
 
     Args:
-        out: The output folder (created).
+        out: The output folder (:func:`demo_products`), committed by the caller.
         scenario: A scenario preset name or YAML path.
         seed: The episode seed of both runs.
         video: Write ``demo.mp4`` (rendering costs most of the demo's time).
@@ -406,7 +431,6 @@ def run_demo(
     """
     from rover_env.tools.registry import CONTROLLERS
 
-    out.mkdir(parents=True, exist_ok=True)
     results: dict[str, MissionResult] = {}
     videos = []
     done_t = 0.0
@@ -422,8 +446,7 @@ def run_demo(
         )
         try:
             ctrl = spec.make(env)
-            clip = out / name / "video.mp4" if video else None
-            (out / name).mkdir(parents=True, exist_ok=True)
+            clip = out.stage(f"{name}/video.mp4") if video else None
             base = done_t
             tick = None if progress is None else (lambda t, base=base: progress(base + t))
             if log_rr is not None:
@@ -431,7 +454,7 @@ def run_demo(
             result = run_mission(env, ctrl, seed=seed, video_path=clip, progress=tick, rerun=log_rr)
             if log_rr is not None:
                 log_rr.end_run()
-            write_outputs(out / name, env, result)
+            write_outputs(out, env, result, prefix=f"{name}/")
             done_t += result.metrics.time
         finally:
             env.close()
@@ -444,16 +467,18 @@ def run_demo(
         "seed": seed,
         "runs": {n: {"metrics": asdict(r.metrics), "estimator": r.estimator} for n, r in results.items()},
     }
-    (out / "metrics.json").write_text(json.dumps(json_safe(data), indent=2) + "\n")
-    write_slip_comparison(out / "slip.png", results)
+    out.write_text("metrics.json", json.dumps(json_safe(data), indent=2) + "\n")
+    with out.writing("slip.png") as tmp:
+        write_slip_comparison(tmp, results)
     if log_rr is not None:
         log_rr.close()
     if videos:
         from rover_env.tools.video import stack_videos
 
-        stack_videos(videos, [label for _, label in DEMO_RUNS], out / "demo.mp4")
-        for clip in videos:
-            clip.unlink()
+        with out.writing("demo.mp4") as tmp:
+            stack_videos(videos, [label for _, label in DEMO_RUNS], tmp)
+        for name, _ in DEMO_RUNS:
+            out.unstage(f"{name}/video.mp4")
     return results
 
 
@@ -472,7 +497,7 @@ def write_slip_comparison(path: Path, results: dict[str, MissionResult]) -> Path
         axes[0].plot(arr["t"], np.abs(arr["slip"]).max(axis=1), colour, label=f"{labels.get(name, name)}")
         if res.estimate_arrays is not None:
             e = res.estimate_arrays
-            axes[0].plot(e["t"], np.abs(e["est"][:, 7:11]).max(axis=1), colour, ls=":", lw=1)
+            axes[0].plot(e["t"], np.abs(e["est"][:, SLIP_COLUMNS]).max(axis=1), colour, ls=":", lw=1)
         start = np.asarray(arr["pose"][0, :2])
         axes[1].plot(arr["t"], np.linalg.norm(arr["pose"][:, :2] - start, axis=1), colour,
                      label=f"{labels.get(name, name)}: {res.metrics.termination}")  # fmt: skip

@@ -30,6 +30,7 @@ from controllers.rl import (
     observation_fields,
 )
 from perception.fusion.slip import SLIP_EVENT
+from perception.logs.outputs import OutputFolder
 from rover_env.config.rig import PresetName
 from rover_env.envs.rover_env import ObsSourceName
 from rover_env.task.judge import RewardConfig
@@ -319,13 +320,28 @@ class TrainConfig:
     imu: str | None = None
 
     def __post_init__(self) -> None:
+        import math
+
         if self.episode_seeds < 0:
             raise ValueError(f"episode_seeds {self.episode_seeds!r} must be >= 0")
         if self.algo not in ("ppo", "sac"):
             raise ValueError(f"algo {self.algo!r}: use 'ppo' or 'sac'")
         if self.total_steps < 1 or self.n_envs < 1:
             raise ValueError("total_steps and n_envs must be at least 1")
+        if not self.missions:
+            raise ValueError("missions: give at least one environment id or scenario")
         check_base(self.base)
+        if self.residual is not None:
+            r = tuple(self.residual)
+            numbers = all(isinstance(v, int | float) and not isinstance(v, bool) for v in r)
+            ok = len(r) == 3 and numbers and all(math.isfinite(v) and 0.0 <= v <= 2.0 for v in r)
+            if not ok:
+                raise ValueError(
+                    f"residual {list(r)!r}: give three numbers from 0 to 2 (action units: the residual's "
+                    "range on speed, lambda_F, lambda_R)"
+                )
+        if self.obs_source not in ("estimated", "ground_truth"):
+            raise ValueError(f"obs_source {self.obs_source!r}: use 'estimated' or 'ground_truth'")
         if self.camera_effects not in ("ideal", "field"):
             raise ValueError(f"camera_effects {self.camera_effects!r}: use 'ideal' or 'field'")
         if self.randomize not in (None, "off", "on"):
@@ -335,6 +351,54 @@ class TrainConfig:
 
             if self.imu not in IMU_PRESETS:
                 raise ValueError(f"imu {self.imu!r}: use one of {sorted(IMU_PRESETS)} or None (no IMU)")
+            if self.obs_source != "estimated":
+                raise ValueError(
+                    f"imu {self.imu!r}: the IMU feeds the estimator; train with obs_source 'estimated', or "
+                    "leave the IMU out"
+                )
+
+    def rollout(self) -> int:
+        """Environment steps between two updates of the policy (PPO: n_steps x environments)."""
+        hyper = {**(PPO_DEFAULTS if self.algo == "ppo" else SAC_DEFAULTS), **self.hyper}
+        if self.algo == "ppo":
+            return int(hyper["n_steps"]) * self.n_envs
+        return int(hyper["learning_starts"])
+
+    def steps_trained(self) -> int:
+        """The steps :func:`train` runs: ``total_steps``, or one rollout if that is more (PPO)."""
+        if self.algo == "ppo":
+            r = self.rollout()
+            return -(-self.total_steps // r) * r
+        return self.total_steps
+
+    def check(self) -> None:
+        """Check every mission and the environment each makes, in this process, before any worker starts.
+
+        Raises:
+            ValueError: A mission that is neither an environment id nor a scenario, or an
+                environment that refuses this configuration (the message names the mission).
+        """
+        import rover_env
+        from rover_env.config.scenario import load_scenario
+
+        for m in self.missions:
+            if m not in rover_env.ENV_IDS:
+                try:
+                    load_scenario(m)
+                except (ValueError, OSError) as exc:
+                    raise ValueError(
+                        f"mission {m!r}: not an environment id ({', '.join(rover_env.ENV_IDS)}), scenario "
+                        f"preset or readable scenario file ({exc})"
+                    ) from None
+        RewardConfig(**self.reward)
+        for m in self.missions:
+            try:
+                make_env(
+                    m, self.obs_source, self.preset, self.residual, None, self.reward, self.base,
+                    self.camera_effects, self.randomize, None, self.imu,
+                ).close()  # fmt: skip
+            except (ValueError, TypeError) as exc:
+                raise ValueError(f"mission {m!r}: {exc}") from None
 
 
 PPO_DEFAULTS = dict(
@@ -347,16 +411,29 @@ SAC_DEFAULTS = dict(
 )  # fmt: skip
 
 
-def save_policy(model, cfg: TrainConfig, out: str | Path) -> Path:
+#: The files of a policy folder.
+POLICY_FILES = (POLICY_FILE, META_FILE, STATS_FILE)
+#: What :func:`train` writes into its folder.
+TRAIN_PRODUCTS = (*POLICY_FILES, "episodes.csv", "checkpoints/", "tb/", "best/")
+
+
+def save_policy(model, cfg: TrainConfig, out: str | Path | OutputFolder) -> Path:
     """Write a policy folder that :class:`PolicyController` loads.
 
     It holds the model, its observation statistics and ``policy.json`` (the training
-    configuration, the observation fields and the steps trained).
+    configuration, the observation fields and the steps trained). ``out``: an
+    :class:`OutputFolder` whose products include :data:`POLICY_FILES` (staged; the caller
+    commits), or a folder path (written and committed here, replacing an earlier policy).
     """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    model.save(out / POLICY_FILE)
-    save_obs_stats(model.get_vec_normalize_env(), out / STATS_FILE)
+    if not isinstance(out, OutputFolder):
+        with OutputFolder(out, POLICY_FILES, overwrite=True, announce=False) as folder:
+            save_policy(model, cfg, folder)
+            folder.commit()
+        return Path(out)
+    with out.writing(POLICY_FILE) as tmp:
+        model.save(tmp)
+    with out.writing(STATS_FILE) as tmp:
+        save_obs_stats(model.get_vec_normalize_env(), tmp)
     space = model.action_space
     meta = asdict(cfg) | {
         "action_mode": BASES[cfg.base],
@@ -366,8 +443,8 @@ def save_policy(model, cfg: TrainConfig, out: str | Path) -> Path:
         "action_low": np.asarray(space.low, dtype=float).tolist(),
         "action_high": np.asarray(space.high, dtype=float).tolist(),
     }
-    (out / META_FILE).write_text(json.dumps(meta, indent=2) + "\n")
-    return out
+    out.write_text(META_FILE, json.dumps(meta, indent=2) + "\n")
+    return out.path
 
 
 def _save_callback(cfg: TrainConfig, out: Path):
@@ -469,28 +546,36 @@ def _progress_callback(total: int):
     return Progress()
 
 
-def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
-    """Train a policy; write ``policy.zip``, ``vecnormalize.pkl``, ``policy.json``, checkpoints and logs.
+def train(cfg: TrainConfig, out: str | Path | OutputFolder, progress: bool = False) -> Path:
+    """Train a policy; write ``policy.zip``, ``obs_stats.npz``, ``policy.json``, checkpoints and logs.
 
     Observations, and in training the rewards, are normalised by running statistics
     (``VecNormalize``); the observation statistics are saved with the policy. TensorBoard logs go to
-    ``out/tb``, checkpoints to ``out/checkpoints``, the best evaluated policy (a folder like ``out``
-    itself) to ``out/best``.
+    ``out/tb``, checkpoints to ``out/checkpoints`` (as they are made: they survive an
+    interruption), the best evaluated policy (a folder like ``out`` itself) to ``out/best``; the
+    policy and ``episodes.csv`` are committed when training ends.
 
     Args:
         cfg: The run.
-        out: Output folder.
+        out: An :class:`OutputFolder` with the products :data:`TRAIN_PRODUCTS` (committed here
+            when training ends), or a folder path (an earlier run's results there are replaced).
         progress: Show progress on stderr (steps, rate, recent success rate).
 
     Returns:
-        ``out``.
+        The folder's path.
     """
+    if not isinstance(out, OutputFolder):
+        with OutputFolder(out, TRAIN_PRODUCTS, overwrite=True) as folder:
+            return train(cfg, folder, progress)
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    folder = out
+    for sub in ("checkpoints/", "tb/", "best/"):
+        folder.subfolder(sub)
+    episodes = folder.stage(EPISODES_FILE)
+    out = folder.path
     missions = list(cfg.missions)
 
     def factory(names, seed: int, episode_seeds=None):
@@ -535,7 +620,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
         [_progress_callback(cfg.total_steps)] * progress
         + [
             _slip_callback(),
-            _episodes_callback(out / EPISODES_FILE),
+            _episodes_callback(episodes),
             CheckpointCallback(
                 max(cfg.checkpoint_every // per_env, 1), str(out / "checkpoints"), save_vecnormalize=True
             ),
@@ -551,10 +636,11 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = False) -> Path:
     )
     try:
         model.learn(total_timesteps=cfg.total_steps, callback=callbacks, tb_log_name=cfg.algo)
-        save_policy(model, cfg, out)
+        save_policy(model, cfg, folder)
     finally:
         venv.close()
         eval_env.close()
+    folder.commit()
     return out
 
 

@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
+from perception.logs.outputs import OutputFolder
 from rover_env.config.soil import load_soil
 from rover_env.sim.terramechanics import WheelSpec
-from rover_env.sim.wheel_test import WheelTestRow, run_wheel_test, wheel_test_table
+from rover_env.sim.wheel_test import WheelTestRow, check_steady_state, run_wheel_test, wheel_test_table
 
 PRODUCTS = ("wheel_test.csv", "wheel_test.png")
 
 
-def write_plot(rows: list[WheelTestRow], path: Path, title: str) -> None:
+def write_plot(rows: list[WheelTestRow], path: str | Path, title: str) -> None:
     """Drawbar pull over load, and sinkage, against slip (PNG)."""
     import matplotlib
 
@@ -35,8 +37,12 @@ def write_plot(rows: list[WheelTestRow], path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def run(args: argparse.Namespace, out: Path) -> list[WheelTestRow]:
-    """Run the test bed from the parsed ``rover wheel-test`` arguments; its CSV and plot into ``out``."""
+def run(args: argparse.Namespace, progress: Callable[[float], None] | None = None) -> list[WheelTestRow]:
+    """Run the test bed from the parsed ``rover wheel-test`` arguments; its CSV and plot into ``args.out``.
+
+    Every input is checked, and the test's steady states with it, before the output folder is
+    made; the CSV and the plot are committed together when the run has succeeded.
+    """
     soil = load_soil(args.soil)
     wheel = WheelSpec(
         radius=args.radius,
@@ -45,11 +51,17 @@ def run(args: argparse.Namespace, out: Path) -> list[WheelTestRow]:
         grouser_height=args.grouser_height,
         **({} if args.grouser_thickness is None else {"grouser_thickness": args.grouser_thickness}),
     )
-    rows = run_wheel_test(soil, wheel, args.load, args.slips, speed=args.speed, distance=args.distance)
-    (out / "wheel_test.csv").write_text(wheel_test_table(rows))
-    title = (
-        f"soil {soil.name}, r {args.radius} m, b {args.width} m, load {args.load} N, "
-        f"{args.grousers} grousers x {args.grouser_height} m, {args.speed} m/s"
-    )
-    write_plot(rows, out / "wheel_test.png", title)
+    check_steady_state(soil, wheel, args.load, args.slips, args.speed)  # cheap: before the folder
+    with OutputFolder(args.out, PRODUCTS, args.overwrite) as out:
+        rows = run_wheel_test(
+            soil, wheel, args.load, args.slips, speed=args.speed, distance=args.distance, progress=progress
+        )
+        out.write_text("wheel_test.csv", wheel_test_table(rows))
+        title = (
+            f"soil {soil.name}, r {args.radius} m, b {args.width} m, load {args.load} N, "
+            f"{args.grousers} grousers x {args.grouser_height} m, {args.speed} m/s"
+        )
+        with out.writing("wheel_test.png") as tmp:
+            write_plot(rows, tmp, title)
+        out.commit()
     return rows
