@@ -15,10 +15,15 @@ It is built once per environment by a factory given the :class:`perception.rig.R
 (``gym.make(..., estimator=FACTORY)``). The built-in one is :class:`perception.RoverEstimator`.
 
 A field an estimator does not return is unknown: it reads 0 in the observation vector (and its
-quality field, if it does not return one, 0) and NaN in ``info["estimate"]``; leave a value out
-rather than return NaN. The environment checks what comes back (:func:`check_estimate`): an
-unknown name, a value that is not a finite number (a slip ratio's standard deviation may be inf)
-or a pose that is not three numbers is an error naming the estimator, the name and the step.
+quality field, if it does not return one, 0), NaN in ``info["estimate"]`` and "–" in every
+report; leave a value out rather than return NaN. The environment and ``rover replay`` check
+what comes back (:func:`check_estimate`): an unknown name, a value that is not a real finite
+number (text such as ``"1.5"`` is not one; a slip ratio's standard deviation may be inf), a
+quality outside [0, 1], a flag other than 0 or 1, or a pose that is not three numbers is an error
+naming the estimator, the name and the step.
+
+The rig an estimator is given (:func:`perception.rig.read_only`) is its own copy with every array
+read-only: an estimator cannot change the sensors that feed it.
 """
 
 from __future__ import annotations
@@ -68,6 +73,14 @@ EXTRA_ESTIMATES: tuple[str, ...] = (
 #: Every name an estimator may return: ``"pose"`` (required) and the state and extra estimates.
 ESTIMATE_FIELDS: tuple[str, ...] = ("pose", *STATE_ESTIMATES, *EXTRA_ESTIMATES)
 _KNOWN = frozenset(ESTIMATE_FIELDS)
+#: Fields that are qualities: in [0, 1].
+QUALITY_FIELDS: frozenset[str] = frozenset(
+    ("odometry_quality", "kinematics_quality", "attitude_quality", "slip_quality")
+)
+#: Fields that are flags: 0 or 1.
+FLAG_FIELDS: frozenset[str] = frozenset(
+    (*(f"slip_valid_{w}" for w in WHEELS), *(f"slip_event_{w}" for w in WHEELS))
+)
 
 
 @runtime_checkable
@@ -93,8 +106,15 @@ def estimator_name(estimator: object) -> str:
     return f"{cls.__module__}.{cls.__qualname__}"
 
 
+def _as_number(value: object) -> float:
+    """``value`` as a float; TypeError for text, bytes and bools (which Python would convert)."""
+    if isinstance(value, str | bytes | bool | np.bool_):
+        raise TypeError(f"{type(value).__name__}")
+    return float(value)  # type: ignore[arg-type]
+
+
 def check_estimate(values: object, who: str, step: int) -> dict[str, Any]:
-    """``values`` as an estimate, checked: known names, finite numbers, a pose of three.
+    """``values`` as an estimate, checked: known names, real finite numbers in range, a pose of three.
 
     Args:
         values: What an estimator's ``update`` returned.
@@ -106,7 +126,9 @@ def check_estimate(values: object, who: str, step: int) -> dict[str, Any]:
 
     Raises:
         EstimatorError: Not a mapping, an unknown name (the known ones are listed), a value that
-            is not a finite number, or a pose missing or not three finite numbers.
+            is not a real finite number (text, a bool, an object whose conversion fails), a
+            quality outside [0, 1], a flag other than 0 or 1, a negative spread, or a pose
+            missing or not three finite numbers.
     """
     where = f"estimator {who}, step {step}"
     if not isinstance(values, Mapping):
@@ -125,22 +147,34 @@ def check_estimate(values: object, who: str, step: int) -> dict[str, Any]:
     for key, v in values.items():
         if key == "pose":
             try:
-                pose = np.asarray(v, dtype=np.float64)
-            except (TypeError, ValueError):
+                items = list(v) if not isinstance(v, str | bytes | np.ndarray) else v
+                pose = np.array([_as_number(x) for x in items] if isinstance(items, list) else items)
+                pose = pose.astype(np.float64) if pose.dtype.kind in "fiu" else np.full(0, math.nan)
+            except Exception:  # noqa: BLE001 - whatever the user's object raises: not a pose
                 pose = np.full(0, math.nan)
             if pose.shape != (3,) or not np.all(np.isfinite(pose)):
                 raise EstimatorError(f"{where}: 'pose' is {v!r}; give three finite numbers (x, y, yaw)")
             out["pose"] = pose
             continue
         try:
-            f = float(v)
-        except (TypeError, ValueError):
-            raise EstimatorError(f"{where}: {key!r} is {v!r}, not a number") from None
+            f = _as_number(v)
+        except TypeError as exc:
+            raise EstimatorError(f"{where}: {key!r} is {v!r} ({exc}), not a number; return a float") from None
+        except Exception as exc:  # noqa: BLE001 - the user's object: any error of its conversion
+            raise EstimatorError(
+                f"{where}: {key!r} is {v!r}, not a number ({type(exc).__name__}: {exc})"
+            ) from None
         spread = key.startswith("slip_std_") and f == math.inf  # an unknown spread
-        if isinstance(v, bool) or not (math.isfinite(f) or spread):
+        if not (math.isfinite(f) or spread):
             raise EstimatorError(
                 f"{where}: {key!r} is {v!r}; give a finite number (leave an unknown value out)"
             )
+        if key in QUALITY_FIELDS and not 0.0 <= f <= 1.0:
+            raise EstimatorError(f"{where}: {key!r} is {v!r}; a quality is in [0, 1]")
+        if key in FLAG_FIELDS and f not in (0.0, 1.0):
+            raise EstimatorError(f"{where}: {key!r} is {v!r}; a flag is 1.0 (yes) or 0.0 (no)")
+        if key.startswith("slip_std_") and f < 0.0:
+            raise EstimatorError(f"{where}: {key!r} is {v!r}; a standard deviation is >= 0 (inf: unknown)")
         out[key] = f
     return out
 

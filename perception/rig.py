@@ -218,3 +218,35 @@ class Rig(Mapping[str, SensorSpec]):
     def __repr__(self) -> str:
         inner = ", ".join(f"{s.name}: {s.kind} at {s.rate_hz:g} Hz" for s in self._sensors.values())
         return f"Rig({inner})"
+
+
+def read_only(rig: Rig) -> Rig:
+    """A copy of ``rig`` to give an estimator: its own objects, every array in it read-only.
+
+    An estimator that writes into a calibration it was given (``rig["downward"].model.K[0, 0] =
+    ...``, a mount) gets a ``ValueError: assignment destination is read-only`` instead of
+    changing the sensors that feed it (in the simulation, the cameras that render its images).
+    """
+    import copy
+
+    clone = copy.deepcopy(rig)
+    _freeze(clone, set())
+    return clone
+
+
+def _freeze(obj: Any, seen: set[int]) -> None:
+    """Make every numpy array reachable from ``obj`` read-only."""
+    if id(obj) in seen or isinstance(obj, str | bytes | int | float | type(None)):
+        return
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        obj.flags.writeable = False
+    elif isinstance(obj, dict):
+        for v in obj.values():
+            _freeze(v, seen)
+    elif isinstance(obj, list | tuple | set | frozenset):
+        for v in obj:
+            _freeze(v, seen)
+    elif hasattr(obj, "__dict__"):
+        for v in vars(obj).values():
+            _freeze(v, seen)

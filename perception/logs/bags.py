@@ -838,8 +838,18 @@ def topics(path: str | Path) -> dict[str, tuple[str, int | None]]:
         return lg.topics()
 
 
+#: How a user names a log's topic where the log has several of a kind (``rover odometry`` and
+#: ``rover kinematics``: the option; ``rover replay``: the rig file, :func:`perception.logs.replay.load_rig`).
+TOPIC_OPTION = "choose one with --topic"
+
+
 def _pick(
-    path: Path, found: dict[str, tuple[str, int | None]], types: tuple[str, ...], topic: str | None, what: str
+    path: Path,
+    found: dict[str, tuple[str, int | None]],
+    types: tuple[str, ...],
+    topic: str | None,
+    what: str,
+    choose: str = TOPIC_OPTION,
 ) -> str:
     """The topic to read: ``topic`` if given and of ``types``, else the only one of ``types``."""
     fit = [t for t, (ty, _) in found.items() if ty in types]
@@ -853,7 +863,7 @@ def _pick(
         return fit[0]
     if not fit:
         raise ValueError(f"{path}: no {what} topic ({' or '.join(types)}); topics: {sorted(found)}")
-    raise ValueError(f"{path}: {len(fit)} {what} topics {sorted(fit)}; choose one with --topic")
+    raise ValueError(f"{path}: {len(fit)} {what} topics {sorted(fit)}; {choose}")
 
 
 def _stamp(msg) -> float | None:
@@ -902,6 +912,15 @@ def decode_image(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
             return None, f"compressed image ({msg.format!r}) does not decode"
         if img.shape[0] * img.shape[1] > MAX_MESSAGE_PIXELS:
             return None, f"{img.shape[1]}x{img.shape[0]} px is beyond the image budget"
+        # image_transport's "<encoding>; png compressed ...": a compressed Bayer mosaic is demosaiced
+        enc = str(msg.format).split(";")[0].strip().lower() if ";" in str(msg.format) else ""
+        bayer = next((b for b in _BAYER if enc in (f"{b}8", f"{b}16")), None)
+        if bayer is not None:
+            if img.ndim != 2:
+                return None, f"a {enc} image that decodes to {img.shape[2]} channels, not a mosaic"
+            if img.shape[0] % 2 or img.shape[1] % 2:
+                return None, f"a {enc} image of odd size {img.shape[1]}x{img.shape[0]} px"
+            img = cv2.cvtColor(img, _BAYER[bayer])
         return img, ""
     enc = str(msg.encoding).lower()
     bayer = next((b for b in _BAYER if enc in (f"{b}8", f"{b}16")), None)
@@ -1026,12 +1045,12 @@ class LogImages:
                 yield LogFrame(m.index, recv if stamp is None else stamp, recv, img, why)
 
 
-def log_images(path: str | Path, topic: str | None = None) -> LogImages:
-    """The image topic ``topic`` of a log (default: its only image topic)."""
+def log_images(path: str | Path, topic: str | None = None, choose: str = TOPIC_OPTION) -> LogImages:
+    """The image topic ``topic`` of a log (default: its only image topic; ``choose``: how to name one)."""
     p = Path(path)
     with open_log(p) as lg:
         found = lg.topics()
-        name = _pick(p, found, IMAGE_TYPES, topic, "image")
+        name = _pick(p, found, IMAGE_TYPES, topic, "image", choose)
         return LogImages(p, name, found[name][0], found[name][1], lg.span())
 
 
@@ -1132,20 +1151,24 @@ class _ImuSample:
     values: tuple
 
 
-def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str]:
+def log_imu(
+    path: str | Path, topic: str | None = None, choose: str = TOPIC_OPTION, flags: bool = False
+) -> tuple[np.ndarray, str]:
     """(N, 7) IMU samples of a log (t [s], gyro xyz [rad/s], accel xyz [m/s^2]) and the topic.
 
     The times are the header stamps placed on the log's time line by
     :func:`perception.logs.log_time.place`, as the images' are: on one clock, the IMU and the camera
     share the time line whatever each of them dropped. Samples with a non-finite value or a flagged stamp, and
-    damaged messages, are left out (with a warning).
+    damaged messages, are left out (with a warning). With ``flags``, (N, 8): an eighth column is
+    1 where the sample's angular-velocity or linear-acceleration covariance starts with -1 (ROS's
+    "no estimate": a clipped, saturated reading, as ``rover record`` writes one), else 0.
     """
     from perception.logs.log_time import in_stamp_order, place
 
     p = Path(path)
     samples, bad = [], 0
     with open_log(p) as lg:
-        name = _pick(p, lg.topics(), (IMU_TYPE,), topic, "IMU")
+        name = _pick(p, lg.topics(), (IMU_TYPE,), topic, "IMU", choose)
         for m in lg.messages([name]):
             msg = lg.decode(m)
             if msg is None:
@@ -1153,6 +1176,9 @@ def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str
             try:
                 w, a = msg.angular_velocity, msg.linear_acceleration
                 values = tuple(float(v) for v in (w.x, w.y, w.z, a.x, a.y, a.z))
+                if flags:
+                    cov = (msg.angular_velocity_covariance, msg.linear_acceleration_covariance)
+                    values += (float(any(len(c) and float(c[0]) == -1.0 for c in cov)),)
                 stamp = _stamp(msg)
             except (AttributeError, TypeError, ValueError):
                 bad += 1
@@ -1172,8 +1198,39 @@ def log_imu(path: str | Path, topic: str | None = None) -> tuple[np.ndarray, str
         rows.append([placed.t, *placed.item.values])
     if flagged:
         log.warning("%s: %s: %d IMU samples with a flagged stamp left out", p, name, flagged)
-    data = np.array(rows, dtype=np.float64).reshape(-1, 7)
+    data = np.array(rows, dtype=np.float64).reshape(-1, 8 if flags else 7)
     return data[np.argsort(data[:, 0], kind="stable")], name
+
+
+#: ``geometry_msgs/Vector3Stamped``: a sun sensor's direction toward the sun, and the ephemeris's.
+VECTOR_TYPE = "geometry_msgs/msg/Vector3Stamped"
+
+
+def log_vectors(path: str | Path, topic: str) -> np.ndarray:
+    """(N, 4) ``geometry_msgs/Vector3Stamped`` samples of ``topic``: t [s] (header stamps), x, y, z.
+
+    Damaged messages are left out (with a warning); a NaN vector is kept (a sun sensor that saw
+    no sun). Sorted by time.
+
+    Raises:
+        ValueError: The log has no such topic, or it holds another type.
+    """
+    p = Path(path)
+    rows = []
+    with open_log(p) as lg:
+        name = _pick(p, lg.topics(), (VECTOR_TYPE,), topic, "vector")
+        for m in lg.messages([name]):
+            msg = lg.decode(m)
+            if msg is None:
+                continue
+            try:
+                v = msg.vector
+                stamp = _stamp(msg)
+                rows.append([1e-9 * m.log_ns if stamp is None else stamp, float(v.x), float(v.y), float(v.z)])
+            except (AttributeError, TypeError, ValueError):
+                continue
+    data = np.array(rows, dtype=np.float64).reshape(-1, 4)
+    return data[np.argsort(data[:, 0], kind="stable")]
 
 
 # ---------------------------------------------------------------------------- writing

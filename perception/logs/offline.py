@@ -238,6 +238,7 @@ class _Source:
     count: int | None
     span: tuple[float, float] | None  # the images' time span, where known [s]
     depth: int | None = None  # bits of a log's 16-bit images (the median of its first ones)
+    times: tuple[float, ...] = ()  # a log's usable frames' times, in order [s]
 
 
 def _log_source(src, images) -> _Source:
@@ -256,7 +257,9 @@ def _log_source(src, images) -> _Source:
     first = list(itertools.islice(frames, 9))  # a look at the log's start: its bit depth
     deep = [bit_depth(f.image) for f in first if f.image is not None and f.image.dtype == np.uint16]
     depth = max(int(np.median(deep)), 10) if deep else None
-    return _Source(_placed_frames(itertools.chain(first, frames), placed), len(placed), span, depth)
+    return _Source(
+        _placed_frames(itertools.chain(first, frames), placed), len(placed), span, depth, tuple(sorted(times))
+    )
 
 
 def _placed_frames(frames: Iterator[LogFrame], placed: list[Placed]) -> Iterator[Placed]:

@@ -25,7 +25,7 @@ from perception.fusion.slip import SlipConfig
 from perception.kinematics.fisheye import KinematicsConfig
 from perception.odometry.fisheye import FisheyeOdometryConfig
 from perception.odometry.flow import FlowOdometryConfig
-from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures
+from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures, read_only
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError
@@ -221,7 +221,10 @@ def builtin_estimator(
         kinematics: Fisheye-kinematics parameters (None: the defaults).
         slip: Slip-filter parameters (None: the defaults).
         odometry_gyro: Give the odometry's 3-D fit the gyro's roll and pitch rates (with an IMU).
-        odometry_overrides: :class:`FlowOdometryConfig` fields set over the preset's.
+        odometry_overrides: :class:`FlowOdometryConfig` fields set over the preset's: the
+            downward camera's odometry. An unknown field is refused here; on a rig without a
+            downward camera (the one-camera rig) any is refused when the estimator is built
+            (give ``fisheye_odometry`` there).
         fisheye_window: The fisheye's windowed readout (see :class:`PerceptionPreset`):
             ``"preset"``, None (whole frames) or (roll [rad/s], travel [m/s], steering [rad/s]).
         fisheye_odometry: The fisheye odometry's parameters on a rig without a downward camera
@@ -231,11 +234,27 @@ def builtin_estimator(
         if preset not in PERCEPTION_PRESETS:
             raise ConfigError(f"preset: {preset!r}; use one of {sorted(PERCEPTION_PRESETS)}")
         preset = PERCEPTION_PRESETS[preset]
+    given = dict(odometry_overrides or {})
+    unknown = sorted(set(given) - set(FlowOdometryConfig.__dataclass_fields__), key=str)
+    if unknown:
+        raise ConfigError(
+            f"odometry_overrides: {unknown[0]!r} is not a FlowOdometryConfig field; use one of "
+            f"{sorted(FlowOdometryConfig.__dataclass_fields__)}"
+        )
+    if odometry is not None and given:
+        raise ConfigError(
+            "odometry_overrides: give them in odometry= (a whole FlowOdometryConfig) or here, not both"
+        )
     # the simulated camera is noise-free and renders each frame anew: a repeat is a standstill
-    overrides = {"repeated_frames": "still"} | preset.odometry | dict(odometry_overrides or {})
+    overrides = {"repeated_frames": "still"} | preset.odometry | given
     window = preset.fisheye_window if fisheye_window == "preset" else fisheye_window
 
     def factory(rig: Rig) -> RoverEstimator:
+        if given and not rig.of_kind("pinhole"):
+            raise ConfigError(
+                f"odometry_overrides {sorted(given)}: this rig has no downward camera ({rig!r}), and its "
+                "odometry is the fisheye's; give fisheye_odometry=FisheyeOdometryConfig(...) instead"
+            )
         # a simulated mission starts at rest, steering centred: the fisheye's first frame zeroes it
         return RoverEstimator(
             rig,
@@ -332,7 +351,9 @@ class PerceptionPipeline:
         self.imu = self.imus[0] if self.imus else None
         for cam in self.cameras:  # before the rig is described: a field lens is in the calibration
             cam.set_effects(camera_effects)
-        self.rig = rig_of(sim, self.sensors)
+        #: What the estimator is given: the rig's own copy, its arrays read-only (the sensors
+        #: keep theirs, so nothing done to it changes what they deliver).
+        self.rig = read_only(rig_of(sim, self.sensors))
         if estimator is None:
             self.estimator: Any = builtin_estimator(
                 preset, odometry=odometry, kinematics=kinematics, slip=slip, odometry_gyro=odometry_gyro
@@ -340,7 +361,7 @@ class PerceptionPipeline:
         else:
             try:
                 self.estimator = estimator(self.rig)
-            except Exception as exc:  # the user's code: any error, named
+            except (Exception, SystemExit) as exc:  # the user's code: any error, named
                 who = getattr(estimator, "__qualname__", type(estimator).__name__)
                 raise EstimatorError(
                     f"estimator factory {who}({self.rig!r}): {type(exc).__name__}: {exc}"
@@ -409,7 +430,7 @@ class PerceptionPipeline:
                 cam.request_window(0.0, None)
         try:
             self.estimator.reset(fix.copy())
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # the user's code: any error (an exit too), named
             raise EstimatorError(f"estimator {self.name}, reset: {type(exc).__name__}: {exc}") from exc
         return self.update(messages, t)
 
@@ -417,12 +438,14 @@ class PerceptionPipeline:
         """One control step's messages to the estimator; the checked estimate at ``t`` [s]."""
         t0 = time.perf_counter()
         for m in messages:
+            if isinstance(m.data, np.ndarray):  # the estimator reads the samples; it cannot change them
+                m.data.flags.writeable = False
             if m.sensor in self.last_images:
                 self.last_images[m.sensor] = m.data
                 self.frames[m.sensor] += 1
         try:
             values = self.estimator.update(list(messages), t)
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             raise EstimatorError(
                 f"estimator {self.name}, step {self._step}: {type(exc).__name__}: {exc}"
             ) from exc

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import json
 import logging
 import math
@@ -161,6 +162,17 @@ def _float_in(lo: float, hi: float):
         return v
 
     return parse
+
+
+def _finite(text: str) -> float:
+    """An argparse type: a finite number."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text}: give a finite number")
+    return v
 
 
 def _max_workers() -> int:
@@ -434,38 +446,87 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from perception.estimator import EstimatorError, estimator_name
+    from perception.estimator import estimator_name
     from perception.logs import bags
-    from perception.logs.outputs import OutputFolder
+    from perception.logs.outputs import OutputFolder, check_out
     from perception.logs.replay import load_rig, replay, write_estimates
+    from perception.logs.truth import errors_table, read_estimates, read_truth, score
+    from perception.rig import read_only
     from perception.rover_estimator import RoverEstimator
     from rover_env.tools.evaluation import load_estimator
 
+    check_out(args.out)
     _need_source(args.source)
     if not bags.is_log(args.source):
         raise ValueError(
             f"{args.source}: not a ROS 1 bag, ROS 2 bag folder or MCAP file (replay reads robot logs)"
         )
     log_rig = load_rig(args.rig)  # the inputs before the output
-    factory = load_estimator(args.estimator) if args.estimator else RoverEstimator
-    who = args.estimator or "RoverEstimator (the built-in)"
+    truth = read_truth(args.truth) if args.truth else None
+    offsets = dict(args.time_offset or [])
+    if args.estimator:
+        factory = load_estimator(args.estimator)
+        who = args.estimator
+    else:
+
+        def factory(rig):
+            return RoverEstimator(rig, zero_steering_at_start=log_rig.starts_at_rest)
+
+        who = "RoverEstimator (the built-in)"
     try:
-        estimator = factory(log_rig.rig)
-    except Exception as exc:  # the user's code: any error, named
+        estimator = factory(read_only(log_rig.rig))
+    except (Exception, SystemExit) as exc:  # the user's code: any error, named
         what = f"{type(exc).__name__}: {exc}"
         raise ValueError(f"estimator {who} on {args.rig}'s rig {log_rig.rig!r}: {what}") from exc
-    x, y, yaw_deg = args.start
-    steps = replay(args.source, log_rig, estimator, args.control_hz, (x, y, math.radians(yaw_deg)))
-    with OutputFolder(args.out, ("estimates.csv",), args.overwrite, inputs=(args.source, args.rig)) as folder:
+    start: object = (0.0, 0.0, 0.0)
+    if args.start is not None:
+        x, y, yaw_deg = args.start
+        start = (x, y, math.radians(yaw_deg))
+    elif truth is not None:  # the truth's pose at the log's first camera frame
+        start = functools.partial(_truth_pose, truth)
+    steps = replay(args.source, log_rig, estimator, args.control_hz, start, offsets)  # type: ignore[arg-type]
+    products = ("estimates.csv", "errors.csv") if truth is not None else ("estimates.csv",)
+    inputs = (args.source, args.rig, args.truth)
+    with OutputFolder(args.out, products, args.overwrite, inputs=inputs) as folder:
         with folder.writing("estimates.csv") as tmp:
-            try:
-                n = write_estimates(steps, tmp)
-            except EstimatorError as exc:
-                raise ValueError(str(exc)) from exc
+            n = write_estimates(steps, tmp)
+        errors = None
+        if truth is not None:
+            errors = score(read_estimates(tmp), truth, skip=args.truth_skip)
+            folder.write_text("errors.csv", errors_table(errors))
         folder.commit()
     csv_path = Path(args.out) / "estimates.csv"
     print(f"{n} control steps of {estimator_name(estimator)} on {args.source}; wrote {csv_path}")
+    if errors is not None:
+        print(f"errors against {args.truth} (after the first {args.truth_skip:g} s):")
+        print(f"{'field':16s} {'unit':6s} {'ticks':>6s} {'MAE':>10s} {'p95':>10s}")
+        for e in errors:
+            print(f"{e.name:16s} {e.unit:6s} {e.n:6d} {_cell(e.mae, '10.4g')} {_cell(e.p95, '10.4g')}")
+        print(f"wrote {Path(args.out) / 'errors.csv'}")
     return 0
+
+
+def _truth_pose(truth: dict, t_log: float) -> tuple[float, float, float]:
+    """The truth's planar pose (x, y, yaw) at ``t_log`` on the log's clock [s]."""
+    import numpy as np
+
+    t = truth["t_log"]
+    yaw = float(np.interp(t_log, t, np.unwrap(truth["yaw"])))
+    return float(np.interp(t_log, t, truth["x"])), float(np.interp(t_log, t, truth["y"])), yaw
+
+
+def _offset(text: str) -> tuple[str, float]:
+    """``"imu=-3600"`` -> ("imu", -3600.0): a sensor's clock offset [s]."""
+    name, sep, value = text.partition("=")
+    try:
+        if not sep or not name:
+            raise ValueError
+        dt = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"time offset: {text!r} is not SENSOR=SECONDS") from None
+    if not math.isfinite(dt):
+        raise argparse.ArgumentTypeError(f"time offset: {text!r}; give a finite number of seconds")
+    return name, dt
 
 
 def _need_source(source: str) -> None:
@@ -741,13 +802,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--estimator", help="module:FACTORY or path/file.py:FACTORY (default: the built-in RoverEstimator)"
     )
     r.add_argument(
-        "--control-hz", type=_float_in(0.0, 1000.0), default=30.0, help="update() calls per second [Hz]"
-    )
-    r.add_argument(
-        "--start", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "YAW_DEG"),
-        help="start fix: x, y [m], yaw [deg]",
+        "--control-hz", type=_float_in(0.999, 1000.0), default=30.0,
+        help="update() calls per second, 1 to 1000 [Hz]",
     )  # fmt: skip
-    r.add_argument("--out", required=True, help="output folder (estimates.csv)")
+    r.add_argument(
+        "--start", type=_finite, nargs=3, default=None, metavar=("X", "Y", "YAW_DEG"),
+        help="start fix: x, y [m], yaw [deg] (default: 0 0 0, or the truth's pose with --truth)",
+    )  # fmt: skip
+    r.add_argument(
+        "--time-offset", type=_offset, action="append", metavar="SENSOR=SECONDS",
+        help="add SECONDS to the stamps of the rig's sensor SENSOR (a sensor on another clock); repeatable",
+    )  # fmt: skip
+    r.add_argument(
+        "--truth", metavar="TRUTH.csv",
+        help="the truth beside a recorded log (rover record's truth.csv): also write errors.csv, each "
+        "field's error against it",
+    )  # fmt: skip
+    r.add_argument(
+        "--truth-skip", type=_float_in(-1e-9, 3600.0), default=1.0,
+        help="seconds at the start not scored against the truth (the filters' start-up)",
+    )  # fmt: skip
+    r.add_argument("--out", required=True, help="output folder (estimates.csv; errors.csv with --truth)")
     r.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     r.set_defaults(func=_cmd_replay)
     wt = sub.add_parser(
@@ -783,7 +858,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``rover`` command."""
+    """Entry point of the ``rover`` command.
+
+    Exit statuses: 0 done; 1 the input was read and nothing valid came of it; 2 bad input (an
+    option, a file, an estimator's fault: one line saying what and how to fix it); 3 a failure no
+    check foresaw; 130 interrupted (Ctrl-C, at any moment, without a traceback); 143 terminated.
+    """
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # while the packages load, before the command's own handling
+        sys.stderr.write("rover: interrupted\n")
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
+    from perception.estimator import EstimatorError
     from perception.logs.offline import NothingValidError
 
     args = build_parser().parse_args(argv)
@@ -804,7 +893,7 @@ def main(argv: list[str] | None = None) -> int:
     except NothingValidError as exc:  # the input was read; nothing valid came of it
         sys.stderr.write(f"rover {args.command}: error: {exc}\n")
         return 1
-    except (ValueError, OSError) as exc:  # includes CalibrationError and ConfigError
+    except (ValueError, OSError, EstimatorError) as exc:  # includes CalibrationError and ConfigError
         sys.stderr.write(f"rover {args.command}: error: {_one_line(exc)}\n")
         return 2
     except _Terminated:
