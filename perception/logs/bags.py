@@ -1237,11 +1237,12 @@ def log_vectors(path: str | Path, topic: str) -> np.ndarray:
 
 
 class McapWriter:
-    """A ROS 2 MCAP file of ``nav_msgs/Odometry`` and ``sensor_msgs/JointState`` messages.
+    """A ROS 2 MCAP file: estimates (``nav_msgs/Odometry``, ``sensor_msgs/JointState``) and sensors.
 
-    Use as a context manager; :meth:`odometry` and :meth:`joints` add one message each. The
-    file is written in a temporary folder beside ``path`` that this writer creates, and moved
-    to ``path`` when it closes without an error; nothing else is touched.
+    Use as a context manager; :meth:`odometry`, :meth:`joints`, :meth:`image`, :meth:`imu` and
+    :meth:`vector` add one message each (the header stamp and the log time are the message's
+    time). The file is written in a temporary folder beside ``path`` that this writer creates,
+    and moved to ``path`` when it closes without an error; nothing else is touched.
 
     Args:
         path: The ``.mcap`` file to write (replaced at close if it exists).
@@ -1259,7 +1260,7 @@ class McapWriter:
         self._tmp = Path(tempfile.mkdtemp(dir=self.path.parent, prefix=f".{self.path.name}."))
         self._writer = Writer(self._tmp / "bag", version=9, storage_plugin=StoragePlugin.MCAP)
         self._conns: dict[str, object] = {}
-        self.count = {"odometry": 0, "joints": 0}
+        self.count = {"odometry": 0, "joints": 0, "image": 0, "imu": 0, "vector": 0}
 
     def __enter__(self) -> McapWriter:
         try:
@@ -1346,6 +1347,79 @@ class McapWriter:
         )  # fmt: skip
         self._write(topic, "sensor_msgs/msg/JointState", msg, t)
         self.count["joints"] += 1
+
+    def image(
+        self,
+        t: float,
+        rgb: np.ndarray,
+        topic: str,
+        frame_id: str,
+        mosaic: np.ndarray | None = None,
+        compress: bool = True,
+    ) -> None:
+        """One camera frame at ``t`` [s]: ``sensor_msgs/CompressedImage`` (PNG, lossless) or ``Image``.
+
+        Args:
+            t: Time [s].
+            rgb: The (H, W, 3) uint8 RGB image.
+            topic: The topic.
+            frame_id: The camera's frame.
+            mosaic: The (H, W) uint8 RGGB Bayer mosaic ``rgb`` was demosaiced from (OpenCV's
+                bilinear demosaicing); written in its place (``bayer_rggb8``: a third of the bytes,
+                demosaiced again into the same image), or None.
+            compress: PNG-compress it (image_transport's format ``"<encoding>; png compressed
+                <encoding>"``); False: a raw ``sensor_msgs/Image``.
+        """
+        T = self._store.types
+        img, enc = (mosaic, "bayer_rggb8") if mosaic is not None else (rgb, "rgb8")
+        if compress:
+            ok, buf = cv2.imencode(".png", img if mosaic is not None else img[..., ::-1])
+            if not ok:  # pragma: no cover - OpenCV encodes any 8-bit image
+                raise ValueError(f"{topic}: a {img.shape} image does not encode as PNG")
+            fmt = f"{enc}; png compressed {enc if mosaic is not None else 'bgr8'}"
+            msg = T["sensor_msgs/msg/CompressedImage"](
+                header=self._header(t, frame_id), format=fmt, data=buf.ravel()
+            )
+            self._write(topic, "sensor_msgs/msg/CompressedImage", msg, t)
+        else:
+            h, w = img.shape[:2]
+            ch = 1 if img.ndim == 2 else img.shape[2]
+            msg = T["sensor_msgs/msg/Image"](
+                header=self._header(t, frame_id), height=h, width=w, encoding=enc, is_bigendian=0,
+                step=w * ch, data=np.ascontiguousarray(img).ravel(),
+            )  # fmt: skip
+            self._write(topic, "sensor_msgs/msg/Image", msg, t)
+        self.count["image"] += 1
+
+    def imu(self, t: float, gyro, accel, topic: str, frame_id: str, saturated: bool = False) -> None:
+        """One ``sensor_msgs/Imu`` at ``t`` [s]: gyro [rad/s] and accelerometer [m/s^2] in its frame.
+
+        It has no orientation (its covariance starts with -1); a ``saturated`` sample (a reading
+        clipped at the range) has -1 at the start of both other covariances too.
+        """
+        T = self._store.types
+        V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+        no = np.zeros(9)
+        no[0] = -1.0
+        flag = no if saturated else np.zeros(9)
+        g, a = (float(v) for v in gyro), (float(v) for v in accel)
+        msg = T["sensor_msgs/msg/Imu"](
+            header=self._header(t, frame_id), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=no, angular_velocity=V3(*g), angular_velocity_covariance=flag,
+            linear_acceleration=V3(*a), linear_acceleration_covariance=flag.copy(),
+        )  # fmt: skip
+        self._write(topic, "sensor_msgs/msg/Imu", msg, t)
+        self.count["imu"] += 1
+
+    def vector(self, t: float, v, topic: str, frame_id: str) -> None:
+        """One ``geometry_msgs/Vector3Stamped`` at ``t`` [s] (NaN components are kept)."""
+        T = self._store.types
+        x, y, z = (float(c) for c in v)
+        msg = T["geometry_msgs/msg/Vector3Stamped"](
+            header=self._header(t, frame_id), vector=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=z)
+        )
+        self._write(topic, VECTOR_TYPE, msg, t)
+        self.count["vector"] += 1
 
     def _write(self, topic: str, msgtype: str, msg, t: float) -> None:
         conn = self._conn(topic, msgtype)

@@ -6,6 +6,8 @@ the simulation, and where their messages are (the topic mapping lives here)::
     rover: rover.yaml            # optional: RoverKinematicModel.save (the built-in estimator needs it)
     steer_max_rate: 1.2          # optional [rad/s]
     starts_at_rest: true         # optional: the rover stands still, steering centred, at the log's start
+    builtin_estimator:           # optional: the built-in estimator's settings for this log
+      odometry: {max_features: 100}   # FlowOdometryConfig fields over the defaults
     sensors:
       - name: fisheye            # the ``sensor`` of its messages
         kind: fisheye            # pinhole | fisheye | imu | sun
@@ -63,7 +65,7 @@ from perception.models.calib_io import CalibrationError, check_rigid, read_mappi
 from perception.models.cameras import OmniCamera, PinholeCamera
 from perception.models.rover import RoverKinematicModel
 from perception.models.validation import ConfigError, real_number
-from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures
+from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures, read_only
 
 log = logging.getLogger(__name__)
 
@@ -93,12 +95,25 @@ class LogRig:
         topics: Sensor name -> the log's topic (None: the log's only topic of its kind).
         ephemeris_topics: Sun sensor name -> the topic of the ephemeris's sun direction.
         starts_at_rest: The rover stands still with its steering centred at the log's start.
+        odometry_overrides: :class:`~perception.odometry.flow.FlowOdometryConfig` fields the
+            built-in estimator takes on this log (``builtin_estimator.odometry``).
     """
 
     rig: Rig
     topics: dict[str, str | None]
     ephemeris_topics: dict[str, str] = field(default_factory=dict)
     starts_at_rest: bool = False
+    odometry_overrides: dict[str, Any] = field(default_factory=dict)
+
+    def builtin(self) -> Any:
+        """The built-in estimator as this rig file sets it up (:class:`perception.RoverEstimator`)."""
+        from perception.rover_estimator import RoverEstimator
+
+        return RoverEstimator(
+            read_only(self.rig),
+            odometry_overrides=dict(self.odometry_overrides) or None,
+            zero_steering_at_start=self.starts_at_rest,
+        )
 
 
 _SENSOR_KEYS = {
@@ -155,7 +170,9 @@ def load_rig(path: str | Path) -> LogRig:
             one name; the message names the file and the key.
     """
     path = Path(path)
-    d = read_mapping(path, {"sensors"}, {"rover", "steer_max_rate", "starts_at_rest"}, what="rig file")
+    d = read_mapping(
+        path, {"sensors"}, {"rover", "steer_max_rate", "starts_at_rest", "builtin_estimator"}, what="rig file"
+    )
     here = path.parent
     sensors = d["sensors"]
     if not isinstance(sensors, list) or not sensors:
@@ -229,11 +246,41 @@ def load_rig(path: str | Path) -> LogRig:
     rest = d.get("starts_at_rest", False)
     if not isinstance(rest, bool):
         raise ConfigError(f"{path}: starts_at_rest: {rest!r}; give true or false")
+    odometry = _builtin_settings(d.get("builtin_estimator"), path)
     try:
         rig = Rig(specs, vehicle=vehicle, steer_max_rate=steer)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    return LogRig(rig, topics, ephemeris, rest)
+    return LogRig(rig, topics, ephemeris, rest, odometry)
+
+
+def _builtin_settings(data: Any, path: Path) -> dict[str, Any]:
+    """A rig file's ``builtin_estimator`` block: its odometry's FlowOdometryConfig fields, checked."""
+    from perception.odometry.flow import FlowOdometryConfig
+
+    if data is None:
+        return {}
+    if not isinstance(data, dict) or set(data) - {"odometry"}:
+        raise ConfigError(
+            f"{path}: builtin_estimator: {data!r}; give a mapping with odometry: {{FIELD: VALUE}}"
+        )
+    odo = data.get("odometry") or {}
+    fields = FlowOdometryConfig.__dataclass_fields__
+    if not isinstance(odo, dict):
+        raise ConfigError(
+            f"{path}: builtin_estimator.odometry: {odo!r}; give a mapping of FlowOdometryConfig fields"
+        )
+    unknown = sorted(set(odo) - set(fields), key=str)
+    if unknown:
+        raise ConfigError(
+            f"{path}: builtin_estimator.odometry.{unknown[0]}: not a FlowOdometryConfig field; use "
+            f"{sorted(fields)}"
+        )
+    try:
+        FlowOdometryConfig(**odo)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: builtin_estimator.odometry: {exc}") from None
+    return dict(odo)
 
 
 def rig_files(rig: Rig) -> list[str]:
@@ -266,6 +313,7 @@ def save_rig(
     overwrite: bool = False,
     ephemeris_topics: dict[str, str] | None = None,
     starts_at_rest: bool = False,
+    odometry_overrides: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``rig`` as a rig file ``rig.yaml`` with its calibrations in ``folder``; its path.
 
@@ -282,6 +330,8 @@ def save_rig(
         ephemeris_topics: Sun sensor name -> the topic of the ephemeris's sun direction.
         starts_at_rest: Write ``starts_at_rest: true`` (the log starts with the rover at rest,
             its steering centred).
+        odometry_overrides: The built-in estimator's odometry settings for this log
+            (``builtin_estimator.odometry``), or None.
 
     Raises:
         FileExistsError: A file to write is already there (without ``overwrite``); nothing is written.
@@ -295,7 +345,7 @@ def save_rig(
                 f"{folder}: holds {', '.join(there)}; pass overwrite=True or choose another folder"
             )
         with OutputFolder(folder, files, overwrite=True, announce=False) as out:
-            path = save_rig(rig, out, topics, True, ephemeris_topics, starts_at_rest)
+            path = save_rig(rig, out, topics, True, ephemeris_topics, starts_at_rest, odometry_overrides)
             out.commit()
         return path
     topics, ephemeris_topics = topics or {}, ephemeris_topics or {}
@@ -341,6 +391,8 @@ def save_rig(
         data["steer_max_rate"] = float(rig.steer_max_rate)
     if starts_at_rest:
         data["starts_at_rest"] = True
+    if odometry_overrides:
+        data["builtin_estimator"] = {"odometry": dict(odometry_overrides)}
     with folder.writing("rig.yaml") as tmp:
         write_mapping(tmp, data)
     return folder.path / "rig.yaml"

@@ -15,6 +15,7 @@ before demosaicing, as a camera's image pipeline does on 8-bit data.
 
 from __future__ import annotations
 
+import collections
 import math
 
 import cv2
@@ -93,7 +94,31 @@ class ImageSensor:
         self._vignetting = relative_illumination(self.size, config.vignetting)
         self._lut = self._gamma_lut()
         self._alpha = 1.0 - math.exp(-frame_period / config.settling_tau(frame_period))
+        #: The last frames delivered, each with the Bayer mosaic it was demosaiced from
+        #: (:meth:`keep_mosaics`); empty unless asked for.
+        self._recent: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(maxlen=1)
+        self._keep = 0
         self.reset(seed)
+
+    def keep_mosaics(self, n: int) -> None:
+        """Keep the gamma-encoded Bayer mosaics of the last ``n`` frames delivered (0: none, the default).
+
+        A recorder logs a frame as the camera produced it, one colour per pixel
+        (:meth:`mosaic_of`): a third of the RGB image's bytes, and demosaiced again into the very
+        same image. A frame through JPEG keeps none.
+        """
+        self._keep = int(n)
+        self._recent = collections.deque(maxlen=max(self._keep, 1))
+
+    def mosaic_of(self, image: np.ndarray) -> np.ndarray | None:
+        """The (H, W) uint8 Bayer mosaic that ``image`` (a delivered frame itself) was demosaiced from.
+
+        None if it is not among the frames kept (:meth:`keep_mosaics`).
+        """
+        for rgb, encoded in self._recent:
+            if rgb is image:
+                return encoded
+        return None
 
     def _gamma_lut(self) -> np.ndarray:
         c = self.config
@@ -210,6 +235,8 @@ class ImageSensor:
         """:meth:`develop` of the gamma-encoded Bayer values (H, W) uint8."""
         rgb = cv2.cvtColor(encoded, _DEMOSAIC)
         q = self.config.jpeg_quality
+        if self._keep and q is None:
+            self._recent.append((rgb, encoded))
         if q is not None:
             ok, buf = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(q)])
             bgr = cv2.imdecode(buf, cv2.IMREAD_COLOR) if ok else None

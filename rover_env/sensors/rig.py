@@ -382,6 +382,15 @@ class PerceptionPipeline:
         self._step = 0
         #: Frames given to the estimator so far: downward, fisheye, and fisheye frames rendered in windows.
         self.frames = dict.fromkeys(camera_names, 0) | {"fisheye_windowed": 0}
+        self._listeners: list[Callable[[Sequence[SensorMessage]], None]] = []
+
+    def add_listener(self, listener: Callable[[Sequence[SensorMessage]], None]) -> None:
+        """Call ``listener(messages)`` with every control step's messages before the estimator sees them.
+
+        A recorder's hook (``rover record``): it reads the messages, it cannot change them (their
+        arrays are read-only) nor the estimate.
+        """
+        self._listeners.append(listener)
 
     @property
     def timing(self) -> dict[str, float]:
@@ -443,6 +452,8 @@ class PerceptionPipeline:
             if m.sensor in self.last_images:
                 self.last_images[m.sensor] = m.data
                 self.frames[m.sensor] += 1
+        for listener in self._listeners:
+            listener(messages)
         try:
             values = self.estimator.update(list(messages), t)
         except (Exception, SystemExit) as exc:

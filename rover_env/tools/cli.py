@@ -1,4 +1,4 @@
-"""The ``rover`` command line: demo, eval, train, bench, odometry, kinematics, scenarios."""
+"""The ``rover`` command line: demo, eval, train, record, replay, odometry, kinematics, wheel-test, bench."""
 
 from __future__ import annotations
 
@@ -452,7 +452,6 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from perception.logs.replay import load_rig, replay, write_estimates
     from perception.logs.truth import errors_table, read_estimates, read_truth, score
     from perception.rig import read_only
-    from perception.rover_estimator import RoverEstimator
     from rover_env.tools.evaluation import load_estimator
 
     check_out(args.out)
@@ -464,17 +463,15 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     log_rig = load_rig(args.rig)  # the inputs before the output
     truth = read_truth(args.truth) if args.truth else None
     offsets = dict(args.time_offset or [])
-    if args.estimator:
-        factory = load_estimator(args.estimator)
-        who = args.estimator
-    else:
-
-        def factory(rig):
-            return RoverEstimator(rig, zero_steering_at_start=log_rig.starts_at_rest)
-
-        who = "RoverEstimator (the built-in)"
     try:
-        estimator = factory(read_only(log_rig.rig))
+        if args.estimator:
+            who = args.estimator
+            estimator = load_estimator(args.estimator)(read_only(log_rig.rig))
+        else:
+            who = "RoverEstimator (the built-in)"
+            estimator = log_rig.builtin()
+    except ValueError:
+        raise
     except (Exception, SystemExit) as exc:  # the user's code: any error, named
         what = f"{type(exc).__name__}: {exc}"
         raise ValueError(f"estimator {who} on {args.rig}'s rig {log_rig.rig!r}: {what}") from exc
@@ -527,6 +524,38 @@ def _offset(text: str) -> tuple[str, float]:
     if not math.isfinite(dt):
         raise argparse.ArgumentTypeError(f"time offset: {text!r}; give a finite number of seconds")
     return name, dt
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    from perception.logs.outputs import check_out
+    from rover_env.tools.record import record
+
+    check_out(args.out)
+    bar = _LazyProgress(f"record {args.mission}: simulated")
+    start = time.perf_counter()
+    try:
+        res = record(
+            args.mission, args.controller, args.seconds, args.out, preset=args.preset, seed=args.seed,
+            raw=args.raw, camera_effects=args.camera_effects, randomize=args.randomize, rig=args.rig,
+            overwrite=args.overwrite, progress=lambda t: bar.share(t / args.seconds),
+        )  # fmt: skip
+    finally:
+        bar.close()
+    out = res.folder
+    counts = ", ".join(f"{n} {name}" for name, n in res.messages.items())
+    print(
+        f"recorded {res.seconds:.2f} s of {args.mission} driven by {args.controller} ({res.termination}): "
+        f"{counts} messages, log.mcap {res.log_bytes / 1e6:.1f} MB, in {time.perf_counter() - start:.0f} s"
+    )
+    vx = res.loop_errors.get("v_x", math.nan)
+    print(f"the built-in estimator in the loop: v_x MAE {_cell(vx, '.4f')} m/s (after the first second)")
+    print(f"wrote log.mcap, rig.yaml (its topics and calibrations), truth.csv, truth.tum and "
+          f"estimates_in_loop.csv to {out.resolve()}")  # fmt: skip
+    print(
+        f"replay it: rover replay {out / 'log.mcap'} --rig {out / 'rig.yaml'} --truth {out / 'truth.csv'} "
+        "--out REPLAY_DIR"
+    )
+    return 0
 
 
 def _need_source(source: str) -> None:
@@ -594,7 +623,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rover",
         description="Camera-based state estimation and slip-aware driving of planetary rovers: "
-        "demo, eval, train, bench, odometry, kinematics, replay, wheel-test, scenarios.",
+        "demo, eval, train, record, replay, odometry, kinematics, wheel-test, bench, scenarios.",
     )
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = p.add_subparsers(dest="command", required=True)
@@ -852,6 +881,38 @@ def build_parser() -> argparse.ArgumentParser:
     wt.add_argument("--out", required=True, help="output folder (wheel_test.csv, wheel_test.png)")
     wt.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
     wt.set_defaults(func=_cmd_wheel_test)
+    rc = sub.add_parser(
+        "record", formatter_class=fmt,
+        help="drive a mission and record every rig sensor to an MCAP log, with its rig file and the truth",
+    )  # fmt: skip
+    rc.add_argument("mission", help="environment id, scenario preset or YAML path")
+    rc.add_argument(
+        "--controller", required=True,
+        help="the driver, on the estimates: slip_aware, slip_unaware, pure_pursuit, ppo or policy:DIR, "
+        "optionally @imu[:PRESET] (an IMU on the rover, recorded too)",
+    )  # fmt: skip
+    rc.add_argument(
+        "--seconds", type=_float_in(0.0, 3600.0), required=True, help="simulated time to record [s]"
+    )
+    rc.add_argument("--seed", type=_int_in(0, 2**32 - 1), default=0, help="episode seed")
+    rc.add_argument("--preset", default="train", choices=("train", "eval"), help="camera preset")
+    rc.add_argument("--camera-effects", default="field", choices=("ideal", "field"),
+                    help="the cameras: as rendered, or through their image sensors")  # fmt: skip
+    rc.add_argument("--randomize", default=None, choices=("off", "on"),
+                    help="domain randomisation (default: the scenario's randomize key)")  # fmt: skip
+    rc.add_argument("--rig", default=None, choices=("standard", "fisheye_only"),
+                    help="a named rig in place of the mission's sensors")  # fmt: skip
+    rc.add_argument(
+        "--raw", action="store_true",
+        help="raw sensor_msgs/Image frames (default: lossless PNG, a field camera's Bayer mosaic)",
+    )  # fmt: skip
+    rc.add_argument(
+        "--out", required=True,
+        help="output folder: log.mcap, rig.yaml (+ calibrations, rover.yaml), truth.csv, truth.tum, "
+        "estimates_in_loop.csv",
+    )  # fmt: skip
+    rc.add_argument("--overwrite", action="store_true", help="replace the results of an earlier run in --out")
+    rc.set_defaults(func=_cmd_record)
     s = sub.add_parser("scenarios", formatter_class=fmt, help="list the shipped scenario presets")
     s.set_defaults(func=_cmd_scenarios)
     return p
