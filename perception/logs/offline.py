@@ -348,7 +348,7 @@ def _need_ground_plane(camera, name: str, config=None) -> None:
         raise CalibrationError(f"{name}: {GROUND_PLANE_MISSING}")
     if isinstance(camera, OmniCamera):
         reach = (config if isinstance(config, FisheyeOdometryConfig) else FisheyeOdometryConfig()).max_range
-        problem = camera.ground_view_error(max_height=reach)
+        problem = camera.model_error() or camera.ground_view_error(max_height=reach)
     else:
         problem = camera.ground_view_error()
     if problem:

@@ -541,10 +541,12 @@ def _check_streams(log_path: Path, log_rig: LogRig, streams: list[_Stream]) -> t
             a, b = spans[st.name]
             if st in pace or (b >= a0 and a <= b0):
                 continue
-            if abs((b - a) - (b0 - a0)) <= 0.25 * max(b0 - a0, 1e-9) + 0.1:  # the same length: an offset
-                hints.append(f"--time-offset {st.name}={a0 - a:.6f}")
+            length, ref = b - a, max(b0 - a0, 1.0 / log_rig.rig[st.name].rate_hz)
+            if 0.5 * ref <= length <= 3.0 * ref + 1.0:  # about as long: the same stretch on another clock
+                hints.append(f"--time-offset {st.name}={0.5 * (a0 + b0 - a - b):.3f}")
         fix = (
-            f"if a sensor's clock is offset by a constant, give {' '.join(hints)}"
+            f"if a sensor's clock is offset by a constant, {' '.join(hints)} centres its samples on the "
+            "cameras' (check the offset)"
             if hints
             else "put the sensors' stamps on one clock (or give --time-offset SENSOR=SECONDS)"
         )

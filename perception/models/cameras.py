@@ -45,10 +45,17 @@ GROUND_PLANE_MISSING = (
 )
 
 
+#: The most the ground plane may be tilted in the body frame [deg]: the ground under a rover's
+#: wheels is never steeper against its body (its suspension's travel and roll are far less);
+#: beyond it, a "ground" is a wall, or the plane's slopes are in another unit.
+MAX_GROUND_TILT_DEG = 45.0
+
+
 def _above_plane(T_body_cam: np.ndarray, plane) -> tuple[str, float, np.ndarray]:
     """Why the camera is not above ``plane`` ("" if it is), its height over it [m], the upward normal.
 
     ``plane``: (a, b, c) of z = a x + b y + c in the body frame [-, -, m], or None (not given).
+    A plane tilted more than :data:`MAX_GROUND_TILT_DEG` from the body's x-y plane is refused.
     """
     up = np.array([0.0, 0.0, 1.0])
     if plane is None:
@@ -56,6 +63,15 @@ def _above_plane(T_body_cam: np.ndarray, plane) -> tuple[str, float, np.ndarray]
     a, b, c = (float(v) for v in plane)
     if not all(math.isfinite(v) for v in (a, b, c)):
         return f"ground_plane: {plane!r} is not finite", math.nan, up
+    tilt = math.degrees(math.atan(math.hypot(a, b)))
+    if tilt > MAX_GROUND_TILT_DEG:
+        return (
+            f"ground_plane: z = {a:g} x + {b:g} y + {c:g} is tilted {tilt:.1f} deg from the body's "
+            f"x-y plane, more than the {MAX_GROUND_TILT_DEG:g} deg a rover's ground can be under a "
+            "downward camera; a and b are slopes (dz/dx, dz/dy), not angles",
+            math.nan,
+            up,
+        )
     n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)
     centre = T_body_cam[:3, 3]
     height = float(n @ (centre - np.array([0.0, 0.0, c])))
@@ -381,6 +397,7 @@ class OmniCamera:
     mask_file: Path | None = None
     _inv: np.ndarray = field(init=False, repr=False, compare=False)
     _dpoly: np.ndarray = field(init=False, repr=False, compare=False)
+    _rho_max: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         w, h = check_image_size(self.image_size)
@@ -426,6 +443,44 @@ class OmniCamera:
                 "with a one-to-one mapping; check the coefficients or lower max_fov"
             )
         object.__setattr__(self, "_inv", self._fit_inverse(rho_max))
+        object.__setattr__(self, "_rho_max", rho_max)
+
+    def model_error(self) -> str:
+        """Why this polynomial does not fit a fisheye of this image, or "" if it does.
+
+        A downward fisheye's field of view ends near the image's border (its image circle), and
+        the angle of a ray grows about evenly with its radius there (an equidistant lens: half
+        the field of view at half the circle's radius; equisolid and stereographic lenses 45-60
+        %). A polynomial scaled by mistake, or fitted to another resolution, puts the circle off
+        the image or crowds the angles at its edge.
+        """
+        w, h = self.image_size
+        cx, cy = self.center
+        reach = max(math.hypot(x - cx, y - cy) for x in (0, w) for y in (0, h))  # to the farthest corner
+        circle = self._rho_max  # the field of view's edge [px from the centre]
+        fov = math.degrees(self.max_fov)
+        if circle > 1.5 * reach:
+            return (
+                f"poly: the model's {fov:.0f} deg field of view ends {circle:.0f} px from the centre, "
+                f"beyond the {w}x{h} image (its corners are at most {reach:.0f} px away): the "
+                "polynomial does not fit this image (scaled, or fitted at another resolution)"
+            )
+        if circle < 0.1 * min(w, h):
+            return (
+                f"poly: the model's {fov:.0f} deg field of view fits in a circle of {circle:.1f} px in "
+                f"the {w}x{h} image: the polynomial does not fit this image (scaled, or fitted at "
+                "another resolution)"
+            )
+        half = math.degrees(float(np.arctan2(circle / 2, self._f(np.array(circle / 2)))))
+        share = half / (fov / 2)
+        if not 0.2 <= share <= 0.8:
+            return (
+                f"poly: half way to the image circle's edge ({circle / 2:.0f} px) the model's ray is "
+                f"{half:.1f} deg off the axis, {100 * share:.0f} % of the {fov / 2:.0f} deg at the edge; a "
+                "fisheye's angle grows about evenly with the radius (an equidistant lens: 50 %): the "
+                "polynomial is scaled or wrong"
+            )
+        return ""
 
     def ground_view_error(
         self, ground_plane: tuple[float, float, float] | None = None, max_height: float | None = None

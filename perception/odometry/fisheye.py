@@ -672,7 +672,9 @@ class FisheyeOdometry:
             parts False. Without it the parts are learned (the module's docstring).
 
     Raises:
-        ValueError: A mask whose size is not the camera's, or a ground plane that is not finite.
+        ValueError: A mask whose size is not the camera's, a ground plane that is not finite or
+            that the fisheye cannot see, or a polynomial that does not fit the camera's image
+            (:meth:`~perception.models.cameras.OmniCamera.model_error`).
     """
 
     def __init__(
@@ -684,6 +686,9 @@ class FisheyeOdometry:
     ) -> None:
         self.camera = camera
         self.cfg = config or FisheyeOdometryConfig()
+        problem = camera.model_error()
+        if problem:
+            raise ValueError(problem)
         w, h = camera.image_size
         self.ground_plane = None if ground_plane is None else _plane(ground_plane)
         if self.ground_plane is not None:

@@ -406,7 +406,7 @@ def _cmd_odometry(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.camera}: {GROUND_PLANE_MISSING}")
         from perception.odometry.fisheye import FisheyeOdometryConfig
 
-        problem = omni.ground_view_error(max_height=FisheyeOdometryConfig().max_range)
+        problem = omni.model_error() or omni.ground_view_error(max_height=FisheyeOdometryConfig().max_range)
         if problem:
             raise ValueError(f"{args.camera}: {problem}")
     if not bags.is_log(args.source):
