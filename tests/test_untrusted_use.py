@@ -263,3 +263,218 @@ def test_odometry_overrides_are_honoured_or_refused_on_every_rig():
         assert env.unwrapped.pipeline.estimator.odometry.config.max_features == 50
     finally:
         env.close()
+
+
+# ------------------------------------------------------------------ outputs
+
+
+def wheel_test_argv(out, *extra, soil="toyoura"):
+    return ["wheel-test", "--soil", str(soil), "--radius", "0.1", "--width", "0.1", "--load", "100",
+            "--slips", "0.2", "--distance", "0.2", "--out", str(out), *extra]  # fmt: skip
+
+
+def test_wheel_test_never_writes_through_a_link_or_loses_its_earlier_results(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(wheel_test_argv(out)) == 0
+    earlier = {p.name: p.read_bytes() for p in out.iterdir()}
+    # a symbolic link where the CSV goes: refused, the user's file it points to untouched
+    mine = tmp_path / "mine.csv"
+    mine.write_text("the user's data")
+    (out / "wheel_test.csv").unlink()
+    (out / "wheel_test.csv").symlink_to(mine)
+    assert main(wheel_test_argv(out, "--overwrite")) == 2
+    assert "symbolic link" in one_error(capsys) and mine.read_text() == "the user's data"
+    # a folder where the plot goes: refused before any work, the earlier CSV as it was
+    (out / "wheel_test.csv").unlink()
+    (out / "wheel_test.csv").write_bytes(earlier["wheel_test.csv"])
+    (out / "wheel_test.png").unlink()
+    (out / "wheel_test.png").mkdir()
+    assert main(wheel_test_argv(out, "--overwrite")) == 2
+    assert "wheel_test.png is a folder" in one_error(capsys)
+    assert (out / "wheel_test.csv").read_bytes() == earlier["wheel_test.csv"]
+
+
+@pytest.mark.parametrize(
+    ("command", "message"),
+    [
+        (lambda out: wheel_test_argv(out, soil="no_such_soil"), "no_such_soil"),
+        (lambda out: ["eval", "--missions", "Rover-v99", "--out", str(out)], "Rover-v99"),
+        (lambda out: ["train", "--missions", "Rover-v99", "--out", str(out)], "Rover-v99"),
+        (lambda out: ["record", "Rover-v99", "--controller", "slip_aware", "--seconds", "1",
+                      "--out", str(out)], "Rover-v99"),
+        (lambda out: ["record", "Rover-v0", "--controller", "slip_aware@ground_truth", "--seconds", "1",
+                      "--out", str(out)], "no sensor runs"),
+        (lambda out: ["demo", "--scenario", "no_such_scenario", "--out", str(out)], "no_such_scenario"),
+    ],
+)  # fmt: skip
+def test_a_refused_input_leaves_no_output_folder(tmp_path, capsys, command, message):
+    out = tmp_path / "new" / "out"
+    assert main(command(out)) == 2
+    assert message in one_error(capsys)
+    assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize(
+    "command", ["wheel-test", "eval", "train", "record", "demo", "odometry", "kinematics"]
+)
+def test_an_empty_out_is_refused_not_the_current_folder(tmp_path, monkeypatch, capsys, command):
+    monkeypatch.chdir(tmp_path)
+    argv = {
+        "wheel-test": wheel_test_argv(""),
+        "eval": ["eval", "--out", ""],
+        "train": ["train", "--out", ""],
+        "record": ["record", "Rover-v0", "--controller", "slip_aware", "--seconds", "1", "--out", ""],
+        "demo": ["demo", "--out", ""],
+        "odometry": ["odometry", str(tmp_path), "--calib", "c.yaml", "--fps", "30", "--out", ""],
+        "kinematics": ["kinematics", str(tmp_path), "--camera", "c.yaml", "--rover", "r.yaml", "--fps", "30",
+                       "--out", ""],
+    }[command]  # fmt: skip
+    assert main(argv) == 2
+    assert "--out" in one_error(capsys)
+    assert not list(tmp_path.iterdir())
+
+
+# ------------------------------------------------------------------ physics that cannot be
+
+
+@pytest.mark.parametrize(
+    ("soil", "words"),
+    [
+        ({"preset": "toyoura", "n": 0.01}, "too fast for the 240 Hz physics step"),  # sank -24 m before
+        ({"preset": "toyoura", "k_phi": 1.0e11}, "too fast for the 240 Hz physics step"),  # -164 m
+        ({"preset": "toyoura", "k_c": 0.0, "k_phi": 1.0e-3}, "buried past its axle"),  # 4.5 m deep, quietly
+    ],
+)
+def test_a_soil_whose_steady_state_cannot_be_is_refused_before_the_run(tmp_path, capsys, soil, words):
+    import yaml
+
+    path = tmp_path / "soil.yaml"
+    path.write_text(yaml.safe_dump(soil))
+    out = tmp_path / "out"
+    assert main(wheel_test_argv(out, soil=path)) == 2
+    assert words in one_error(capsys) and not out.exists()
+
+
+def test_a_test_bed_run_too_long_or_not_physical_is_an_error(tmp_path, capsys):
+    assert main(wheel_test_argv(tmp_path / "o", "--speed", "1e-6")) == 2  # hung for hours before
+    assert "give a speed of at least" in one_error(capsys) and not (tmp_path / "o").exists()
+    from rover_env.config.io import ConfigError
+    from rover_env.config.soil import load_soil
+    from rover_env.sim.terramechanics import WheelSpec
+    from rover_env.sim.wheel_test import WheelTestRow, _check_row
+
+    soil, wheel = load_soil("toyoura"), WheelSpec(0.1, 0.1)
+    _check_row(WheelTestRow(0.2, 10.0, 100.0, 0.02, 1.0), 100.0, wheel, soil)  # a physical one passes
+    for row, words in (
+        (WheelTestRow(0.2, 10.0, 100.0, -12.56, 1.0), "negative sinkage"),
+        (WheelTestRow(0.2, math.nan, 0.0, 0.02, 1.0), "non-finite"),
+        (WheelTestRow(0.2, 0.0, 0.0, 0.02, 1.0), "carrying 0 N of the 100 N load"),
+        (WheelTestRow(0.2, 10.0, 100.0, 0.2, 1.0), "past the wheel's axle"),
+    ):
+        with pytest.raises(ConfigError, match=words):
+            _check_row(row, 100.0, wheel, soil)
+
+
+# ------------------------------------------------------------------ calibrations that cannot be
+
+
+def _fisheye_calibration(tmp_path, **changes) -> Path:
+    import dataclasses
+
+    from perception.models.cameras import OmniCamera
+
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    T[:3, 3] = (0.0, 0.0, 0.6)
+    cam = OmniCamera.equidistant((320, 240), math.radians(190.0), 150.0, T_body_cam=T)
+    cam = dataclasses.replace(cam, ground_plane=(0.0, 0.0, -0.3))
+    path = cam.save(tmp_path / "omni.yaml")
+    text = path.read_text()
+    for key, value in changes.items():
+        import yaml
+
+        data = yaml.safe_load(text)
+        data[key] = value
+        text = yaml.safe_dump(data)
+    path.write_text(text)
+    return path
+
+
+def test_the_fisheye_odometry_refuses_a_calibration_that_cannot_be(tmp_path, capsys):
+    from perception.models.calib_io import CalibrationError
+    from perception.models.cameras import OmniCamera
+    from perception.odometry.fisheye import FisheyeOdometry
+
+    good = OmniCamera.load(_fisheye_calibration(tmp_path))
+    assert good.model_error() == "" and FisheyeOdometry(good).camera is good
+    with pytest.raises(CalibrationError, match="tilted 89.0 deg"):
+        OmniCamera.load(
+            _fisheye_calibration(tmp_path, ground_plane=[math.tan(math.radians(89.0)), 0.0, -0.3])
+        )
+    scaled = _fisheye_calibration(tmp_path, poly=[100.0 * a for a in good.poly])
+    with pytest.raises(ValueError, match="the polynomial is scaled or wrong"):
+        FisheyeOdometry(OmniCamera.load(scaled))
+    images = tmp_path / "images"
+    images.mkdir()
+    cv2.imwrite(str(images / "0.png"), np.zeros((240, 320, 3), np.uint8))
+    out = tmp_path / "out"
+    assert main(["odometry", str(images), "--camera", str(scaled), "--fps", "30", "--out", str(out)]) == 2
+    assert "polynomial" in one_error(capsys) and not out.exists()
+
+
+# ------------------------------------------------------------------ rover train's arguments
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (["--missions", "Rover-v99"], "mission 'Rover-v99'"),
+        (["--residual", "-1", "0.3", "0.3"], "residual [-1.0, 0.3, 0.3]"),
+        (["--residual", "nan", "0.3", "0.3"], "give three numbers from 0 to 2"),
+        (["--imu", "bmi088", "--obs-source", "ground_truth"], "the IMU feeds the estimator"),
+        (["--imu", "mems"], "imu 'mems'"),
+    ],
+)
+def test_rover_train_checks_every_argument_before_any_worker_starts(tmp_path, capsys, extra, words):
+    out = tmp_path / "out"
+    assert main(["train", "--out", str(out), "--steps", "10", *extra]) == 2
+    assert words in one_error(capsys) and not out.exists()
+
+
+def test_rover_train_says_what_it_trains_when_steps_are_below_one_rollout(
+    tmp_path, capsys, monkeypatch, tiny_scenario
+):
+    import rover_env.tools.training as training
+
+    trained = {}
+
+    def fake_train(cfg, out, progress=False):  # the check, not the hour of training
+        trained["steps"] = cfg.steps_trained()
+        out.commit()
+        return out.path
+
+    monkeypatch.setattr(training, "train", fake_train)
+    argv = ["train", "--out", str(tmp_path / "o"), "--steps", "10", "--missions", tiny_scenario,
+            "--obs-source", "ground_truth"]  # fmt: skip
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert (
+        "--steps 10 is below one rollout of PPO (1024 steps: 512 on each of 2 environments): it trains 1024"
+        in err
+    )
+    assert trained["steps"] == 1024
+
+
+# ------------------------------------------------------------------ Ctrl-C
+
+
+def test_ctrl_c_while_the_command_loads_is_one_line(monkeypatch, capsys):
+    import rover_env.tools.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["eval", "--out", "x"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "rover: interrupted" and "Traceback" not in err

@@ -364,7 +364,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_kinematics(args: argparse.Namespace) -> int:
     from perception.logs import bags
     from perception.logs.offline import run_folder_kinematics
+    from perception.logs.outputs import check_out
 
+    check_out(args.out)
     _need_source(args.source)
     if not bags.is_log(args.source):
         _need_fps(args)
@@ -386,8 +388,10 @@ def _cmd_kinematics(args: argparse.Namespace) -> int:
 def _cmd_odometry(args: argparse.Namespace) -> int:
     from perception.logs import bags
     from perception.logs.offline import run_folder_odometry
+    from perception.logs.outputs import check_out
     from perception.models.cameras import PinholeCamera
 
+    check_out(args.out)
     _need_source(args.source)
     calib = args.calib if args.calib is not None else args.camera
     if args.calib is not None:
