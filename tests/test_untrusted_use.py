@@ -478,3 +478,111 @@ def test_ctrl_c_while_the_command_loads_is_one_line(monkeypatch, capsys):
     assert cli.main(["eval", "--out", "x"]) == 130
     err = capsys.readouterr().err
     assert err.strip() == "rover: interrupted" and "Traceback" not in err
+
+
+# ------------------------------------------------------------------ reports: only what was returned
+
+
+PARTIAL = """
+import numpy as np
+
+
+class PoseSpeedYaw:
+    '''Returns only the pose, v_x and omega (dead reckoning on the true start fix, a fixed speed).'''
+
+    def __init__(self, rig):
+        pass
+
+    def reset(self, start_fix):
+        self.pose = np.array(start_fix, dtype=float)
+
+    def update(self, messages, t):
+        return {"pose": self.pose, "v_x": 0.5, "omega": 0.0}
+
+
+def refuses(rig):
+    raise ValueError("this estimator needs a stereo pair")
+"""
+
+
+def test_rover_eval_scores_only_what_an_estimator_returned_and_puts_estimators_side_by_side(
+    tmp_path, capsys, tiny_scenario
+):
+    import csv
+    import json
+
+    src = tmp_path / "partial.py"
+    src.write_text(PARTIAL)
+    out = tmp_path / "eval"
+    argv = ["eval", "--controllers", "slip_unaware", "--missions", tiny_scenario, "--seeds", "0",
+            "--workers", "1", "--preset", "train", "--camera-effects", "ideal", "--out", str(out),
+            "--estimator", f"mine={src}:PoseSpeedYaw", "--estimator", "built-in"]  # fmt: skip
+    assert main(argv) == 0
+    with open(out / "results.csv") as fh:
+        rows = {r["estimator"]: r for r in csv.DictReader(fh)}
+    assert set(rows) == {"mine", "built-in"}
+    mine, builtin = rows["mine"], rows["built-in"]
+    for key in ("est_mae_slip", "est_slip_mae_slipping", "est_mae_wheel_rate", "est_mae_axle_height",
+                "est_mae_steering", "est_slip_f1", "est_slip_events"):  # fmt: skip
+        assert mine[key] == "nan", (key, mine[key])  # not a score for a zero it never claimed
+        assert math.isfinite(float(builtin[key])) or key == "est_slip_f1", (key, builtin[key])
+    assert float(mine["est_mae_v_x"]) > 0.0 and math.isfinite(float(mine["est_mae_omega"]))
+    data = {r["estimator"]: r for r in json.loads((out / "results.json").read_text())}
+    assert data["mine"]["est_mae_slip"] is None and data["built-in"]["est_mae_slip"] is not None
+    report = (out / "report.md").read_text()
+    table = [ln for ln in report.splitlines() if ln.startswith("| slip_unaware |")]
+    assert len(table) == 4  # both estimators, in the mission table and the errors table
+    errors = [ln for ln in table if ln.startswith("| slip_unaware | mine |") and "–" in ln]
+    assert errors and errors[-1].count("–") >= 4
+    assert f"`mine`: `{src}:PoseSpeedYaw`" in report
+    # a factory that refuses the rig: found before the sweep, exit 2, no folder
+    bad = tmp_path / "bad"
+    argv2 = ["eval", "--controllers", "slip_unaware", "--missions", tiny_scenario, "--seeds", "0",
+             "--out", str(bad), "--estimator", f"{src}:refuses"]  # fmt: skip
+    assert main(argv2) == 2
+    assert "needs a stereo pair" in one_error(capsys) and not bad.exists()
+
+
+# ------------------------------------------------------------------ rover record and replay
+
+
+def test_a_recorded_mission_replays_to_the_estimates_of_the_loop(tmp_path, capsys):
+    from perception.logs import bags
+    from perception.logs.truth import read_estimates, read_truth
+
+    rec = tmp_path / "rec"
+    assert (
+        main(["record", "Rover-v0", "--controller", "slip_aware", "--seconds", "3", "--out", str(rec)]) == 0
+    )
+    assert {p.name for p in rec.iterdir()} == {"log.mcap", "rig.yaml", "rover.yaml", "fisheye.yaml",
+                                               "downward.yaml", "truth.csv", "truth.tum",
+                                               "estimates_in_loop.csv"}  # fmt: skip
+    with bags.open_log(rec / "log.mcap") as lg:
+        topics = lg.topics()
+    assert topics == {
+        "/fisheye/image_raw/compressed": ("sensor_msgs/msg/CompressedImage", 91),
+        "/downward/image_raw/compressed": ("sensor_msgs/msg/CompressedImage", 91),
+    }
+    truth = read_truth(rec / "truth.csv")
+    assert truth["t_log"][0] == pytest.approx(2.0) and len(truth["t_log"]) == 91  # stamps valid from 0
+    rig = load_rig(rec / "rig.yaml")
+    assert rig.starts_at_rest and rig.topics["fisheye"] == "/fisheye/image_raw/compressed"
+    out = tmp_path / "replay"
+    argv = [
+        "replay",
+        str(rec / "log.mcap"),
+        "--rig",
+        str(rec / "rig.yaml"),
+        "--truth",
+        str(rec / "truth.csv"),
+    ]
+    assert main([*argv, "--out", str(out)]) == 0
+    loop, again = read_estimates(rec / "estimates_in_loop.csv"), read_estimates(out / "estimates.csv")
+    np.testing.assert_allclose(again["t_log"], loop["t_log"], atol=1e-6)
+    # the fisheye's images are the loop's to the bit: its kinematics gives the same numbers
+    for key in ("steering_F", "axle_roll_R", "axle_height_F", "wheel_angle_FL"):
+        np.testing.assert_allclose(again[key], loop[key], rtol=0, atol=1e-12)
+    errors = {r.split(",")[0]: r.split(",") for r in (out / "errors.csv").read_text().splitlines()[1:]}
+    mae = float(errors["v_x"][3])
+    vx_loop = np.nanmean(np.abs(loop["v_x"] - np.interp(loop["t_log"], truth["t_log"], truth["v_x"]))[30:])
+    assert abs(mae - vx_loop) < 0.005, (mae, vx_loop)
