@@ -586,3 +586,76 @@ def test_a_recorded_mission_replays_to_the_estimates_of_the_loop(tmp_path, capsy
     mae = float(errors["v_x"][3])
     vx_loop = np.nanmean(np.abs(loop["v_x"] - np.interp(loop["t_log"], truth["t_log"], truth["v_x"]))[30:])
     assert abs(mae - vx_loop) < 0.005, (mae, vx_loop)
+
+
+# ------------------------------------------------------------------ the docs, as a user follows them
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _yaml_block_after(doc: Path, heading: str) -> str:
+    text = doc.read_text()
+    rest = text[text.index(heading) :]
+    start = rest.index("```yaml\n") + len("```yaml\n")
+    return rest[start : rest.index("```", start)]
+
+
+def test_the_docs_rig_example_moves_the_camera_forward_and_sees_the_ground(tmp_path):
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401
+    from rover_env.sensors.cameras import DownwardCamera
+
+    rig = _yaml_block_after(ROOT / "docs" / "rover_and_scenarios.md", "### The sensor rig")
+    path = tmp_path / "moved.yaml"
+    path.write_text("base: flat_patches\n" + rig)  # the docs' way to change only the rig of a preset
+    env = gym.make("Rover-v0", scenario=str(path), renderer="tiny", camera_effects="ideal")
+    try:
+        u = env.unwrapped
+        cam = u.rig["downward"].model
+        standard = DownwardCamera.standard_mount(u.geometry)
+        assert cam.T_body_cam[0, 3] > standard[0, 3]  # "moved forward"
+        # the rearmost ground it sees lies ahead of the body's front: the rover is not in view
+        w, h = cam.image_size
+        ground = cam.pixels_to_ground(np.array([[0.0, h - 1.0], [w - 1.0, h - 1.0]]), (0.0, 0.0, -0.265))
+        assert ground[:, 0].min() > u.geometry.body_size[0] / 2
+        assert u.scenario.course == rover_env.load_scenario("flat_patches").course  # the rest: the preset's
+    finally:
+        env.close()
+
+
+def test_the_readme_quick_start_runs_on_a_current_id_without_a_warning():
+    import warnings
+
+    readme = (ROOT / "README.md").read_text()
+    start = readme.index("## Quick start")
+    block = readme[start:][readme[start:].index("```python\n") + len("```python\n") :]
+    code = block[: block.index("```")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scope: dict = {}
+        exec(compile(code, "README quick start", "exec"), scope)  # noqa: S102
+    scope["env"].close()
+
+
+def test_scenario_files_can_start_from_a_preset_and_name_it_wrongly(tmp_path):
+    from rover_env.config.io import ConfigError
+    from rover_env.config.scenario import load_scenario
+
+    path = tmp_path / "s.yaml"
+    path.write_text("base: flat_patchez\n")
+    with pytest.raises(ConfigError, match="base: 'flat_patchez'; name a shipped scenario preset"):
+        load_scenario(path)
+    path.write_text("base: rough\nduration: 12\n")
+    got, preset = load_scenario(path), load_scenario("rough")
+    assert got.duration == 12 and got.terrain == preset.terrain and got.friction == preset.friction
+
+
+def test_a_module_estimator_that_does_not_import_suggests_its_path(tmp_path, monkeypatch):
+    from rover_env.tools.evaluation import load_estimator
+
+    monkeypatch.chdir(tmp_path)  # a folder from which the module is not importable
+    with pytest.raises(ValueError, match=r"give the file's path instead: path/to/my_estimators/lk\.py:Lk"):
+        load_estimator("my_estimators.lk:Lk")
+    factory = load_estimator(f"lk={ROOT / 'examples' / 'own_estimator.py'}:LucasKanadeEstimator")
+    assert factory.__name__ == "LucasKanadeEstimator"

@@ -4,12 +4,12 @@ A scenario's ``rig`` lists the rover's sensors in the order the simulation sampl
 has a name (the ``sensor`` of its messages), a kind, and optionally a rate, a mount and the
 settings of its kind. Without a ``rig`` a rover carries the standard one
 (:func:`standard_rig`): the fisheye, the downward camera and, if the scenario names an IMU,
-the IMU and a sun sensor. Example (the downward camera moved forward at 60 Hz, an IMU at
-120 Hz and a sun sensor)::
+the IMU and a sun sensor. Example (the downward camera 10 cm ahead of its standard mount,
+x = 0.95 m on the mast, at 60 Hz; an IMU at 120 Hz and a sun sensor)::
 
     rig:
       - {name: fisheye, kind: fisheye}
-      - {name: downward, kind: pinhole, rate_hz: 60, mount: {position: [0.45, 0.0, 0.5]}}
+      - {name: downward, kind: pinhole, rate_hz: 60, mount: {position: [1.05, 0.0, 0.535]}}
       - {name: imu, kind: imu, rate_hz: 120, imu: bmi088}
       - {name: sun, kind: sun, sun: nfss411}
 

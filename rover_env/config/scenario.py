@@ -16,7 +16,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from rover_env.config.io import ConfigError, check_range, load_yaml_dataclass, replace
+from perception.models.validation import read_yaml
+from rover_env.config.io import ConfigError, check_range, from_dict, load_yaml_dataclass, replace
 from rover_env.config.randomize import randomize_config
 from rover_env.config.rig import SensorConfig, check_rig, imu_config, standard_rig
 from rover_env.config.textures import TEXTURE_PRESETS
@@ -450,6 +451,11 @@ def _preset_dir() -> resources.abc.Traversable:
     return resources.files("rover_env.config") / "scenarios"
 
 
+def preset_path(name: str) -> resources.abc.Traversable:
+    """Where the shipped scenario preset ``name`` is (a YAML file in the installed package)."""
+    return _preset_dir() / f"{name}.yaml"
+
+
 def list_scenarios() -> list[str]:
     """Names of the shipped scenario presets."""
     return sorted(p.name[: -len(".yaml")] for p in _preset_dir().iterdir() if p.name.endswith(".yaml"))
@@ -457,6 +463,10 @@ def list_scenarios() -> list[str]:
 
 def load_scenario(scenario: str | Path | ScenarioConfig) -> ScenarioConfig:
     """Load a scenario from a preset name, a YAML path, or pass a config through.
+
+    A YAML file may start from a shipped preset: ``base: NAME`` takes the preset's keys, and
+    the file's other top-level keys replace the preset's whole (``base: flat_patches`` with a
+    ``rig:`` is that mission with other sensors).
 
     Args:
         scenario: A name from :func:`list_scenarios`, a path to a YAML file, or a
@@ -481,7 +491,21 @@ def load_scenario(scenario: str | Path | ScenarioConfig) -> ScenarioConfig:
         with resources.as_file(_preset_dir() / f"{text}.yaml") as path:
             return load_yaml_dataclass(ScenarioConfig, path)
     path = Path(scenario)
-    cfg = load_yaml_dataclass(ScenarioConfig, path)
+    data = read_yaml(path)
+    if isinstance(data, dict) and "base" in data:
+        base = data["base"]
+        if not isinstance(base, str) or base not in list_scenarios():
+            raise ConfigError(
+                f"{path}: base: {base!r}; name a shipped scenario preset ({', '.join(list_scenarios())})"
+            )
+        with resources.as_file(preset_path(base)) as base_path:
+            merged = dict(read_yaml(base_path)) | {k: v for k, v in data.items() if k != "base"}
+        try:
+            cfg = from_dict(ScenarioConfig, merged)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+    else:
+        cfg = load_yaml_dataclass(ScenarioConfig, path)
     tex = cfg.terrain.texture
     if tex not in TEXTURE_PRESETS:
         tex_path = Path(tex)

@@ -120,8 +120,9 @@ class RoverEnv(gym.Env):
     instance's :attr:`obs_fields`): body twist, wheel rates, slip ratios, axle roll and height,
     axle steering, body roll and pitch (from the IMU, if fitted), odometry, kinematics and
     attitude quality, the on-board tracker's waypoint distance
-    and bearing, cross-track and heading error, then the previous action. Read fields by name
-    (``field_index``), never by position. Values are clipped to generous finite bounds that
+    and bearing, cross-track and heading error, then the previous action. Read fields by name,
+    never by position: ``obs[field_index(env.unwrapped.obs_fields, "v_x")]``
+    (:func:`perception.observation.field_index`). Values are clipped to generous finite bounds that
     only a numerical blow-up could reach; NaN becomes 0 (its quality field says why).
 
     **What the observation holds** with ``obs_source="estimated"``: only what the rover could

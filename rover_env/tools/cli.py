@@ -595,10 +595,14 @@ def _cmd_wheel_test(args: argparse.Namespace) -> int:
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
-    from rover_env.config.scenario import list_scenarios, load_scenario
+    from rover_env.config.scenario import list_scenarios, load_scenario, preset_path
 
     for name in list_scenarios():
         print(f"{name:16s} {load_scenario(name).description}")
+    print(
+        f"\nthe presets' files: {Path(str(preset_path('flat_patches'))).parent}; a YAML file of your "
+        "own with 'base: NAME' takes a preset and replaces the keys it gives (docs/rover_and_scenarios.md)"
+    )
     return 0
 
 
