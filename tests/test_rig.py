@@ -62,9 +62,14 @@ def test_the_standard_rig_is_the_one_the_sensors_are_built_with():
         # the standard orientations as roll-pitch-yaw are the same rotations
         for kind, R in (("pinhole", R_BODY_DOWNCAM), ("fisheye", R_BODY_FISHEYE)):
             np.testing.assert_allclose(mount_matrix((0, 0, 0), STANDARD_RPY[kind])[:3, :3], R, atol=1e-12)
-        # the models are the cameras the simulation renders through
+        # the models are those the simulation renders through, as the estimator's own read-only copies
         pipe = env.unwrapped.pipeline
-        assert rig["downward"].model is pipe.downward.model and rig["fisheye"].model is pipe.fisheye.model
+        for name, cam in (("downward", pipe.downward), ("fisheye", pipe.fisheye)):
+            assert rig[name].model is not cam.model
+            np.testing.assert_array_equal(rig[name].model.T_body_cam, cam.model.T_body_cam)
+            assert not rig[name].model.T_body_cam.flags.writeable
+        np.testing.assert_array_equal(rig["downward"].model.K, pipe.downward.model.K)
+        assert rig["fisheye"].model.poly == pipe.fisheye.model.poly
     finally:
         env.close()
 
