@@ -9,6 +9,24 @@
 Imports :mod:`perception.models` only.
 """
 
-from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator, slip_events
+from __future__ import annotations
 
-__all__ = ["SlipConfig", "SlipEstimate", "SlipEstimator", "slip_events"]
+from typing import TYPE_CHECKING
+
+from perception.models._lazy import lazy_exports
+
+#: Each public name and the module that defines it (imported on first use).
+_PUBLIC: dict[str, str] = {
+    "SlipConfig": "perception.fusion.slip",
+    "SlipEstimate": "perception.fusion.slip",
+    "SlipEstimator": "perception.fusion.slip",
+    "slip_events": "perception.fusion.slip",
+}
+__all__ = list(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC, globals())
+
+if TYPE_CHECKING:  # the names as their modules define them, for type checkers
+    from perception.fusion.slip import SlipConfig as SlipConfig
+    from perception.fusion.slip import SlipEstimate as SlipEstimate
+    from perception.fusion.slip import SlipEstimator as SlipEstimator
+    from perception.fusion.slip import slip_events as slip_events

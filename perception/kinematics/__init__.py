@@ -8,13 +8,26 @@
 Imports :mod:`perception.models` only.
 """
 
-from perception.kinematics.fisheye import DOF_NAMES, KinematicsConfig, KinematicState, KinematicStateEstimator
-from perception.kinematics.markers import SteeringCalibration
+from __future__ import annotations
 
-__all__ = [
-    "DOF_NAMES",
-    "KinematicState",
-    "KinematicStateEstimator",
-    "KinematicsConfig",
-    "SteeringCalibration",
-]
+from typing import TYPE_CHECKING
+
+from perception.models._lazy import lazy_exports
+
+#: Each public name and the module that defines it (imported on first use).
+_PUBLIC: dict[str, str] = {
+    "DOF_NAMES": "perception.kinematics.fisheye",
+    "KinematicState": "perception.kinematics.fisheye",
+    "KinematicStateEstimator": "perception.kinematics.fisheye",
+    "KinematicsConfig": "perception.kinematics.fisheye",
+    "SteeringCalibration": "perception.kinematics.markers",
+}
+__all__ = list(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC, globals())
+
+if TYPE_CHECKING:  # the names as their modules define them, for type checkers
+    from perception.kinematics.fisheye import DOF_NAMES as DOF_NAMES
+    from perception.kinematics.fisheye import KinematicsConfig as KinematicsConfig
+    from perception.kinematics.fisheye import KinematicState as KinematicState
+    from perception.kinematics.fisheye import KinematicStateEstimator as KinematicStateEstimator
+    from perception.kinematics.markers import SteeringCalibration as SteeringCalibration

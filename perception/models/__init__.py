@@ -13,9 +13,26 @@
 Nothing here imports another layer of :mod:`perception`.
 """
 
-from perception.models.calib_io import CalibrationError
-from perception.models.cameras import OmniCamera, PinholeCamera
-from perception.models.rover import RoverKinematicModel
-from perception.models.validation import ConfigError
+from __future__ import annotations
 
-__all__ = ["CalibrationError", "ConfigError", "OmniCamera", "PinholeCamera", "RoverKinematicModel"]
+from typing import TYPE_CHECKING
+
+from perception.models._lazy import lazy_exports
+
+#: Each public name and the module that defines it (imported on first use).
+_PUBLIC: dict[str, str] = {
+    "CalibrationError": "perception.models.calib_io",
+    "ConfigError": "perception.models.validation",
+    "OmniCamera": "perception.models.cameras",
+    "PinholeCamera": "perception.models.cameras",
+    "RoverKinematicModel": "perception.models.rover",
+}
+__all__ = list(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC, globals())
+
+if TYPE_CHECKING:  # the names as their modules define them, for type checkers
+    from perception.models.calib_io import CalibrationError as CalibrationError
+    from perception.models.cameras import OmniCamera as OmniCamera
+    from perception.models.cameras import PinholeCamera as PinholeCamera
+    from perception.models.rover import RoverKinematicModel as RoverKinematicModel
+    from perception.models.validation import ConfigError as ConfigError

@@ -11,14 +11,28 @@
 Imports :mod:`perception.models` only.
 """
 
-from perception.odometry.fisheye import FisheyeOdometry, FisheyeOdometryConfig
-from perception.odometry.flow import FlowOdometry, FlowOdometryConfig, OdometryEstimate, integrate_twist
+from __future__ import annotations
 
-__all__ = [
-    "FisheyeOdometry",
-    "FisheyeOdometryConfig",
-    "FlowOdometry",
-    "FlowOdometryConfig",
-    "OdometryEstimate",
-    "integrate_twist",
-]
+from typing import TYPE_CHECKING
+
+from perception.models._lazy import lazy_exports
+
+#: Each public name and the module that defines it (imported on first use).
+_PUBLIC: dict[str, str] = {
+    "FisheyeOdometry": "perception.odometry.fisheye",
+    "FisheyeOdometryConfig": "perception.odometry.fisheye",
+    "FlowOdometry": "perception.odometry.flow",
+    "FlowOdometryConfig": "perception.odometry.flow",
+    "OdometryEstimate": "perception.odometry.flow",
+    "integrate_twist": "perception.odometry.flow",
+}
+__all__ = list(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC, globals())
+
+if TYPE_CHECKING:  # the names as their modules define them, for type checkers
+    from perception.odometry.fisheye import FisheyeOdometry as FisheyeOdometry
+    from perception.odometry.fisheye import FisheyeOdometryConfig as FisheyeOdometryConfig
+    from perception.odometry.flow import FlowOdometry as FlowOdometry
+    from perception.odometry.flow import FlowOdometryConfig as FlowOdometryConfig
+    from perception.odometry.flow import OdometryEstimate as OdometryEstimate
+    from perception.odometry.flow import integrate_twist as integrate_twist

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, get_args
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from perception.models.calib_io import check_rigid
 from rover_env.config.cameras import CameraConfig, DownwardCameraConfig, FisheyeCameraConfig
@@ -62,6 +61,8 @@ STANDARD_RPY: dict[str, tuple[float, float, float]] = {
 def mount_matrix(position, rpy) -> np.ndarray:
     """The (4, 4) body-from-sensor pose of a sensor at ``position`` [m] turned by ``rpy`` [rad]."""
     T = np.eye(4)
+    from scipy.spatial.transform import Rotation  # here: the command line starts without SciPy
+
     T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
     T[:3, 3] = position
     return T
@@ -177,7 +178,7 @@ class SensorConfig:
             if "position" in self.mount:
                 T[:3, 3] = self.mount["position"]
             if "rpy" in self.mount:
-                T[:3, :3] = Rotation.from_euler("xyz", self.mount["rpy"]).as_matrix()
+                T[:3, :3] = mount_matrix((0.0, 0.0, 0.0), self.mount["rpy"])[:3, :3]
         elif self.mount is not None:
             T = np.array(self.mount, dtype=np.float64)
         return T
