@@ -56,7 +56,7 @@ def run(env_id: str, seed: int, steps: int, speed: float, preset: str) -> dict[s
                 t0 = time.perf_counter()
                 obs, _, term, trunc, info = env.step(action)
                 walls[v].append(time.perf_counter() - t0)
-                logs[v].add(obs, info)
+                logs[v].add(info, env.unwrapped.estimate_values or {})
                 if term or trunc:
                     done.add(v)
         out = {}

@@ -50,7 +50,7 @@ def run(
         wall = time.perf_counter()
         for _ in range(steps):
             obs, _, term, trunc, info = env.step(ctrl.act(obs))
-            log.add(obs, info)
+            log.add(info, env.unwrapped.estimate_values or {})
             if term or trunc:
                 break
         wall = time.perf_counter() - wall

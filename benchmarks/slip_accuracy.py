@@ -91,7 +91,7 @@ def drive(
             # the command ramps like a drive with an acceleration limit (ramp_rate per step)
             v = float(np.clip(target, v - ramp, v + ramp)) if ramp > 0 else target
             obs, _, term, trunc, info = env.step(np.array([v, 0.0, 0.0], np.float32))
-            log.add(obs, info)
+            log.add(info, env.unwrapped.estimate_values or {})
             if term or trunc or x > patch_x[1] + 0.5:
                 break
         wall = time.perf_counter() - wall

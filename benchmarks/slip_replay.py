@@ -104,7 +104,7 @@ def closed_loop(env_id: str, seed: int, args) -> dict:
         done = False
         while not done:
             obs, _, term, trunc, info = env.step(ctrl.act(obs))
-            log.add(obs, info)
+            log.add(info, env.unwrapped.estimate_values or {})
             done = term or trunc
         fisheye = env.unwrapped.pipeline.fisheye  # the events' time scale, as rover eval's
         return log.arrays(fisheye.period if fisheye is not None else env.unwrapped.control_dt)

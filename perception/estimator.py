@@ -107,8 +107,8 @@ def estimator_name(estimator: object) -> str:
 
 
 def _as_number(value: object) -> float:
-    """``value`` as a float; TypeError for text, bytes and bools (which Python would convert)."""
-    if isinstance(value, str | bytes | bool | np.bool_):
+    """``value`` as a float; TypeError for text, bytes, bools and complex numbers (Python converts some)."""
+    if isinstance(value, str | bytes | bool | np.bool_ | complex | np.complexfloating):
         raise TypeError(f"{type(value).__name__}")
     return float(value)  # type: ignore[arg-type]
 

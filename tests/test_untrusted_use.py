@@ -357,7 +357,7 @@ def test_a_soil_whose_steady_state_cannot_be_is_refused_before_the_run(tmp_path,
 
 def test_a_test_bed_run_too_long_or_not_physical_is_an_error(tmp_path, capsys):
     assert main(wheel_test_argv(tmp_path / "o", "--speed", "1e-6")) == 2  # hung for hours before
-    assert "give a speed of at least" in one_error(capsys) and not (tmp_path / "o").exists()
+    assert "give a speed above" in one_error(capsys) and not (tmp_path / "o").exists()
     from rover_env.config.io import ConfigError
     from rover_env.config.soil import load_soil
     from rover_env.sim.terramechanics import WheelSpec
@@ -463,6 +463,10 @@ def test_rover_train_says_what_it_trains_when_steps_are_below_one_rollout(
         in err
     )
     assert trained["steps"] == 1024
+    argv[argv.index("10")] = "200000"  # the default: a whole number of rollouts and more, no note
+    argv[argv.index(str(tmp_path / "o"))] = str(tmp_path / "o2")
+    assert main(argv) == 0
+    assert "below one rollout" not in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ Ctrl-C
@@ -659,3 +663,120 @@ def test_a_module_estimator_that_does_not_import_suggests_its_path(tmp_path, mon
         load_estimator("my_estimators.lk:Lk")
     factory = load_estimator(f"lk={ROOT / 'examples' / 'own_estimator.py'}:LucasKanadeEstimator")
     assert factory.__name__ == "LucasKanadeEstimator"
+
+
+# ------------------------------------------------------------------ found in review
+
+
+def test_ctrl_c_stops_a_sweep_run_in_this_process_and_workers_leave_it_to_the_parent():
+    import signal
+
+    from rover_env.tools import evaluation
+
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        evaluation._init_worker()  # the sweep's own process: Ctrl-C still interrupts it
+        assert signal.getsignal(signal.SIGINT) is before
+        evaluation._init_pool_worker()  # a pool worker: the parent stops it (SIGTERM)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) is evaluation._exit_terminated
+    finally:
+        signal.signal(signal.SIGINT, before)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def test_a_resumed_sweep_takes_only_its_own_runs_and_estimators(tmp_path):
+    import json
+
+    from rover_env.tools.evaluation import EvalJob, finished_row
+
+    job = EvalJob("slip_aware", "Rover-v0", 0, out=str(tmp_path), estimator="mine=a.py:F")
+    row = {"controller": "slip_aware", "mission": "Rover-v0", "seed": 0, "preset": "train",
+           "camera_effects": "field", "estimator": "mine", "estimator_spec": "a.py:F", "randomize": "off",
+           "rig": "mission", "sweep": "s1"}  # fmt: skip
+    (tmp_path / "row.json").write_text(json.dumps(row))
+    assert finished_row(job, "s1")["seed"] == 0 and "sweep" not in finished_row(job, "s1")
+    assert finished_row(job, "s2") is None  # an earlier sweep's run in a folder given with --overwrite
+    other = EvalJob("slip_aware", "Rover-v0", 0, out=str(tmp_path), estimator="mine=b.py:G")
+    assert finished_row(other, "s1") is None  # the same name for another estimator
+
+
+def test_a_run_over_before_its_start_up_leaves_the_event_scores_of_the_others(tmp_path):
+    from rover_env.tools.estimator_metrics import slip_metrics
+
+    def run(t_end):
+        t = np.arange(0.0, t_end, 1 / 30)
+        n = len(t)
+        return {"t": t, "est": np.zeros((n, 19)), "tru": np.zeros((n, 19)), "events": np.zeros((n, 4)),
+                "speed": np.ones((n, 4)), "frame": 1 / 30, "radius": 0.115}  # fmt: skip
+
+    m = slip_metrics([run(0.5), run(5.0)])  # the first ends within the filters' start-up
+    assert m["events"] == 0 and m["false"] == 0 and m["missed"] == 0
+
+
+def test_an_imu_saturation_flag_is_read_only_where_the_rig_file_says_so(tmp_path):
+    from perception.logs.bags import McapWriter, log_imu
+
+    log = tmp_path / "sat.mcap"
+    with McapWriter(log) as w:
+        for j in range(50):
+            w.imu(1.0 + j / 200, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81), "/imu/data", "imu", saturated=j == 10)
+    rows, _ = log_imu(log, flags=True)
+    assert rows[10, 7] == 1.0 and rows[:, 7].sum() == 1.0
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    base = "sensors:\n  - {name: imu, kind: imu, rate_hz: 200.0, topic: /imu/data%s}\n"
+    for extra, flagged in (("", 0.0), (", saturation: covariance", 1.0)):
+        (folder / "rig.yaml").write_text(base % extra)
+        rig = load_rig(folder / "rig.yaml")
+        est = Still(rig.rig)
+        got = []
+        est.update = lambda messages, t, got=got: (
+            got.extend(m.data[6] for m in messages) or {"pose": [0, 0, 0]}
+        )
+        list(replay(log, rig, est))
+        assert sum(got) == flagged
+
+
+def test_a_replayed_rig_refuses_odometry_settings_it_cannot_use(tmp_path):
+    from perception.models.validation import ConfigError
+
+    rig_file = tmp_path / "rig.yaml"
+    rig_file.write_text(
+        "builtin_estimator: {odometry: {max_features: 50}}\n"
+        "sensors:\n  - {name: imu, kind: imu, rate_hz: 240.0}\n"
+    )
+    with pytest.raises(ConfigError, match="no downward camera"):
+        load_rig(rig_file)
+
+
+def test_a_sweeps_run_folder_is_never_a_link(tmp_path):
+    from perception.logs.outputs import OutputFolder
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    (runs / "slip_aware_Rover-v0_0").symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(ValueError, match="symbolic link .* keeps its own folder"):
+        OutputFolder(runs / "slip_aware_Rover-v0_0", ("row.json",), True, within=runs)
+
+
+def test_a_test_bed_travel_too_short_to_average_is_refused():
+    from rover_env.config.io import ConfigError
+    from rover_env.config.soil import load_soil
+    from rover_env.sim.terramechanics import WheelSpec
+    from rover_env.sim.wheel_test import check_wheel_test
+
+    with pytest.raises(ConfigError, match="physics steps of travel a slip"):
+        check_wheel_test(load_soil("toyoura"), WheelSpec(0.1, 0.1), 100.0, [0.2], speed=1.0, distance=0.001)
+    slips, total = check_wheel_test(load_soil("toyoura"), WheelSpec(0.1, 0.1), 100.0, [0.2], 0.01, 0.2)
+    assert slips == [0.2] and total == 4800 + 240
+
+
+def test_complex_values_are_not_estimates():
+    from perception.estimator import EstimatorError, check_estimate
+
+    with pytest.raises(EstimatorError, match="not a number"):
+        check_estimate({"pose": [0.0, 0.0, 0.0], "v_x": np.complex128(1 + 2j)}, "mine.Est", 3)
+    with pytest.raises(EstimatorError, match="'pose'"):
+        check_estimate({"pose": [1 + 0j, 0.0, 0.0]}, "mine.Est", 3)

@@ -72,6 +72,8 @@ class OutputFolder:
             replaced unless written again.
         announce: Log a warning naming the earlier results that ``overwrite`` replaces (False:
             a folder inside another tool's, whose replacement the user already asked for).
+        within: A folder this one is made inside (a tool's own subfolder: a sweep's run): the
+            path from it down to ``path`` must hold no symbolic link either.
 
     Raises:
         ValueError: The name is empty; the folder is an input or holds one, is a file, holds
@@ -92,10 +94,14 @@ class OutputFolder:
         inputs: Iterable[str | Path | None] = (),
         keep: bool = False,
         announce: bool = True,
+        within: str | Path | None = None,
     ) -> None:
         self.path = check_out(path)
+        if within is not None:
+            self._check_within(Path(within))
         self.products = tuple(products)
         self.overwrite = overwrite
+        self.keep = keep
         self.announce = announce
         for name in self.products:
             parts = Path(name.rstrip("/")).parts
@@ -135,7 +141,39 @@ class OutputFolder:
         self._staged: dict[str, Path] = {}  # product -> its temporary file
         self.committed = False
 
+    def add_products(self, names: Iterable[str]) -> None:
+        """Declare more products once the tool knows them, with the checks of the first ones.
+
+        Raises:
+            ValueError: As the constructor does: a product's path is a link or a folder where a
+                file is due, or it holds an earlier run's result without ``overwrite``.
+        """
+        new = [n for n in names if n not in self.products]
+        for name in new:
+            self._check_product_path(name)
+        earlier = [n for n in new if self._exists(n)]
+        if earlier and not (self.overwrite or self.keep):
+            raise ValueError(
+                f"--out {self.path} holds results of an earlier run ({', '.join(earlier)}); pass "
+                "--overwrite to replace them, or choose another folder"
+            )
+        self.products += tuple(new)
+        self.earlier += earlier
+
     # ------------------------------------------------------------------ checks
+    def _check_within(self, within: Path) -> None:
+        try:
+            rel = self.path.relative_to(within)
+        except ValueError:
+            raise ValueError(f"{self.path}: not inside {within}") from None
+        for k in range(1, len(rel.parts) + 1):
+            p = within.joinpath(*rel.parts[:k])
+            if p.is_symlink():
+                raise ValueError(
+                    f"{p}: a symbolic link (to {os.readlink(p)}) where this tool keeps its own folder; "
+                    "results are never written through a link: remove it"
+                )
+
     def _exists(self, name: str) -> bool:
         p = self.path / name.rstrip("/")
         if name.endswith("/"):

@@ -20,6 +20,7 @@ the simulation, and where their messages are (the topic mapping lives here)::
         mount: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.05], [0, 0, 0, 1]]  # body from IMU
         gyro: {noise_density: 3.0e-4}       # optional data-sheet figures (TriadFigures)
         accel: {noise_density: 2.0e-3}
+        saturation: covariance   # optional: -1 at a covariance's start marks a saturated sample
       - name: sun
         kind: sun
         rate_hz: 10
@@ -95,6 +96,10 @@ class LogRig:
         topics: Sensor name -> the log's topic (None: the log's only topic of its kind).
         ephemeris_topics: Sun sensor name -> the topic of the ephemeris's sun direction.
         starts_at_rest: The rover stands still with its steering centred at the log's start.
+        saturation_in_covariance: IMUs whose samples mark saturation by -1 at the start of
+            their angular-velocity or linear-acceleration covariance (``saturation: covariance``;
+            ``rover record`` writes them so). Other IMUs' samples carry the flag 0: ROS's -1
+            there means "no estimate", and a driver may write it on every sample.
         odometry_overrides: :class:`~perception.odometry.flow.FlowOdometryConfig` fields the
             built-in estimator takes on this log (``builtin_estimator.odometry``).
     """
@@ -104,6 +109,7 @@ class LogRig:
     ephemeris_topics: dict[str, str] = field(default_factory=dict)
     starts_at_rest: bool = False
     odometry_overrides: dict[str, Any] = field(default_factory=dict)
+    saturation_in_covariance: frozenset[str] = frozenset()
 
     def builtin(self) -> Any:
         """The built-in estimator as this rig file sets it up (:class:`perception.RoverEstimator`)."""
@@ -133,6 +139,7 @@ _SENSOR_KEYS = {
     "accuracy_deg",
     "noise_deg",
     "ephemeris_topic",
+    "saturation",
 }
 
 
@@ -177,7 +184,7 @@ def load_rig(path: str | Path) -> LogRig:
     sensors = d["sensors"]
     if not isinstance(sensors, list) or not sensors:
         raise ConfigError(f"{path}: sensors: give a list of sensors (name, kind, rate_hz, ...)")
-    specs, topics, ephemeris = [], {}, {}
+    specs, topics, ephemeris, saturating = [], {}, {}, set()
     for i, s in enumerate(sensors):
         key = f"{path}: sensors[{i}]"
         if not isinstance(s, dict):
@@ -194,7 +201,7 @@ def load_rig(path: str | Path) -> LogRig:
         own = {
             "pinhole": {"calibration", "gamma", "bayer", "vignetting"},
             "fisheye": {"calibration", "gamma", "bayer", "vignetting", "ground_view_deg"},
-            "imu": {"mount", "gyro", "accel"},
+            "imu": {"mount", "gyro", "accel", "saturation"},
             "sun": {"mount", "fov_deg", "accuracy_deg", "noise_deg", "ephemeris_topic"},
         }
         if kind not in own:
@@ -215,6 +222,13 @@ def load_rig(path: str | Path) -> LogRig:
                 gyro=_figures(s.get("gyro"), f"{key}.gyro"), accel=_figures(s.get("accel"), f"{key}.accel")
             )
             mount = _mount(s, key)
+            if s.get("saturation", "none") not in ("none", "covariance"):
+                raise ConfigError(
+                    f"{key}.saturation: {s['saturation']!r}; give covariance (-1 at a covariance's start "
+                    "marks a saturated sample) or none"
+                )
+            if s.get("saturation") == "covariance":
+                saturating.add(name)
         else:
             figures = {
                 k: real_number(f"{key}.{k}", s[k]) for k in ("fov_deg", "accuracy_deg", "noise_deg") if k in s
@@ -251,7 +265,12 @@ def load_rig(path: str | Path) -> LogRig:
         rig = Rig(specs, vehicle=vehicle, steer_max_rate=steer)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    return LogRig(rig, topics, ephemeris, rest, odometry)
+    if odometry and not rig.of_kind("pinhole"):
+        raise ConfigError(
+            f"{path}: builtin_estimator.odometry: this rig has no downward camera, and the built-in "
+            "estimator takes its odometry from the fisheye; leave the block out"
+        )
+    return LogRig(rig, topics, ephemeris, rest, odometry, frozenset(saturating))
 
 
 def _builtin_settings(data: Any, path: Path) -> dict[str, Any]:
@@ -314,6 +333,7 @@ def save_rig(
     ephemeris_topics: dict[str, str] | None = None,
     starts_at_rest: bool = False,
     odometry_overrides: dict[str, Any] | None = None,
+    saturation_in_covariance: bool = False,
 ) -> Path:
     """Write ``rig`` as a rig file ``rig.yaml`` with its calibrations in ``folder``; its path.
 
@@ -332,6 +352,8 @@ def save_rig(
             its steering centred).
         odometry_overrides: The built-in estimator's odometry settings for this log
             (``builtin_estimator.odometry``), or None.
+        saturation_in_covariance: The log's IMU samples mark saturation by -1 at a covariance's
+            start (``saturation: covariance``), as :class:`~perception.logs.bags.McapWriter` writes them.
 
     Raises:
         FileExistsError: A file to write is already there (without ``overwrite``); nothing is written.
@@ -345,7 +367,10 @@ def save_rig(
                 f"{folder}: holds {', '.join(there)}; pass overwrite=True or choose another folder"
             )
         with OutputFolder(folder, files, overwrite=True, announce=False) as out:
-            path = save_rig(rig, out, topics, True, ephemeris_topics, starts_at_rest, odometry_overrides)
+            path = save_rig(
+                rig, out, topics, True, ephemeris_topics, starts_at_rest, odometry_overrides,
+                saturation_in_covariance,
+            )  # fmt: skip
             out.commit()
         return path
     topics, ephemeris_topics = topics or {}, ephemeris_topics or {}
@@ -356,6 +381,8 @@ def save_rig(
             entry["mount"] = np.asarray(spec.mount, dtype=np.float64).tolist()
             for triad in ("gyro", "accel"):
                 entry[triad] = {k: float(v) for k, v in vars(getattr(spec.model, triad)).items()}
+            if saturation_in_covariance:
+                entry["saturation"] = "covariance"
         elif spec.kind == "sun":
             if spec.name not in topics or spec.name not in ephemeris_topics:
                 log.warning(
@@ -456,11 +483,13 @@ def _camera_stream(log_path: Path, spec: SensorSpec, topic: str | None) -> _Stre
     return _Stream(spec.name, spec.kind, src.topic, np.asarray(placed.times, dtype=np.float64), messages)
 
 
-def _imu_stream(log_path: Path, spec: SensorSpec, topic: str | None) -> _Stream:
-    """An IMU topic: (7,) gyro xyz [rad/s], accel xyz [m/s^2] and a saturation flag."""
+def _imu_stream(log_path: Path, spec: SensorSpec, topic: str | None, flags: bool) -> _Stream:
+    """An IMU topic: (7,) gyro xyz [rad/s], accel xyz [m/s^2] and a saturation flag (0 without ``flags``)."""
     from perception.logs.bags import log_imu
 
-    rows, name = log_imu(log_path, topic, choose=RIG_TOPIC, flags=True)
+    rows, name = log_imu(log_path, topic, choose=RIG_TOPIC, flags=flags)
+    if not flags:
+        rows = np.column_stack([rows, np.zeros(len(rows))])
 
     def messages() -> Iterator[tuple[float, str, Any]]:
         for r in rows:
@@ -553,6 +582,14 @@ def _check_streams(log_path: Path, log_rig: LogRig, streams: list[_Stream]) -> t
         raise ValueError(f"{log_path}: the sensors' time spans do not overlap ({listing}); {fix}")
     t0 = min(spans[st.name][0] for st in pace)
     end = max(spans[st.name][1] for st in pace)
+    for st in pace:
+        gap = float(np.diff(st.times).max()) if len(st.times) > 1 else 0.0
+        if gap > 10.0:
+            log.warning(
+                "%s: sensor %r (%s) has a gap of %.1f s between frames: the estimator is updated at every "
+                "control tick through it",
+                log_path, st.name, st.topic, gap,
+            )  # fmt: skip
     for st in streams:
         if st in pace:
             continue
@@ -643,7 +680,7 @@ def replay(
     for name, spec in log_rig.rig.items():
         topic = log_rig.topics.get(name)
         if spec.kind == "imu":
-            st = _imu_stream(log_path, spec, topic)
+            st = _imu_stream(log_path, spec, topic, name in log_rig.saturation_in_covariance)
         elif spec.kind == "sun":
             st = _sun_stream(log_path, spec, str(topic), log_rig.ephemeris_topics[name])
         else:
@@ -694,7 +731,7 @@ def _replay(
         estimator.reset(fix.copy())
     except (Exception, SystemExit) as exc:  # the user's code: any error (an exit too), named
         raise EstimatorError(f"estimator {who}, reset: {type(exc).__name__}: {exc}") from exc
-    last = int(math.floor((end - t0) * rate + 1e-6))  # the last tick at or before the cameras' end
+    last = int(math.floor((end - t0 + TICK_TOLERANCE) * rate))  # the last tick at or before the cameras' end
     step = 0
     pending: list[SensorMessage] = []
     early = late = 0

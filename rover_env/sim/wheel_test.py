@@ -92,26 +92,7 @@ def run_wheel_test(
             anything runs); a result that cannot be physical (after the run; the message names
             the figure).
     """
-    check_range("load", load, 0.0, 1e6, lo_open=True)
-    slips = [float(s) for s in np.atleast_1d(np.asarray(slips, dtype=np.float64))]
-    for s in slips:
-        if not -1.0 <= s <= 1.0:
-            raise ConfigError(
-                f"slip: {s!r} is outside [-1, 1]; give slip ratios from -1 (locked) to 1 (spinning)"
-            )
-    check_range("speed", speed, 0.0, 10.0, lo_open=True)
-    check_range("distance", distance, 0.0, 100.0, lo_open=True)
-    check_range("settle", settle, 0.0, 3600.0)
-    per_slip = int(round(distance / speed / dt))
-    total = len(slips) * per_slip + int(round(settle / dt))
-    if total > MAX_STEPS:
-        fastest = len(slips) * distance / (MAX_STEPS * dt)
-        raise ConfigError(
-            f"speed, distance: {speed:g} m/s over {distance:g} m is {distance / speed:.3g} s of travel for "
-            f"each of {len(slips)} slips ({total:.3g} physics steps at {1 / dt:g} Hz); the test bed runs "
-            f"at most {MAX_STEPS:.3g}: give a speed of at least {fastest:.3g} m/s or a shorter distance"
-        )
-    check_steady_state(soil, wheel, load, slips, speed, dt)
+    slips, total = check_wheel_test(soil, wheel, load, slips, speed, distance, settle, dt)
     bed = _Bed(soil, wheel, load, dt)
     done = 0
 
@@ -248,6 +229,57 @@ class _Bed:
             self.c.disconnect()
         except pb.error:  # pragma: no cover
             pass
+
+
+#: Fewest physics steps of travel per slip (the last 40 % are averaged).
+MIN_STEPS = 24
+
+
+def check_wheel_test(
+    soil: SoilConfig,
+    wheel: WheelSpec,
+    load: float,
+    slips,
+    speed: float = 0.01,
+    distance: float = 1.0,
+    settle: float = 1.0,
+    dt: float = 1.0 / 240.0,
+) -> tuple[list[float], int]:
+    """Every check of :func:`run_wheel_test` that needs no run; (the slips, the physics steps in all).
+
+    Raises:
+        ConfigError: A load <= 0, a slip outside [-1, 1], a speed, distance or settling time
+            out of range, a travel of fewer than :data:`MIN_STEPS` steps a slip or a run of more
+            than :data:`MAX_STEPS` in all, or a steady state the bed cannot reach or resolve
+            (:func:`check_steady_state`).
+    """
+    check_range("load", load, 0.0, 1e6, lo_open=True)
+    slips = [float(s) for s in np.atleast_1d(np.asarray(slips, dtype=np.float64))]
+    for s in slips:
+        if not -1.0 <= s <= 1.0:
+            raise ConfigError(
+                f"slip: {s!r} is outside [-1, 1]; give slip ratios from -1 (locked) to 1 (spinning)"
+            )
+    check_range("speed", speed, 0.0, 10.0, lo_open=True)
+    check_range("distance", distance, 0.0, 100.0, lo_open=True)
+    check_range("settle", settle, 0.0, 3600.0)
+    per_slip = int(round(distance / speed / dt))
+    settling = int(round(settle / dt))
+    if per_slip < MIN_STEPS:
+        raise ConfigError(
+            f"speed, distance: {distance:g} m at {speed:g} m/s is {per_slip} physics steps of travel a slip; "
+            f"give at least {MIN_STEPS} ({MIN_STEPS * dt * speed:.3g} m at this speed)"
+        )
+    total = len(slips) * per_slip + settling
+    if total > MAX_STEPS:
+        slowest = len(slips) * distance / ((MAX_STEPS - settling) * dt)
+        raise ConfigError(
+            f"speed, distance: {speed:g} m/s over {distance:g} m is {distance / speed:.3g} s of travel for "
+            f"each of {len(slips)} slips ({total:.3g} physics steps at {1 / dt:g} Hz); the test bed runs "
+            f"at most {MAX_STEPS:.3g}: give a speed above {slowest:.3g} m/s or a shorter distance"
+        )
+    check_steady_state(soil, wheel, load, slips, speed, dt)
+    return slips, total
 
 
 def _soil_figures(soil: SoilConfig) -> str:

@@ -229,19 +229,43 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     check_jobs(jobs)  # every input before the output folder is touched
     preflight(jobs)  # each estimator built once on each rig
     with OutputFolder(args.out, (*REPORT_FILES, "runs/"), args.overwrite, keep=args.resume) as folder:
-        folder.subfolder("runs/")
-        return _sweep(args, jobs, folder)
+        return _sweep(args, jobs, folder, _sweep_mark(folder.subfolder("runs/"), args.resume))
 
 
-def _sweep(args: argparse.Namespace, jobs: list, folder) -> int:
+def _sweep_mark(runs: Path, resume: bool) -> str:
+    """This sweep's mark in ``runs/sweep.json``: the earlier one's when resuming, else a new one.
+
+    Each finished run's ``row.json`` carries it, so that ``--resume`` takes only the runs of the
+    sweep it continues (not those of an earlier sweep in a folder given with ``--overwrite``).
+    """
+    import uuid
+
+    from perception.logs.outputs import OutputFolder
+
+    mark = runs / "sweep.json"
+    if resume:
+        try:
+            return str(json.loads(mark.read_text())["sweep"])
+        except (OSError, ValueError, KeyError, TypeError):
+            logging.getLogger("rover").warning("--resume: %s names no sweep; every run is made again", mark)
+    sweep = uuid.uuid4().hex
+    with OutputFolder(runs, ("sweep.json",), overwrite=True, announce=False) as out:
+        out.write_text("sweep.json", json.dumps({"sweep": sweep}) + "\n")
+        out.commit()
+    return sweep
+
+
+def _sweep(args: argparse.Namespace, jobs: list, folder, sweep: str) -> int:
     """``rover eval``'s sweep into ``folder``: its report committed at the end, or a partial one."""
     from rover_env.tools.evaluation import finished_row, run_sweep, write_report
 
     fails = []
+    finished: list[dict] = []  # the rows of the runs this sweep finished
     sys.stderr.write(f"{len(jobs)} runs on the {args.executor} executor\n")
     bar = _Progress("eval: runs", unit="runs", total=len(jobs))
 
     def show(done: int, total: int, row: dict) -> None:
+        finished.append(row)
         if not row["success"]:
             fails.append(f"{row['controller']} {row['mission']} seed {row['seed']}: {row['termination']}")
         bar.sim(done)
@@ -249,12 +273,16 @@ def _sweep(args: argparse.Namespace, jobs: list, folder) -> int:
     command = "rover " + " ".join(sys.argv[1:])
     try:
         rows = run_sweep(
-            jobs, executor=args.executor, workers=args.workers, progress=show, resume=args.resume
+            jobs, executor=args.executor, workers=args.workers, progress=show, resume=args.resume, sweep=sweep
         )
         bar.close()
     except BaseException:  # Ctrl-C or a failed run: report what finished, then stop
         bar.close()
-        done = [r for r in (finished_row(j) for j in jobs) if r is not None]
+        # what this sweep finished, and with --resume what the earlier one had (an earlier
+        # sweep's rows in a folder given with --overwrite are not this report's)
+        done = (
+            [r for r in (finished_row(j, sweep) for j in jobs) if r is not None] if args.resume else finished
+        )
         if done:
             title = f"Mission evaluation (partial: {len(done)} of {len(jobs)} runs)"
             write_report(done, folder, title=title, command=command)
@@ -274,8 +302,10 @@ def _sweep(args: argparse.Namespace, jobs: list, folder) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    from perception.logs.outputs import check_out
     from rover_env.tools.training import TrainConfig, train
 
+    check_out(args.out)
     residual = None if args.no_residual else tuple(args.residual)
     cfg = TrainConfig(
         algo=args.algo,
@@ -296,7 +326,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         imu=args.imu,
     )
     cfg.check()  # every mission's environment, here, before any worker starts
-    if cfg.steps_trained() != cfg.total_steps:
+    if cfg.algo == "ppo" and cfg.total_steps < cfg.rollout():
         sys.stderr.write(
             f"--steps {cfg.total_steps} is below one rollout of {cfg.algo.upper()} ({cfg.rollout()} steps: "
             f"{cfg.rollout() // cfg.n_envs} on each of {cfg.n_envs} environments): it trains "

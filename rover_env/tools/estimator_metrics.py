@@ -161,7 +161,9 @@ def slip_metrics(runs: list[dict]) -> dict:
         known = np.isfinite(err)
         err_slip.extend(err[moving & big & known].tolist())
         err_calm.extend(err[moving & ~big & known].tolist())
-        flagged = np.asarray(rr["events"], dtype=np.float64)[keep]
+        flagged = np.asarray(rr["events"], dtype=np.float64).reshape(-1, 4)[keep]
+        if not len(flagged):  # a run over before its start-up ended: nothing to score
+            continue
         if not np.isfinite(flagged).any():  # the estimator flags no events: not scored
             scored = False
             continue

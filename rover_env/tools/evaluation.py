@@ -164,7 +164,10 @@ def run_job(job: EvalJob) -> dict:
         stack.callback(env.close)
         ctrl = spec.make(env)
         # this run's files: staged, committed together when it ends (a failed run leaves none)
-        out = stack.enter_context(OutputFolder(job.out, RUN_FILES, True, announce=False)) if job.out else None
+        out = None
+        if job.out:  # inside the sweep's runs/ folder, never through a link
+            where = OutputFolder(job.out, RUN_FILES, True, announce=False, within=Path(job.out).parent)
+            out = stack.enter_context(where)
         video = out.stage("video.mp4") if (out is not None and job.video) else None
         log_rr = None
         if job.rerun and out is not None:
@@ -213,13 +216,25 @@ def _env_kwargs(job: EvalJob, action_mode: str, source: str) -> dict:
 
 
 def _init_worker() -> None:
-    import signal
-
     import cv2
 
     cv2.setNumThreads(1)  # one core per run
-    # Ctrl-C reaches the whole process group: the parent stops the sweep, a worker is stopped by it
+
+
+def _init_pool_worker() -> None:
+    """A local worker process: one core, and Ctrl-C left to the parent (which stops the workers)."""
+    import signal
+
+    _init_worker()
+    # Ctrl-C reaches the whole process group: the parent reports what finished and terminates
+    # the workers, which would otherwise each print a traceback; terminated, a worker unwinds
+    # (its run's staged files are removed) and exits
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_terminated)
+
+
+def _exit_terminated(signum, frame) -> None:
+    raise SystemExit(143)
 
 
 #: Each run's row, written into its folder as soon as it finishes (what ``resume`` reads).
@@ -275,11 +290,12 @@ def check_jobs(jobs: Sequence[EvalJob]) -> None:
             )
 
 
-def finished_row(job: EvalJob) -> dict | None:
+def finished_row(job: EvalJob, sweep: str | None = None) -> dict | None:
     """The row a finished run of ``job`` wrote into its folder (None: not run, or another job's).
 
     Another job's: another controller, mission, seed or preset, or an estimated run with other
-    cameras, another estimator or (where ``job`` sets it) another randomisation.
+    cameras, another estimator (its name or its factory) or (where ``job`` sets it) another
+    randomisation; with ``sweep``, a row another sweep wrote (:func:`run_sweep`).
     """
     if job.out is None:
         return None
@@ -300,7 +316,13 @@ def finished_row(job: EvalJob) -> dict | None:
         if job.randomize is not None:
             same = same and row.get("randomize") == job.randomize
         same = same and row.get("rig", "mission") in ("none", job.rig or "mission")
-    return row if same else None
+        spec = split_estimator(job.estimator)[1] if job.estimator else ""
+        same = same and row.get("estimator_spec", "") in ("", spec)
+        same = same and (sweep is None or row.get("sweep") == sweep)
+    if not same:
+        return None
+    row.pop("sweep", None)
+    return row
 
 
 def run_sweep(
@@ -309,13 +331,15 @@ def run_sweep(
     workers: int | None = None,
     progress: Callable[[int, int, dict], None] | None = None,
     resume: bool = False,
+    sweep: str | None = None,
 ) -> list[dict]:
     """Run ``jobs``; their rows in the order of ``jobs``.
 
     Every job is checked before any runs (:func:`check_jobs`). A job with an ``out`` folder
-    writes its row there (``row.json``) as soon as it finishes, so an interrupted sweep loses
-    only the runs under way; with ``resume`` those finished rows are read back and their jobs
-    skipped.
+    writes its row there (``row.json``, marked with ``sweep``) as soon as it finishes, so an
+    interrupted sweep loses only the runs under way; with ``resume`` those finished rows are
+    read back and their jobs skipped: only the rows of the sweep ``sweep`` when it is given
+    (an earlier sweep's rows in the same folders are not this one's).
 
     Args:
         jobs: The runs.
@@ -323,11 +347,12 @@ def run_sweep(
         workers: Local processes (default: the CPU count); with Ray, ignored (one CPU per run).
         progress: Called after each finished run with (finished, total, its row).
         resume: Skip the jobs whose folders hold their finished rows.
+        sweep: This sweep's mark (``rover eval`` keeps it in ``runs/sweep.json``), or None.
     """
     if executor not in ("local", "ray"):
         raise ValueError(f"executor {executor!r}: use 'local' or 'ray'")
     check_jobs(jobs)  # fail before starting anything
-    rows: list[dict | None] = [finished_row(job) if resume else None for job in jobs]
+    rows: list[dict | None] = [finished_row(job, sweep) if resume else None for job in jobs]
     if resume and any(r is not None for r in rows):
         log.info("resuming: %d of %d runs already finished", sum(r is not None for r in rows), len(jobs))
     todo = [i for i, r in enumerate(rows) if r is None]
@@ -336,8 +361,8 @@ def run_sweep(
         rows[i] = row
         out = jobs[i].out
         if out is not None:
-            with OutputFolder(out, (ROW_FILE,), overwrite=True, announce=False) as folder:
-                folder.write_text(ROW_FILE, json.dumps(row, default=float) + "\n")
+            with OutputFolder(out, (ROW_FILE,), True, announce=False, within=Path(out).parent) as folder:
+                folder.write_text(ROW_FILE, json.dumps(row | {"sweep": sweep}, default=float) + "\n")
                 folder.commit()
         if progress is not None:
             progress(sum(r is not None for r in rows), len(jobs), row)
@@ -354,15 +379,17 @@ def run_sweep(
                 done(i, run_job(jobs[i]))
         else:
             ctx = get_context("spawn")  # a clean interpreter: no inherited PyBullet or thread state
-            with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_worker) as pool:
-                futures = {pool.submit(run_job, jobs[i]): i for i in todo}
-                try:
-                    for fut in as_completed(futures):
-                        done(futures[fut], fut.result())
-                except BaseException:
-                    for fut in futures:
-                        fut.cancel()
-                    raise
+            pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_init_pool_worker)
+            futures = {pool.submit(run_job, jobs[i]): i for i in todo}
+            try:
+                for fut in as_completed(futures):
+                    done(futures[fut], fut.result())
+            except BaseException:  # Ctrl-C or a failed run: the runs under way are stopped now
+                for proc in list(getattr(pool, "_processes", {}).values()):  # (no public way to stop one)
+                    proc.terminate()
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+            pool.shutdown()
     return [r for r in rows if r is not None]
 
 

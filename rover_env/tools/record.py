@@ -141,31 +141,35 @@ def record(
         kwargs["imu"] = imu
     if rig is not None:
         kwargs["rig"] = rig
-    # the fisheye renders whole frames (no windows chosen by the estimator): the log holds them
-    env = make_mission_env(
-        mission, obs_source="estimated", action_mode=spec.action_mode, preset=preset,
-        estimator=builtin_estimator(PERCEPTION_PRESETS[preset], fisheye_window=None), **kwargs,
-    )  # fmt: skip
-    try:
-        return _record(
-            env.unwrapped,
-            spec.make(env),
-            seconds,
-            out,
-            seed,
-            raw,
-            overwrite,
-            progress,
-            PERCEPTION_PRESETS[preset],
-        )
-    finally:
-        env.close()
+    # the folder first: a link or an earlier recording is refused before the simulation is built
+    with OutputFolder(out, (*RECORD_FILES, "rig.yaml", "rover.yaml"), overwrite) as folder:
+        # the fisheye renders whole frames (no windows chosen by the estimator): the log holds them
+        env = make_mission_env(
+            mission, obs_source="estimated", action_mode=spec.action_mode, preset=preset,
+            estimator=builtin_estimator(PERCEPTION_PRESETS[preset], fisheye_window=None), **kwargs,
+        )  # fmt: skip
+        try:
+            folder.add_products(rig_files(env.unwrapped.rig))  # the cameras' calibrations
+            result = _record(
+                env.unwrapped,
+                spec.make(env),
+                seconds,
+                folder,
+                seed,
+                raw,
+                progress,
+                PERCEPTION_PRESETS[preset],
+            )
+        finally:
+            env.close()
+        folder.commit()
+    return result
 
 
-def _record(env, controller, seconds, out, seed, raw, overwrite, progress, preset) -> RecordResult:
+def _record(env, controller, seconds, folder: OutputFolder, seed, raw, progress, preset) -> RecordResult:
+    """Drive and write into ``folder`` (its products staged; the caller commits)."""
     pipeline = env.pipeline
     rig = env.rig
-    products = (*RECORD_FILES, *rig_files(rig))
     offset = float(env.sim.settle_time)  # log time = simulation time + offset: every stamp > 0
     topics, ephemeris = topics_of(rig, raw)
     for cam in pipeline.cameras:
@@ -174,64 +178,65 @@ def _record(env, controller, seconds, out, seed, raw, overwrite, progress, prese
     counts = dict.fromkeys(rig, 0)
     truth_rows: list[dict[str, float]] = []
     loop_rows: list[ReplayStep] = []
-    with OutputFolder(out, products, overwrite) as folder:
-        with folder.writing("log.mcap") as log_path, McapWriter(log_path) as writer:
+    with folder.writing("log.mcap") as log_path, McapWriter(log_path) as writer:
 
-            def write(messages: list[SensorMessage]) -> None:
-                for m in messages:
-                    t = m.t + offset
-                    kind = rig[m.sensor].kind
-                    if kind in ("pinhole", "fisheye"):
-                        cam = pipeline.sensors[m.sensor]
-                        mosaic = None if cam.image_sensor is None else cam.image_sensor.mosaic_of(m.data)
-                        writer.image(t, m.data, topics[m.sensor], m.sensor, mosaic=mosaic, compress=not raw)
-                    elif kind == "imu":
-                        d = m.data
-                        writer.imu(t, d[:3], d[3:6], topics[m.sensor], m.sensor, saturated=bool(d[6] > 0))
-                    elif kind == "sun":
-                        writer.vector(t, m.data[:3], topics[m.sensor], m.sensor)
-                        writer.vector(t, m.data[3:6], ephemeris[m.sensor], "world")
-                    counts[m.sensor] += 1
+        def write(messages: list[SensorMessage]) -> None:
+            for m in messages:
+                t = m.t + offset
+                kind = rig[m.sensor].kind
+                if kind in ("pinhole", "fisheye"):
+                    cam = pipeline.sensors[m.sensor]
+                    mosaic = None if cam.image_sensor is None else cam.image_sensor.mosaic_of(m.data)
+                    writer.image(t, m.data, topics[m.sensor], m.sensor, mosaic=mosaic, compress=not raw)
+                elif kind == "imu":
+                    d = m.data
+                    writer.imu(t, d[:3], d[3:6], topics[m.sensor], m.sensor, saturated=bool(d[6] > 0))
+                elif kind == "sun":
+                    writer.vector(t, m.data[:3], topics[m.sensor], m.sensor)
+                    writer.vector(t, m.data[3:6], ephemeris[m.sensor], "world")
+                counts[m.sensor] += 1
 
-            pipeline.add_listener(write)
-            obs, info = env.reset(seed=seed)
-            controller.reset()
-            termination = "recorded"
-            while True:
+        pipeline.add_listener(write)
+        obs, info = env.reset(seed=seed)
+        controller.reset()
+        termination = "recorded"
+        while True:
+            truth_rows.append(_truth_row(info, offset))
+            t = float(info["t"])
+            loop_rows.append(ReplayStep(t, t + offset, env.estimate_values, 0))
+            if progress is not None:
+                progress(t)
+            if t >= seconds - 1e-9:
+                break
+            obs, _, term, trunc, info = env.step(controller.act(obs))
+            if term or trunc:
                 truth_rows.append(_truth_row(info, offset))
                 t = float(info["t"])
                 loop_rows.append(ReplayStep(t, t + offset, env.estimate_values, 0))
-                if progress is not None:
-                    progress(t)
-                if t >= seconds - 1e-9:
-                    break
-                obs, _, term, trunc, info = env.step(controller.act(obs))
-                if term or trunc:
-                    truth_rows.append(_truth_row(info, offset))
-                    t = float(info["t"])
-                    loop_rows.append(ReplayStep(t, t + offset, env.estimate_values, 0))
-                    termination = info["termination"] or "ended"
-                    break
-        # the built-in estimator's downward odometry as the preset set it up in the loop
-        odometry = ({"repeated_frames": "still"} | preset.odometry) if rig.of_kind("pinhole") else None
-        save_rig(
-            rig, folder, topics, ephemeris_topics=ephemeris, starts_at_rest=True, odometry_overrides=odometry
-        )
-        with folder.writing("truth.csv") as tmp:
-            write_truth(tmp, truth_rows)
-        with folder.writing("truth.tum") as tmp:
-            write_tum(
-                tmp, [r["t_log"] for r in truth_rows], [r["_xyz"] for r in truth_rows],
-                [r["_quat"] for r in truth_rows],
-            )  # fmt: skip
-        with folder.writing("estimates_in_loop.csv") as tmp:
-            write_estimates(iter(loop_rows), tmp)
-            loop = read_estimates(tmp)
-        truth = {k: np.array([r[k] for r in truth_rows], dtype=np.float64) for k in TRUTH_COLUMNS}
-        errors = {e.name: e.mae for e in score(loop, truth, skip=1.0)}
-        size = log_path.stat().st_size if log_path.exists() else 0
-        folder.commit()
-    return RecordResult(Path(out), float(truth_rows[-1]["t_log"] - offset), termination, counts, size, errors)
+                termination = info["termination"] or "ended"
+                break
+    # the built-in estimator's downward odometry as the preset set it up in the loop
+    odometry = ({"repeated_frames": "still"} | preset.odometry) if rig.of_kind("pinhole") else None
+    save_rig(
+        rig, folder, topics, ephemeris_topics=ephemeris, starts_at_rest=True, odometry_overrides=odometry,
+        saturation_in_covariance=True,
+    )  # fmt: skip
+    with folder.writing("truth.csv") as tmp:
+        write_truth(tmp, truth_rows)
+    with folder.writing("truth.tum") as tmp:
+        write_tum(
+            tmp, [r["t_log"] for r in truth_rows], [r["_xyz"] for r in truth_rows],
+            [r["_quat"] for r in truth_rows],
+        )  # fmt: skip
+    with folder.writing("estimates_in_loop.csv") as tmp:
+        write_estimates(iter(loop_rows), tmp)
+        loop = read_estimates(tmp)
+    truth = {k: np.array([r[k] for r in truth_rows], dtype=np.float64) for k in TRUTH_COLUMNS}
+    errors = {e.name: e.mae for e in score(loop, truth, skip=1.0)}
+    size = log_path.stat().st_size if log_path.exists() else 0
+    return RecordResult(
+        folder.path, float(truth_rows[-1]["t_log"] - offset), termination, counts, size, errors
+    )
 
 
 def _truth_row(info: dict, offset: float) -> dict:

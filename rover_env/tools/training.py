@@ -553,7 +553,8 @@ def train(cfg: TrainConfig, out: str | Path | OutputFolder, progress: bool = Fal
     (``VecNormalize``); the observation statistics are saved with the policy. TensorBoard logs go to
     ``out/tb``, checkpoints to ``out/checkpoints`` (as they are made: they survive an
     interruption), the best evaluated policy (a folder like ``out`` itself) to ``out/best``; the
-    policy and ``episodes.csv`` are committed when training ends.
+    policy and ``episodes.csv`` are committed when training ends, or when it is interrupted
+    (Ctrl-C: the policy so far, its ``policy.json`` counting the steps it had).
 
     Args:
         cfg: The run.
@@ -637,6 +638,13 @@ def train(cfg: TrainConfig, out: str | Path | OutputFolder, progress: bool = Fal
     try:
         model.learn(total_timesteps=cfg.total_steps, callback=callbacks, tb_log_name=cfg.algo)
         save_policy(model, cfg, folder)
+    except KeyboardInterrupt:  # Ctrl-C: keep the policy so far (policy.json says its steps)
+        log.warning(
+            "interrupted after %d steps: the policy so far and episodes.csv are saved", model.num_timesteps
+        )
+        save_policy(model, cfg, folder)
+        folder.commit()
+        raise
     finally:
         venv.close()
         eval_env.close()

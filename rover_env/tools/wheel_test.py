@@ -9,7 +9,7 @@ from pathlib import Path
 from perception.logs.outputs import OutputFolder
 from rover_env.config.soil import load_soil
 from rover_env.sim.terramechanics import WheelSpec
-from rover_env.sim.wheel_test import WheelTestRow, check_steady_state, run_wheel_test, wheel_test_table
+from rover_env.sim.wheel_test import WheelTestRow, check_wheel_test, run_wheel_test, wheel_test_table
 
 PRODUCTS = ("wheel_test.csv", "wheel_test.png")
 
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace, progress: Callable[[float], None] | None = Non
         grouser_height=args.grouser_height,
         **({} if args.grouser_thickness is None else {"grouser_thickness": args.grouser_thickness}),
     )
-    check_steady_state(soil, wheel, args.load, args.slips, args.speed)  # cheap: before the folder
+    check_wheel_test(soil, wheel, args.load, args.slips, args.speed, args.distance)  # before the folder
     with OutputFolder(args.out, PRODUCTS, args.overwrite) as out:
         rows = run_wheel_test(
             soil, wheel, args.load, args.slips, speed=args.speed, distance=args.distance, progress=progress
