@@ -147,9 +147,9 @@ def check_estimate(values: object, who: str, step: int) -> dict[str, Any]:
     for key, v in values.items():
         if key == "pose":
             try:
-                items = list(v) if not isinstance(v, str | bytes | np.ndarray) else v
-                pose = np.array([_as_number(x) for x in items] if isinstance(items, list) else items)
-                pose = pose.astype(np.float64) if pose.dtype.kind in "fiu" else np.full(0, math.nan)
+                if isinstance(v, str | bytes):
+                    raise TypeError(type(v).__name__)
+                pose = np.array([_as_number(x) for x in v], dtype=np.float64)
             except Exception:  # noqa: BLE001 - whatever the user's object raises: not a pose
                 pose = np.full(0, math.nan)
             if pose.shape != (3,) or not np.all(np.isfinite(pose)):

@@ -639,7 +639,15 @@ def test_the_readme_quick_start_runs_on_a_current_id_without_a_warning():
         warnings.simplefilter("error")
         scope: dict = {}
         exec(compile(code, "README quick start", "exec"), scope)  # noqa: S102
-    scope["env"].close()
+    env, info = scope["env"], scope["info"]
+    try:
+        import rover_env
+
+        assert env.spec.id in rover_env.ENV_IDS
+        assert info["ground_truth"]["slip_ratio"].shape == info["estimate"]["slip_ratio"].shape == (4,)
+        assert np.all(np.isfinite(scope["obs"]))
+    finally:
+        env.close()
 
 
 def test_scenario_files_can_start_from_a_preset_and_name_it_wrongly(tmp_path):

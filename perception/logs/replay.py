@@ -505,18 +505,16 @@ def _sun_stream(log_path: Path, spec: SensorSpec, topic: str, ephemeris_topic: s
     seen, eph = log_vectors(log_path, topic), log_vectors(log_path, ephemeris_topic)
     rows = []
     if len(eph):
-        k = (
-            np.clip(np.searchsorted(eph[:, 0], seen[:, 0]), 1, len(eph) - 1)
-            if len(eph) > 1
-            else np.zeros(len(seen), dtype=int)
+        # the ephemeris sample nearest each reading: the one before or after it in time
+        after = np.clip(np.searchsorted(eph[:, 0], seen[:, 0]), 0, len(eph) - 1)
+        before = np.maximum(after - 1, 0)
+        near = np.where(
+            np.abs(eph[before, 0] - seen[:, 0]) < np.abs(eph[after, 0] - seen[:, 0]), before, after
         )
-        for r, j in zip(seen, k, strict=True):
-            near = min((j - 1, j) if len(eph) > 1 else (j,), key=lambda i: abs(eph[i, 0] - r[0]))
-            if abs(eph[near, 0] - r[0]) <= 1e-3:
+        for r, j in zip(seen, near, strict=True):
+            if abs(eph[j, 0] - r[0]) <= 1e-3:
                 no_sun = not np.all(np.isfinite(r[1:4]))
-                rows.append(
-                    [r[0], *(np.full(3, np.nan) if no_sun else r[1:4]), *eph[near, 1:4], float(no_sun)]
-                )
+                rows.append([r[0], *(np.full(3, np.nan) if no_sun else r[1:4]), *eph[j, 1:4], float(no_sun)])
     if len(rows) < len(seen):
         log.warning(
             "%s: %s: %d of %d sun readings without an ephemeris sample on %s at their time: left out",

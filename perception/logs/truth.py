@@ -140,7 +140,8 @@ def score(
     """
     t = np.asarray(estimates["t_log"], dtype=np.float64)
     tt = truth["t_log"]
-    inside = (t >= tt[0] - 1e-6) & (t <= tt[-1] + 1e-6) & (t >= t[0] + skip - 1e-9 if len(t) else True)
+    start = t[0] + skip if len(t) else 0.0
+    inside = (t >= tt[0] - 1e-6) & (t <= tt[-1] + 1e-6) & (t >= start - 1e-9)
     out = []
     for name in SCORED:
         est = np.asarray(estimates.get(name, np.full(len(t), math.nan)), dtype=np.float64)

@@ -189,14 +189,9 @@ def slip_metrics(runs: list[dict]) -> dict:
                         band += 1
                     else:
                         fp += 1
-    if not scored:
-        nan = math.nan
-        return dict(
-            mae_slip=float(np.mean(err_slip)) if err_slip else nan, n_slip=len(err_slip),
-            mae_calm=float(np.mean(err_calm)) if err_calm else nan, events=nan, matched=nan, false=nan,
-            in_band=nan, missed=nan, precision=nan, recall=nan, f1=nan, latency_median=nan,
-            latency_max=nan, within_2=nan,
-        )  # fmt: skip
+    if not scored:  # every count, and so every event figure, unknown
+        tp = fp = fn = band = math.nan  # type: ignore[assignment]
+        lat = []
     prec = tp / (tp + fp) if tp + fp else math.nan  # no estimated event: precision is undefined
     rec = tp / (tp + fn) if tp + fn else math.nan  # no true event: recall is undefined
     # no event on either side: detection is not scored

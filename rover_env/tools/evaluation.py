@@ -157,7 +157,7 @@ def run_job(job: EvalJob) -> dict:
 
     spec, source = parse_controller(job.controller)
     render = "rgb_array" if (job.video and job.out) else None
-    env = make_mission_env(job.mission, **_env_kwargs(job, spec.action_mode, source), render_mode=render)
+    env = make_mission_env(job.mission, **env_kwargs(job, spec.action_mode, source), render_mode=render)
     randomized = env.unwrapped.randomize is not None
     start = time.perf_counter()
     with contextlib.ExitStack() as stack:
@@ -198,7 +198,7 @@ def run_job(job: EvalJob) -> dict:
     return row
 
 
-def _env_kwargs(job: EvalJob, action_mode: str, source: str) -> dict:
+def env_kwargs(job: EvalJob, action_mode: str, source: str) -> dict:
     """The ``gymnasium.make`` keywords of a job's environment (its estimator loaded)."""
     kwargs: dict = {
         "obs_source": source, "action_mode": action_mode, "preset": job.preset, "randomize": job.randomize,
@@ -473,7 +473,7 @@ def preflight(jobs: Sequence[EvalJob]) -> None:
         spec, source = parse_controller(job.controller)
         if source != "estimated":
             continue
-        kwargs = _env_kwargs(job, spec.action_mode, source)
+        kwargs = env_kwargs(job, spec.action_mode, source)
         key = (
             job.estimator,
             job.mission,

@@ -40,10 +40,10 @@ from perception.logs.truth import TRUTH_COLUMNS, read_estimates, score, write_tr
 from perception.models.drive_geometry import AXLES, WHEELS
 from perception.odometry.trajectory import write_tum
 from perception.rig import SensorMessage
-from rover_env.config.rig import PERCEPTION_PRESETS
+from rover_env.config.rig import PERCEPTION_PRESETS, PresetName
 from rover_env.sensors.rig import builtin_estimator
 from rover_env.sim.transforms import quat_to_yaw
-from rover_env.tools.registry import controller_imu, parse_controller
+from rover_env.tools.registry import parse_controller
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,7 @@ def record(
     seconds: float,
     out: str | Path,
     *,
-    preset: str = "train",
+    preset: PresetName = "train",
     seed: int = 0,
     raw: bool = False,
     camera_effects: str = "field",
@@ -123,7 +123,7 @@ def record(
         ValueError: A controller on the ground truth (no sensor runs then), a bad duration,
             preset or mission (before anything is written).
     """
-    from rover_env.tools.evaluation import make_mission_env
+    from rover_env.tools.evaluation import EvalJob, env_kwargs, make_mission_env
 
     if not (isinstance(seconds, int | float) and math.isfinite(seconds) and 0.0 < seconds <= MAX_SECONDS):
         raise ValueError(f"--seconds {seconds!r}: give a duration above 0 and at most {MAX_SECONDS:g} s")
@@ -135,19 +135,16 @@ def record(
         )
     if preset not in PERCEPTION_PRESETS:
         raise ValueError(f"--preset {preset!r}: use one of {sorted(PERCEPTION_PRESETS)}")
-    kwargs: dict = {"camera_effects": camera_effects, "randomize": randomize}
-    imu = controller_imu(controller)
-    if imu:
-        kwargs["imu"] = imu
-    if rig is not None:
-        kwargs["rig"] = rig
+    # the environment rover eval would make for this run (its IMU, cameras, world and rig)
+    job = EvalJob(
+        controller, mission, seed, preset, camera_effects=camera_effects, randomize=randomize, rig=rig
+    )
+    kwargs = env_kwargs(job, spec.action_mode, source)
     # the folder first: a link or an earlier recording is refused before the simulation is built
     with OutputFolder(out, (*RECORD_FILES, "rig.yaml", "rover.yaml"), overwrite) as folder:
         # the fisheye renders whole frames (no windows chosen by the estimator): the log holds them
-        env = make_mission_env(
-            mission, obs_source="estimated", action_mode=spec.action_mode, preset=preset,
-            estimator=builtin_estimator(PERCEPTION_PRESETS[preset], fisheye_window=None), **kwargs,
-        )  # fmt: skip
+        kwargs["estimator"] = builtin_estimator(PERCEPTION_PRESETS[preset], fisheye_window=None)
+        env = make_mission_env(mission, **kwargs)
         try:
             folder.add_products(rig_files(env.unwrapped.rig))  # the cameras' calibrations
             result = _record(
