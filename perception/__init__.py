@@ -15,7 +15,9 @@ _PUBLIC: dict[str, str] = {
     "ESTIMATE_FIELDS": "perception.estimator",
     "Estimator": "perception.estimator",
     "EstimatorError": "perception.estimator",
+    "EncoderModel": "perception.rig",
     "ImuModel": "perception.rig",
+    "MotorModel": "perception.rig",
     "SunSensorModel": "perception.rig",
     "Rig": "perception.rig",
     "RoverEstimator": "perception.rover_estimator",
@@ -77,7 +79,9 @@ if TYPE_CHECKING:  # the names as their modules define them, for type checkers
     from perception.odometry.flow import FlowOdometry as FlowOdometry
     from perception.odometry.flow import FlowOdometryConfig as FlowOdometryConfig
     from perception.odometry.flow import OdometryEstimate as OdometryEstimate
+    from perception.rig import EncoderModel as EncoderModel
     from perception.rig import ImuModel as ImuModel
+    from perception.rig import MotorModel as MotorModel
     from perception.rig import Rig as Rig
     from perception.rig import SensorMessage as SensorMessage
     from perception.rig import SensorSpec as SensorSpec

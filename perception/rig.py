@@ -24,6 +24,9 @@ SENSOR_KINDS: dict[str, str] = {
     "fisheye": "perception.OmniCamera (a downward fisheye: its calibration)",
     "imu": "perception.rig.ImuModel (the data sheet's figures)",
     "sun": "perception.rig.SunSensorModel (a sun sensor's data-sheet figures)",
+    "wheel_encoders": "perception.rig.EncoderModel (counts per revolution, the counter's width)",
+    "motor_current": "perception.rig.MotorModel (gear ratio, torque constant, efficiency, friction, noise)",
+    "command": "None (the commanded wheel rates and steering need no model)",
 }
 
 
@@ -38,7 +41,11 @@ class SensorMessage:
             accelerometer xyz [m/s^2] in its mount frame, and a saturation flag (> 0: a reading
             was clipped at the range); a sun sensor's (7,) unit vector toward the sun in its
             frame, the ephemeris's unit vector toward the sun in the world frame (z up) at that
-            time, and a flag (> 0: no sun seen; the first three are then NaN).
+            time, and a flag (> 0: no sun seen; the first three are then NaN); wheel encoders'
+            (4,) counters FL, FR, RL, RR, whole numbers in [0, 2 ** counter_bits) that wrap
+            (rolling forward counts up); motor currents' (4,) currents [A] (positive driving
+            the wheel forward); a command's (6,) wheel-rate targets FL, FR, RL, RR [rad/s] and
+            axle steering lambda_F, lambda_R [rad] in force at ``t``.
     """
 
     sensor: str
@@ -96,12 +103,86 @@ class SunSensorModel:
 
 
 @dataclass(frozen=True)
+class EncoderModel:
+    """What an estimator knows of wheel encoders.
+
+    Attributes:
+        counts_per_rev: Counts per wheel revolution [-].
+        counter_bits: The counter wraps at ``2 ** counter_bits`` counts.
+    """
+
+    counts_per_rev: int = 4096
+    counter_bits: int = 16
+
+    def __post_init__(self) -> None:
+        cpr, bits = real_number("counts_per_rev", self.counts_per_rev), real_number("counter_bits", self.counter_bits)
+        if cpr < 4 or cpr != int(cpr) or not 8 <= bits <= 64 or bits != int(bits):
+            raise ConfigError(
+                f"wheel encoders: counts_per_rev {self.counts_per_rev!r}, counter_bits {self.counter_bits!r}; "
+                "give whole numbers, at least 4 counts a revolution and an 8- to 64-bit counter"
+            )
+
+    @property
+    def wrap(self) -> float:
+        """The counter's range [counts]."""
+        return float(2 ** int(self.counter_bits))
+
+
+@dataclass(frozen=True)
+class MotorModel:
+    """What an estimator knows of the drive motors' current sense: their data sheet.
+
+    The current is ``I = tau_m / k_t + I_0 tanh(omega_m / omega_0) + offset + noise``, with the
+    motor torque ``tau_m = tau_wheel / (N eta)`` while the motor drives the wheel and
+    ``tau_wheel eta / N`` while the wheel drives it back; ``omega_m = N omega_wheel``.
+
+    Attributes:
+        gear_ratio: N [-]. torque_constant: k_t [N m/A]. efficiency: eta [-].
+        no_load_current: I_0 [A]. friction_speed: omega_0 [rad/s, motor side].
+        offset_std: Spread of the offset per start [A]. noise_std: White noise [A].
+        range: Full scale [A]: a reading at it may be clipped.
+    """
+
+    gear_ratio: float = 100.0
+    torque_constant: float = 0.0283
+    efficiency: float = 0.75
+    no_load_current: float = 0.06
+    friction_speed: float = 5.0
+    offset_std: float = 0.01
+    noise_std: float = 0.02
+    range: float = 10.0
+
+    def __post_init__(self) -> None:
+        for key in ("gear_ratio", "torque_constant", "friction_speed", "range"):
+            if not real_number(key, getattr(self, key)) > 0.0:
+                raise ConfigError(f"motor_current.{key}: {getattr(self, key)!r}; give a value above 0")
+        if not 0.0 < real_number("efficiency", self.efficiency) <= 1.0:
+            raise ConfigError(f"motor_current.efficiency: {self.efficiency!r}; give a value in (0, 1]")
+        for key in ("no_load_current", "offset_std", "noise_std"):
+            if not real_number(key, getattr(self, key)) >= 0.0:
+                raise ConfigError(f"motor_current.{key}: {getattr(self, key)!r}; give a value >= 0")
+
+    def wheel_torque(self, current, wheel_rate) -> np.ndarray:
+        """The wheel torques [N m] that draw ``current`` [A] at ``wheel_rate`` [rad/s] (offset removed).
+
+        The inverse of the current model above: the friction's current is taken off, then the
+        gearhead's ratio and efficiency applied in the direction the power flows.
+        """
+        i = np.asarray(current, dtype=np.float64)
+        w_m = np.asarray(wheel_rate, dtype=np.float64) * self.gear_ratio
+        tau_m = (i - self.no_load_current * np.tanh(w_m / self.friction_speed)) * self.torque_constant
+        driving = tau_m * w_m >= 0.0
+        return np.where(driving, tau_m * self.gear_ratio * self.efficiency, tau_m * self.gear_ratio / self.efficiency)
+
+
+@dataclass(frozen=True)
 class SensorSpec:
     """One sensor of a rig.
 
     Attributes:
         name: Its name (the ``sensor`` of its messages).
-        kind: ``"pinhole"``, ``"fisheye"``, ``"imu"`` or ``"sun"`` (:data:`SENSOR_KINDS`).
+        kind: ``"pinhole"``, ``"fisheye"``, ``"imu"``, ``"sun"``, ``"wheel_encoders"``,
+            ``"motor_current"`` or ``"command"`` (:data:`SENSOR_KINDS`).
         rate_hz: Samples per second [Hz].
         mount: (4, 4) pose of the sensor's frame in the body frame (body from sensor) [m].
         model: The calibration an estimator uses (see :data:`SENSOR_KINDS`).

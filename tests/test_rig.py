@@ -149,7 +149,20 @@ SHEAR = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]]  # not rigid: a
         ([{"name": "a", "kind": "fisheye"}, {"name": "a", "kind": "pinhole"}], r"rig\[1\]\.name: 'a'"),
         ([{"name": "a", "kind": "pinhole", "camera": {"widht": 64}}],
          r"unknown key 'rig\[0\]\.camera\.widht'"),
-        ([{"name": "a", "kind": "imu", "camera": {"width": 64}}], r"rig\[0\]\.camera: sensor 'a' is an IMU"),
+        ([{"name": "a", "kind": "imu", "camera": {"width": 64}}],
+         r"rig\[0\]\.camera: sensor 'a' is of kind imu; give its settings as imu"),
+        ([{"name": "e", "kind": "wheel_encoders", "encoder": {"counts_per_rev": 2}}],
+         r"rig\[0\]\.wheel_encoders\.counts_per_rev"),
+        ([{"name": "e", "kind": "wheel_encoders", "encoder": {"counts_per_rev": 4096, "counter_bits": 12}}],
+         r"counter must hold at least 4 revolutions"),
+        ([{"name": "m", "kind": "motor_current", "motor": {"efficiency": 1.5}}],
+         r"rig\[0\]\.motor_current\.efficiency"),
+        ([{"name": "m", "kind": "motor_current", "motor": {"torque_konstant": 1}}],
+         r"rig\[0\]\.motor_current: unknown key 'torque_konstant'"),
+        ([{"name": "c", "kind": "command", "motor": "dcx26"}],
+         r"rig\[0\]\.motor: sensor 'c' is of kind command; it takes only rate_hz"),
+        ([{"name": "c", "kind": "command", "mount": {"position": [0, 0, 1]}}],
+         r"rig\[0\]\.mount: sensor 'c' is command, which reads the joints"),
         ([{"name": "a", "kind": "pinhole", "mount": {"place": [0, 0, 1]}}], r"rig\[0\]\.mount: unknown key"),
     ],
 )  # fmt: skip
@@ -159,7 +172,14 @@ def test_a_bad_rig_is_a_config_error_naming_the_key(tmp_path, rig, message):
 
 
 @pytest.mark.parametrize(
-    ("index", "sensor"), [(0, {"kind": "pinhole", "rate_hz": 70}), (1, {"kind": "imu", "rate_hz": 100})]
+    ("index", "sensor"),
+    [
+        (0, {"kind": "pinhole", "rate_hz": 70}),
+        (1, {"kind": "imu", "rate_hz": 100}),
+        (1, {"kind": "wheel_encoders", "rate_hz": 7}),
+        (1, {"kind": "motor_current", "rate_hz": 50}),
+        (1, {"kind": "command", "rate_hz": 50}),
+    ],
 )
 def test_a_rate_that_does_not_divide_the_physics_rate_is_named(tmp_path, index, sensor):
     rig = [{"name": "fisheye", "kind": "fisheye"}, {"name": "down", "kind": "pinhole"}]

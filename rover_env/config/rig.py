@@ -37,11 +37,12 @@ from perception.models.calib_io import check_rigid
 from rover_env.config.cameras import CameraConfig, DownwardCameraConfig, FisheyeCameraConfig
 from rover_env.config.imu import ImuConfig
 from rover_env.config.io import ConfigError, check_range, from_dict
+from rover_env.config.proprio import encoder_config, motor_config
 from rover_env.config.sun_sensor import SunSensorConfig
 
 #: The kinds of sensor a rig may hold: a downward pinhole camera, a downward fisheye, an IMU, a
-#: sun sensor.
-SensorKind = Literal["pinhole", "fisheye", "imu", "sun"]
+#: sun sensor, wheel encoders, the drive motors' currents, the command in force.
+SensorKind = Literal["pinhole", "fisheye", "imu", "sun", "wheel_encoders", "motor_current", "command"]
 SENSOR_KIND_NAMES: tuple[str, ...] = get_args(SensorKind)
 
 #: The estimator-in-the-loop presets (:data:`PERCEPTION_PRESETS`).
@@ -55,7 +56,13 @@ STANDARD_RPY: dict[str, tuple[float, float, float]] = {
     "fisheye": (math.pi, 0.0, 0.0),
     "imu": (0.0, 0.0, 0.0),
     "sun": (0.0, 0.0, 0.0),
+    "wheel_encoders": (0.0, 0.0, 0.0),
+    "motor_current": (0.0, 0.0, 0.0),
+    "command": (0.0, 0.0, 0.0),
 }
+
+#: The proprioceptive kinds: they read the rover's joints, so have no mount of their own.
+PROPRIO_KINDS: tuple[str, ...] = ("wheel_encoders", "motor_current", "command")
 
 
 def mount_matrix(position, rpy) -> np.ndarray:
@@ -107,15 +114,29 @@ _CAMERA_CONFIGS: dict[str, type[CameraConfig]] = {
 }
 
 
+#: Each kind's settings key in a rig entry (None: it takes none).
+_SETTINGS_KEY: dict[str, str | None] = {
+    "pinhole": "camera",
+    "fisheye": "camera",
+    "imu": "imu",
+    "sun": "sun",
+    "wheel_encoders": "encoder",
+    "motor_current": "motor",
+    "command": None,
+}
+
+
 @dataclass(frozen=True)
 class SensorConfig:
     """One sensor of a scenario's rig.
 
     Attributes:
         name: Its name: the ``sensor`` of its messages, the key in ``env.unwrapped.rig``.
-        kind: ``"pinhole"``, ``"fisheye"``, ``"imu"`` or ``"sun"`` (a sun sensor).
+        kind: ``"pinhole"``, ``"fisheye"``, ``"imu"``, ``"sun"`` (a sun sensor),
+            ``"wheel_encoders"``, ``"motor_current"`` or ``"command"`` (:data:`PROPRIO_KINDS`).
         rate_hz: Samples per second [Hz]; must divide the physics rate (240 Hz: 240, 120, 80,
-            60, 48, 40, 30, ...). None: the preset's (cameras) or the IMU's or sun sensor's own.
+            60, 48, 40, 30, ...). None: the preset's (cameras), the part's own, or for a
+            command the environment's control rate.
         mount: Body from sensor: a 4 x 4 rigid transform, or ``{position: [x, y, z], rpy: [r,
             p, y]}`` [m, rad], either of which may be left out and is then the standard
             mount's. None: the standard mount (the downward camera on the mast, the fisheye
@@ -129,6 +150,10 @@ class SensorConfig:
             ``rate_hz`` and mount above, when given, take the place of the settings'.
         sun: A sun sensor's settings: a preset name or a mapping (``preset`` and overrides, see
             :meth:`rover_env.config.sun_sensor.SunSensorConfig.from_dict`); None: ``nfss411``.
+        encoder: Wheel encoders' settings: a preset name or a mapping (``preset`` and fields of
+            :class:`~rover_env.config.proprio.EncoderConfig`); None: ``as5047p``.
+        motor: Motor currents' settings: a preset name or a mapping (``preset`` and fields of
+            :class:`~rover_env.config.proprio.MotorCurrentConfig`); None: ``dcx26``.
     """
 
     name: str
@@ -138,6 +163,8 @@ class SensorConfig:
     camera: Any = None
     imu: Any = None
     sun: Any = None
+    encoder: Any = None
+    motor: Any = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -149,26 +176,26 @@ class SensorConfig:
         if self.rate_hz is not None:
             check_range("rate_hz", self.rate_hz, 0.0, 10000.0, lo_open=True)
         object.__setattr__(self, "mount", _mount(self.mount))
+        if self.mount is not None and self.kind in PROPRIO_KINDS:
+            raise ConfigError(f"mount: sensor {self.name!r} is {self.kind}, which reads the joints; leave mount out")
+        settings = _SETTINGS_KEY[self.kind]
+        for key in ("camera", "imu", "sun", "encoder", "motor"):
+            if getattr(self, key) is not None and key != settings:
+                how = f"give its settings as {settings}" if settings else "it takes only rate_hz"
+                raise ConfigError(f"{key}: sensor {self.name!r} is of kind {self.kind}; {how}")
+        if self.encoder is not None:
+            encoder_config(self.encoder)  # validated here
+        if self.motor is not None:
+            motor_config(self.motor)  # validated here
         if self.camera is not None:
-            if self.kind in ("imu", "sun"):
-                what = "an IMU" if self.kind == "imu" else "a sun sensor"
-                raise ConfigError(f"camera: sensor {self.name!r} is {what}; give its settings as {self.kind}")
             if not isinstance(self.camera, dict):
                 raise ConfigError(f"camera: {self.camera!r}; give a mapping of camera settings")
             if "rate_hz" in self.camera:
                 raise ConfigError(f"camera.rate_hz: give sensor {self.name!r}'s rate as its rate_hz")
             from_dict(_CAMERA_CONFIGS[self.kind], self.camera, "camera")  # validated here
         if self.imu is not None:
-            if self.kind != "imu":
-                raise ConfigError(
-                    f"imu: sensor {self.name!r} is a {self.kind} camera; give its settings as camera"
-                )
             imu_config(self.imu)  # validated here
         if self.sun is not None:
-            if self.kind != "sun":
-                raise ConfigError(
-                    f"sun: sensor {self.name!r} is a {self.kind}; only a sun sensor takes sun settings"
-                )
             SunSensorConfig.from_dict(self.sun)  # validated here
 
     def mount_or(self, standard: np.ndarray) -> np.ndarray:
@@ -250,7 +277,7 @@ def standard_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
 
 
 #: The rigs the environment's ``rig`` keyword names (:func:`named_rig`).
-RIG_NAMES: tuple[str, ...] = ("standard", "fisheye_only")
+RIG_NAMES: tuple[str, ...] = ("standard", "fisheye_only", "full")
 
 #: The one-camera rig's fisheye also renders the ground its odometry tracks: the rays within
 #: this angle of the body's -z [deg] (split into the cube's faces). Its odometry fits the motion
@@ -276,12 +303,30 @@ def fisheye_only_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
     return rig + (SensorConfig("imu", "imu", imu=imu), SensorConfig("sun", "sun"))
 
 
+def full_rig(imu: Any = None) -> tuple[SensorConfig, ...]:
+    """The standard rig with an IMU (``imu``, None: the BMI088), a sun sensor and proprioception.
+
+    The proprioceptive sensors are the wheel encoders (``"encoders"``), the drive motors'
+    currents (``"currents"``) and the command in force (``"command"``).
+    """
+    return standard_rig("bmi088" if imu is None else imu) + (
+        SensorConfig("encoders", "wheel_encoders"),
+        SensorConfig("currents", "motor_current"),
+        SensorConfig("command", "command"),
+    )
+
+
 def named_rig(name: str, imu: Any = None) -> tuple[SensorConfig, ...]:
-    """The rig called ``name`` (:data:`RIG_NAMES`) with ``imu`` (and then a sun sensor), or ConfigError."""
+    """The rig called ``name`` (:data:`RIG_NAMES`) with ``imu`` (and then a sun sensor), or ConfigError.
+
+    ``"full"`` always has an IMU (the BMI088 if ``imu`` is None).
+    """
     if name == "standard":
         return standard_rig(imu)
     if name == "fisheye_only":
         return fisheye_only_rig(imu)
+    if name == "full":
+        return full_rig(imu)
     raise ConfigError(
         f"rig: {name!r}; use one of {list(RIG_NAMES)} (or declare the sensors in the scenario's rig)"
     )

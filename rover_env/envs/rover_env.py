@@ -198,7 +198,9 @@ class RoverEnv(gym.Env):
             (:data:`~rover_env.config.rig.RIG_NAMES`): ``"standard"`` (the fisheye and the
             downward camera) or ``"fisheye_only"`` (the one-camera rig: the fisheye gives the
             odometry as well as the joints and wheels, :func:`~rover_env.config.rig.fisheye_only_rig`),
-            each with ``imu`` (or the scenario's) and then a sun sensor. None (default): the
+            each with ``imu`` (or the scenario's) and then a sun sensor, or ``"full"`` (the
+            standard rig, ``imu`` or the BMI088, a sun sensor, wheel encoders, motor currents and
+            the command, :func:`~rover_env.config.rig.full_rig`). None (default): the
             scenario's ``rig``, or the standard one. A scenario that declares a rig takes no name.
         estimator: With ``obs_source="estimated"``, a factory (class or callable) called once
             with the sensor rig (:attr:`rig`) that makes the estimator
@@ -336,6 +338,7 @@ class RoverEnv(gym.Env):
                     rig=sensors,
                     declared=declared,
                     camera_effects=camera_effects == "field",
+                    control_hz=self.control_hz,
                 )
             except BaseException:  # a bad rig or estimator: release the physics client
                 self.sim.close()
@@ -412,8 +415,10 @@ class RoverEnv(gym.Env):
                     cam.reset_effects(
                         int(rng.integers(2**63 - 1)), _sensor_unit(cam.sensor_config, self.world, i)
                     )
-            for sun in self.pipeline.sun_sensors:  # drawn last: the draws above stay as they were
+            for sun in self.pipeline.sun_sensors:  # drawn after: the draws above stay as they were
                 sun.reset(int(rng.integers(2**63 - 1)))
+            for part in self.pipeline.proprio:  # encoders' power-up counts, current offsets
+                part.reset(int(rng.integers(2**63 - 1)))
         self._gt = self.sim.reset(x, y, yaw)
         messages = self.sim.take_messages()
         if self.pipeline is not None:

@@ -25,13 +25,25 @@ from perception.fusion.slip import SlipConfig
 from perception.kinematics.fisheye import KinematicsConfig
 from perception.odometry.fisheye import FisheyeOdometryConfig
 from perception.odometry.flow import FlowOdometryConfig
-from perception.rig import ImuModel, Rig, SensorMessage, SensorSpec, SunSensorModel, TriadFigures, read_only
+from perception.rig import (
+    EncoderModel,
+    ImuModel,
+    MotorModel,
+    Rig,
+    SensorMessage,
+    SensorSpec,
+    SunSensorModel,
+    TriadFigures,
+    read_only,
+)
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
 from rover_env.config.imu import ImuConfig
+from rover_env.config.proprio import CommandConfig, encoder_config, motor_config, with_rate
 from rover_env.config.io import ConfigError
 from rover_env.config.rig import (
     FISHEYE_ONLY_CAMERA,
     PERCEPTION_PRESETS,
+    PROPRIO_KINDS,
     PerceptionPreset,
     PresetName,
     SensorConfig,
@@ -44,6 +56,7 @@ from rover_env.config.sun_sensor import SunSensorConfig
 from rover_env.sensors.cameras import DownwardCamera, FisheyeCamera
 from rover_env.sensors.image_sensor import BAYER
 from rover_env.sensors.imu import Imu
+from rover_env.sensors.proprio import CommandSensor, MotorCurrents, WheelEncoders
 from rover_env.sensors.sun_sensor import SunSensor
 from rover_env.sim.simulation import RoverSim
 
@@ -72,12 +85,20 @@ def _figures(triad) -> TriadFigures:
     )
 
 
-#: A simulated sensor: a camera, an IMU or a sun sensor that the simulation samples.
-SimSensor = DownwardCamera | FisheyeCamera | Imu | SunSensor
+#: A simulated sensor: a camera, an IMU, a sun sensor or a proprioceptive one that the simulation samples.
+SimSensor = DownwardCamera | FisheyeCamera | Imu | SunSensor | WheelEncoders | MotorCurrents | CommandSensor
+
+#: A proprioceptive kind's settings key in a scenario's rig entry, for error messages.
+_SETTINGS_NAME = {"wheel_encoders": "encoder", "motor_current": "motor"}
 
 
 def build_sensor(
-    sim: RoverSim, config: SensorConfig, preset: PerceptionPreset, key: str, declared: bool = True
+    sim: RoverSim,
+    config: SensorConfig,
+    preset: PerceptionPreset,
+    key: str,
+    declared: bool = True,
+    control_hz: float = 30.0,
 ) -> SimSensor:
     """The simulated sensor ``config`` declares, on ``sim``'s rover (not yet attached).
 
@@ -88,11 +109,25 @@ def build_sensor(
         key: Its key in the scenario, for error messages: ``"rig[2]"`` in a declared rig, or
             the sensor's name in the standard rig (``"imu"``: the scenario's ``imu`` key).
         declared: It is an entry of the scenario's ``rig`` (its IMU settings under ``imu``).
+        control_hz: The environment's control rate [Hz]: a command sensor's without its own.
 
     Raises:
         ConfigError: Its rate does not divide the physics rate (naming the key that set it).
     """
-    if config.kind == "imu":
+    if config.kind in PROPRIO_KINDS:
+        part: Any
+        if config.kind == "wheel_encoders":
+            part = with_rate(encoder_config(config.encoder), config.rate_hz)
+        elif config.kind == "motor_current":
+            part = with_rate(motor_config(config.motor), config.rate_hz)
+        else:
+            part = CommandConfig(config.rate_hz)
+        rate = part.rate_hz if part.rate_hz is not None else control_hz
+        if config.kind == "command":  # its rate is its own or the control rate, which divides
+            settings = key
+        else:
+            settings = f"{key}.{_SETTINGS_NAME[config.kind]}" if declared else key
+    elif config.kind == "imu":
         imu = imu_config(config.imu if config.imu is not None else "bmi088")
         changes: dict[str, Any] = {}
         if config.rate_hz is not None:
@@ -125,6 +160,12 @@ def build_sensor(
             f"{where}: {rate:g} Hz (sensor {config.name!r}) does not divide the physics rate "
             f"{1 / sim.dt:g} Hz; use a whole fraction of it (240, 120, 80, 60, 48, 40, 30 ... at 240 Hz)"
         )
+    if config.kind == "wheel_encoders":
+        return WheelEncoders(sim, part)
+    if config.kind == "motor_current":
+        return MotorCurrents(sim, part)
+    if config.kind == "command":
+        return CommandSensor(sim, part, control_hz)
     if config.kind == "imu":
         return Imu(sim, imu)
     if config.kind == "sun":
@@ -174,6 +215,16 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             c = sensor.config
             sun = SunSensorModel(c.fov_deg, c.accuracy_deg, c.noise_deg)
             specs.append(SensorSpec(name, "sun", c.rate_hz, sensor.T_body_sensor, sun))
+        elif isinstance(sensor, WheelEncoders):
+            c = sensor.config
+            model = EncoderModel(c.counts_per_rev, c.counter_bits)
+            specs.append(SensorSpec(name, "wheel_encoders", c.rate_hz, np.eye(4), model))
+        elif isinstance(sensor, MotorCurrents):
+            c = sensor.config
+            fields = {k: getattr(c, k) for k in MotorModel.__dataclass_fields__}
+            specs.append(SensorSpec(name, "motor_current", c.rate_hz, np.eye(4), MotorModel(**fields)))
+        elif isinstance(sensor, CommandSensor):
+            specs.append(SensorSpec(name, "command", sensor.rate_hz, np.eye(4), None))
         elif isinstance(sensor, FisheyeCamera):
             c = sensor.config
             rate, T = c.rate_hz, sensor.T_body_cam
@@ -298,6 +349,7 @@ class PerceptionPipeline:
             standard rig (errors name the sensor: ``imu.rate_hz``).
         camera_effects: Deliver the cameras' images through their image sensors and lenses
             (``camera_effects="field"``); the rig's calibrations then hold the lenses' distortion.
+        control_hz: The environment's control rate [Hz] (a command sensor's rate without its own).
     """
 
     def __init__(
@@ -313,6 +365,7 @@ class PerceptionPipeline:
         rig: tuple[SensorConfig, ...] | None = None,
         declared: bool = False,
         camera_effects: bool = False,
+        control_hz: float = 30.0,
     ) -> None:
         if isinstance(preset, str):
             if preset not in PERCEPTION_PRESETS:
@@ -338,13 +391,15 @@ class PerceptionPipeline:
         self.sensors: dict[str, SimSensor] = {}
         for i, config in enumerate(rig):
             key = f"rig[{i}]" if declared else config.name
-            sensor = build_sensor(sim, config, preset, key, declared)
+            sensor = build_sensor(sim, config, preset, key, declared, control_hz)
             sim.attach_sensor(config.name, sensor)
             self.sensors[config.name] = sensor
         cameras = {n: s for n, s in self.sensors.items() if isinstance(s, DownwardCamera | FisheyeCamera)}
         self.cameras = list(cameras.values())
         self.imus = [s for s in self.sensors.values() if isinstance(s, Imu)]
         self.sun_sensors = [s for s in self.sensors.values() if isinstance(s, SunSensor)]
+        #: The encoders and current senses (their per-episode draws: ``reset(seed)``).
+        self.proprio = [s for s in self.sensors.values() if isinstance(s, WheelEncoders | MotorCurrents)]
         # the first of each kind, as a user reaches them (None if the rig has none)
         self.downward = next((s for s in self.cameras if isinstance(s, DownwardCamera)), None)
         self.fisheye = next((s for s in self.cameras if isinstance(s, FisheyeCamera)), None)

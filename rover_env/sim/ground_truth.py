@@ -10,7 +10,18 @@ import numpy as np
 from perception.rover_estimator import STATE_KEYS
 
 #: ``info["ground_truth"]``'s keys: the pose and the state under the estimator's names.
-GROUND_TRUTH_KEYS: tuple[str, ...] = ("pose", *STATE_KEYS)
+#: What the wheels feel of the ground, per wheel (``info["ground_truth"]``, after the state),
+#: and the drive motors' torques.
+SOIL_TRUTH_KEYS: tuple[str, ...] = (
+    "wheel_torque",
+    "sinkage",
+    "drawbar_pull",
+    "load",
+    "pull_ratio",
+    "slip_best_pull",
+    "slip_best_efficiency",
+)
+GROUND_TRUTH_KEYS: tuple[str, ...] = ("pose", *STATE_KEYS, *SOIL_TRUTH_KEYS)
 
 
 @dataclass(frozen=True)
@@ -41,6 +52,18 @@ class GroundTruth:
         normal_force: Total contact normal force on each wheel [N] (on soil: the soil's).
         contact_point: World position of each wheel's deepest contact (NaN if none) [m] (on
             soil: the rim's lowest point).
+        sinkage: Depth of each rim's lowest point below the original surface [m] (0 on rigid
+            ground).
+        drawbar_pull: The ground's force on each wheel along its heading [N] (on soil: the
+            soil's drawbar pull; on rigid ground: the contact's friction along the heading).
+        load: The ground's force on each wheel along the ground's normal [N].
+        pull_ratio: On soil, the soil's steady-state DP/W at the wheel's slip and load (virgin
+            soil, :class:`rover_env.sim.terramechanics.PullCurves`) [-]; NaN on rigid ground,
+            braking or off the ground.
+        slip_best_pull: On soil, the slip of the largest steady-state DP/W at the wheel's load
+            [-]; NaN elsewhere.
+        slip_best_efficiency: On soil, the slip of the largest tractive efficiency there [-];
+            NaN elsewhere.
     """
 
     t: float
@@ -60,6 +83,12 @@ class GroundTruth:
     friction: np.ndarray
     normal_force: np.ndarray
     contact_point: np.ndarray
+    sinkage: np.ndarray
+    drawbar_pull: np.ndarray
+    load: np.ndarray
+    pull_ratio: np.ndarray
+    slip_best_pull: np.ndarray
+    slip_best_efficiency: np.ndarray
 
     @property
     def tilt(self) -> np.ndarray:

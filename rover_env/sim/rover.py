@@ -350,22 +350,36 @@ class Rover:
                 depth[i] = p[8]
                 contact_point[i] = p[6]
         friction = np.array(self._mu, dtype=np.float64)
+        sinkage, pull = np.zeros(4), np.zeros(4)
+        curves = np.full((4, 3), math.nan)  # pull ratio, slip of best pull, of best efficiency
+        slip = slip_ratio(wheel_rate * r, v_long)
+        heading = self._wheel_headings()
+        for p in self.client.getContactPoints(bodyA=self.body_id, bodyB=terrain_id):
+            i = self._wheel_index.get(p[3])
+            if i is not None:  # the friction on the wheel (body A) along its heading
+                f = p[10] * np.asarray(p[11]) + p[12] * np.asarray(p[13])
+                pull[i] += float(f @ heading[i])
         soil = self.soil
         if soil is not None:  # wheels on soil: the soil's load, its lowest rim point, tan(phi)
             for i, st in enumerate(self._read_wheels()):
-                if soil.index[i] >= 0:
-                    heading, left = soil.frames[i, 0], soil.frames[i, 1]
-                    normal = np.cross(heading, left)
+                k = int(soil.index[i])
+                if k >= 0:
+                    heading_i, left = soil.frames[i, 0], soil.frames[i, 1]
+                    normal = np.cross(heading_i, left)
                     normal_force[i] = float(soil.contact.last[i, 1])
                     contact_point[i] = (np.asarray(st[4]) - normal * soil.wheel.shear_radius).tolist()
                     friction[i] = float(soil.contact._p[i, 9])
+                    sinkage[i] = float(soil.sinkage[i])
+                    pull[i] = float(soil.contact.last[i, 0])
+                    if normal_force[i] > 0.0:
+                        curves[i] = soil.curves[k].at(normal_force[i], float(slip[i]))
         return GroundTruth(
             t=t,
             pose=np.array([*pos, *quat]),
             twist=np.array([v_body[0], v_body[1], w_body[2]]),
             wheel_rate=wheel_rate,
             wheel_angle=np.array([q[j] for j in self.wheel_joints]),
-            slip_ratio=slip_ratio(wheel_rate * r, v_long),
+            slip_ratio=slip,
             slip_angle=np.array(beta),
             axle_roll=np.array([q[j] for j in self._roll_joints]),
             axle_height=np.array([-(g.axle_z + q[j]) for j in self._travel_joints]),
@@ -377,7 +391,21 @@ class Rover:
             friction=friction,
             normal_force=np.array(normal_force),
             contact_point=np.array(contact_point, dtype=np.float64),
+            sinkage=sinkage,
+            drawbar_pull=pull,
+            load=np.array(normal_force),
+            pull_ratio=curves[:, 0],
+            slip_best_pull=curves[:, 1],
+            slip_best_efficiency=curves[:, 2],
         )
+
+    def _wheel_headings(self) -> np.ndarray:
+        """(4, 3) each wheel's heading (its knuckle's x axis), world frame."""
+        out = np.zeros((4, 3))
+        for i, k_st in enumerate(self._read_knuckles()):
+            kx, ky, kz, kw = k_st[5]
+            out[i] = (1 - 2 * (ky * ky + kz * kz), 2 * (kx * ky + kz * kw), 2 * (kx * kz - ky * kw))
+        return out
 
 
 def _ackermann_arms(geom: RoverGeometry) -> tuple[np.ndarray, np.ndarray]:

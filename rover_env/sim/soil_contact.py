@@ -34,7 +34,7 @@ import numpy as np
 
 from rover_env.config.io import check_range
 from rover_env.config.soil import SoilConfig
-from rover_env.sim.terramechanics import N_PARAMS, WheelSpec, _ground_step, _params, _soil_step
+from rover_env.sim.terramechanics import N_PARAMS, PullCurves, WheelSpec, _ground_step, _params, _soil_step
 
 __all__ = ["SoilContact"]
 
@@ -192,6 +192,8 @@ class SoilGround:
         self.contact = SoilContact(soils[0], wheel, n, dt)
         #: (len(soils), N_PARAMS) each soil's parameters with the wheel's (``terramechanics._params``).
         self.rows = np.stack([_params(s, wheel) for s in soils])
+        #: Each soil's steady-state pull curves (the truth's figures; solved at first use).
+        self.curves = [PullCurves(s, wheel) for s in soils]
         self.index = np.full(n, -1, dtype=np.int64)
         #: The last substep's sinkage of each wheel on soil [m] (0 on rigid ground).
         self.sinkage = np.zeros(n)

@@ -63,7 +63,7 @@ from rover_env.config.io import ConfigError, check_range
 from rover_env.config.soil import SoilConfig
 from rover_env.sim.geometry import GRAVITY
 
-__all__ = ["WheelSpec", "ContactForces", "contact_forces", "rut_surface", "steady_state", "SteadyState"]
+__all__ = ["WheelSpec", "ContactForces", "PullCurves", "contact_forces", "rut_surface", "steady_state", "SteadyState"]
 
 #: Largest ratio v / (r omega) of a braking wheel the shear displacement uses (s = -0.98).
 MAX_SKID_RATIO = 50.0
@@ -657,3 +657,61 @@ def steady_state(
         shear_exit=f.shear_exit,
         converged=np.abs(f.normal - load) <= 1e-3 * load,
     )
+
+
+class PullCurves:
+    """A soil's steady-state drawbar pull over load against slip, tabulated over loads (virgin soil).
+
+    What the truth reports of each wheel on soil: its steady-state DP/W at its slip and load,
+    and the slips of largest DP/W and of largest tractive efficiency
+    ``eta = DP (1 - s) / (T / r)`` (driving: the drawbar power over the axle's) at its load.
+    The table (:data:`LOADS` x :data:`SLIPS`, 48 nodes) is solved once, at first use (0.2 s).
+
+    Args:
+        soil: The soil.
+        wheel: The wheel.
+    """
+
+    #: Loads of the table [N], geometrically spaced.
+    LOADS = np.geomspace(10.0, 1000.0, 25)
+    #: Slips of the table [-]: braking to -0.5, driving to 0.95.
+    SLIPS = np.linspace(-0.5, 0.95, 146)
+
+    def __init__(self, soil: SoilConfig, wheel: WheelSpec) -> None:
+        self.soil, self.wheel = soil, wheel
+        self._table: tuple[np.ndarray, np.ndarray] | None = None
+
+    def table(self) -> tuple[np.ndarray, np.ndarray]:
+        """(DP/W, tractive efficiency), each (len(LOADS), len(SLIPS)); NaN where no steady state."""
+        if self._table is None:
+            load, slip = np.meshgrid(self.LOADS, self.SLIPS, indexing="ij")
+            ss = steady_state(self.soil, self.wheel, load, slip, n_theta=48)
+            dpw = ss.drawbar_pull / ss.load
+            with np.errstate(divide="ignore", invalid="ignore"):
+                eff = ss.drawbar_pull * (1.0 - slip) * self.wheel.radius / ss.torque
+            dpw = np.where(ss.converged, dpw, np.nan)
+            eff = np.where(ss.converged & (ss.torque > 0.0) & (slip >= 0.0), eff, np.nan)
+            self._table = (dpw, eff)
+        return self._table
+
+    def curve(self, load: float) -> tuple[np.ndarray, np.ndarray]:
+        """(DP/W, efficiency) over :data:`SLIPS` at ``load`` [N] (interpolated in log load)."""
+        dpw, eff = self.table()
+        x = np.log(self.LOADS)
+        u = float(np.clip(np.log(max(load, 1e-9)), x[0], x[-1]))
+        k = int(min(np.searchsorted(x, u, side="right") - 1, len(x) - 2))
+        a = (u - x[k]) / (x[k + 1] - x[k])
+        return (1 - a) * dpw[k] + a * dpw[k + 1], (1 - a) * eff[k] + a * eff[k + 1]
+
+    def at(self, load: float, slip: float) -> tuple[float, float, float]:
+        """(DP/W at ``slip``, slip of largest DP/W, slip of largest efficiency) at ``load`` [N].
+
+        The efficiency is a driving wheel's (s >= 0). A slip outside the table's reads NaN for
+        the first.
+        """
+        dpw, eff = self.curve(load)
+        s = self.SLIPS
+        ratio = float(np.interp(slip, s, dpw)) if s[0] <= slip <= s[-1] else math.nan
+        best_pull = float(s[np.nanargmax(dpw)]) if np.any(np.isfinite(dpw)) else math.nan
+        best_eff = float(s[np.nanargmax(eff)]) if np.any(np.isfinite(eff)) else math.nan
+        return ratio, best_pull, best_eff

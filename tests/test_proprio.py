@@ -1,0 +1,162 @@
+"""Proprioceptive sensors in the rig: encoders, motor currents, the command; the soil's truth per wheel."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import rover_env  # noqa: F401
+from perception.rig import EncoderModel, MotorModel
+from rover_env.config.io import ConfigError
+from rover_env.config.proprio import MotorCurrentConfig, encoder_config, motor_config
+from rover_env.sim.ground_truth import GROUND_TRUTH_KEYS, SOIL_TRUTH_KEYS
+from rover_env.sim.terramechanics import steady_state
+
+from test_rig import Recorder, scenario_file
+
+
+class Keeper(Recorder):
+    """A recorder that keeps every message."""
+
+    def update(self, messages, t):
+        self.messages = [*getattr(self, "messages", []), *messages]
+        return super().update(messages, t)
+
+
+def _drive(tmp_path, rig, steps, action=(0.8, 0.0, 0.0), name="flat_patches", seed=3):
+    env = gym.make("Rover-v0", scenario=str(scenario_file(tmp_path, rig, name)), estimator=Keeper, renderer="tiny")
+    infos = []
+    try:
+        _, info = env.reset(seed=seed)
+        infos.append(info)
+        for _ in range(steps):
+            infos.append(env.step(np.asarray(action, dtype=np.float32))[4])
+        return env.unwrapped.pipeline.estimator, infos, env.unwrapped.rig
+    finally:
+        env.close()
+
+
+def test_encoders_count_the_true_wheel_angle_to_a_count_through_the_counters_wrap(tmp_path):
+    rig = [{"name": "enc", "kind": "wheel_encoders", "encoder": {"counter_bits": 14}}]
+    est, infos, spec = _drive(tmp_path, rig, 150)  # 5 s at about 14 rad/s: 11 revolutions, 2 wraps
+    model = spec["enc"].model
+    assert isinstance(model, EncoderModel) and model.counts_per_rev == 4096 and model.wrap == 2**14
+    msgs = [m for m in est.messages if m.sensor == "enc"]
+    assert len(msgs) == 1 + 150 * 4  # 120 Hz from t = 0
+    counts = np.array([m.data for m in msgs])
+    assert np.all(counts == np.round(counts)) and counts.min() >= 0 and counts.max() < 2**14
+    assert np.any(np.diff(counts, axis=0) < -2**13)  # the counter wrapped
+    unwrapped = counts[0] + np.cumsum(np.vstack([0 * counts[0], (np.diff(counts, axis=0) + 2**13) % 2**14 - 2**13]), 0)
+    by_t = {round(m.t, 6): i for i, m in enumerate(msgs)}
+    truth = np.array([info["ground_truth"]["wheel_angle"] for info in infos])
+    rows = [by_t[round(info["t"], 6)] for info in infos]
+    angle = (unwrapped[rows] - unwrapped[rows[0]]) * 2 * math.pi / 4096
+    err = angle - (truth - truth[0])
+    assert np.abs(err).max() <= 2 * math.pi / 4096 + 1e-9  # one count
+    assert (truth[-1] - truth[0]).min() > 2 * math.pi * 9
+
+
+def test_motor_currents_give_back_the_true_wheel_torque_through_the_data_sheet(tmp_path):
+    exact = {"offset_std": 0.0, "noise_std": 0.0, "lsb": 0.0}
+    rig = [{"name": "cur", "kind": "motor_current", "rate_hz": 30, "motor": exact}]
+    est, infos, spec = _drive(tmp_path, rig, 40)
+    model = spec["cur"].model
+    assert isinstance(model, MotorModel) and model.gear_ratio == 100.0
+    by_t = {round(m.t, 6): m.data for m in est.messages if m.sensor == "cur"}
+    torque = np.array([info["ground_truth"]["wheel_torque"] for info in infos])
+    rate = np.array([info["ground_truth"]["wheel_rate"] for info in infos])
+    current = np.array([by_t[round(info["t"], 6)] for info in infos])
+    back = model.wheel_torque(current, rate)
+    np.testing.assert_allclose(back, torque, atol=1e-9)
+    # speeding up at the 8 N m limit: 8 / (100 * 0.75) / 0.0283 A and the friction's 60 mA
+    np.testing.assert_allclose(torque[1:3], 8.0)
+    np.testing.assert_allclose(current[1:3], 8.0 / 75 / 0.0283 + 0.06 * np.tanh(rate[1:3] * 100 / 5), rtol=1e-9)
+    cfg = MotorCurrentConfig()
+    i8 = 8.0 / (cfg.gear_ratio * cfg.efficiency) / cfg.torque_constant + cfg.no_load_current * math.tanh(1000 / 5)
+    assert float(model.wheel_torque(i8, 10.0)) == pytest.approx(8.0, abs=1e-9)
+    # braking: the wheel drives the motor, which sees the torque times the efficiency
+    assert float(model.wheel_torque(-2.0 * 0.75 / 100 / 0.0283 + 0.06 * math.tanh(1000 / 5), 10.0)) == pytest.approx(-2.0)
+
+
+def test_motor_current_noise_and_offset_have_their_data_sheet_spread(tmp_path):
+    rig = [{"name": "cur", "kind": "motor_current", "rate_hz": 240, "motor": {"lsb": 0.0}}]
+    est, infos, spec = _drive(tmp_path, rig, 60, action=(0.0, 0.0, 0.0))  # standing, braked
+    msgs = [m for m in est.messages if m.sensor == "cur" and m.t > 0.5]  # settled at rest
+    data = np.array([m.data for m in msgs])
+    noise = data - data.mean(axis=0)
+    assert noise.std() == pytest.approx(0.02, rel=0.1)
+
+
+def test_the_command_is_what_the_rover_was_told_after_its_limits(tmp_path):
+    rig = [{"name": "cmd", "kind": "command"}]
+    est, infos, spec = _drive(tmp_path, rig, 10, action=(1.0, 1.0, -0.5))
+    assert spec["cmd"].rate_hz == 30.0 and spec["cmd"].model is None
+    last = [m for m in est.messages if m.sensor == "cmd"][-1]
+    assert last.data.shape == (6,)
+    assert last.data[4] == pytest.approx(math.radians(30)) and last.data[5] == pytest.approx(-math.radians(15))
+    assert np.all(last.data[:4] > 0)
+
+
+def test_the_full_rig_is_the_standard_one_with_the_bmi088_and_proprioception():
+    env = gym.make("Rover-v0", rig="full", renderer="tiny")
+    try:
+        rig = env.unwrapped.rig
+        assert [(n, rig[n].kind, rig[n].rate_hz) for n in rig] == [
+            ("fisheye", "fisheye", 30.0),
+            ("downward", "pinhole", 30.0),
+            ("imu", "imu", 240.0),
+            ("sun", "sun", 5.0),
+            ("encoders", "wheel_encoders", 120.0),
+            ("currents", "motor_current", 120.0),
+            ("command", "command", 30.0),
+        ]
+    finally:
+        env.close()
+
+
+def test_proprio_settings_from_presets_and_mappings():
+    assert encoder_config("as5047p").counts_per_rev == 4096
+    assert motor_config({"preset": "dcx26", "gear_ratio": 50}).name == "custom"
+    with pytest.raises(ConfigError, match="choose one of"):
+        encoder_config("nonesuch")
+    with pytest.raises(ConfigError, match="counts_per_rev"):
+        EncoderModel(counts_per_rev=2.5)
+
+
+def test_the_truth_on_soil_is_the_soils_sinkage_pull_and_load(tmp_path):
+    """Climbing a 10 deg slope of sand: the truth's sinkage, load and pull are the soil's, its curves the steady state's."""
+    rig = [{"name": "cmd", "kind": "command"}]
+    est, infos, spec = _drive(tmp_path, rig, 30, action=(0.3, 0.0, 0.0))
+    gt = infos[-1]["ground_truth"]  # flat_patches has no soil: the truth reads rigid ground
+    assert tuple(gt) == GROUND_TRUTH_KEYS and set(SOIL_TRUTH_KEYS) <= set(gt)
+    assert np.all(gt["sinkage"] == 0.0) and np.all(np.isnan(gt["pull_ratio"]))
+    np.testing.assert_allclose(gt["load"].sum(), 42.6 * 9.81, rtol=0.03)
+    path = scenario_file(tmp_path, rig, "slope_soil")
+    env = gym.make("Rover-v0", scenario=str(path), estimator=Keeper, renderer="tiny")
+    try:
+        env.reset(seed=0)
+        for _ in range(150):
+            info = env.step(np.array([0.3, 0.0, 0.0], dtype=np.float32))[4]
+        soil = env.unwrapped.sim.rover.soil
+        gt = info["ground_truth"]
+        np.testing.assert_array_equal(gt["sinkage"], soil.sinkage)
+        np.testing.assert_array_equal(gt["drawbar_pull"], soil.contact.last[:, 0])
+        assert 0.010 < gt["sinkage"].min() and gt["sinkage"].max() < 0.05
+        # the slope's weight component is what the four wheels pull (steady climb)
+        mg = 42.6 * 9.81
+        assert gt["drawbar_pull"].sum() == pytest.approx(mg * math.sin(math.radians(10)), rel=0.1)
+        assert gt["load"].sum() == pytest.approx(mg * math.cos(math.radians(10)), rel=0.05)
+        # the front wheels on virgin soil: their curves are the test bed's steady state at their load
+        s_grid = np.linspace(0.0, 0.95, 96)
+        for i in (0, 1):
+            assert gt["slip_ratio"][i] > 0.05
+            ss = steady_state(soil.curves[0].soil, soil.wheel, gt["load"][i], s_grid, n_theta=48)
+            dpw = ss.drawbar_pull / ss.load
+            assert gt["slip_best_pull"][i] == pytest.approx(s_grid[np.argmax(dpw)], abs=0.03)
+            assert gt["pull_ratio"][i] == pytest.approx(np.interp(gt["slip_ratio"][i], s_grid, dpw), abs=0.01)
+            assert 0.0 < gt["slip_best_efficiency"][i] < gt["slip_best_pull"][i]
+    finally:
+        env.close()
