@@ -59,7 +59,10 @@ STATE_ESTIMATES: tuple[str, ...] = (
 #: What else an estimator may report (into ``info["estimate"]``, never the observation): the
 #: height change since the start [m], the wheels' angles [rad] and slip angles [rad], the slip
 #: ratios' standard deviation (inf: unknown), whether each slip is measured (1/0) and a slip
-#: event (1/0), and the slip filter's quality.
+#: event (1/0), and the slip filter's quality; what the wheels feel of the soil: each wheel's
+#: motor torque [N m], sinkage [m] (and its quality), drawbar pull [N], load [N], its drawbar
+#: pull over load at its slip on the soil's identified pull curve [-], the slips of that
+#: curve's largest DP/W and largest tractive efficiency [-], and the identification's quality.
 EXTRA_ESTIMATES: tuple[str, ...] = (
     "height",
     *(f"wheel_angle_{w}" for w in WHEELS),
@@ -68,14 +71,35 @@ EXTRA_ESTIMATES: tuple[str, ...] = (
     *(f"slip_valid_{w}" for w in WHEELS),
     *(f"slip_event_{w}" for w in WHEELS),
     "slip_quality",
+    *(f"wheel_torque_{w}" for w in WHEELS),
+    *(f"sinkage_{w}" for w in WHEELS),
+    "sinkage_quality",
+    *(f"drawbar_pull_{w}" for w in WHEELS),
+    *(f"load_{w}" for w in WHEELS),
+    *(f"pull_ratio_{w}" for w in WHEELS),
+    "slip_best_pull",
+    "slip_best_efficiency",
+    "soil_quality",
 )
+
+#: What the wheels feel of the ground, as ``info["estimate"]`` groups them (under the ground
+#: truth's keys) when an estimator gives any of a group: each wheel's motor torque [N m],
+#: sinkage below the original surface [m], drawbar pull [N] and load [N].
+SOIL_GROUPS: tuple[str, ...] = ("wheel_torque", "sinkage", "drawbar_pull", "load")
 
 #: Every name an estimator may return: ``"pose"`` (required) and the state and extra estimates.
 ESTIMATE_FIELDS: tuple[str, ...] = ("pose", *STATE_ESTIMATES, *EXTRA_ESTIMATES)
 _KNOWN = frozenset(ESTIMATE_FIELDS)
 #: Fields that are qualities: in [0, 1].
 QUALITY_FIELDS: frozenset[str] = frozenset(
-    ("odometry_quality", "kinematics_quality", "attitude_quality", "slip_quality")
+    (
+        "odometry_quality",
+        "kinematics_quality",
+        "attitude_quality",
+        "slip_quality",
+        "sinkage_quality",
+        "soil_quality",
+    )
 )
 #: Fields that are flags: 0 or 1.
 FLAG_FIELDS: frozenset[str] = frozenset(
@@ -201,6 +225,16 @@ def state_arrays(values: Mapping[str, Any]) -> dict[str, np.ndarray]:
         "steering": _pick(values, [f"steering_{a}" for a in AXLES]),
         "tilt": _pick(values, ("roll", "pitch")),
     }
+
+
+def soil_arrays(values: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """The :data:`SOIL_GROUPS` an estimate gives any of, per wheel (NaN where it gives none)."""
+    out = {}
+    for group in SOIL_GROUPS:
+        names = [f"{group}_{w}" for w in WHEELS]
+        if any(n in values for n in names):
+            out[group] = _pick(values, names)
+    return out
 
 
 def qualities(values: Mapping[str, Any]) -> tuple[float, float, float]:

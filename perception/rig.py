@@ -115,10 +115,14 @@ class EncoderModel:
     counter_bits: int = 16
 
     def __post_init__(self) -> None:
-        cpr, bits = real_number("counts_per_rev", self.counts_per_rev), real_number("counter_bits", self.counter_bits)
+        cpr, bits = (
+            real_number("counts_per_rev", self.counts_per_rev),
+            real_number("counter_bits", self.counter_bits),
+        )
         if cpr < 4 or cpr != int(cpr) or not 8 <= bits <= 64 or bits != int(bits):
             raise ConfigError(
-                f"wheel encoders: counts_per_rev {self.counts_per_rev!r}, counter_bits {self.counter_bits!r}; "
+                f"wheel encoders: counts_per_rev {self.counts_per_rev!r}, "
+                f"counter_bits {self.counter_bits!r}; "
                 "give whole numbers, at least 4 counts a revolution and an 8- to 64-bit counter"
             )
 
@@ -172,7 +176,9 @@ class MotorModel:
         w_m = np.asarray(wheel_rate, dtype=np.float64) * self.gear_ratio
         tau_m = (i - self.no_load_current * np.tanh(w_m / self.friction_speed)) * self.torque_constant
         driving = tau_m * w_m >= 0.0
-        return np.where(driving, tau_m * self.gear_ratio * self.efficiency, tau_m * self.gear_ratio / self.efficiency)
+        return np.where(
+            driving, tau_m * self.gear_ratio * self.efficiency, tau_m * self.gear_ratio / self.efficiency
+        )
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from perception.fusion.encoders import EncoderRates
 from perception.fusion.inertial import AttitudeFilter, G, tilted_step
 from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.fusion.sun_heading import HeadingConfig, HeadingFilter
@@ -140,6 +141,9 @@ class StepEstimate:
             out[f"slip_valid_{w}"] = float(bool(sl.valid[k]))
             out[f"slip_event_{w}"] = float(bool(sl.events[k]))
         out["slip_quality"] = float(sl.quality)
+        if "wheel_torque" in v:  # a rig with motor currents
+            for label, x in zip(WHEELS, v["wheel_torque"], strict=True):
+                out[f"wheel_torque_{label}"] = float(x)
         return {
             k: v for k, v in out.items() if k == "pose" or not (isinstance(v, float) and math.isnan(v))
         }  # unknown: left out
@@ -152,8 +156,9 @@ class RoverEstimator:
     :data:`perception.estimator.ESTIMATE_FIELDS` and :meth:`step_estimate` the full state.
 
     Args:
-        rig: The sensors (one ``"fisheye"``, at most one ``"pinhole"``, one ``"imu"`` and one
-            ``"sun"`` sensor) and the rover's kinematic model. Without a pinhole camera the
+        rig: The sensors (one ``"fisheye"``, at most one ``"pinhole"``, one ``"imu"``, one
+            ``"sun"`` sensor and one ``"wheel_encoders"``: their rates join the fisheye's in the
+            slip filter) and the rover's kinematic model. Without a pinhole camera the
             fisheye gives the odometry too (the one-camera rig). A sun sensor is used only with
             an IMU (the sun's direction is levelled by its tilt).
         odometry: Odometry parameters (default: :meth:`FlowOdometryConfig.for_camera` of the
@@ -281,6 +286,14 @@ class RoverEstimator:
                 gyro_bias_rw=imu.model.gyro.bias_random_walk + imu.model.gyro.bias_instability / 10.0,
             )
         self.slip = SlipEstimator(np.array([c[:2] for _, c in nominal]), self.model.wheel_radius, slip)
+        #: The motor-current sensor (None without one): each step's median currents give the
+        #: wheels' torques through its data sheet.
+        self.currents = rig.one("motor_current", "RoverEstimator")
+        self._current_batch: list[np.ndarray] = []
+        self._torque: np.ndarray | None = None
+        enc = rig.one("wheel_encoders", "RoverEstimator")
+        #: The wheel encoders' rates (None without encoders), averaged over a fisheye frame.
+        self.encoders = None if enc is None else EncoderRates(enc.name, enc.model, enc.period, fish.period)
         #: The sun sensor (None without one, or without an IMU to level it) and its heading filter.
         self.sun = sun if imu is not None else None
         self.heading: HeadingFilter | None = None
@@ -332,6 +345,8 @@ class RoverEstimator:
         self.odometry.reset()
         self.kinematics.reset()
         self.slip.reset()
+        if self.encoders is not None:
+            self.encoders.reset()
         self._fix = fix.copy()
         self._pose = fix.copy()
         self._started = False
@@ -410,6 +425,8 @@ class RoverEstimator:
         state = self.kinematics.update(img, t)
         if self.down is None:  # the one-camera rig: the fisheye's odometry on the wheels' plane now
             self._odometry_frame(img, t)
+        if self.encoders is not None:  # a counter that stands while its wheel is seen turning
+            self.encoders.check_stuck(state.theta_dot, [state.valid[f"theta_{w}"] for w in WHEELS], t)
         self.slip.add_wheels(
             t,
             state.theta_dot,
@@ -515,6 +532,39 @@ class RoverEstimator:
         self.slip.add_accel(self._imu_t, (a[0] + wz * vy, a[1] - wz * vx), window)
         self._imu_batch = []
 
+    def _on_encoders(self, data: np.ndarray, t: float) -> None:
+        """A wheel-encoder reading: a window's rates to the slip filter when one is complete."""
+        assert self.encoders is not None
+        w = self.encoders.add(data, t)
+        if w is not None and w.valid.any():
+            self.slip.add_wheels(w.t, w.rate, w.dt, w.valid, noise=w.std)
+
+    def _on_currents(self, data: np.ndarray, t: float) -> None:
+        """A motor-current reading: kept for the step's median (a reading at full scale is not one)."""
+        assert self.currents is not None
+        i = np.asarray(data, dtype=np.float64).reshape(-1)
+        if i.shape != (4,):
+            raise ValueError(
+                f"{self.currents.name}: a motor-current sample is (4,) currents FL, FR, RL, RR [A]; "
+                f"got shape {i.shape}"
+            )
+        full = self.currents.model.range
+        self._current_batch.append(np.where(np.isfinite(i) & (np.abs(i) < full), i, np.nan))
+
+    def _wheel_torque(self) -> None:
+        """The step's wheel torques [N m] from the median of its currents (a spike is outvoted)."""
+        batch, self._current_batch = self._current_batch, []
+        if not batch:
+            self._torque = None  # no reading this step: unknown, not the last one
+            return
+        assert self.currents is not None
+        b = np.array(batch)
+        n = np.sum(np.isfinite(b), axis=0)
+        with np.errstate(all="ignore"):
+            med = np.where(n * 2 > len(b), np.nanmedian(np.where(np.isfinite(b), b, np.nan), axis=0), np.nan)
+        rate = self.slip.estimate(self._t).wheel_rate
+        self._torque = self.currents.model.wheel_torque(med, rate)
+
     def _on_sun(self, data: np.ndarray, t: float) -> None:
         """A sun reading: the heading it gives, fused into the dead-reckoned yaw."""
         assert self.sun is not None and self.heading is not None
@@ -545,6 +595,10 @@ class RoverEstimator:
             handlers[self.imu.name] = self._on_imu
         if self.sun is not None:
             handlers[self.sun.name] = self._on_sun
+        if self.encoders is not None:
+            handlers[self.encoders.name] = self._on_encoders
+        if self.currents is not None:
+            handlers[self.currents.name] = self._on_currents
         for msg in messages:
             handler = handlers.get(msg.sensor)
             if handler is None:
@@ -565,6 +619,8 @@ class RoverEstimator:
             self._flush_imu()
         self._integrate(t)
         self._t = float(t)
+        if self.currents is not None:
+            self._wheel_torque()
         n = self._imu_used + self._imu_saturated
         self._attitude_q = self._imu_used / n if self._attitude_ready and n else 0.0
         out = self.step_estimate()
@@ -616,6 +672,8 @@ class RoverEstimator:
             "steering": ks.lam.copy(),
             "tilt": np.zeros(2),  # unknown without an IMU: attitude quality 0 says so
         }
+        if self._torque is not None:
+            values["wheel_torque"] = self._torque.copy()
         if self.imu is None:
             return StepEstimate(values, q_odo, q_kin, 0.0, sl, odo, ks)
         tilt = (self.attitude.roll, self.attitude.pitch)

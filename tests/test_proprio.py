@@ -7,15 +7,14 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
+from test_rig import Recorder, scenario_file
 
 import rover_env  # noqa: F401
 from perception.rig import EncoderModel, MotorModel
 from rover_env.config.io import ConfigError
 from rover_env.config.proprio import MotorCurrentConfig, encoder_config, motor_config
-from rover_env.sim.ground_truth import GROUND_TRUTH_KEYS, SOIL_TRUTH_KEYS
+from rover_env.sim.ground_truth import GROUND_TRUTH_KEYS, SOIL_CURVE_KEYS, SOIL_TRUTH_KEYS
 from rover_env.sim.terramechanics import steady_state
-
-from test_rig import Recorder, scenario_file
 
 
 class Keeper(Recorder):
@@ -27,7 +26,9 @@ class Keeper(Recorder):
 
 
 def _drive(tmp_path, rig, steps, action=(0.8, 0.0, 0.0), name="flat_patches", seed=3):
-    env = gym.make("Rover-v0", scenario=str(scenario_file(tmp_path, rig, name)), estimator=Keeper, renderer="tiny")
+    env = gym.make(
+        "Rover-v0", scenario=str(scenario_file(tmp_path, rig, name)), estimator=Keeper, renderer="tiny"
+    )
     infos = []
     try:
         _, info = env.reset(seed=seed)
@@ -48,8 +49,10 @@ def test_encoders_count_the_true_wheel_angle_to_a_count_through_the_counters_wra
     assert len(msgs) == 1 + 150 * 4  # 120 Hz from t = 0
     counts = np.array([m.data for m in msgs])
     assert np.all(counts == np.round(counts)) and counts.min() >= 0 and counts.max() < 2**14
-    assert np.any(np.diff(counts, axis=0) < -2**13)  # the counter wrapped
-    unwrapped = counts[0] + np.cumsum(np.vstack([0 * counts[0], (np.diff(counts, axis=0) + 2**13) % 2**14 - 2**13]), 0)
+    assert np.any(np.diff(counts, axis=0) < -(2**13))  # the counter wrapped
+    unwrapped = counts[0] + np.cumsum(
+        np.vstack([0 * counts[0], (np.diff(counts, axis=0) + 2**13) % 2**14 - 2**13]), 0
+    )
     by_t = {round(m.t, 6): i for i, m in enumerate(msgs)}
     truth = np.array([info["ground_truth"]["wheel_angle"] for info in infos])
     rows = [by_t[round(info["t"], 6)] for info in infos]
@@ -73,12 +76,18 @@ def test_motor_currents_give_back_the_true_wheel_torque_through_the_data_sheet(t
     np.testing.assert_allclose(back, torque, atol=1e-9)
     # speeding up at the 8 N m limit: 8 / (100 * 0.75) / 0.0283 A and the friction's 60 mA
     np.testing.assert_allclose(torque[1:3], 8.0)
-    np.testing.assert_allclose(current[1:3], 8.0 / 75 / 0.0283 + 0.06 * np.tanh(rate[1:3] * 100 / 5), rtol=1e-9)
+    np.testing.assert_allclose(
+        current[1:3], 8.0 / 75 / 0.0283 + 0.06 * np.tanh(rate[1:3] * 100 / 5), rtol=1e-9
+    )
     cfg = MotorCurrentConfig()
-    i8 = 8.0 / (cfg.gear_ratio * cfg.efficiency) / cfg.torque_constant + cfg.no_load_current * math.tanh(1000 / 5)
+    i8 = 8.0 / (cfg.gear_ratio * cfg.efficiency) / cfg.torque_constant + cfg.no_load_current * math.tanh(
+        1000 / 5
+    )
     assert float(model.wheel_torque(i8, 10.0)) == pytest.approx(8.0, abs=1e-9)
     # braking: the wheel drives the motor, which sees the torque times the efficiency
-    assert float(model.wheel_torque(-2.0 * 0.75 / 100 / 0.0283 + 0.06 * math.tanh(1000 / 5), 10.0)) == pytest.approx(-2.0)
+    assert float(
+        model.wheel_torque(-2.0 * 0.75 / 100 / 0.0283 + 0.06 * math.tanh(1000 / 5), 10.0)
+    ) == pytest.approx(-2.0)
 
 
 def test_motor_current_noise_and_offset_have_their_data_sheet_spread(tmp_path):
@@ -96,7 +105,9 @@ def test_the_command_is_what_the_rover_was_told_after_its_limits(tmp_path):
     assert spec["cmd"].rate_hz == 30.0 and spec["cmd"].model is None
     last = [m for m in est.messages if m.sensor == "cmd"][-1]
     assert last.data.shape == (6,)
-    assert last.data[4] == pytest.approx(math.radians(30)) and last.data[5] == pytest.approx(-math.radians(15))
+    assert last.data[4] == pytest.approx(math.radians(30)) and last.data[5] == pytest.approx(
+        -math.radians(15)
+    )
     assert np.all(last.data[:4] > 0)
 
 
@@ -127,12 +138,12 @@ def test_proprio_settings_from_presets_and_mappings():
 
 
 def test_the_truth_on_soil_is_the_soils_sinkage_pull_and_load(tmp_path):
-    """Climbing a 10 deg slope of sand: the truth's sinkage, load and pull are the soil's, its curves the steady state's."""
+    """Up a 10 deg slope of sand the truth's sinkage, load and pull are the soil's; its curves, steady states'."""
     rig = [{"name": "cmd", "kind": "command"}]
     est, infos, spec = _drive(tmp_path, rig, 30, action=(0.3, 0.0, 0.0))
     gt = infos[-1]["ground_truth"]  # flat_patches has no soil: the truth reads rigid ground
     assert tuple(gt) == GROUND_TRUTH_KEYS and set(SOIL_TRUTH_KEYS) <= set(gt)
-    assert np.all(gt["sinkage"] == 0.0) and np.all(np.isnan(gt["pull_ratio"]))
+    assert np.all(gt["sinkage"] == 0.0)
     np.testing.assert_allclose(gt["load"].sum(), 42.6 * 9.81, rtol=0.03)
     path = scenario_file(tmp_path, rig, "slope_soil")
     env = gym.make("Rover-v0", scenario=str(path), estimator=Keeper, renderer="tiny")
@@ -141,7 +152,9 @@ def test_the_truth_on_soil_is_the_soils_sinkage_pull_and_load(tmp_path):
         for _ in range(150):
             info = env.step(np.array([0.3, 0.0, 0.0], dtype=np.float32))[4]
         soil = env.unwrapped.sim.rover.soil
-        gt = info["ground_truth"]
+        soil_truth = env.unwrapped.soil_truth()
+        assert tuple(soil_truth) == SOIL_CURVE_KEYS
+        gt = info["ground_truth"] | soil_truth
         np.testing.assert_array_equal(gt["sinkage"], soil.sinkage)
         np.testing.assert_array_equal(gt["drawbar_pull"], soil.contact.last[:, 0])
         assert 0.010 < gt["sinkage"].min() and gt["sinkage"].max() < 0.05
@@ -160,3 +173,57 @@ def test_the_truth_on_soil_is_the_soils_sinkage_pull_and_load(tmp_path):
             assert 0.0 < gt["slip_best_efficiency"][i] < gt["slip_best_pull"][i]
     finally:
         env.close()
+
+
+def test_the_full_rig_gives_the_builtin_estimator_encoder_rates_and_wheel_torques():
+    """With encoders the slip filter's wheel rates follow the truth closely; the currents give the torques."""
+    env = gym.make("Rover-v0", rig="full", renderer="tiny")
+    try:
+        _, info = env.reset(seed=4)
+        err_rate, err_torque = [], []
+        for k in range(60):
+            info = env.step(np.array([0.5, 0.0, 0.0], dtype=np.float32))[4]
+            if k >= 20:
+                gt, est = info["ground_truth"], info["estimate"]
+                err_rate.append(est["wheel_rate"] - gt["wheel_rate"])
+                err_torque.append(est["wheel_torque"] - gt["wheel_torque"])
+        assert np.abs(err_rate).mean() < 0.05  # rad/s, at about 8 rad/s
+        # the current sense's 20 mA of noise and 10 mA offset: about 0.05 N m at the wheel
+        assert np.abs(err_torque).mean() < 0.15
+        assert set(info["estimate"]) >= {"wheel_torque"} and "sinkage" not in info["estimate"]
+    finally:
+        env.close()
+
+
+def test_encoder_counters_unwrap_and_refuse_what_is_not_a_reading():
+    from perception.fusion.encoders import EncoderRates
+
+    enc = EncoderRates("enc", EncoderModel(4096, 16), 1 / 120, window=1 / 30)
+    rate = 12.0  # rad/s on every wheel, from a count near the counter's top: it wraps
+    counts = lambda t: np.mod(np.floor(65000 + rate * t * 4096 / (2 * math.pi)), 65536) * np.ones(4)  # noqa: E731
+    windows = [w for k in range(121) if (w := enc.add(counts(k / 120), k / 120)) is not None]
+    assert len(windows) == 30
+    got = np.array([w.rate for w in windows])
+    assert np.abs(got - rate).max() <= 2 * math.pi / 4096 * 30 + 1e-9  # a count over the window
+    with pytest.raises(ValueError, match="enc: a wheel-encoder sample is \\(4,\\) counts"):
+        enc.add(np.zeros(3), 2.0)
+    before = enc.rejected
+    assert enc.add(np.array([1.5, 0, 0, 0]), 1.01) is None  # not a whole count
+    assert enc.add(np.array([70000.0, 0, 0, 0]), 1.02) is None  # beyond the counter
+    assert enc.add(counts(0.5), 0.5) is None  # out of order
+    assert enc.rejected == before + 3
+    # after a gap the window restarts: no rate spans it
+    enc.reset()
+    assert enc.add(counts(0.0), 0.0) is None
+    assert enc.add(counts(0.5), 0.5) is None and enc.rejected == 1
+    # a counter that stands still while the fisheye sees its wheel turn is stuck, and left out
+    enc.reset()
+    stuck = lambda t: np.array([*counts(t)[:3], 123.0])  # noqa: E731
+    out = None
+    for k in range(61):
+        t = k / 120
+        out = enc.add(stuck(t), t) or out
+        if k % 4 == 0:
+            enc.check_stuck(np.full(4, rate), np.ones(4, bool), t)
+    assert out is not None and list(out.valid) == [True, True, True, False]
+    assert np.all(np.isfinite(out.rate[:3]))

@@ -514,8 +514,10 @@ class SlipEstimator:
         latest = self._odom_v + [(t - 0.5 * max(dt, 0.0), float(z[0]), float(R[0, 0]))]
         self._odom_v = sorted(latest, key=lambda m: m[0])[-2:]
 
-    def add_wheels(self, t: float, wheel_rate, dt: float, valid=None, steering=None, std=None) -> None:
-        """Wheel-rate measurements (and steering) from the fisheye.
+    def add_wheels(
+        self, t: float, wheel_rate, dt: float, valid=None, steering=None, std=None, noise=None
+    ) -> None:
+        """Wheel-rate measurements (and steering) from the fisheye, or wheel encoders.
 
         Args:
             t: Time of the frame [s].
@@ -527,6 +529,9 @@ class SlipEstimator:
                 noise is the larger of ``rate_std`` and ``rate_std_own`` times this (the
                 fisheye's :attr:`~perception.kinematics.fisheye.KinematicState.theta_dot_std`:
                 a wheel seen obliquely, on few cells, is measured far less well).
+            noise: (4,) the rates' standard deviation [rad/s] in place of ``rate_std`` and
+                ``std``: a sensor that knows its own (a wheel encoder's quantisation over the
+                interval).
         """
         z = np.asarray(wheel_rate, dtype=np.float64).reshape(-1)
         if z.shape != (N_WHEELS,):
@@ -545,7 +550,11 @@ class SlipEstimator:
             return
         floor, share = self.config.rate_std
         sd_z = floor + share * np.abs(z[ok])
-        if std is not None:
+        if noise is not None:
+            sd_z = np.asarray(noise, dtype=np.float64).reshape(-1)[ok]
+            if not np.all(np.isfinite(sd_z) & (sd_z > 0)):
+                raise ValueError(f"noise: {np.asarray(noise).tolist()}; give finite deviations > 0 [rad/s]")
+        elif std is not None:
             sd = np.asarray(std, dtype=np.float64).reshape(-1)
             if sd.shape != (N_WHEELS,):
                 raise ValueError(f"std: shape {sd.shape}; expected (4,) rate deviations [rad/s]")

@@ -154,7 +154,7 @@ def encoder_config(d: Any = None) -> EncoderConfig:
 
 
 def motor_config(d: Any = None) -> MotorCurrentConfig:
-    """A :class:`MotorCurrentConfig` from a preset name, a mapping (``preset`` and overrides), itself or None."""
+    """A :class:`MotorCurrentConfig` from a preset name, a mapping (preset and overrides), itself or None."""
     return _from(MotorCurrentConfig, MOTOR_PRESETS, "motor_current", d)
 
 

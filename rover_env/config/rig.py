@@ -177,7 +177,9 @@ class SensorConfig:
             check_range("rate_hz", self.rate_hz, 0.0, 10000.0, lo_open=True)
         object.__setattr__(self, "mount", _mount(self.mount))
         if self.mount is not None and self.kind in PROPRIO_KINDS:
-            raise ConfigError(f"mount: sensor {self.name!r} is {self.kind}, which reads the joints; leave mount out")
+            raise ConfigError(
+                f"mount: sensor {self.name!r} is {self.kind}, which reads the joints; leave mount out"
+            )
         settings = _SETTINGS_KEY[self.kind]
         for key in ("camera", "imu", "sun", "encoder", "motor"):
             if getattr(self, key) is not None and key != settings:

@@ -14,7 +14,7 @@ import numpy as np
 from gymnasium import spaces
 
 from perception import observation as obs_table
-from perception.estimator import qualities, state_arrays
+from perception.estimator import qualities, soil_arrays, state_arrays
 from perception.models.drive_geometry import WHEELS as WHEEL_NAMES
 from rover_env.config.imu import ImuConfig
 from rover_env.config.randomize import RandomizeConfig, WorldDraw, randomize_config
@@ -150,10 +150,11 @@ class RoverEnv(gym.Env):
     off target or on success, the first that holds in that order
     (:data:`~rover_env.task.judge.TERMINATIONS`); truncated after the scenario's ``duration``.
 
-    **Info**: ``ground_truth`` (exact state), ``wheel_contact`` (friction, normal force,
-    contact flag and point per wheel), ``reward_terms``, ``t`` [s], ``waypoint_index`` (the
-    tracker's), ``start_fix`` (x, y, yaw the tracker started from), ``progress`` [m] and
-    ``cross_track`` [m, left +] (of the true pose), ``is_success``, ``termination``
+    **Info**: ``ground_truth`` (exact state, and per wheel its motor torque, sinkage, drawbar
+    pull and load; the soil's steady-state figures are :meth:`soil_truth`'s), ``wheel_contact``
+    (friction, normal force, contact flag and point per wheel), ``reward_terms``, ``t`` [s],
+    ``waypoint_index`` (the tracker's), ``start_fix`` (x, y, yaw the tracker started from),
+    ``progress`` [m] and ``cross_track`` [m, left +] (of the true pose), ``is_success``, ``termination``
     (``success``, ``tipped_over``, ``left_terrain``, ``off_target``, ``time_limit`` or None),
     ``miss_distance`` [m] (once the tracker has arrived), ``wheel_power`` (drive motors'
     mechanical power [W]).
@@ -659,6 +660,19 @@ class RoverEnv(gym.Env):
         values = obs_table.state_values(state, quality, task_values(feats))
         return obs_table.assemble(self.obs_fields, values, self._prev_action)
 
+    def soil_truth(self) -> dict[str, np.ndarray]:
+        """The soil under each wheel now, from its steady state (``SOIL_CURVE_KEYS``).
+
+        Per wheel (FL, FR, RL, RR): ``pull_ratio``, the soil's steady-state drawbar pull over
+        load at the wheel's true slip and load (virgin soil); ``slip_best_pull`` and
+        ``slip_best_efficiency``, the slips of the largest DP/W and of the largest tractive
+        efficiency at that load. NaN for a wheel on rigid ground (and for the first, braking
+        harder than -0.5). Not in ``info``: Gymnasium's checker reads NaN as nondeterminism.
+        """
+        if self._gt is None:
+            raise RuntimeError("call reset() first")
+        return self._gt.soil_dict()
+
     def _estimate_info(self) -> dict[str, np.ndarray]:
         """The estimate under the ground truth's keys (pose dead-reckoned; NaN where it gives none)."""
         assert self._est is not None
@@ -667,6 +681,7 @@ class RoverEnv(gym.Env):
         roll, pitch = v.get("roll", 0.0), v.get("pitch", 0.0)  # unknown without an IMU: level
         out = {"pose": np.array([x, y, self._z0 + v.get("height", 0.0), *yaw_to_quat(roll, pitch, yaw)])}
         out.update(state_arrays(v))
+        out.update(soil_arrays(v))
         out["odometry_pose"] = np.array(v["pose"], dtype=np.float64)
         out["quality"] = np.array(qualities(v), dtype=np.float64)
         return out

@@ -38,8 +38,8 @@ from perception.rig import (
 )
 from perception.rover_estimator import IMU_CALIBRATION_S, STEP_KEYS, RoverEstimator, StepEstimate
 from rover_env.config.imu import ImuConfig
-from rover_env.config.proprio import CommandConfig, encoder_config, motor_config, with_rate
 from rover_env.config.io import ConfigError
+from rover_env.config.proprio import CommandConfig, encoder_config, motor_config, with_rate
 from rover_env.config.rig import (
     FISHEYE_ONLY_CAMERA,
     PERCEPTION_PRESETS,
@@ -216,13 +216,13 @@ def rig_of(sim: RoverSim, sensors: Mapping[str, SimSensor]) -> Rig:
             sun = SunSensorModel(c.fov_deg, c.accuracy_deg, c.noise_deg)
             specs.append(SensorSpec(name, "sun", c.rate_hz, sensor.T_body_sensor, sun))
         elif isinstance(sensor, WheelEncoders):
-            c = sensor.config
-            model = EncoderModel(c.counts_per_rev, c.counter_bits)
-            specs.append(SensorSpec(name, "wheel_encoders", c.rate_hz, np.eye(4), model))
+            ec = sensor.config
+            encoders = EncoderModel(ec.counts_per_rev, ec.counter_bits)
+            specs.append(SensorSpec(name, "wheel_encoders", ec.rate_hz, np.eye(4), encoders))
         elif isinstance(sensor, MotorCurrents):
-            c = sensor.config
-            fields = {k: getattr(c, k) for k in MotorModel.__dataclass_fields__}
-            specs.append(SensorSpec(name, "motor_current", c.rate_hz, np.eye(4), MotorModel(**fields)))
+            mc = sensor.config
+            motor = MotorModel(**{k: getattr(mc, k) for k in MotorModel.__dataclass_fields__})
+            specs.append(SensorSpec(name, "motor_current", mc.rate_hz, np.eye(4), motor))
         elif isinstance(sensor, CommandSensor):
             specs.append(SensorSpec(name, "command", sensor.rate_hz, np.eye(4), None))
         elif isinstance(sensor, FisheyeCamera):

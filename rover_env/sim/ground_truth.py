@@ -17,10 +17,11 @@ SOIL_TRUTH_KEYS: tuple[str, ...] = (
     "sinkage",
     "drawbar_pull",
     "load",
-    "pull_ratio",
-    "slip_best_pull",
-    "slip_best_efficiency",
 )
+#: The soil's steady-state figures per wheel (``info["soil"]``, in a scenario with soil): NaN
+#: for a wheel on rigid ground, so kept out of ``info["ground_truth"]`` (Gymnasium's checker
+#: compares NaN as unequal).
+SOIL_CURVE_KEYS: tuple[str, ...] = ("pull_ratio", "slip_best_pull", "slip_best_efficiency")
 GROUND_TRUTH_KEYS: tuple[str, ...] = ("pose", *STATE_KEYS, *SOIL_TRUTH_KEYS)
 
 
@@ -106,6 +107,10 @@ class GroundTruth:
     def as_dict(self) -> dict[str, np.ndarray]:
         """The public ``info["ground_truth"]`` dict: exactly :data:`GROUND_TRUTH_KEYS`."""
         return {k: np.array(getattr(self, k), dtype=np.float64) for k in GROUND_TRUTH_KEYS}
+
+    def soil_dict(self) -> dict[str, np.ndarray]:
+        """The soil's steady-state figures per wheel (``info["soil"]``): :data:`SOIL_CURVE_KEYS`."""
+        return {k: np.array(getattr(self, k), dtype=np.float64) for k in SOIL_CURVE_KEYS}
 
     def contact_dict(self) -> dict[str, np.ndarray]:
         """Per-wheel friction and contact (``info["wheel_contact"]``)."""

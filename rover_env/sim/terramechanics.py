@@ -63,7 +63,15 @@ from rover_env.config.io import ConfigError, check_range
 from rover_env.config.soil import SoilConfig
 from rover_env.sim.geometry import GRAVITY
 
-__all__ = ["WheelSpec", "ContactForces", "PullCurves", "contact_forces", "rut_surface", "steady_state", "SteadyState"]
+__all__ = [
+    "WheelSpec",
+    "ContactForces",
+    "PullCurves",
+    "contact_forces",
+    "rut_surface",
+    "steady_state",
+    "SteadyState",
+]
 
 #: Largest ratio v / (r omega) of a braking wheel the shear displacement uses (s = -0.98).
 MAX_SKID_RATIO = 50.0
@@ -699,7 +707,7 @@ class PullCurves:
         dpw, eff = self.table()
         x = np.log(self.LOADS)
         u = float(np.clip(np.log(max(load, 1e-9)), x[0], x[-1]))
-        k = int(min(np.searchsorted(x, u, side="right") - 1, len(x) - 2))
+        k = min(int(np.searchsorted(x, u, side="right")) - 1, len(x) - 2)
         a = (u - x[k]) / (x[k + 1] - x[k])
         return (1 - a) * dpw[k] + a * dpw[k + 1], (1 - a) * eff[k] + a * eff[k + 1]
 
