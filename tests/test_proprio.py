@@ -138,7 +138,7 @@ def test_proprio_settings_from_presets_and_mappings():
 
 
 def test_the_truth_on_soil_is_the_soils_sinkage_pull_and_load(tmp_path):
-    """Up a 10 deg slope of sand the truth's sinkage, load and pull are the soil's; its curves, steady states'."""
+    """Up a slope of sand the truth's sinkage, load and pull are the soil's; its curves, steady states'."""
     rig = [{"name": "cmd", "kind": "command"}]
     est, infos, spec = _drive(tmp_path, rig, 30, action=(0.3, 0.0, 0.0))
     gt = infos[-1]["ground_truth"]  # flat_patches has no soil: the truth reads rigid ground
