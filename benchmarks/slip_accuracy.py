@@ -15,8 +15,9 @@ frame) is neither a match nor a false alarm ("in band"); an estimated event may 
 frames after the true excursion it answers has ended (the detector confirms over two frames).
 
 Run: python benchmarks/slip_accuracy.py [--preset eval] [--seeds 201 202 203] [--ramp 0.05]
-[--envs Rover-v0 ...] [--camera-effects ideal field] (seeds the tests never use); one row per
-mission and camera model (the same seeds and drives for each) and one for all missions.
+[--envs Rover-v0 ...] [--camera-effects ideal field] [--imu bmi088] [--rig full] (seeds the
+tests never use); one row per mission and camera model (the same seeds and drives for each)
+and one for all missions.
 With ``--ramp 0`` the speed command steps: the wheels jump by up to 10 rad/s within a frame,
 beyond the tread tracker's search, and are lost for several frames.
 """
@@ -122,8 +123,14 @@ def main(argv=None) -> int:
         choices=sorted(IMU_PRESETS),
         help="an IMU on the rover (a preset name; default: none)",
     )
+    ap.add_argument(
+        "--rig",
+        default=None,
+        choices=("standard", "fisheye_only", "full"),
+        help="a named rig (full: with the BMI088, encoders and motor currents; default: the scenario's)",
+    )
     args = ap.parse_args(argv)
-    head = f"preset {args.preset}, renderer {args.renderer}, imu {args.imu}"
+    head = f"preset {args.preset}, renderer {args.renderer}, imu {args.imu}, rig {args.rig}"
     print(f"{head}, seeds {args.seeds}, ramp {args.ramp}", flush=True)
     print(
         "| mission | cameras | steps | slip MAE, abs(s) > 0.1 | slip MAE, otherwise | events "
@@ -138,7 +145,7 @@ def main(argv=None) -> int:
                 runs = every[cams]
             else:
                 span = patch_span(env_id)
-                make = {"camera_effects": cams}
+                make = {"camera_effects": cams} | ({"rig": args.rig} if args.rig else {})
                 runs = [
                     drive(
                         s, args.preset, env_id, span, args.seconds, args.ramp, args.renderer, args.imu, make
