@@ -293,7 +293,13 @@ class RoverEstimator:
         self._torque: np.ndarray | None = None
         enc = rig.one("wheel_encoders", "RoverEstimator")
         #: The wheel encoders' rates (None without encoders), averaged over a fisheye frame.
-        self.encoders = None if enc is None else EncoderRates(enc.name, enc.model, enc.period, fish.period)
+        self.encoders = (
+            None
+            if enc is None
+            else EncoderRates(
+                enc.name, enc.model.counts_per_rev, enc.model.counter_bits, enc.period, fish.period
+            )
+        )
         #: The sun sensor (None without one, or without an IMU to level it) and its heading filter.
         self.sun = sun if imu is not None else None
         self.heading: HeadingFilter | None = None

@@ -198,7 +198,7 @@ def test_the_full_rig_gives_the_builtin_estimator_encoder_rates_and_wheel_torque
 def test_encoder_counters_unwrap_and_refuse_what_is_not_a_reading():
     from perception.fusion.encoders import EncoderRates
 
-    enc = EncoderRates("enc", EncoderModel(4096, 16), 1 / 120, window=1 / 30)
+    enc = EncoderRates("enc", 4096, 16, 1 / 120, window=1 / 30)
     rate = 12.0  # rad/s on every wheel, from a count near the counter's top: it wraps
     counts = lambda t: np.mod(np.floor(65000 + rate * t * 4096 / (2 * math.pi)), 65536) * np.ones(4)  # noqa: E731
     windows = [w for k in range(121) if (w := enc.add(counts(k / 120), k / 120)) is not None]

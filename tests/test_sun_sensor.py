@@ -93,7 +93,7 @@ def test_bad_sun_sensor_settings_name_the_key():
         SensorConfig("sun", "sun", sun="nope")
     with pytest.raises(ConfigError, match="camera"):
         SensorConfig("sun", "sun", camera={"width": 100})
-    with pytest.raises(ConfigError, match="sun settings"):
+    with pytest.raises(ConfigError, match="sun: sensor .* is of kind imu; give its settings as imu"):
         SensorConfig("imu", "imu", sun="nfss411")
 
 

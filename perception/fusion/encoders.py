@@ -22,8 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.rig import EncoderModel
-
 #: Wheels per rover.
 N_WHEELS = 4
 
@@ -52,7 +50,8 @@ class EncoderRates:
 
     Args:
         name: The sensor's name, for messages.
-        model: Its counts per revolution and counter width.
+        counts_per_rev: Counts per wheel revolution [-].
+        counter_bits: The counter wraps at ``2 ** counter_bits`` counts.
         period: Its sample period [s].
         window: Shortest window a rate is averaged over [s].
         max_rate: The fastest a wheel turns [rad/s] (how long a gap can be unwrapped).
@@ -64,7 +63,8 @@ class EncoderRates:
     def __init__(
         self,
         name: str,
-        model: EncoderModel,
+        counts_per_rev: int,
+        counter_bits: int,
         period: float,
         window: float = 1.0 / 30.0,
         max_rate: float = 50.0,
@@ -72,15 +72,16 @@ class EncoderRates:
         stuck_after: float = 0.3,
     ) -> None:
         self.name = name
-        self.model = model
+        #: The counter's range [counts].
+        self.wrap = float(2 ** int(counter_bits))
         self.period = float(period)
         self.window = float(window)
         self.max_rate = float(max_rate)
         self.max_gap = float(max_gap)
         self.stuck_after = float(stuck_after)
-        self._count_rad = 2.0 * math.pi / float(model.counts_per_rev)
+        self._count_rad = 2.0 * math.pi / float(counts_per_rev)
         # the longest time between readings that still unwraps: under half the counter's range
-        self._max_unwrap_s = 0.5 * model.wrap * self._count_rad / self.max_rate
+        self._max_unwrap_s = 0.5 * self.wrap * self._count_rad / self.max_rate
         self.reset()
 
     def reset(self) -> None:
@@ -106,7 +107,7 @@ class EncoderRates:
             raise ValueError(
                 f"{self.name}: a wheel-encoder sample is (4,) counts FL, FR, RL, RR; got shape {c.shape}"
             )
-        wrap = self.model.wrap
+        wrap = self.wrap
         if not (np.all(np.isfinite(c)) and np.all(c == np.round(c)) and np.all((c >= 0) & (c < wrap))):
             self.rejected += 1
             self._restart()

@@ -75,6 +75,10 @@ class RoverKinematicModel:
             nose-up pitch [m], the rear's shrinking as much: the weight's component along body
             x, acting at the body's height over the ground, moves load between the axles
             (0: unknown). See :meth:`rest_depths`.
+        beam_length: Length of each axle's beam along its y axis, centred on the roll axis [m]
+            (0: unknown). beam_section: The larger of its x and z extents [m]. Seen from the
+            fisheye, a beam may hide a rear wheel's contact with the ground (:meth:`beam_parts`).
+        mass: The rover's mass [kg] (0: unknown).
         joint_limits: (axle roll [rad], axle travel about ``nominal_depth`` [m], axle steering
             [rad]) ranges +-, or None (unknown). With them the fisheye's odometry leaves out the
             image of the wheels, markers and arms over the whole range
@@ -95,6 +99,9 @@ class RoverKinematicModel:
     T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))
     rest_sag: float = 0.0
     pitch_sag: float = 0.0
+    beam_length: float = 0.0
+    beam_section: float = 0.0
+    mass: float = 0.0
     joint_limits: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -102,7 +109,7 @@ class RoverKinematicModel:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise CalibrationError(f"{name}: {v!r} must be a positive length in metres")
-        for name in ("rest_sag", "pitch_sag"):
+        for name in ("rest_sag", "pitch_sag", "beam_length", "beam_section", "mass"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise CalibrationError(f"{name}: {v!r} must be a length >= 0 in metres")
@@ -252,6 +259,18 @@ class RoverKinematicModel:
             out[wheel] = (np.vstack([arm, tip]), np.r_[np.full(len(arm), 0.012), 0.75 * self.marker_size])
         return out
 
+    def beam_parts(self, psi, depth) -> tuple[np.ndarray, np.ndarray]:
+        """Both axle beams as chains of spheres: (n, 3) body-frame centres and (n,) radii [m].
+
+        None of either (empty arrays) while ``beam_length`` is unknown (0).
+        """
+        if self.beam_length <= 0.0:
+            return np.zeros((0, 3)), np.zeros(0)
+        n = max(2, int(math.ceil(self.beam_length / (0.5 * max(self.beam_section, 1e-3)))) + 1)
+        local = np.column_stack([np.zeros(n), np.linspace(-0.5, 0.5, n) * self.beam_length, np.zeros(n)])
+        pts = [local @ R.T + t for R, t in (self.axle_pose(a, psi[i], depth[i]) for i, a in enumerate(AXLES))]
+        return np.vstack(pts), np.full(2 * n, math.sqrt(0.5) * self.beam_section)
+
     def ackermann_arms(self) -> tuple[np.ndarray, np.ndarray]:
         """(arm to the turn-centre line, y) of each wheel, order FL, FR, RL, RR."""
         return ackermann_arms(self.axle_x, self.track, self.ackermann_center_x)
@@ -278,7 +297,8 @@ class RoverKinematicModel:
         }
     )
 
-    _OPTIONAL = ("rest_sag", "pitch_sag")  # 0 when absent (files written before them)
+    # 0 when absent (files written before them)
+    _OPTIONAL = ("rest_sag", "pitch_sag", "beam_length", "beam_section", "mass")
 
     @classmethod
     def load(cls, path: str | Path) -> RoverKinematicModel:

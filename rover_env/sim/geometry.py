@@ -182,6 +182,15 @@ class RoverGeometry:
         return 2.0 * self.axle_x
 
     @property
+    def total_mass(self) -> float:
+        """The rover's mass: body, wheels, axles, carriages and knuckles [kg]."""
+        return (
+            self.body_mass
+            + 4 * (self.wheel_mass + self.knuckle_mass)
+            + 2 * (self.axle_mass + self.carriage_mass)
+        )
+
+    @property
     def sprung_mass(self) -> float:
         """Mass carried by the two travel springs (body only) [kg]."""
         return self.body_mass
@@ -329,6 +338,9 @@ class RoverGeometry:
             * (-self.axle_z + self.wheel_radius)
             / (2.0 * self.axle_x * self.travel_stiffness),
             joint_limits=(self.roll_limit, self.travel_limit, self.steer_limit),
+            beam_length=self.axle_beam_size[1],
+            beam_section=max(self.axle_beam_size[0], self.axle_beam_size[2]),
+            mass=self.total_mass,
         )
 
     def fiducial(self, name: str) -> Fiducial:
