@@ -105,7 +105,9 @@ class SinkageEstimator:
 
         Args:
             image: The fisheye frame (uint8 or float, RGB).
-            psi: (2,) axle roll [rad]. depth: (2,) axle depth [m]. delta: (4,) wheel steering [rad].
+            psi: (2,) axle roll [rad].
+            depth: (2,) axle depth [m].
+            delta: (4,) wheel steering [rad].
         """
         cam = self.camera
         T = self.model.T_body_cam
