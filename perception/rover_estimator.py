@@ -32,6 +32,7 @@ from perception.fusion.inertial import AttitudeFilter, G, tilted_step
 from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.fusion.sun_heading import HeadingConfig, HeadingFilter
 from perception.kinematics.fisheye import KinematicsConfig, KinematicState, KinematicStateEstimator
+from perception.kinematics.sinkage import SinkageConfig, SinkageEstimator
 from perception.models.drive_geometry import AXLES, WHEELS
 from perception.models.rover import MARKERS
 from perception.models.rover_parts import joint_window_parts, kinematics_roi
@@ -67,6 +68,17 @@ STEP_KEYS: tuple[str, ...] = ("odometry_pose", *STATE_KEYS)
 #: The bias's error falls as one over its square root: 0.5 mrad/s over 0.25 s, 0.2 over 1.5 s
 #: (BMI088), 0.02 and 0.008 rad of heading over a 40 s mission.
 IMU_CALIBRATION_S = 1.5
+#: A wheel's sinkage is reported where the fisheye's measurement of it has at least this quality.
+SINKAGE_MIN_QUALITY = 0.3
+#: The fisheye's frames are measured for sinkage at most this often [Hz] (it changes over
+#: decimetres of travel; 2 ms a train-preset frame, benchmarks/soil_estimation.py).
+SINKAGE_RATE_HZ = 10.0
+#: A wheel's last accepted sinkage stands for this long [s] (the odometry's ground plane, the
+#: grip prior); then it is unknown.
+SINKAGE_HOLD_S = 1.0
+#: A wheel counts as on soil once seen sunk this deep [m], and on rigid ground again below the
+#: first (a hysteresis over the measurement's error on rigid ground, 2-5 mm).
+SOFT_SINKAGE = (0.006, 0.010)
 #: The rate of the fused velocity that the attitude filter takes out of the specific force is a
 #: difference over at least this long [s] (shorter: the odometry's frame-to-frame noise).
 VELOCITY_RATE_S = 0.25
@@ -80,7 +92,9 @@ class StepEstimate:
     """The built-in estimator's full state after one control period.
 
     Attributes:
-        values: :data:`STEP_KEYS` -> float arrays (wheel order FL, FR, RL, RR; axles F, R).
+        values: :data:`STEP_KEYS` -> float arrays (wheel order FL, FR, RL, RR; axles F, R), and
+            ``sinkage`` (NaN: not measured), ``sinkage_quality`` (1,) and with motor currents
+            ``wheel_torque``.
         odometry_quality: Quality of the last odometry estimate (0 when it was invalid).
         kinematics_quality: Share of the fisheye's 10 degrees of freedom measured in its last frame.
         attitude_quality: Share of the control period's IMU samples that were in range, once the
@@ -141,6 +155,9 @@ class StepEstimate:
             out[f"slip_valid_{w}"] = float(bool(sl.valid[k]))
             out[f"slip_event_{w}"] = float(bool(sl.events[k]))
         out["slip_quality"] = float(sl.quality)
+        for label, x in zip(WHEELS, v["sinkage"], strict=True):
+            out[f"sinkage_{label}"] = float(x)
+        out["sinkage_quality"] = float(v["sinkage_quality"][0])
         if "wheel_torque" in v:  # a rig with motor currents
             for label, x in zip(WHEELS, v["wheel_torque"], strict=True):
                 out[f"wheel_torque_{label}"] = float(x)
@@ -191,6 +208,8 @@ class RoverEstimator:
         fisheye_odometry: The fisheye odometry's parameters (when it is the odometry). None: the
             defaults, or for a fisheye that reads out only the ground near its axis
             (``SensorSpec.ground_view_deg``) features 5 degrees inside that view.
+        sinkage: The fisheye's sinkage measurement's parameters (None: the defaults); a
+            wheel's sinkage is reported where its quality reaches ``SINKAGE_MIN_QUALITY``.
 
     Raises:
         ConfigError: The rig lacks a fisheye, or the downward camera ``odometry_camera`` asks
@@ -210,6 +229,7 @@ class RoverEstimator:
         heading: HeadingConfig | None = None,
         odometry_camera: str = "auto",
         fisheye_odometry: FisheyeOdometryConfig | None = None,
+        sinkage: SinkageConfig | None = None,
     ) -> None:
         down, fish, imu, sun = (
             rig.one("pinhole", "RoverEstimator"),
@@ -271,6 +291,13 @@ class RoverEstimator:
         self.kinematics = KinematicStateEstimator(
             fish.model, self.model, kinematics, gamma=fish.gamma, bayer=fish.bayer
         )
+        #: Each wheel's sinkage from the fisheye (:mod:`perception.kinematics.sinkage`).
+        self.sinkage = SinkageEstimator(fish.model, self.model, sinkage)
+        self._sinkage = np.full(4, math.nan)
+        self._sinkage_q = np.zeros(4)
+        self._sinkage_held = np.full(4, math.nan)
+        self._sinkage_t = np.full(4, -math.inf)
+        self._sinkage_next = -math.inf
         slip = slip or SlipConfig()
         if imu is not None:
             R = imu.mount[:3, :3]
@@ -321,7 +348,7 @@ class RoverEstimator:
         self._t = 0.0
         self._request: tuple[float, np.ndarray | None] | None = None
         #: Wall-clock seconds spent: estimating, and choosing readout windows.
-        self.timing = {"perception": 0.0, "readout": 0.0}
+        self.timing = {"perception": 0.0, "readout": 0.0, "sinkage": 0.0}
         self._clear()
 
     def _clear(self) -> None:
@@ -351,6 +378,11 @@ class RoverEstimator:
         self.odometry.reset()
         self.kinematics.reset()
         self.slip.reset()
+        self._sinkage_held[:] = math.nan
+        self._sinkage_t[:] = -math.inf
+        self._sinkage_next = -math.inf
+        self._sinkage[:] = math.nan
+        self._sinkage_q[:] = 0.0
         if self.encoders is not None:
             self.encoders.reset()
         self._fix = fix.copy()
@@ -429,6 +461,7 @@ class RoverEstimator:
                 self.kinematics.zero_depth(img, rest)
             self._zero_at = None
         state = self.kinematics.update(img, t)
+        self._measure_sinkage(img, state, t)
         if self.down is None:  # the one-camera rig: the fisheye's odometry on the wheels' plane now
             self._odometry_frame(img, t)
         if self.encoders is not None:  # a counter that stands while its wheel is seen turning
@@ -445,11 +478,45 @@ class RoverEstimator:
         self._request = (t + self.fish.period, self._window_parts())
         self.timing["readout"] += time.perf_counter() - t0
 
-    def wheel_ground_plane(self) -> tuple[float, float, float]:
-        """The ground under the wheels of the kinematics' latest state, z = a x + b y + c (body) [-, -, m]."""
+    def _measure_sinkage(self, img: np.ndarray, state: KinematicState, t: float) -> None:
+        """Each wheel's sinkage in this fisheye frame, at the joints the kinematics measured in it."""
+        if t < self._sinkage_next - 1e-9:
+            return  # measured at SINKAGE_RATE_HZ; the last measurement stands until the next
+        t0 = time.perf_counter()
+        self._sinkage_next = t + 1.0 / SINKAGE_RATE_HZ
+        self._sinkage[:] = math.nan
+        self._sinkage_q[:] = 0.0
+        if all(state.valid[d] for d in ("psi_F", "psi_R", "d_F", "d_R", "lam_F", "lam_R")):
+            est = self.sinkage.measure(img, state.psi, state.depth, state.delta)
+            self._sinkage[:], self._sinkage_q[:] = est.sinkage, est.quality
+            ok = (est.quality >= SINKAGE_MIN_QUALITY) & np.isfinite(est.sinkage)
+            self._sinkage_held[ok] = est.sinkage[ok]
+            self._sinkage_t[ok] = t
+        # a wheel seen sunk stands on soil: no zero-slip prior for it (every driven wheel slips
+        # there); one seen at the surface again (rigid ground) gets it back
+        held = self.held_sinkage()
+        soft = self.slip.grip_prior == False  # noqa: E712 - numpy comparison
+        soft = np.where(held >= SOFT_SINKAGE[1], True, np.where(held <= SOFT_SINKAGE[0], False, soft))
+        soft &= np.isfinite(held)
+        self.slip.set_grip_prior(~soft)
+        self.timing["sinkage"] += time.perf_counter() - t0
+
+    def wheel_ground_plane(self, sinkage: bool = False) -> tuple[float, float, float]:
+        """The ground under the wheels of the kinematics' latest state, z = a x + b y + c (body) [-, -, m].
+
+        With ``sinkage``, the surface: the rims' lowest points raised by the wheels' sinkage
+        measured within the last ``SINKAGE_HOLD_S`` (:meth:`held_sinkage`).
+        """
         s = self.kinematics.state
         centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
-        return ground_plane_from_wheels(centres, self.model.wheel_radius)
+        return ground_plane_from_wheels(
+            centres, self.model.wheel_radius, self.held_sinkage() if sinkage else None
+        )
+
+    def held_sinkage(self) -> np.ndarray:
+        """(4,) each wheel's latest accepted sinkage within ``SINKAGE_HOLD_S`` of now [m] (NaN: none)."""
+        fresh = self._t - self._sinkage_t <= SINKAGE_HOLD_S
+        return np.where(fresh, self._sinkage_held, np.nan)
 
     def _on_downward(self, img: np.ndarray, t: float) -> None:
         self._odometry_frame(img, t)
@@ -464,7 +531,8 @@ class RoverEstimator:
             est = self.odometry.update(
                 img, t, ground_plane=plane, rate_xy=self._frame_rate_xy(), contacts=contacts
             )
-        else:
+        else:  # the surface in view: above the rims by the wheels' sinkage
+            plane = self.wheel_ground_plane(sinkage=True)
             est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
         if est is not None:
             self._last_odom = est
@@ -680,6 +748,9 @@ class RoverEstimator:
         }
         if self._torque is not None:
             values["wheel_torque"] = self._torque.copy()
+        ok = self._sinkage_q >= SINKAGE_MIN_QUALITY
+        values["sinkage"] = np.where(ok, self._sinkage, np.nan)
+        values["sinkage_quality"] = np.array([float(np.mean(np.where(ok, self._sinkage_q, 0.0)))])
         if self.imu is None:
             return StepEstimate(values, q_odo, q_kin, 0.0, sl, odo, ks)
         tilt = (self.attitude.roll, self.attitude.pitch)

@@ -3,18 +3,24 @@
 The fisheye under the body sees the inner face of every wheel. The soil's surface cuts that
 face along a chord at the sinkage z above the rim's lowest point: below the chord the camera
 sees the soil in front of the face, above it the face. For each wheel, through the exact
-camera model and the wheel's pose from the kinematics (axle roll, depth, steering), the
-image is sampled along vertical lines of the face near its centre (columns at abscissae
-``columns_mm`` from the centre, heights zeta from the rim up to ``max_sinkage``), and the
-sinkage is the one break height shared by all columns that best splits each column's samples
-into two constant colours (least squares over all breaks; Brooks, Iagnemma and Dubowsky's
-visual sinkage measurement, 2006, finds the same wheel-terrain boundary along the rim).
+camera model and the wheel's pose from the kinematics (axle roll, depth, steering), the image
+is sampled on the face's lowest ``max_sinkage`` (columns at ``columns_mm`` along the wheel's
+heading, heights zeta above the rim's lowest point, within the rim) and on the ground beside
+the face. The soil's colour is the median of that ground, the face's the median of the face's
+samples above the deepest sinkage searched. Each sample costs its colour distance to the one
+its side of a break says it is (the soil below, the face above); the break of least total cost
+is the sinkage, 0 when the face reaches the rim (rigid ground). Columns near the rim's ends
+hold face samples only down to the rim, so the soil's reach along the rim (where it meets
+the wheel in front and behind) counts as well as its height at the centre, which the camera
+sees foreshortened. (Brooks, Iagnemma and Dubowsky's visual sinkage measurement, 2006, finds
+the same wheel-terrain boundary along the rim, from a camera on the wheel's side.)
 
-Samples hidden behind the rover's parts (a steering arm, a magenta marker) or outside the
-image are left out. The quality is the colour step's size over the samples' spread about the
-two levels, scaled to [0, 1] (``min_contrast`` gives 0, ``full_contrast`` 1), times the share
-of the columns seen: a face in the rover's own shadow against soil in that shadow, or a contact
-out of view, falls toward 0. No pybullet here: camera, rover model and image only.
+Samples hidden behind the rover's parts (a steering arm, a magenta marker, an axle beam),
+outside the image or black (not read out) are left out. The quality is one over one plus the
+break's spread over ``std_scale``, squared, times the share of the columns seen at the break;
+soil and face of like colour (the face in the rover's shadow against soil in that shadow, a
+black frame) or a contact out of view give no sinkage (NaN, quality 0). No simulator here:
+camera, rover model and image only.
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ import numpy as np
 
 from perception.models.cameras import OmniCamera
 from perception.models.drive_geometry import WHEELS
-from perception.models.rover import RoverKinematicModel
+from perception.models.rover import PLATE, ROD, RoverKinematicModel
 
 
 @dataclass(frozen=True)
@@ -38,20 +44,30 @@ class SinkageConfig:
         max_sinkage: Deepest sinkage searched [m].
         step: Spacing of the samples up the face [m].
         columns_mm: Abscissae of the sampled columns from the face's centre along the wheel's
-            heading [mm]; near the centre the rim is within 3 mm of its lowest point.
-        min_samples: Fewest samples on either side of a break [-].
-        min_step: Smallest colour step between soil and face that is a boundary [grey levels].
-        std_scale: The break's standard deviation at which the quality is one half [m].
+            heading [mm].
         min_columns: Fewest columns seen for any estimate [-].
+        min_step: Smallest difference of the colour features (:func:`_features`) between soil
+            and face that is a boundary [-].
+        intensity_weight: The weight of log intensity in the colour features against that of
+            the chromaticity (100): low, because the soil next to a wheel is often in its shade.
+        min_margin: The soil under the break must look this much more like the soil beside
+            the face than like the face (in units of their difference) for a quality of 1 [-].
+        face_band: The face's colour is read from its samples this far below ``max_sinkage`` [m].
+        ground_height: The soil's colour is read from the ground beside the face at this height
+            above the rim's lowest point [m] (a typical sinkage).
+        std_scale: The break's standard deviation at which the quality is one half [m].
     """
 
     max_sinkage: float = 0.07
-    step: float = 0.001
+    step: float = 0.003
     columns_mm: tuple[float, ...] = tuple(float(x) for x in range(-90, 91, 5))
-    min_samples: int = 4
-    min_step: float = 6.0
-    std_scale: float = 0.003
     min_columns: int = 4
+    min_step: float = 3.0
+    min_margin: float = 0.5
+    intensity_weight: float = 50.0
+    face_band: float = 0.012
+    ground_height: float = 0.02
+    std_scale: float = 0.003
 
 
 @dataclass
@@ -74,8 +90,7 @@ class SinkageEstimator:
     def __init__(self, camera: OmniCamera, model: RoverKinematicModel, config: SinkageConfig | None = None):
         self.camera = camera
         self.model = model
-        self.config = config or SinkageConfig()
-        c = self.config
+        self.config = c = config or SinkageConfig()
         r = model.wheel_radius
         x = np.asarray(c.columns_mm, dtype=np.float64) / 1000.0
         if np.any(np.abs(x) >= r):
@@ -87,17 +102,20 @@ class SinkageEstimator:
         self._row = np.broadcast_to(np.arange(len(self.zeta)), X.shape)[on_face]  # each point's height
         self._col = np.broadcast_to(np.arange(len(x))[:, None], X.shape)[on_face]
         self._ncol = len(x)
-        # the face's points in each wheel's knuckle frame (the inner face: toward the body)
+        self._n_face = len(self._row)
+        # per wheel, knuckle frame: the inner face's points (toward the body), then the ground
+        # beside it, 15-45 mm inward, at a typical sinkage's height
+        gx, gy = np.meshgrid(np.linspace(-0.06, 0.06, 9), np.linspace(0.015, 0.045, 4), indexing="ij")
         self._local = []
         for wheel in WHEELS:
             side = -1.0 if wheel[1] == "L" else 1.0
-            pts = np.stack(
-                [X[on_face], np.full(on_face.sum(), side * 0.5 * model.wheel_width), Z[on_face] - r], -1
-            )
-            self._local.append(pts)
+            y = side * 0.5 * model.wheel_width
+            face = np.stack([X[on_face], np.full(self._n_face, y), Z[on_face] - r], -1)
+            ground = np.stack([gx.ravel(), y + side * gy.ravel(), np.full(gx.size, c.ground_height - r)], -1)
+            self._local.append(np.vstack([face, ground]))
 
-    def face_points(self, wheel: int, R: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """(n, 3) body-frame points sampled on wheel ``wheel``'s inner face (``self.zeta`` heights)."""
+    def sample_points(self, wheel: int, R: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """(n, 3) body-frame points sampled for wheel ``wheel``: its inner face's, then the ground's beside it."""
         return self._local[wheel] @ np.asarray(R).T + c
 
     def measure(self, image: np.ndarray, psi, depth, delta) -> SinkageEstimate:
@@ -116,19 +134,22 @@ class SinkageEstimator:
         if img.dtype not in (np.uint8, np.float32):
             img = img.astype(np.float32)
         h, w = img.shape[:2]
-        P = np.stack([self.face_points(k, R, c) for k, (R, c) in enumerate(frames)]) - T[:3, 3]
+        P = np.stack([self.sample_points(k, R, c) for k, (R, c) in enumerate(frames)]) - T[:3, 3]
         pc = P @ T[:3, :3]  # camera frame
         u, v = cam.project_xyz(pc[..., 0], pc[..., 1], pc[..., 2])
         seen = np.isfinite(u) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-        # the magenta markers (on the axle plates and tie rods) and each wheel's steering arm
-        markers = np.array(list(self.model.marker_positions(psi, depth, delta).values()))
-        beams, beam_r = self.model.beam_parts(psi, depth)  # a beam may hide a rear contact
-        markers = np.vstack([markers, beams])
-        marker_r = np.r_[np.full(8, 0.75 * self.model.marker_size), beam_r]
+        # its axle's magenta markers and beam (which may hide a rear contact), its steering arm
+        markers = self.model.marker_positions(psi, depth, delta)
+        beams, beam_r = self.model.beam_parts(psi, depth)
+        per_axle = len(beams) // 2
         for k, (R, c) in enumerate(frames):
-            occ_p, occ_r = self.model.occluders(WHEELS[k], R, c)
-            parts = np.vstack([occ_p, markers]) - T[:3, 3]
-            seen[k] &= ~_behind_parts(P[k], parts, np.r_[occ_r, marker_r])
+            axle = WHEELS[k][0]
+            mine = np.array([markers[m] for m in (*PLATE[axle], *ROD[axle])])
+            arm, arm_r = self.model.occluders(WHEELS[k], R, c)
+            i = "FR".index(axle)
+            parts = np.vstack([arm, mine, beams[i * per_axle : (i + 1) * per_axle]]) - T[:3, 3]
+            radii = np.r_[arm_r, np.full(len(mine), 0.75 * self.model.marker_size), beam_r[:per_axle]]
+            seen[k] &= ~_behind_parts(P[k], parts, radii)
         samples = cv2.remap(
             img,
             np.where(seen, u, -1).astype(np.float32).reshape(1, -1),
@@ -137,63 +158,117 @@ class SinkageEstimator:
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=0,
         )
-        samples = samples.reshape(*seen.shape, -1).astype(np.float64)
+        samples = samples.reshape(*seen.shape, -1)
         seen &= samples.max(axis=-1) > 0  # a black pixel is no image (a window not read out)
+        samples = _features(samples.astype(np.float64), self.config.intensity_weight)
         sink = np.full(4, math.nan)
         qual = np.zeros(4)
+        nf = self._n_face
         for k in range(4):
-            sink[k], qual[k] = self._break(samples[k], seen[k])
+            sink[k], qual[k] = self._break(samples[k, :nf], seen[k, :nf], samples[k, nf:], seen[k, nf:])
         return SinkageEstimate(sink, qual)
 
-    def _break(self, samples: np.ndarray, seen: np.ndarray) -> tuple[float, float]:
-        """The height below which one face's samples are the soil's colour and above it the face's.
-
-        Two colours, the soil's and the face's, shared by every column: a column near the rim's
-        end holds face samples only down to the rim, so the soil's reach along the rim (its
-        entry and exit) counts as well as its height at the centre. Returns (z [m] or NaN,
-        quality).
-        """
+    def _break(
+        self, samples: np.ndarray, seen: np.ndarray, ground: np.ndarray, ground_seen: np.ndarray
+    ) -> tuple[float, float]:
+        """One wheel's sinkage [m] (or NaN) and its quality from its face's and ground's samples."""
         cfg = self.config
+        nz = len(self.zeta)
         if np.count_nonzero(np.bincount(self._col[seen], minlength=self._ncol)) < cfg.min_columns:
             return math.nan, 0.0
-        rows, nz = self._row[seen], len(self.zeta)
+        top = seen & (self.zeta[self._row] >= cfg.max_sinkage - cfg.face_band)
+        if np.count_nonzero(ground_seen) < 8 or np.count_nonzero(top) < 8:
+            return math.nan, 0.0  # no soil or no face in view to compare
+        soil = np.median(ground[ground_seen], axis=0)
+        face = np.median(samples[top], axis=0)
+        contrast = float(np.linalg.norm(face - soil))
+        if contrast < cfg.min_step:  # face and soil alike (deep shadow, a black frame)
+            return math.nan, 0.0
+        rows = self._row[seen]
         x = samples[seen]
-        # per height, over the columns: count, colour sums, sum of squares; then prefix sums
+        # the split into two colours of least squared error: below each break k the soil, above
+        # it the face (prefix sums over the heights)
         cnt = np.bincount(rows, minlength=nz).astype(np.float64)
-        s = np.stack([np.bincount(rows, x[:, j], nz) for j in range(x.shape[1])], -1)
-        q = np.bincount(rows, (x * x).sum(axis=1), nz)
-        n1, s1, q1 = np.cumsum(cnt), np.cumsum(s, axis=0), np.cumsum(q)
+        sums = np.stack([np.bincount(rows, x[:, j], nz) for j in range(x.shape[1])], -1)
+        sq = np.bincount(rows, (x * x).sum(axis=1), nz)
+        n1, s1, q1 = (
+            np.concatenate([np.zeros((1, *a.shape[1:])), np.cumsum(a, axis=0)]) for a in (cnt, sums, sq)
+        )
         n, st, qt = n1[-1], s1[-1], q1[-1]
         n2, s2, q2 = n - n1, st - s1, qt - q1
-        least = cfg.min_samples * cfg.min_columns
+        least = 2 * cfg.min_columns
         enough = (n1 >= least) & (n2 >= least)
-        if not enough.any():
-            return math.nan, 0.0
         with np.errstate(invalid="ignore", divide="ignore"):
             sse = (q1 - (s1 * s1).sum(-1) / n1) + (q2 - (s2 * s2).sum(-1) / n2)
         sse = np.where(enough, sse, np.inf)
-        k = int(np.argmin(sse))
-        z = 0.5 * (self.zeta[k] + self.zeta[min(k + 1, nz - 1)])  # between samples k and k + 1
-        step = float(np.linalg.norm(s2[k] / n2[k] - s1[k] / n1[k]))
-        if step < cfg.min_step:  # face and soil alike (deep shadow, a black frame): no boundary
-            return math.nan, 0.0
-        # the break's spread: each height's likelihood exp(-SSE / 2 var), var the samples' own
-        # spread about their two colours at the best break (at least a grey level)
-        var = max(float(sse[k]) / (float(n) * x.shape[1]), 1.0)
-        like = np.exp(-(sse - sse[k]) / (2.0 * var))
-        like /= like.sum()
-        std = math.sqrt(float(like @ (self.zeta - self.zeta[k]) ** 2) + cfg.step**2 / 12.0)
-        above = np.count_nonzero(np.bincount(self._col[seen & (self._row > k)], minlength=self._ncol))
-        quality = 1.0 / (1.0 + (std / cfg.std_scale) ** 2) * min(1.0, 2.0 * above / self._ncol)
+        breaks = np.r_[0.0, self.zeta[1:] - 0.5 * cfg.step, self.zeta[-1] + 0.5 * cfg.step]
+        k = int(np.argmin(sse)) if enough.any() else 0
+        below = s1[k] / max(n1[k], 1.0)
+        # how much more the colour under the break is the soil's than the face's, in units of
+        # their difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
+        margin = (np.linalg.norm(below - face) - np.linalg.norm(below - soil)) / contrast
+        if k == 0 or margin <= 0.0:
+            # what lies under the break looks like the face, not the soil beside it: the face
+            # reaches the rim (rigid ground, or a sinkage under the first rows)
+            k, z, std, margin = 0, 0.0, cfg.step, cfg.min_margin
+        else:
+            z = float(breaks[k])
+            if 0 < k < len(sse) - 1 and np.isfinite(sse[k - 1]) and np.isfinite(sse[k + 1]):
+                # between the breaks: the vertex of the parabola through the three least SSEs
+                curv = sse[k - 1] - 2.0 * sse[k] + sse[k + 1]
+                if curv > 0:
+                    z += 0.5 * cfg.step * float(np.clip((sse[k - 1] - sse[k + 1]) / curv, -1.0, 1.0))
+            # the break's spread: each break's likelihood exp(-SSE / 2 var), var the samples'
+            # spread about the two colours at the best break (at least a grey level)
+            var = max(float(sse[k]) / (float(n) * x.shape[1]), 0.01)
+            like = np.where(enough, np.exp(-(np.where(enough, sse, sse[k]) - sse[k]) / (2.0 * var)), 0.0)
+            like /= like.sum()
+            std = math.sqrt(float(like @ (breaks - z) ** 2) + cfg.step**2 / 12.0)
+        cols = np.count_nonzero(np.bincount(self._col[seen & (self._row >= k)], minlength=self._ncol))
+        quality = 1.0 / (1.0 + (std / cfg.std_scale) ** 2) * min(1.0, 2.0 * cols / self._ncol)
+        # soil that looks barely more like the soil beside it than like the face: unsure
+        quality *= min(1.0, margin / cfg.min_margin)
         return z, float(quality)
 
 
+def _features(rgb: np.ndarray, intensity_weight: float) -> np.ndarray:
+    """(..., 3) colour features of RGB samples [-].
+
+    100 log(R/G) and 100 log(B/G), the chromaticity (which a shadow keeps), and
+    ``intensity_weight`` log(R + G + B) (which a shadow changes).
+    """
+    c = np.maximum(rgb, 1.0)
+    if c.shape[-1] < 3:  # grey images: intensity only
+        return intensity_weight * np.log(c)
+    g = np.log(c[..., 1])
+    return np.stack(
+        [
+            100.0 * (np.log(c[..., 0]) - g),
+            100.0 * (np.log(c[..., 2]) - g),
+            intensity_weight * np.log(c.sum(-1)),
+        ],
+        -1,
+    )
+
+
 def _behind_parts(P: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """Which points (..., 3) (from the camera) lie behind one of the spheres (centres, radii) from it."""
-    flat = P.reshape(-1, 3)
-    d = np.linalg.norm(flat, axis=1)
-    ray = flat / d[:, None]
-    along = ray @ centres.T  # (n, parts)
-    perp2 = np.einsum("pk,pk->p", centres, centres)[None, :] - along**2
-    hidden = (perp2 < radii[None, :] ** 2) & (along > 0) & (along < d[:, None] - radii[None, :])
-    return hidden.any(axis=1).reshape(P.shape[:-1])
+    """Which points (n, 3) (from the camera) lie behind one of the spheres (centres, radii) from it.
+
+    The spheres outside the cone of the points' rays (with their own angular radius) are left
+    out first: a wheel's points lie in a narrow cone, and most parts are elsewhere.
+    """
+    d = np.sqrt(np.einsum("pk,pk->p", P, P))
+    ray = P / d[:, None]
+    axis = ray.mean(axis=0)
+    axis /= np.linalg.norm(axis)
+    spread = math.acos(min(1.0, float((ray @ axis).min())))
+    dist = np.sqrt(np.einsum("pk,pk->p", centres, centres))
+    off = np.arccos(np.clip(centres @ axis / dist, -1.0, 1.0))
+    near = off <= spread + np.arcsin(np.clip(radii / dist, 0.0, 1.0)) + 1e-9
+    if not near.any():
+        return np.zeros(len(P), dtype=bool)
+    c, r = centres[near], radii[near]
+    along = ray @ c.T  # (n, parts)
+    perp2 = np.einsum("pk,pk->p", c, c)[None, :] - along**2
+    hidden = (perp2 < r[None, :] ** 2) & (along > 0) & (along < d[:, None] - r[None, :])
+    return hidden.any(axis=1)

@@ -1,0 +1,112 @@
+"""Wheel sinkage from the fisheye, on images ray-cast with a known sinkage (no simulator)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_markers import fisheye, rover_model
+
+from perception.kinematics.sinkage import SinkageEstimator
+from perception.models.drive_geometry import WHEELS
+from perception.odometry.flow import ground_plane_from_wheels
+
+FACE = np.array([96.0, 96.0, 98.0])  # the wheels' inner faces: grey
+SAND = np.array([176.0, 164.0, 132.0])  # the soil: a sand colour, textured
+
+
+def cast(model, camera, sinkage: float, soil=SAND, texture: float = 18.0, seed: int = 0) -> np.ndarray:
+    """The fisheye image of the four wheels' inner faces standing ``sinkage`` [m] deep in level soil.
+
+    Each pixel's ray meets, nearest first, a wheel's inner face (a disc of the wheel's radius,
+    seen where it stands above the soil) or the soil's surface; anything else is black.
+    """
+    w, h = camera.image_size
+    u, v = np.meshgrid(np.arange(w) + 0.0, np.arange(h) + 0.0)
+    rays = camera.cam2world(np.stack([u, v], -1).reshape(-1, 2))
+    T = model.T_body_cam
+    d = rays @ T[:3, :3].T  # body frame
+    o = T[:3, 3]
+    frames = model.wheel_frames(np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4))
+    ground_z = frames[0][1][2] - model.wheel_radius + sinkage
+    best = np.full(len(d), np.inf)
+    img = np.zeros((len(d), 3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_ground = (ground_z - o[2]) / d[:, 2]
+        hit = np.isfinite(t_ground) & (t_ground > 0)
+        best = np.where(hit, t_ground, best)
+        rng = np.random.default_rng(seed)
+        p = o + t_ground[:, None] * d
+        grain = np.sin(p[:, 0] * 340.0) * np.cos(p[:, 1] * 290.0) + rng.normal(0, 0.3, len(d))
+        img = np.where(hit[:, None], soil + texture * grain[:, None], img)
+        for k, (_, c) in enumerate(frames):
+            side = -1.0 if WHEELS[k][1] == "L" else 1.0
+            y_face = c[1] + side * 0.5 * model.wheel_width
+            t = (y_face - o[1]) / d[:, 1]
+            q = o + t[:, None] * d
+            on = (t > 0) & ((q[:, 0] - c[0]) ** 2 + (q[:, 2] - c[2]) ** 2 <= model.wheel_radius**2)
+            on &= q[:, 2] >= ground_z  # below the surface the soil hides it
+            nearer = on & (t < best)
+            best = np.where(nearer, t, best)
+            img = np.where(nearer[:, None], FACE, img)
+    img = np.where(np.isfinite(rays[:, :1]), img, 0.0)
+    return np.clip(img, 0, 255).reshape(h, w, 3).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def rig():
+    model = rover_model()
+    return model, fisheye(model)
+
+
+@pytest.mark.parametrize("sinkage", [0.010, 0.025, 0.045])
+def test_a_known_sinkage_is_measured_on_every_wheel(rig, sinkage):
+    model, camera = rig
+    est = SinkageEstimator(camera, model).measure(
+        cast(model, camera, sinkage), np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4)
+    )
+    np.testing.assert_allclose(est.sinkage, sinkage, atol=0.002)
+    assert np.all(est.quality > 0.5)
+
+
+def test_wheels_on_rigid_ground_read_no_sinkage(rig):
+    model, camera = rig
+    est = SinkageEstimator(camera, model).measure(
+        cast(model, camera, 0.0), np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4)
+    )
+    np.testing.assert_allclose(est.sinkage, 0.0, atol=0.002)
+
+
+def test_a_wrong_wheel_pose_moves_the_measured_sinkage_by_its_height(rig):
+    """The sinkage is read against the wheel's estimated pose: an axle taken 1 cm lower reads 1 cm deeper."""
+    model, camera = rig
+    img = cast(model, camera, 0.03)
+    est = SinkageEstimator(camera, model).measure(
+        img, np.zeros(2), np.full(2, model.nominal_depth + 0.01), np.zeros(4)
+    )
+    np.testing.assert_allclose(est.sinkage, 0.04, atol=0.004)
+
+
+@pytest.mark.parametrize(
+    "image",
+    [
+        lambda m, c: np.zeros((480, 640, 3), np.uint8),  # a black frame
+        lambda m, c: cast(m, c, 0.03, soil=FACE, texture=2.0),  # soil as grey and dark as the face
+    ],
+)
+def test_no_boundary_to_see_is_no_sinkage(rig, image):
+    model, camera = rig
+    est = SinkageEstimator(camera, model).measure(
+        image(model, camera), np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4)
+    )
+    assert np.all(np.isnan(est.sinkage)) and np.all(est.quality == 0.0)
+
+
+def test_the_ground_plane_rises_by_the_mean_sinkage():
+    centres = np.array([[0.4, 0.3, -0.15], [0.4, -0.3, -0.15], [-0.4, 0.3, -0.17], [-0.4, -0.3, -0.17]])
+    a, b, c = ground_plane_from_wheels(centres, 0.115)
+    a2, b2, c2 = ground_plane_from_wheels(centres, 0.115, [0.02, 0.03, math.nan, 0.025])
+    assert (a2, b2) == (a, b)
+    assert c2 - c == pytest.approx(0.025 * math.sqrt(1 + a * a + b * b))
+    assert ground_plane_from_wheels(centres, 0.115, [math.nan] * 4) == (a, b, c)
