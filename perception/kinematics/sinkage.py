@@ -115,7 +115,7 @@ class SinkageEstimator:
             self._local.append(np.vstack([face, ground]))
 
     def sample_points(self, wheel: int, R: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """(n, 3) body-frame points sampled for wheel ``wheel``: its inner face's, then the ground's beside it."""
+        """(n, 3) body-frame points sampled for wheel ``wheel``: on its inner face, then beside it."""
         return self._local[wheel] @ np.asarray(R).T + c
 
     def measure(self, image: np.ndarray, psi, depth, delta) -> SinkageEstimate:
@@ -206,7 +206,7 @@ class SinkageEstimator:
         below = s1[k] / max(n1[k], 1.0)
         # how much more the colour under the break is the soil's than the face's, in units of
         # their difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
-        margin = (np.linalg.norm(below - face) - np.linalg.norm(below - soil)) / contrast
+        margin = float(np.linalg.norm(below - face) - np.linalg.norm(below - soil)) / contrast
         if k == 0 or margin <= 0.0:
             # what lies under the break looks like the face, not the soil beside it: the face
             # reaches the rim (rigid ground, or a sinkage under the first rows)
@@ -227,7 +227,7 @@ class SinkageEstimator:
         cols = np.count_nonzero(np.bincount(self._col[seen & (self._row >= k)], minlength=self._ncol))
         quality = 1.0 / (1.0 + (std / cfg.std_scale) ** 2) * min(1.0, 2.0 * cols / self._ncol)
         # soil that looks barely more like the soil beside it than like the face: unsure
-        quality *= min(1.0, margin / cfg.min_margin)
+        quality *= min(1.0, float(margin) / cfg.min_margin)
         return z, float(quality)
 
 
