@@ -227,12 +227,12 @@ def state_arrays(values: Mapping[str, Any]) -> dict[str, np.ndarray]:
     }
 
 
-def soil_arrays(values: Mapping[str, Any]) -> dict[str, np.ndarray]:
-    """The :data:`SOIL_GROUPS` an estimate gives any of, per wheel (NaN where it gives none)."""
+def soil_arrays(values: Mapping[str, Any], groups: Sequence[str] = ()) -> dict[str, np.ndarray]:
+    """The :data:`SOIL_GROUPS` an estimate gives any of, and ``groups``, per wheel (NaN where it gives none)."""
     out = {}
     for group in SOIL_GROUPS:
         names = [f"{group}_{w}" for w in WHEELS]
-        if any(n in values for n in names):
+        if group in groups or any(n in values for n in names):
             out[group] = _pick(values, names)
     return out
 

@@ -73,12 +73,6 @@ SINKAGE_MIN_QUALITY = 0.3
 #: The fisheye's frames are measured for sinkage at most this often [Hz] (it changes over
 #: decimetres of travel; 2 ms a train-preset frame, benchmarks/soil_estimation.py).
 SINKAGE_RATE_HZ = 10.0
-#: A wheel's last accepted sinkage stands for this long [s] (the odometry's ground plane, the
-#: grip prior); then it is unknown.
-SINKAGE_HOLD_S = 1.0
-#: A wheel counts as on soil once seen sunk this deep [m], and on rigid ground again below the
-#: first (a hysteresis over the measurement's error on rigid ground, 2-5 mm).
-SOFT_SINKAGE = (0.006, 0.010)
 #: The rate of the fused velocity that the attitude filter takes out of the specific force is a
 #: difference over at least this long [s] (shorter: the odometry's frame-to-frame noise).
 VELOCITY_RATE_S = 0.25
@@ -295,8 +289,6 @@ class RoverEstimator:
         self.sinkage = SinkageEstimator(fish.model, self.model, sinkage)
         self._sinkage = np.full(4, math.nan)
         self._sinkage_q = np.zeros(4)
-        self._sinkage_held = np.full(4, math.nan)
-        self._sinkage_t = np.full(4, -math.inf)
         self._sinkage_next = -math.inf
         slip = slip or SlipConfig()
         if imu is not None:
@@ -378,8 +370,6 @@ class RoverEstimator:
         self.odometry.reset()
         self.kinematics.reset()
         self.slip.reset()
-        self._sinkage_held[:] = math.nan
-        self._sinkage_t[:] = -math.inf
         self._sinkage_next = -math.inf
         self._sinkage[:] = math.nan
         self._sinkage_q[:] = 0.0
@@ -489,34 +479,13 @@ class RoverEstimator:
         if all(state.valid[d] for d in ("psi_F", "psi_R", "d_F", "d_R", "lam_F", "lam_R")):
             est = self.sinkage.measure(img, state.psi, state.depth, state.delta)
             self._sinkage[:], self._sinkage_q[:] = est.sinkage, est.quality
-            ok = (est.quality >= SINKAGE_MIN_QUALITY) & np.isfinite(est.sinkage)
-            self._sinkage_held[ok] = est.sinkage[ok]
-            self._sinkage_t[ok] = t
-        # a wheel seen sunk stands on soil: no zero-slip prior for it (every driven wheel slips
-        # there); one seen at the surface again (rigid ground) gets it back
-        held = self.held_sinkage()
-        soft = self.slip.grip_prior == False  # noqa: E712 - numpy comparison
-        soft = np.where(held >= SOFT_SINKAGE[1], True, np.where(held <= SOFT_SINKAGE[0], False, soft))
-        soft &= np.isfinite(held)
-        self.slip.set_grip_prior(~soft)
         self.timing["sinkage"] += time.perf_counter() - t0
 
-    def wheel_ground_plane(self, sinkage: bool = False) -> tuple[float, float, float]:
-        """The ground under the wheels of the kinematics' latest state, z = a x + b y + c (body) [-, -, m].
-
-        With ``sinkage``, the surface: the rims' lowest points raised by the wheels' sinkage
-        measured within the last ``SINKAGE_HOLD_S`` (:meth:`held_sinkage`).
-        """
+    def wheel_ground_plane(self) -> tuple[float, float, float]:
+        """The ground under the wheels of the kinematics' latest state, z = a x + b y + c (body) [-, -, m]."""
         s = self.kinematics.state
         centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
-        return ground_plane_from_wheels(
-            centres, self.model.wheel_radius, self.held_sinkage() if sinkage else None
-        )
-
-    def held_sinkage(self) -> np.ndarray:
-        """(4,) each wheel's latest accepted sinkage within ``SINKAGE_HOLD_S`` of now [m] (NaN: none)."""
-        fresh = self._t - self._sinkage_t <= SINKAGE_HOLD_S
-        return np.where(fresh, self._sinkage_held, np.nan)
+        return ground_plane_from_wheels(centres, self.model.wheel_radius)
 
     def _on_downward(self, img: np.ndarray, t: float) -> None:
         self._odometry_frame(img, t)
@@ -531,8 +500,7 @@ class RoverEstimator:
             est = self.odometry.update(
                 img, t, ground_plane=plane, rate_xy=self._frame_rate_xy(), contacts=contacts
             )
-        else:  # the surface in view: above the rims by the wheels' sinkage
-            plane = self.wheel_ground_plane(sinkage=True)
+        else:
             est = self.odometry.update(img, t, ground_plane=plane, rate_xy=self._frame_rate_xy())
         if est is not None:
             self._last_odom = est

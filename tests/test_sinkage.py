@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from test_markers import fisheye, rover_model
 
 from perception.kinematics.sinkage import SinkageEstimator
 from perception.models.drive_geometry import WHEELS
-from perception.odometry.flow import ground_plane_from_wheels
 
 FACE = np.array([96.0, 96.0, 98.0])  # the wheels' inner faces: grey
 SAND = np.array([176.0, 164.0, 132.0])  # the soil: a sand colour, textured
@@ -101,12 +98,3 @@ def test_no_boundary_to_see_is_no_sinkage(rig, image):
         image(model, camera), np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4)
     )
     assert np.all(np.isnan(est.sinkage)) and np.all(est.quality == 0.0)
-
-
-def test_the_ground_plane_rises_by_the_mean_sinkage():
-    centres = np.array([[0.4, 0.3, -0.15], [0.4, -0.3, -0.15], [-0.4, 0.3, -0.17], [-0.4, -0.3, -0.17]])
-    a, b, c = ground_plane_from_wheels(centres, 0.115)
-    a2, b2, c2 = ground_plane_from_wheels(centres, 0.115, [0.02, 0.03, math.nan, 0.025])
-    assert (a2, b2) == (a, b)
-    assert c2 - c == pytest.approx(0.025 * math.sqrt(1 + a * a + b * b))
-    assert ground_plane_from_wheels(centres, 0.115, [math.nan] * 4) == (a, b, c)

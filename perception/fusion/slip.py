@@ -440,8 +440,6 @@ class SlipEstimator:
         self._P = np.diag([v0**2, v0**2, w0**2] + [r0**2] * N_WHEELS + biases)
         self._gyro_used = False
         self._accel_used = False
-        #: Which wheels get the zero-slip pseudo-measurement (:meth:`set_grip_prior`).
-        self.grip_prior = np.ones(N_WHEELS, dtype=bool)
         self._inputs: list[tuple[float, float, float, float]] = []  # (t0, t1, a_x, a_y) [s, m/s^2]
         self._t: float | None = None
         # (time [s], sequence, state indices or None, z, R, H or None)
@@ -775,7 +773,7 @@ class SlipEstimator:
         x, P = self._x, self._P
         J = _long_jacobian(self.wheel_xy, self._steer)  # v_long = J @ twist
         speed = np.maximum(np.abs(x[3:_BIAS] * self.wheel_radius), np.abs(J @ x[:3]))
-        w = wheels[(speed[wheels] >= c.event_min_speed) & self.grip_prior[wheels]]
+        w = wheels[speed[wheels] >= c.event_min_speed]
         if not len(w):
             return
         H = np.zeros((len(w), len(x)))
@@ -788,18 +786,6 @@ class SlipEstimator:
         grip = (innov**2 <= c.grip_gate**2 * S) & (S - var <= (c.max_slip_std * speed[w]) ** 2)
         if grip.any():
             self._update(H[grip], np.zeros(int(grip.sum())), np.diag(var[grip]))
-
-    def set_grip_prior(self, wheels) -> None:
-        """Which wheels (4,) bool get the zero-slip pseudo-measurement (all, at reset).
-
-        On deformable ground every driven wheel slips (the soil pulls only as it shears): the
-        prior that a wheel whose rate does not show it slipping grips is wrong there and biases
-        the speed toward the treads. The estimator leaves it out for wheels it sees sunk.
-        """
-        w = np.asarray(wheels, dtype=bool).reshape(-1)
-        if w.shape != (N_WHEELS,):
-            raise ValueError(f"wheels: shape {w.shape}; expected (4,) flags FL, FR, RL, RR")
-        self.grip_prior = w.copy()
 
     def in_outage(self, t: float) -> bool:
         """Whether no valid odometry twist has come for ``outage_after`` seconds up to ``t`` [s]."""

@@ -52,6 +52,8 @@ class SinkageConfig:
             the chromaticity (100): low, because the soil next to a wheel is often in its shade.
         min_margin: The soil under the break must look this much more like the soil beside
             the face than like the face (in units of their difference) for a quality of 1 [-].
+        max_mottle: The face's samples' median distance from its colour, over the soil's and
+            the face's difference, beyond which no sinkage is read (a face as textured as soil).
         face_band: The face's colour is read from its samples this far below ``max_sinkage`` [m].
         ground_height: The soil's colour is read from the ground beside the face at this height
             above the rim's lowest point [m] (a typical sinkage).
@@ -64,6 +66,7 @@ class SinkageConfig:
     min_columns: int = 4
     min_step: float = 3.0
     min_margin: float = 0.5
+    max_mottle: float = 0.35
     intensity_weight: float = 50.0
     face_band: float = 0.012
     ground_height: float = 0.02
@@ -183,6 +186,11 @@ class SinkageEstimator:
         face = np.median(samples[top], axis=0)
         contrast = float(np.linalg.norm(face - soil))
         if contrast < cfg.min_step:  # face and soil alike (deep shadow, a black frame)
+            return math.nan, 0.0
+        # a face as mottled as the soil (a textured face; TinyRenderer draws the tread's texture
+        # on it) cannot be told from the soil by its colour
+        mottle = float(np.median(np.linalg.norm(samples[top] - face, axis=1)))
+        if mottle > cfg.max_mottle * contrast:
             return math.nan, 0.0
         rows = self._row[seen]
         x = samples[seen]

@@ -1571,32 +1571,23 @@ def _plane(ground_plane) -> tuple[float, float, float]:
     return float(g[0]), float(g[1]), float(g[2])
 
 
-def ground_plane_from_wheels(
-    wheel_centres_body, wheel_radius: float, sinkage=None
-) -> tuple[float, float, float]:
+def ground_plane_from_wheels(wheel_centres_body, wheel_radius: float) -> tuple[float, float, float]:
     """The ground under the wheels, z = a x + b y + c in the body frame [-, -, m].
 
     The plane through the wheel centres (least squares for four wheels), moved one wheel radius
-    along its normal toward the ground, and back up by the wheels' mean sinkage: on soil the
-    surface in view lies that far above the rims' lowest points. The wheel centres come from
-    the axle roll, axle height and steering (the fisheye kinematics estimator, or the simulator).
+    along its normal toward the ground. The wheel centres come from the axle roll, axle height
+    and steering (the fisheye kinematics estimator, or the simulator).
 
     Args:
         wheel_centres_body: (n >= 3, 3) wheel centres in the body frame [m].
         wheel_radius: [m].
-        sinkage: (n,) each wheel's sinkage below the surface [m] (NaN: unknown, left out of the
-            mean), or None: rigid ground.
     """
     W = np.asarray(wheel_centres_body, dtype=np.float64).reshape(-1, 3)
     if len(W) < 3:
         raise ValueError(f"wheel_centres_body: {len(W)} wheels; a plane needs at least 3")
     A = np.column_stack([W[:, 0], W[:, 1], np.ones(len(W))])
     (a, b, c), *_ = np.linalg.lstsq(A, W[:, 2], rcond=None)
-    sunk = 0.0
-    if sinkage is not None:
-        z = np.asarray(sinkage, dtype=np.float64)
-        sunk = float(np.mean(z[np.isfinite(z)])) if np.isfinite(z).any() else 0.0
-    return float(a), float(b), float(c - (wheel_radius - sunk) * math.sqrt(1.0 + a * a + b * b))
+    return float(a), float(b), float(c - wheel_radius * math.sqrt(1.0 + a * a + b * b))
 
 
 def integrate_twist(

@@ -131,8 +131,10 @@ def _runs_of(on: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
 
 
-def slip_metrics(runs: list[dict]) -> dict:
+def slip_metrics(runs: list[dict], wheels=(0, 1, 2, 3)) -> dict:
     """Slip-ratio accuracy and slip-event detection over ``runs`` (:meth:`EstimateLog.arrays`).
+
+    ``wheels``: the wheels scored (0-3: FL, FR, RL, RR), all by default.
 
     MAE of the four wheels' slip ratios while |s_true| > 0.1 and otherwise, over steps where the
     wheel's tread or ground speed is at least 5 cm/s and the estimator returned the slip (NaN:
@@ -159,6 +161,7 @@ def slip_metrics(runs: list[dict]) -> dict:
         big = np.abs(s_true) > 0.1
         err = np.abs(s_est - s_true)
         known = np.isfinite(err)
+        known[:, [w for w in range(4) if w not in wheels]] = False
         err_slip.extend(err[moving & big & known].tolist())
         err_calm.extend(err[moving & ~big & known].tolist())
         flagged = np.asarray(rr["events"], dtype=np.float64).reshape(-1, 4)[keep]
@@ -170,7 +173,7 @@ def slip_metrics(runs: list[dict]) -> dict:
         ev_est = np.nan_to_num(flagged, nan=0.0) > 0.5  # not returned at a step: no event claimed
         ev_true = slip_events(s_true, min_frames=EVENT_FRAMES, speed=rr["speed"][keep], min_speed=EVENT_SPEED)
         s_abs = np.abs(s_true)
-        for w in range(4):
+        for w in wheels:
             e_runs, t_runs = _runs_of(ev_est[:, w]), _runs_of(ev_true[:, w])
             matched = set()
             for a0, a1 in t_runs:
