@@ -29,7 +29,7 @@ read-only: an estimator cannot change the sensors that feed it.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -227,8 +227,8 @@ def state_arrays(values: Mapping[str, Any]) -> dict[str, np.ndarray]:
     }
 
 
-def soil_arrays(values: Mapping[str, Any], groups: Sequence[str] = ()) -> dict[str, np.ndarray]:
-    """The :data:`SOIL_GROUPS` an estimate gives any of, and ``groups``, per wheel (NaN where it gives none)."""
+def soil_arrays(values: Mapping[str, Any], groups: Collection[str] = ()) -> dict[str, np.ndarray]:
+    """The :data:`SOIL_GROUPS` an estimate gives any of, and ``groups``: per wheel, NaN where none."""
     out = {}
     for group in SOIL_GROUPS:
         names = [f"{group}_{w}" for w in WHEELS]
