@@ -210,15 +210,18 @@ class SinkageEstimator:
             sse = (q1 - (s1 * s1).sum(-1) / n1) + (q2 - (s2 * s2).sum(-1) / n2)
         sse = np.where(enough, sse, np.inf)
         breaks = np.r_[0.0, self.zeta[1:] - 0.5 * cfg.step, self.zeta[-1] + 0.5 * cfg.step]
-        k = int(np.argmin(sse)) if enough.any() else 0
-        below = s1[k] / max(n1[k], 1.0)
+        if not enough.any():
+            return math.nan, 0.0
+        k = int(np.argmin(sse))
+        below = s1[k] / n1[k]
         # how much more the colour under the break is the soil's than the face's, in units of
         # their difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
         margin = float(np.linalg.norm(below - face) - np.linalg.norm(below - soil)) / contrast
-        if k == 0 or margin <= 0.0:
+        if margin <= 0.0:
             # what lies under the break looks like the face, not the soil beside it: the face
-            # reaches the rim (rigid ground, or a sinkage under the first rows)
-            k, z, std, margin = 0, 0.0, cfg.step, cfg.min_margin
+            # reaches the rim (rigid ground, or a sinkage under the first rows), as surely as
+            # the colour under the break is nearer the face's
+            k, z, std, margin = 0, 0.0, cfg.step, -margin
         else:
             z = float(breaks[k])
             if 0 < k < len(sse) - 1 and np.isfinite(sse[k - 1]) and np.isfinite(sse[k + 1]):
