@@ -319,6 +319,8 @@ class RoverEstimator:
                 enc.name, enc.model.counts_per_rev, enc.model.counter_bits, enc.period, fish.period
             )
         )
+        # sensors whose samples are gathered, not acted on one by one (no dead reckoning up to each)
+        self._batched = {s.name for s in (imu, enc, self.currents) if s is not None}
         #: The sun sensor (None without one, or without an IMU to level it) and its heading filter.
         self.sun = sun if imu is not None else None
         self.heading: HeadingFilter | None = None
@@ -375,6 +377,8 @@ class RoverEstimator:
         self._sinkage_q[:] = 0.0
         if self.encoders is not None:
             self.encoders.reset()
+        self._current_batch = []
+        self._torque = None
         self._fix = fix.copy()
         self._pose = fix.copy()
         self._started = False
@@ -650,7 +654,7 @@ class RoverEstimator:
                     f"{msg.sensor} message at t={msg.t} s is outside this step ({self._t_pose} to {t} s); "
                     "pass each step's messages once, in time order"
                 )
-            if self.imu is not None and msg.sensor == self.imu.name:  # used at the next frame or the end
+            if msg.sensor in self._batched:  # IMU, encoders, currents: used at the next frame or the end
                 handler(msg.data, msg.t)
                 continue
             if self.imu is not None:
