@@ -166,6 +166,20 @@ class MotorModel:
             if not real_number(key, getattr(self, key)) >= 0.0:
                 raise ConfigError(f"motor_current.{key}: {getattr(self, key)!r}; give a value >= 0")
 
+    def step_torque(self, currents, wheel_rate) -> np.ndarray:
+        """The wheel torques [N m] of a batch of readings: (n, 4) currents [A] at (4,) wheel rates [rad/s].
+
+        Per wheel the median of its readings, so that a spike is outvoted; a reading that is not
+        finite or at full scale (``range``: clipped) is not one, and a wheel with readings for
+        no more than half of the batch gets NaN (unknown).
+        """
+        c = np.asarray(currents, dtype=np.float64).reshape(-1, 4)
+        ok = np.isfinite(c) & (np.abs(c) < self.range)
+        enough = 2 * ok.sum(axis=0) > len(c)
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(np.where(ok, c, np.nan), axis=0) if len(c) else np.full(4, np.nan)
+        return np.where(enough, self.wheel_torque(np.where(enough, med, 0.0), wheel_rate), np.nan)
+
     def wheel_torque(self, current, wheel_rate) -> np.ndarray:
         """The wheel torques [N m] that draw ``current`` [A] at ``wheel_rate`` [rad/s] (offset removed).
 

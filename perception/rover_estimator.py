@@ -586,7 +586,7 @@ class RoverEstimator:
             self.slip.add_wheels(w.t, w.rate, w.dt, w.valid, noise=w.std)
 
     def _on_currents(self, data: np.ndarray, t: float) -> None:
-        """A motor-current reading: kept for the step's median (a reading at full scale is not one)."""
+        """A motor-current reading: kept for the step's torques (:meth:`MotorModel.step_torque`)."""
         assert self.currents is not None
         i = np.asarray(data, dtype=np.float64).reshape(-1)
         if i.shape != (4,):
@@ -594,8 +594,7 @@ class RoverEstimator:
                 f"{self.currents.name}: a motor-current sample is (4,) currents FL, FR, RL, RR [A]; "
                 f"got shape {i.shape}"
             )
-        full = self.currents.model.range
-        self._current_batch.append(np.where(np.isfinite(i) & (np.abs(i) < full), i, np.nan))
+        self._current_batch.append(i)
 
     def _wheel_torque(self) -> None:
         """The step's wheel torques [N m] from the median of its currents (a spike is outvoted)."""
@@ -604,12 +603,9 @@ class RoverEstimator:
             self._torque = None  # no reading this step: unknown, not the last one
             return
         assert self.currents is not None
-        b = np.array(batch)
-        n = np.sum(np.isfinite(b), axis=0)
-        with np.errstate(all="ignore"):
-            med = np.where(n * 2 > len(b), np.nanmedian(np.where(np.isfinite(b), b, np.nan), axis=0), np.nan)
-        rate = self.slip.estimate(self._t).wheel_rate
-        self._torque = self.currents.model.wheel_torque(med, rate)
+        self._torque = self.currents.model.step_torque(
+            np.array(batch), self.slip.estimate(self._t).wheel_rate
+        )
 
     def _on_sun(self, data: np.ndarray, t: float) -> None:
         """A sun reading: the heading it gives, fused into the dead-reckoned yaw."""

@@ -233,3 +233,18 @@ def test_encoder_counters_unwrap_and_refuse_what_is_not_a_reading():
             enc.check_stuck(np.full(4, rate), np.ones(4, bool), t)
     assert out is not None and list(out.valid) == [True, True, True, False]
     assert np.all(np.isfinite(out.rate[:3]))
+
+
+def test_a_current_spike_is_outvoted_and_a_clipped_or_missing_reading_is_no_torque():
+    model = MotorModel()
+    rate = np.full(4, 10.0)
+    i = 2.0 / (100 * 0.75) / 0.0283 + 0.06 * math.tanh(1000 / 5)  # 2 N m driving
+    batch = np.full((4, 4), i)
+    batch[1, 0] = 9.0  # a spike on FL
+    batch[:3, 1] = 10.0  # FR clipped at full scale three times of four: not enough readings
+    batch[0, 2] = np.nan  # one reading of RL lost
+    batch[:, 3] = np.nan  # RR: none
+    torque = model.step_torque(batch, rate)
+    np.testing.assert_allclose(torque[[0, 2]], 2.0, atol=1e-9)
+    assert np.isnan(torque[1]) and np.isnan(torque[3])
+    assert np.all(np.isnan(model.step_torque(np.zeros((0, 4)), rate)))
