@@ -710,9 +710,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--randomize", default=None, choices=("off", "on"),
                    help="domain randomisation, each run's world drawn from its seed "
                         "(default: each scenario's randomize key)")  # fmt: skip
-    e.add_argument("--rig", default=None, choices=("standard", "fisheye_only"),
-                   help="estimated runs' sensors: the standard rig or the one-camera rig (the fisheye "
-                        "alone; @imu adds an IMU) (default: each mission's)")  # fmt: skip
+    e.add_argument("--rig", default=None, choices=("standard", "fisheye_only", "full"),
+                   help="estimated runs' sensors: the standard rig, the one-camera rig (the fisheye "
+                        "alone; @imu adds an IMU) or the full rig (the BMI088, wheel encoders, motor "
+                        "currents) (default: each mission's)")  # fmt: skip
     e.add_argument(
         "--estimator", metavar="[NAME=]MODULE:FACTORY", action="append",
         help="an estimator on the estimated-observation runs: a factory called with the rig "

@@ -74,7 +74,8 @@ class EvalJob:
             mission's scenario says; the environment's ``randomize``). The episode's seed draws
             the world.
         rig: The sensors of estimated-observation runs: a named rig (the environment's ``rig``:
-            ``"standard"`` or ``"fisheye_only"``, the one-camera rig) or None (the mission's).
+            ``"standard"``, ``"fisheye_only"``, the one-camera rig, or ``"full"``, with the
+            BMI088, wheel encoders and motor currents) or None (the mission's).
     """
 
     controller: str

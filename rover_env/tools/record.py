@@ -167,6 +167,14 @@ def _record(env, controller, seconds, folder: OutputFolder, seed, raw, progress,
     """Drive and write into ``folder`` (its products staged; the caller commits)."""
     pipeline = env.pipeline
     rig = env.rig
+    unlogged = [
+        f"{n} ({s.kind})" for n, s in rig.items() if s.kind not in ("pinhole", "fisheye", "imu", "sun")
+    ]
+    if unlogged:
+        raise ValueError(
+            f"rover record writes cameras, IMUs and sun sensors; {', '.join(unlogged)} have no log "
+            "format yet: record with a rig without them (--rig standard)"
+        )
     offset = float(env.sim.settle_time)  # log time = simulation time + offset: every stamp > 0
     topics, ephemeris = topics_of(rig, raw)
     for cam in pipeline.cameras:
