@@ -248,3 +248,11 @@ def test_a_current_spike_is_outvoted_and_a_clipped_or_missing_reading_is_no_torq
     np.testing.assert_allclose(torque[[0, 2]], 2.0, atol=1e-9)
     assert np.isnan(torque[1]) and np.isnan(torque[3])
     assert np.all(np.isnan(model.step_torque(np.zeros((0, 4)), rate)))
+
+
+def test_rover_record_refuses_sensors_it_cannot_log_before_writing(tmp_path):
+    from rover_env.tools.record import record
+
+    with pytest.raises(ValueError, match="encoders, motor currents and command have no log format"):
+        record("Rover-v0", "slip_aware", 1.0, tmp_path / "out", rig="full")
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())

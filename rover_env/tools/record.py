@@ -115,7 +115,8 @@ def record(
         raw: Raw ``sensor_msgs/Image`` messages instead of PNG-compressed ones.
         camera_effects: ``"field"`` or ``"ideal"`` cameras.
         randomize: Domain randomisation (``"off"``, ``"on"`` or None: the scenario's).
-        rig: A named rig in place of the mission's (``"standard"``, ``"fisheye_only"``).
+        rig: A named rig in place of the mission's (``"standard"``, ``"fisheye_only"``; not
+            ``"full"``, whose proprioceptive sensors have no log format yet).
         overwrite: Replace the results of an earlier recording in ``out``.
         progress: Called with the simulated time recorded [s].
 
@@ -127,6 +128,11 @@ def record(
 
     if not (isinstance(seconds, int | float) and math.isfinite(seconds) and 0.0 < seconds <= MAX_SECONDS):
         raise ValueError(f"--seconds {seconds!r}: give a duration above 0 and at most {MAX_SECONDS:g} s")
+    if rig == "full":
+        raise ValueError(
+            "--rig full: rover record writes cameras, IMUs and sun sensors; the full rig's wheel "
+            "encoders, motor currents and command have no log format yet: record with --rig standard"
+        )
     spec, source = parse_controller(controller)
     if source != "estimated":
         raise ValueError(
