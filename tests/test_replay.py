@@ -209,6 +209,10 @@ def test_bad_input_is_named_and_writes_nothing(recorded, tmp_path, capsys):
     ("edit", "message"),
     [
         (lambda t: t.replace("kind: imu", "kind: lidar"), r"sensors\[2\]\.kind: 'lidar'"),
+        (
+            lambda t: t.replace("kind: imu", "kind: wheel_encoders"),
+            r"sensors\[2\]\.kind: 'wheel_encoders'; proprioceptive sensors are not read from logs yet",
+        ),
         (lambda t: t.replace("rate_hz: 240.0", "rate_hz: -5"), r"sensors\[2\]: imu.rate_hz"),
         (lambda t: t.replace("calibration: downward.yaml", "calibration: nowhere.yaml"), "nowhere.yaml"),
         (lambda t: t.replace("- name: imu", "- name: downward"), "two sensors named 'downward'"),

@@ -204,6 +204,11 @@ def load_rig(path: str | Path) -> LogRig:
             "imu": {"mount", "gyro", "accel", "saturation"},
             "sun": {"mount", "fov_deg", "accuracy_deg", "noise_deg", "ephemeris_topic"},
         }
+        if kind in ("wheel_encoders", "motor_current", "command"):
+            raise ConfigError(
+                f"{key}.kind: {kind!r}; proprioceptive sensors are not read from logs yet "
+                "(rover replay reads cameras, IMUs and sun sensors): leave it out of the rig file"
+            )
         if kind not in own:
             raise ConfigError(f"{key}.kind: {kind!r}; use pinhole, fisheye, imu or sun")
         foreign = sorted(set(s) - own[kind] - {"name", "kind", "rate_hz", "topic"}, key=str)
