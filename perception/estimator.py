@@ -29,7 +29,7 @@ read-only: an estimator cannot change the sensors that feed it.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -81,11 +81,6 @@ EXTRA_ESTIMATES: tuple[str, ...] = (
     "slip_best_efficiency",
     "soil_quality",
 )
-
-#: What the wheels feel of the ground, as ``info["estimate"]`` groups them (under the ground
-#: truth's keys) when an estimator gives any of a group: each wheel's motor torque [N m],
-#: sinkage below the original surface [m], drawbar pull [N] and load [N].
-SOIL_GROUPS: tuple[str, ...] = ("wheel_torque", "sinkage", "drawbar_pull", "load")
 
 #: Every name an estimator may return: ``"pose"`` (required) and the state and extra estimates.
 ESTIMATE_FIELDS: tuple[str, ...] = ("pose", *STATE_ESTIMATES, *EXTRA_ESTIMATES)
@@ -225,16 +220,6 @@ def state_arrays(values: Mapping[str, Any]) -> dict[str, np.ndarray]:
         "steering": _pick(values, [f"steering_{a}" for a in AXLES]),
         "tilt": _pick(values, ("roll", "pitch")),
     }
-
-
-def soil_arrays(values: Mapping[str, Any], groups: Collection[str] = ()) -> dict[str, np.ndarray]:
-    """The :data:`SOIL_GROUPS` an estimate gives any of, and ``groups``: per wheel, NaN where none."""
-    out = {}
-    for group in SOIL_GROUPS:
-        names = [f"{group}_{w}" for w in WHEELS]
-        if group in groups or any(n in values for n in names):
-            out[group] = _pick(values, names)
-    return out
 
 
 def qualities(values: Mapping[str, Any]) -> tuple[float, float, float]:

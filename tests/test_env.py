@@ -300,7 +300,7 @@ def test_estimated_observation_tracks_the_truth_and_survives_a_blackout():
             dark = 1.0 - 1e-9 <= info["t"] < 1.5 - 1e-9
             assert frames["fisheye_windowed"] == windowed + (not (prev_dark or dark)), info["t"]
             state = [k for k in info["ground_truth"] if k not in SOIL_TRUTH_KEYS]
-            assert sorted(info["estimate"]) == sorted([*state, "sinkage", "odometry_pose", "quality"])
+            assert sorted(info["estimate"]) == sorted([*state, "odometry_pose", "quality"])
             assert np.all(np.isfinite(obs))
             sl = info["slip"]
             assert sorted(sl) == ["events", "slip_ratio_std", "valid"]

@@ -14,7 +14,7 @@ import numpy as np
 from gymnasium import spaces
 
 from perception import observation as obs_table
-from perception.estimator import qualities, soil_arrays, state_arrays
+from perception.estimator import qualities, state_arrays
 from perception.models.drive_geometry import WHEELS as WHEEL_NAMES
 from rover_env.config.imu import ImuConfig
 from rover_env.config.randomize import RandomizeConfig, WorldDraw, randomize_config
@@ -358,7 +358,6 @@ class RoverEnv(gym.Env):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._prev_action = np.zeros(n_act, dtype=np.float32)
         self._gt: GroundTruth | None = None
-        self._soil_groups: set[str] = set()  # the soil groups the estimator has given this episode
         self._nav = np.zeros(3)  # the pose the on-board tracker is fed (x, y, yaw)
         self._start_fix = np.zeros(3)
         self._progress = 0.0
@@ -422,7 +421,6 @@ class RoverEnv(gym.Env):
             for part in self.pipeline.proprio:  # encoders' power-up counts, current offsets
                 part.reset(int(rng.integers(2**63 - 1)))
         self._gt = self.sim.reset(x, y, yaw)
-        self._soil_groups = set()
         messages = self.sim.take_messages()
         if self.pipeline is not None:
             self._start_fix = np.array([x, y, yaw]) + fix_noise
@@ -683,10 +681,6 @@ class RoverEnv(gym.Env):
         roll, pitch = v.get("roll", 0.0), v.get("pitch", 0.0)  # unknown without an IMU: level
         out = {"pose": np.array([x, y, self._z0 + v.get("height", 0.0), *yaw_to_quat(roll, pitch, yaw)])}
         out.update(state_arrays(v))
-        # a group the estimator has given in this episode stays (NaN while it gives none)
-        soil = soil_arrays(v, self._soil_groups)
-        self._soil_groups.update(soil)
-        out.update(soil)
         out["odometry_pose"] = np.array(v["pose"], dtype=np.float64)
         out["quality"] = np.array(qualities(v), dtype=np.float64)
         return out
