@@ -73,7 +73,8 @@ def sinkage_drive(scenario: Path, preset: str, seed: int, turning: bool, steps: 
             lam = 0.6 * math.sin(t / 2.5) if turning else 0.0
             info = env.step(np.array([f, f, r, r, lam, -lam], dtype=np.float32))[4]
             if k >= 15:  # after the start
-                est.append(info["estimate"].get("sinkage", np.full(4, np.nan)))
+                v = env.unwrapped.estimate_values
+                est.append([v.get(f"sinkage_{w}", np.nan) for w in WHEELS])
                 true.append(info["ground_truth"]["sinkage"])
         timing = env.unwrapped.pipeline.estimator.timing["sinkage"]
     finally:
