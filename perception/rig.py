@@ -176,9 +176,10 @@ class MotorModel:
         c = np.asarray(currents, dtype=np.float64).reshape(-1, 4)
         ok = np.isfinite(c) & (np.abs(c) < self.range)
         enough = 2 * ok.sum(axis=0) > len(c)
-        with np.errstate(all="ignore"):
-            med = np.nanmedian(np.where(ok, c, np.nan), axis=0) if len(c) else np.full(4, np.nan)
-        return np.where(enough, self.wheel_torque(np.where(enough, med, 0.0), wheel_rate), np.nan)
+        med = np.zeros(4)
+        for w in np.flatnonzero(enough):
+            med[w] = np.median(c[ok[:, w], w])
+        return np.where(enough, self.wheel_torque(med, wheel_rate), np.nan)
 
     def wheel_torque(self, current, wheel_rate) -> np.ndarray:
         """The wheel torques [N m] that draw ``current`` [A] at ``wheel_rate`` [rad/s] (offset removed).
