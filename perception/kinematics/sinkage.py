@@ -6,21 +6,23 @@ sees the soil in front of the face, above it the face. For each wheel, through t
 camera model and the wheel's pose from the kinematics (axle roll, depth, steering), the image
 is sampled on the face's lowest ``max_sinkage`` (columns at ``columns_mm`` along the wheel's
 heading, heights zeta above the rim's lowest point, within the rim) and on the ground beside
-the face. The soil's colour is the median of that ground, the face's the median of the face's
-samples above the deepest sinkage searched. Each sample costs its colour distance to the one
-its side of a break says it is (the soil below, the face above); the break of least total cost
-is the sinkage, 0 when the face reaches the rim (rigid ground). Columns near the rim's ends
-hold face samples only down to the rim, so the soil's reach along the rim (where it meets
-the wheel in front and behind) counts as well as its height at the centre, which the camera
-sees foreshortened. (Brooks, Iagnemma and Dubowsky's visual sinkage measurement, 2006, finds
+the face. Colours are compared as chromaticity, which a shadow keeps, and damped log intensity
+(:func:`_features`). The sinkage is the height of the split of the face's samples into two
+colours (below it, above it) of least squared error, refined between the sampled heights by a
+parabola; where what lies below that split looks more like the face (the median of its samples
+above the deepest sinkage searched) than like the ground beside it, the face reaches the rim:
+rigid ground, sinkage 0. Columns near the rim's ends hold face samples only down to the rim, so
+the soil's reach along the rim (where it meets the wheel in front and behind) counts as well as
+its height at the centre, which the camera sees foreshortened. (Brooks, Iagnemma and Dubowsky's visual sinkage measurement, 2006, finds
 the same wheel-terrain boundary along the rim, from a camera on the wheel's side.)
 
 Samples hidden behind the rover's parts (a steering arm, a magenta marker, an axle beam),
 outside the image or black (not read out) are left out. The quality is one over one plus the
-break's spread over ``std_scale``, squared, times the share of the columns seen at the break;
-soil and face of like colour (the face in the rover's shadow against soil in that shadow, a
-black frame) or a contact out of view give no sinkage (NaN, quality 0). No simulator here:
-camera, rover model and image only.
+split's spread over ``std_scale``, squared, times the share of the columns seen above it and
+how clearly the colour below it is the soil's (or, on rigid ground, the face's); soil and face
+of like colour (the face in the rover's shadow against soil in that shadow, a black frame), a
+face as mottled as the soil, or a contact out of view give no sinkage (NaN, quality 0). No
+simulator here: camera, rover model and image only.
 """
 
 from __future__ import annotations
@@ -230,7 +232,7 @@ class SinkageEstimator:
                 if curv > 0:
                     z += 0.5 * cfg.step * float(np.clip((sse[k - 1] - sse[k + 1]) / curv, -1.0, 1.0))
             # the break's spread: each break's likelihood exp(-SSE / 2 var), var the samples'
-            # spread about the two colours at the best break (at least a grey level)
+            # spread about the two colours at the best break (floored)
             var = max(float(sse[k]) / (float(n) * x.shape[1]), 0.01)
             like = np.where(enough, np.exp(-(np.where(enough, sse, sse[k]) - sse[k]) / (2.0 * var)), 0.0)
             like /= like.sum()
