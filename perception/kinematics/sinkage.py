@@ -13,8 +13,9 @@ parabola; where what lies below that split looks more like the face (the median 
 above the deepest sinkage searched) than like the ground beside it, the face reaches the rim:
 rigid ground, sinkage 0. Columns near the rim's ends hold face samples only down to the rim, so
 the soil's reach along the rim (where it meets the wheel in front and behind) counts as well as
-its height at the centre, which the camera sees foreshortened. (Brooks, Iagnemma and Dubowsky's visual sinkage measurement, 2006, finds
-the same wheel-terrain boundary along the rim, from a camera on the wheel's side.)
+its height at the centre, which the camera sees foreshortened. (Brooks, Iagnemma and
+Dubowsky's visual sinkage measurement, 2006, finds the same wheel-terrain boundary along the
+rim, from a camera on the wheel's side.)
 
 Samples hidden behind the rover's parts (a steering arm, a magenta marker, an axle beam),
 outside the image or black (not read out) are left out. The quality is one over one plus the
