@@ -119,11 +119,11 @@ class EncoderModel:
             real_number("counts_per_rev", self.counts_per_rev),
             real_number("counter_bits", self.counter_bits),
         )
-        if cpr < 4 or cpr != int(cpr) or not 8 <= bits <= 64 or bits != int(bits):
+        if cpr < 4 or cpr != int(cpr) or not 8 <= bits <= 32 or bits != int(bits) or 2**bits < 4 * cpr:
             raise ConfigError(
                 f"wheel encoders: counts_per_rev {self.counts_per_rev!r}, "
-                f"counter_bits {self.counter_bits!r}; "
-                "give whole numbers, at least 4 counts a revolution and an 8- to 64-bit counter"
+                f"counter_bits {self.counter_bits!r}; give whole numbers, at least 4 counts a "
+                "revolution and an 8- to 32-bit counter that holds 4 revolutions"
             )
 
     @property
@@ -182,10 +182,11 @@ class MotorModel:
         return np.where(enough, self.wheel_torque(med, wheel_rate), np.nan)
 
     def wheel_torque(self, current, wheel_rate) -> np.ndarray:
-        """The wheel torques [N m] that draw ``current`` [A] at ``wheel_rate`` [rad/s] (offset removed).
+        """The wheel torques [N m] that draw ``current`` [A] at ``wheel_rate`` [rad/s].
 
         The inverse of the current model above: the friction's current is taken off, then the
-        gearhead's ratio and efficiency applied in the direction the power flows.
+        gearhead's ratio and efficiency applied in the direction the power flows. The current
+        sense's offset (``offset_std``, unknown per start) stays in.
         """
         i = np.asarray(current, dtype=np.float64)
         w_m = np.asarray(wheel_rate, dtype=np.float64) * self.gear_ratio

@@ -481,7 +481,9 @@ class RoverEstimator:
         self._sinkage[:] = math.nan
         self._sinkage_q[:] = 0.0
         if all(state.valid[d] for d in ("psi_F", "psi_R", "d_F", "d_R", "lam_F", "lam_R")):
-            est = self.sinkage.measure(img, state.psi, state.depth, state.delta)
+            # the wheels stand where the image shows them: at the depths with their rest offset
+            depth = state.depth + self.kinematics.depth_zero
+            est = self.sinkage.measure(img, state.psi, depth, state.delta)
             self._sinkage[:], self._sinkage_q[:] = est.sinkage, est.quality
         self.timing["sinkage"] += time.perf_counter() - t0
 

@@ -9,11 +9,11 @@ heading, heights zeta above the rim's lowest point, within the rim) and on the g
 the face. Colours are compared as chromaticity, which a shadow keeps, and damped log intensity
 (:func:`_features`). The sinkage is the height of the split of the face's samples into two
 colours (below it, above it) of least squared error, refined between the sampled heights by a
-parabola; where what lies below that split looks more like the face (the median of its samples
-above the deepest sinkage searched) than like the ground beside it, the face reaches the rim:
-rigid ground, sinkage 0. Columns near the rim's ends hold face samples only down to the rim, so
-the soil's reach along the rim (where it meets the wheel in front and behind) counts as well as
-its height at the centre, which the camera sees foreshortened. (Brooks, Iagnemma and
+parabola; where what lies below that split looks more like the face (the median of its
+samples in the top ``face_band`` of the heights searched) than like the ground beside it, the
+face reaches the rim: rigid ground, sinkage 0. Columns near the rim's ends hold face samples
+only down to the rim, so the soil's reach along the rim (where it meets the wheel in front and
+behind) counts as well as its height at the centre, which the camera sees foreshortened. (Brooks, Iagnemma and
 Dubowsky's visual sinkage measurement, 2006, finds the same wheel-terrain boundary along the
 rim, from a camera on the wheel's side.)
 

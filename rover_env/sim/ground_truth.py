@@ -60,7 +60,7 @@ class GroundTruth:
         load: The ground's force on each wheel along the ground's normal [N].
         pull_ratio: On soil, the soil's steady-state DP/W at the wheel's slip and load (virgin
             soil, :class:`rover_env.sim.terramechanics.PullCurves`) [-]; NaN on rigid ground,
-            braking or off the ground.
+            off the ground, or braking harder than a slip of -0.5.
         slip_best_pull: On soil, the slip of the largest steady-state DP/W at the wheel's load
             [-]; NaN elsewhere.
         slip_best_efficiency: On soil, the slip of the largest tractive efficiency there [-];

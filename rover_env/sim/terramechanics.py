@@ -673,7 +673,9 @@ class PullCurves:
     What the truth reports of each wheel on soil: its steady-state DP/W at its slip and load,
     and the slips of largest DP/W and of largest tractive efficiency
     ``eta = DP (1 - s) / (T / r)`` (driving: the drawbar power over the axle's) at its load.
-    The table (:data:`LOADS` x :data:`SLIPS`, 48 nodes) is solved once, at first use (0.2 s).
+    The table (:data:`LOADS` x :data:`SLIPS`: 25 x 146 steady states, the contact arc on 48
+    nodes) is solved once per soil at first use (about a second, with the compilation); a load
+    outside the table's 10-1000 N reads its nearest row.
 
     Args:
         soil: The soil.
