@@ -258,3 +258,16 @@ def test_rover_record_refuses_sensors_it_cannot_log_before_writing(tmp_path):
     with pytest.raises(ValueError, match="encoders, motor currents and command have no log format"):
         record("Rover-v0", "slip_aware", 1.0, tmp_path / "out", rig="full")
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_on_rigid_ground_the_wheels_pull_is_the_mass_times_the_acceleration(tmp_path):
+    """Speeding up on level rigid ground: the four drawbar pulls (contact friction along each
+    wheel's heading) sum to the rover's mass times its acceleration."""
+    rig = [{"name": "cmd", "kind": "command"}]
+    _, infos, _ = _drive(tmp_path, rig, 8, action=(0.8, 0.0, 0.0))
+    v = np.array([info["ground_truth"]["twist"][0] for info in infos])
+    pull = np.array([info["ground_truth"]["drawbar_pull"].sum() for info in infos])
+    accel = np.diff(v) * 30.0  # the control rate
+    mid = 0.5 * (pull[1:] + pull[:-1])
+    assert accel[2:6].min() > 3.0  # at the motors' torque limit
+    np.testing.assert_allclose(mid[2:6], 42.6 * accel[2:6], rtol=0.05)
