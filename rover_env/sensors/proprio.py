@@ -15,7 +15,25 @@ import numpy as np
 from rover_env.config.proprio import CommandConfig, EncoderConfig, MotorCurrentConfig
 
 
-class WheelEncoders:
+class _WheelSensor:
+    """What the encoders and current senses share: the rover they read, their part, their rate."""
+
+    def __init__(self, sim, config, seed: int | None) -> None:
+        self.sim = sim
+        self.config = config
+        self._rover = sim.rover
+        self.reset(seed)
+
+    @property
+    def period(self) -> float:
+        """Time between readings [s]."""
+        return 1.0 / float(self.config.rate_hz)
+
+    def reset(self, seed: int | None = None) -> None:
+        raise NotImplementedError
+
+
+class WheelEncoders(_WheelSensor):
     """Each wheel's angle as an incremental encoder's wrapping counter.
 
     :meth:`sample` returns (4,) float64 counts, whole numbers in [0, 2 ** counter_bits): the
@@ -25,15 +43,7 @@ class WheelEncoders:
     """
 
     def __init__(self, sim, config: EncoderConfig | None = None, seed: int | None = None) -> None:
-        self.sim = sim
-        self.config = config or EncoderConfig()
-        self._rover = sim.rover
-        self.reset(seed)
-
-    @property
-    def period(self) -> float:
-        """Time between readings [s]."""
-        return 1.0 / float(self.config.rate_hz)
+        super().__init__(sim, config or EncoderConfig(), seed)
 
     def reset(self, seed: int | None = None) -> None:
         """A new episode: the counters' power-up values."""
@@ -48,22 +58,14 @@ class WheelEncoders:
         return np.mod(counts + self._start, float(2**c.counter_bits))
 
 
-class MotorCurrents:
+class MotorCurrents(_WheelSensor):
     """Each drive motor's current [A], from its wheel's true torque (see :class:`MotorCurrentConfig`).
 
     :meth:`sample` returns (4,) float64 currents [A], positive driving the wheel forward.
     """
 
     def __init__(self, sim, config: MotorCurrentConfig | None = None, seed: int | None = None) -> None:
-        self.sim = sim
-        self.config = config or MotorCurrentConfig()
-        self._rover = sim.rover
-        self.reset(seed)
-
-    @property
-    def period(self) -> float:
-        """Time between readings [s]."""
-        return 1.0 / float(self.config.rate_hz)
+        super().__init__(sim, config or MotorCurrentConfig(), seed)
 
     def reset(self, seed: int | None = None) -> None:
         """A new episode: the current sense's offsets and noise stream."""

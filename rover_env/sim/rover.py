@@ -292,23 +292,24 @@ class Rover:
                 push(self.body_id, link, force[i].tolist(), wheels[i, :3].tolist(), pb.WORLD_FRAME)
                 turn(self.body_id, link, torque[i].tolist(), pb.WORLD_FRAME)
 
-    def _wheel_velocities(self) -> tuple[list[float], list[float]]:
-        """Per wheel: centre velocity along its knuckle's x (rolling) and y (lateral) axes [m/s]."""
-        v_long_l, v_lat_l = [], []
+    def _wheel_velocities(self) -> tuple[list[float], list[float], list[tuple[float, float, float]]]:
+        """Per wheel: centre velocity along its knuckle's x (rolling) and y (lateral) axes [m/s].
+
+        Also that x axis, the wheel's heading (world frame).
+        """
+        v_long_l, v_lat_l, heading_l = [], [], []
         for w_st, k_st in zip(self._read_wheels_with_velocity(), self._read_knuckles()):
             vx, vy, vz = w_st[6]
             kx, ky, kz, kw = k_st[5]
-            v_long_l.append(
-                vx * (1 - 2 * (ky * ky + kz * kz))
-                + vy * 2 * (kx * ky + kz * kw)
-                + vz * 2 * (kx * kz - ky * kw)
-            )
+            h = (1 - 2 * (ky * ky + kz * kz), 2 * (kx * ky + kz * kw), 2 * (kx * kz - ky * kw))
+            v_long_l.append(vx * h[0] + vy * h[1] + vz * h[2])
             v_lat_l.append(
                 vx * 2 * (kx * ky - kz * kw)
                 + vy * (1 - 2 * (kx * kx + kz * kz))
                 + vz * 2 * (ky * kz + kx * kw)
             )
-        return v_long_l, v_lat_l
+            heading_l.append(h)
+        return v_long_l, v_lat_l, heading_l
 
     def update_dig(self, terrain: Terrain) -> None:
         """Set how far each wheel has dug into loose soil from its exact slip now (call every substep).
@@ -333,7 +334,7 @@ class Rover:
         q = [s[0] for s in joints]
         qd = [s[1] for s in joints]
         wheel_steer = np.array([q[j] for j in self.steer_joints])
-        v_long_l, v_lat_l = self._wheel_velocities()
+        v_long_l, v_lat_l, heading = self._wheel_velocities()
         r = g.wheel_radius
         wheel_rate = np.array([qd[j] for j in self.wheel_joints])
         v_long = np.array(v_long_l)
@@ -341,6 +342,7 @@ class Rover:
         normal_force = [0.0] * 4
         contact_point = [[math.nan] * 3 for _ in range(4)]
         depth = [math.inf] * 4
+        pull = np.zeros(4)
         for p in self.client.getContactPoints(bodyA=self.body_id, bodyB=terrain_id):
             i = self._wheel_index.get(p[3])
             if i is None:
@@ -349,16 +351,13 @@ class Rover:
             if p[8] < depth[i]:
                 depth[i] = p[8]
                 contact_point[i] = p[6]
+            # the friction on the wheel (body A) along its heading
+            f = p[10] * np.asarray(p[11]) + p[12] * np.asarray(p[13])
+            pull[i] += float(f @ heading[i])
         friction = np.array(self._mu, dtype=np.float64)
-        sinkage, pull = np.zeros(4), np.zeros(4)
+        sinkage = np.zeros(4)
         curves = np.full((4, 3), math.nan)  # pull ratio, slip of best pull, of best efficiency
         slip = slip_ratio(wheel_rate * r, v_long)
-        heading = self._wheel_headings()
-        for p in self.client.getContactPoints(bodyA=self.body_id, bodyB=terrain_id):
-            i = self._wheel_index.get(p[3])
-            if i is not None:  # the friction on the wheel (body A) along its heading
-                f = p[10] * np.asarray(p[11]) + p[12] * np.asarray(p[13])
-                pull[i] += float(f @ heading[i])
         soil = self.soil
         if soil is not None:  # wheels on soil: the soil's load, its lowest rim point, tan(phi)
             for i, st in enumerate(self._read_wheels()):
@@ -398,14 +397,6 @@ class Rover:
             slip_best_pull=curves[:, 1],
             slip_best_efficiency=curves[:, 2],
         )
-
-    def _wheel_headings(self) -> np.ndarray:
-        """(4, 3) each wheel's heading (its knuckle's x axis), world frame."""
-        out = np.zeros((4, 3))
-        for i, k_st in enumerate(self._read_knuckles()):
-            kx, ky, kz, kw = k_st[5]
-            out[i] = (1 - 2 * (ky * ky + kz * kz), 2 * (kx * ky + kz * kw), 2 * (kx * kz - ky * kw))
-        return out
 
 
 def _ackermann_arms(geom: RoverGeometry) -> tuple[np.ndarray, np.ndarray]:
