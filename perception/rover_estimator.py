@@ -32,7 +32,7 @@ from perception.fusion.inertial import AttitudeFilter, G, tilted_step
 from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.fusion.sun_heading import HeadingConfig, HeadingFilter
 from perception.kinematics.fisheye import KinematicsConfig, KinematicState, KinematicStateEstimator
-from perception.kinematics.sinkage import SinkageConfig, SinkageEstimator
+from perception.kinematics.sinkage import SinkageConfig, SinkageEstimate, SinkageEstimator
 from perception.models.drive_geometry import AXLES, WHEELS
 from perception.models.rover import MARKERS
 from perception.models.rover_parts import joint_window_parts, kinematics_roi
@@ -68,8 +68,6 @@ STEP_KEYS: tuple[str, ...] = ("odometry_pose", *STATE_KEYS)
 #: The bias's error falls as one over its square root: 0.5 mrad/s over 0.25 s, 0.2 over 1.5 s
 #: (BMI088), 0.02 and 0.008 rad of heading over a 40 s mission.
 IMU_CALIBRATION_S = 1.5
-#: A wheel's sinkage is reported where the fisheye's measurement of it has at least this quality.
-SINKAGE_MIN_QUALITY = 0.3
 #: The fisheye's frames are measured for sinkage at most this often [Hz] (it changes over
 #: decimetres of travel; 2 ms a train-preset frame, benchmarks/soil_estimation.py).
 SINKAGE_RATE_HZ = 10.0
@@ -203,7 +201,8 @@ class RoverEstimator:
             defaults, or for a fisheye that reads out only the ground near its axis
             (``SensorSpec.ground_view_deg``) features 5 degrees inside that view.
         sinkage: The fisheye's sinkage measurement's parameters (None: the defaults); a
-            wheel's sinkage is reported where its quality reaches ``SINKAGE_MIN_QUALITY``.
+            wheel's sinkage is reported where its quality reaches
+            :data:`perception.kinematics.sinkage.MIN_QUALITY`.
 
     Raises:
         ConfigError: The rig lacks a fisheye, or the downward camera ``odometry_camera`` asks
@@ -287,8 +286,7 @@ class RoverEstimator:
         )
         #: Each wheel's sinkage from the fisheye (:mod:`perception.kinematics.sinkage`).
         self.sinkage = SinkageEstimator(fish.model, self.model, sinkage)
-        self._sinkage = np.full(4, math.nan)
-        self._sinkage_q = np.zeros(4)
+        self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
         self._sinkage_next = -math.inf
         slip = slip or SlipConfig()
         if imu is not None:
@@ -373,8 +371,7 @@ class RoverEstimator:
         self.kinematics.reset()
         self.slip.reset()
         self._sinkage_next = -math.inf
-        self._sinkage[:] = math.nan
-        self._sinkage_q[:] = 0.0
+        self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
         if self.encoders is not None:
             self.encoders.reset()
         self._current_batch = []
@@ -478,13 +475,11 @@ class RoverEstimator:
             return  # measured at SINKAGE_RATE_HZ; the last measurement stands until the next
         t0 = time.perf_counter()
         self._sinkage_next = t + 1.0 / SINKAGE_RATE_HZ
-        self._sinkage[:] = math.nan
-        self._sinkage_q[:] = 0.0
+        self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
         if all(state.valid[d] for d in ("psi_F", "psi_R", "d_F", "d_R", "lam_F", "lam_R")):
             # the wheels stand where the image shows them: at the depths with their rest offset
             depth = state.depth + self.kinematics.depth_zero
-            est = self.sinkage.measure(img, state.psi, depth, state.delta)
-            self._sinkage[:], self._sinkage_q[:] = est.sinkage, est.quality
+            self._sinkage = self.sinkage.measure(img, state.psi, depth, state.delta)
         self.timing["sinkage"] += time.perf_counter() - t0
 
     def wheel_ground_plane(self) -> tuple[float, float, float]:
@@ -718,9 +713,9 @@ class RoverEstimator:
         }
         if self._torque is not None:
             values["wheel_torque"] = self._torque.copy()
-        ok = self._sinkage_q >= SINKAGE_MIN_QUALITY
-        values["sinkage"] = np.where(ok, self._sinkage, np.nan)
-        values["sinkage_quality"] = np.array([float(np.mean(np.where(ok, self._sinkage_q, 0.0)))])
+        sink, q_sink = self._sinkage.reported()
+        values["sinkage"] = sink
+        values["sinkage_quality"] = np.array([q_sink])
         if self.imu is None:
             return StepEstimate(values, q_odo, q_kin, 0.0, sl, odo, ks)
         tilt = (self.attitude.roll, self.attitude.pitch)

@@ -143,6 +143,7 @@ def test_rover_odometry_cli_on_a_folder_of_images(tmp_path):
 
 
 def test_rover_kinematics_cli_on_a_folder_of_fisheye_images(tmp_path, capsys):
+    import csv
     import math
 
     import cv2
@@ -167,11 +168,39 @@ def test_rover_kinematics_cli_on_a_folder_of_fisheye_images(tmp_path, capsys):
     np.testing.assert_allclose(rows["psi_R"][:4], [p[1] for p in psis], atol=math.radians(0.2))
     assert rows["valid_psi_F"][:4].all() and not rows["valid_psi_F"][4]
     assert "not a readable image" in rows["note"][4] and np.isfinite(rows["psi_F"][4])
+    with open(out / "kinematics.csv", newline="") as fh:
+        assert list(csv.DictReader(fh))[4]["sinkage_FL"] == ""  # no image: no sinkage
     # a malformed geometry file: the error names the key, nothing is raised
     (tmp_path / "bad.yaml").write_text(rover_yaml.read_text().replace("wheel_radius", "wheel_radiu"))
     args[args.index(str(rover_yaml))] = str(tmp_path / "bad.yaml")
     assert main([*args, "--out", str(out)]) == 2
     assert "wheel_radiu" in capsys.readouterr().err
+
+
+def test_rover_kinematics_cli_writes_each_wheels_sinkage(tmp_path):
+    """Images ray-cast with the wheels 25 mm deep in soil, the markers on them: 25 mm in the CSV."""
+    import cv2
+    from test_markers import fisheye, render_markers, rover_model
+    from test_sinkage import cast
+
+    model = rover_model()
+    cam = fisheye(model)
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    depth = (model.nominal_depth, model.nominal_depth)
+    for k, z in enumerate((0.025, 0.025, 0.0)):
+        soil = cast(model, cam, z, seed=k)
+        rgb = render_markers(model, cam, (0.0, 0.0), depth, np.zeros(4), background=soil)
+        cv2.imwrite(str(imgs / f"f{k:03d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    cam_yaml, rover_yaml = cam.save(tmp_path / "omni.yaml"), model.save(tmp_path / "rover.yaml")
+    out = tmp_path / "out"
+    args = ["kinematics", str(imgs), "--camera", str(cam_yaml), "--rover", str(rover_yaml), "--fps", "10"]
+    assert main([*args, "--out", str(out)]) == 0
+    rows = np.genfromtxt(out / "kinematics.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    sink = np.stack([rows[f"sinkage_{w}"] for w in ("FL", "FR", "RL", "RR")], -1)
+    np.testing.assert_allclose(sink[:2], 0.025, atol=0.002)
+    np.testing.assert_allclose(sink[2], 0.0, atol=0.002)  # rigid ground: the faces reach the rims
+    assert np.all(rows["sinkage_quality"] > 0.4)
 
 
 def test_every_option_has_help_without_markup_and_pybullet_prints_no_banner():

@@ -49,12 +49,15 @@ def fisheye(model) -> OmniCamera:
     return OmniCamera.equidistant((640, 480), math.radians(190.0), 300.8, T_body_cam=model.T_body_cam)
 
 
-def render_markers(model, camera, psi, depth, delta, shade=1.0, ss=4, rng=None):
-    """RGB fisheye image of the 8 magenta squares over a grey textured background."""
+def render_markers(model, camera, psi, depth, delta, shade=1.0, ss=4, rng=None, background=None):
+    """RGB fisheye image of the 8 magenta squares over a grey textured background (or ``background``)."""
     w, h = camera.image_size
     rng = rng or np.random.default_rng(0)
-    bg = cv2.GaussianBlur(rng.normal(100, 25, size=(h, w)).astype(np.float32), (0, 0), 1.5)
-    img = np.repeat(bg[..., None], 3, axis=2)
+    if background is None:
+        bg = cv2.GaussianBlur(rng.normal(100, 25, size=(h, w)).astype(np.float32), (0, 0), 1.5)
+        img = np.repeat(bg[..., None], 3, axis=2)
+    else:
+        img = np.asarray(background, np.float32).copy()
     pos = model.marker_positions(psi, depth, delta)
     nrm = model.marker_normals(psi, delta)
     T_cb = np.linalg.inv(model.T_body_cam)

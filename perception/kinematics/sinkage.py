@@ -76,12 +76,26 @@ class SinkageConfig:
     std_scale: float = 0.003
 
 
+#: A wheel's sinkage is reported where its measurement has at least this quality.
+MIN_QUALITY = 0.3
+
+
 @dataclass
 class SinkageEstimate:
     """Per wheel (FL, FR, RL, RR): the sinkage [m] (NaN: none) and its quality [0, 1]."""
 
     sinkage: np.ndarray
     quality: np.ndarray
+
+    def reported(self) -> tuple[np.ndarray, float]:
+        """The reported sinkages and their quality.
+
+        Returns:
+            The sinkages [m] of quality at least :data:`MIN_QUALITY` (NaN: the others), and
+            their mean quality over the four wheels (the others count 0).
+        """
+        ok = self.quality >= MIN_QUALITY
+        return np.where(ok, self.sinkage, np.nan), float(np.mean(np.where(ok, self.quality, 0.0)))
 
 
 class SinkageEstimator:

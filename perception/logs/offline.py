@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 from perception.fusion.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
 from perception.kinematics.fisheye import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
 from perception.kinematics.markers import SteeringCalibration
+from perception.kinematics.sinkage import SinkageEstimator
 from perception.logs.bags import LogFrame
 from perception.logs.log_time import Placed, in_stamp_order, place
 from perception.logs.outputs import OutputFolder
@@ -798,7 +799,9 @@ def run_folder_kinematics(
         out: Output folder (:class:`perception.logs.outputs.OutputFolder`); ``kinematics.csv`` gets
             one row per image: t, the 10 degrees of freedom (psi_F, psi_R [rad], d_F, d_R [m],
             lambda_F, lambda_R [rad], theta FL..RR [rad]), the four wheel rates [rad/s],
-            quality, a validity flag per degree of freedom and a note. With ``mcap``,
+            quality, a validity flag per degree of freedom, each wheel's sinkage [m]
+            (:mod:`perception.kinematics.sinkage`; empty where its quality is below
+            ``MIN_QUALITY`` or the axles' pose was not measured) and their quality, and a note. With ``mcap``,
             ``kinematics.mcap`` holds one ``sensor_msgs/JointState`` per image (NaN where a
             joint was not measured).
         steering: Optional steering calibration (eq. 5 ratio map) YAML or object.
@@ -836,7 +839,8 @@ def run_folder_kinematics(
     else:
         source = _folder_source(images, fps, cam.image_size, colour=True)
     with OutputFolder(out, KINEMATICS_PRODUCTS, overwrite, inputs=(images,)) as folder:
-        res = _kinematics(source, cam, est, progress, mcap, folder, str(images))
+        sink = SinkageEstimator(cam, model)
+        res = _kinematics(source, cam, est, sink, progress, mcap, folder, str(images))
     if not res.any_valid:
         raise NothingValidError(
             f"{images}: no degree of freedom measured on any of {res.frames} frames; most often: "
@@ -845,7 +849,7 @@ def run_folder_kinematics(
     return res
 
 
-def _kinematics(source, cam, est, progress, mcap, folder, name) -> FolderKinematicsResult:
+def _kinematics(source, cam, est, sink, progress, mcap, folder, name) -> FolderKinematicsResult:
     from perception.logs import bags
 
     n_all = n_any = n_rows = 0
@@ -861,7 +865,8 @@ def _kinematics(source, cam, est, progress, mcap, folder, name) -> FolderKinemat
         wr.writerow(
             ["t", *DOF_NAMES, "rate_FL", "rate_FR", "rate_RL", "rate_RR", "quality"]
             + [f"valid_{d}" for d in DOF_NAMES]
-            + ["note"]
+            + [f"sinkage_{w}" for w in WHEELS]
+            + ["sinkage_quality", "note"]
         )
         t_row = -math.inf
         for n, p in enumerate(source.placed, start=1):
@@ -892,6 +897,9 @@ def _kinematics(source, cam, est, progress, mcap, folder, name) -> FolderKinemat
             n_all += int(all(s.valid.values()))
             n_any += int(any(s.valid.values()))
             dof = np.r_[s.psi, s.depth, s.lam, s.theta]
+            z, q_z = np.full(4, math.nan), 0.0
+            if rgb.size and all(s.valid[d] for d in DOF_NAMES[:6]):  # the axles' pose: the wheels'
+                z, q_z = sink.measure(rgb, s.psi, s.depth + est.depth_zero, s.delta).reported()
             wr.writerow(
                 [
                     f"{t:.6f}",
@@ -900,7 +908,8 @@ def _kinematics(source, cam, est, progress, mcap, folder, name) -> FolderKinemat
                     f"{s.quality:.2f}",
                 ]
                 + [int(s.valid[d]) for d in DOF_NAMES]
-                + [_cell(note)]
+                + [f"{v:.4f}" if math.isfinite(v) else "" for v in z]
+                + [f"{q_z:.2f}", _cell(note)]
             )
             if mw is not None:
                 pos = np.where([s.valid[d] for d in DOF_NAMES], dof, math.nan)
