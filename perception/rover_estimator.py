@@ -71,6 +71,12 @@ IMU_CALIBRATION_S = 1.5
 #: The fisheye's frames are measured for sinkage at most this often [Hz] (it changes over
 #: decimetres of travel; 2 ms a train-preset frame, benchmarks/soil_estimation.py).
 SINKAGE_RATE_HZ = 10.0
+#: The odometry's ground plane is raised by the wheels' measured sinkages for at most this long
+#: after they were measured [s]; then it falls back to the wheels' lowest points.
+GROUND_LIFT_HOLD_S = 2.0
+#: ... where at least three wheels report at least this sinkage [m] (one wheel's reading alone
+#: is more often a shadow on rigid ground than soil).
+GROUND_LIFT_MIN_SINKAGE = 0.005
 #: The rate of the fused velocity that the attitude filter takes out of the specific force is a
 #: difference over at least this long [s] (shorter: the odometry's frame-to-frame noise).
 VELOCITY_RATE_S = 0.25
@@ -156,6 +162,26 @@ class StepEstimate:
         return {
             k: v for k, v in out.items() if k == "pose" or not (isinstance(v, float) and math.isnan(v))
         }  # unknown: left out
+
+
+def ground_lift(sinkage) -> np.ndarray | None:
+    """How far the ground in view lies above each wheel's lowest point [m], from their sinkages.
+
+    Args:
+        sinkage: (4,) the wheels' reported sinkages [m] (NaN: not reported).
+
+    Returns:
+        Each wheel's sinkage (a wheel not reported: the others' median) where at least three
+        wheels report ``GROUND_LIFT_MIN_SINKAGE`` or more; zeros where fewer do (rigid ground,
+        or one wheel's reading alone, more often a shadow than soil); None where no wheel is
+        reported.
+    """
+    z = np.asarray(sinkage, dtype=np.float64)
+    if not np.isfinite(z).any():
+        return None
+    if np.count_nonzero(z >= GROUND_LIFT_MIN_SINKAGE) >= 3:  # NaN compares False
+        return np.where(np.isfinite(z), z, np.nanmedian(z))
+    return np.zeros_like(z)
 
 
 class RoverEstimator:
@@ -372,6 +398,8 @@ class RoverEstimator:
         self.slip.reset()
         self._sinkage_next = -math.inf
         self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
+        # the ground above each wheel's lowest point [m], and when it was measured [s]
+        self._lift = (np.zeros(4), -math.inf)
         if self.encoders is not None:
             self.encoders.reset()
         self._current_batch = []
@@ -480,12 +508,24 @@ class RoverEstimator:
             # the wheels stand where the image shows them: at the depths with their rest offset
             depth = state.depth + self.kinematics.depth_zero
             self._sinkage = self.sinkage.measure(img, state.psi, depth, state.delta)
+            lift = ground_lift(self._sinkage.reported()[0])
+            if lift is not None:
+                self._lift = (lift, t)
         self.timing["sinkage"] += time.perf_counter() - t0
 
     def wheel_ground_plane(self) -> tuple[float, float, float]:
-        """The ground under the wheels of the kinematics' latest state, z = a x + b y + c (body) [-, -, m]."""
+        """The ground under the wheels of the kinematics' latest state, z = a x + b y + c (body) [-, -, m].
+
+        The plane through the wheels' lowest points, each raised by its sinkage where at least
+        three wheels report ``GROUND_LIFT_MIN_SINKAGE`` (a wheel whose sinkage was not reported
+        by the median of the others'; held for ``GROUND_LIFT_HOLD_S``): on soil the ground in
+        view is the soil's surface, not the rims' lowest points below it.
+        """
         s = self.kinematics.state
         centres = np.array([c for _, c in self.model.wheel_frames(s.psi, s.depth, s.delta)])
+        lift, t_lift = self._lift
+        if self._t - t_lift <= GROUND_LIFT_HOLD_S:
+            centres[:, 2] += lift
         return ground_plane_from_wheels(centres, self.model.wheel_radius)
 
     def _on_downward(self, img: np.ndarray, t: float) -> None:

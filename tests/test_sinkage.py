@@ -98,3 +98,14 @@ def test_no_boundary_to_see_is_no_sinkage(rig, image):
         image(model, camera), np.zeros(2), np.full(2, model.nominal_depth), np.zeros(4)
     )
     assert np.all(np.isnan(est.sinkage)) and np.all(est.quality == 0.0)
+
+
+def test_the_ground_in_view_is_lifted_only_where_most_wheels_report_sinkage():
+    from perception.rover_estimator import ground_lift
+
+    nan = float("nan")
+    np.testing.assert_allclose(ground_lift([0.020, 0.022, nan, 0.026]), [0.020, 0.022, 0.022, 0.026])
+    # one wheel's reading alone (a shadow on rigid ground, more often than soil): no lift
+    np.testing.assert_array_equal(ground_lift([0.0, 0.011, 0.0, nan]), np.zeros(4))
+    np.testing.assert_array_equal(ground_lift([0.008, 0.011, nan, nan]), np.zeros(4))
+    assert ground_lift([nan] * 4) is None  # nothing measured: the last lift holds
