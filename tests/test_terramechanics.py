@@ -231,3 +231,40 @@ def test_no_side_force_jumps_at_zero_speed():
 def test_a_test_bed_run_refuses_a_speed_that_is_rest():
     with pytest.raises(ConfigError, match="speed"):
         steady_state(load_soil("dry_sand"), WHEEL, LOAD, 0.2, speed=0.001)
+
+
+def _rolled(contact, z: float, v: float, steps: int = 480):
+    """A wheel rolled ``steps`` substeps at sinkage ``z`` [m] and ``v`` [m/s] without slip."""
+    one = np.ones(1)
+    for _ in range(steps):
+        out = contact.step(z * one, v * one, v / WHEEL.radius * one, 0.0 * one, 0.0 * one).copy()
+    return out
+
+
+@pytest.mark.parametrize("v", [0.3, 0.0])
+def test_soil_pressed_and_relieved_springs_back_only_by_its_rebound(v):
+    """A rolling wheel that rises faster than its contact meets fresh soil is not carried up Bekker's curve.
+
+    Toyoura sand pressed to 20 mm rebounds by p/k_u = 1.7 mm: risen 3 mm in one substep (far
+    faster than v sin(theta_f), 0.6 mm a substep) the wheel feels no soil; risen 0.2 mm a
+    substep it stays on the loading curve. At rest the model's rest state keeps Bekker's curve
+    both ways (a rover set down settles at its static sinkage).
+    """
+    from rover_env.sim.soil_contact import SoilContact
+
+    soil = SOIL_PRESETS["toyoura"]
+    one = np.ones(1)
+    c = SoilContact(soil, WHEEL, 1, 1 / 240)
+    _rolled(c, 0.020, v)
+    fz = c.step(0.017 * one, v * one, v / WHEEL.radius * one, 0.0 * one, 0.0 * one)[0, 1]
+    virgin = float(contact_forces(soil, WHEEL, 0.017, v, v / WHEEL.radius).normal)
+    if v > 0.0:
+        assert abs(fz) < 1.0 and virgin > 50.0  # (the cohesion's shear alone: -0.1 N)
+        slow = SoilContact(soil, WHEEL, 1, 1 / 240)
+        _rolled(slow, 0.020, v)
+        for k in range(1, 16):  # 0.2 mm a substep: carried all the way up
+            z = 0.020 - 0.0002 * k
+            fz = slow.step(z * one, v * one, v / WHEEL.radius * one, 0.0 * one, 0.0 * one)[0, 1]
+        assert fz == pytest.approx(float(contact_forces(soil, WHEEL, z, v, v / WHEEL.radius).normal), rel=0.05)
+    else:
+        assert fz == pytest.approx(virgin, rel=0.02)

@@ -23,6 +23,15 @@ slip. Stepping it in a simulation at 240 Hz needs three things more, all here:
   dropped on soil settles instead of bouncing on Bekker's spring. Its shear deflection is
   damped the same way (``shear_damping``, on the deflection's rate, which is zero in steady
   rolling): a braked wheel on a slope does not rock on the soil's shear spring.
+- **Unloading.** Bekker's pressure–sinkage curve is the soil's loading curve; soil pressed
+  and then relieved springs back only by its rebound, along the stiff unloading line
+  ``k_u = k0 + A_u z`` (Wong 2008, Sec. 2.4.4). A rolling wheel's contact meets fresh soil at
+  its front at ``v sin(theta_f)``, so it may rise that fast and stay carried; each wheel keeps
+  the deepest it has pressed the soil under it (``pressed``, let go at that rate), and where
+  it has risen above that by ``d`` each node's stress is at most its unloading line's,
+  ``p(z + d) - k_u(z + d) d``. Without it a wheel bounced out of its rut on Bekker's curve as
+  on a spring (the rear wheels' hop, ``docs/terramechanics.md``). A wheel at rest keeps the
+  model's rest state, Bekker's curve both ways (its static sinkage after being set down).
 - **New soil.** The deflection relaxes, and the rolling state advances, only with travel onto
   ground the contact has not worked yet (past the stretch, at most a contact long, it has):
   a wheel rocking back and forth in place does not ratchet downhill.
@@ -84,7 +93,9 @@ class SoilContact:
         # (columns: position, front, back) [m]
         self._travel = np.zeros((self.n, 3))
         self._turn = np.zeros((self.n, 3))
-        self._work = np.zeros((7, self.n))  # the kernel's inputs and the deflection's rates
+        #: The deepest each wheel has pressed the soil under it [m] (forgotten as it rolls on).
+        self.pressed = np.zeros(self.n)
+        self._work = np.zeros((8, self.n))  # the kernel's inputs, the deflection's rates, the rise
 
     def reset(self) -> None:
         """Forget the held shear and the deflection (a new episode)."""
@@ -95,7 +106,7 @@ class SoilContact:
         """Fresh soil state for one wheel (it went onto or off the soil)."""
         self.hold[:, wheel] = 0.0
         self.deflection[:, wheel] = 0.0
-        for a in (self.rolled, self._out, self._travel, self._turn):
+        for a in (self.rolled, self._out, self._travel, self._turn, self.pressed):
             a[wheel] = 0.0
 
     def snapshot(self) -> tuple[np.ndarray, ...]:
@@ -108,7 +119,7 @@ class SoilContact:
             now[...] = kept
 
     def _state(self) -> tuple[np.ndarray, ...]:
-        return (self.hold, self.deflection, self.rolled, self._out, self._travel, self._turn)
+        return (self.hold, self.deflection, self.rolled, self._out, self._travel, self._turn, self.pressed)
 
     def _checked(self, name: str, a) -> np.ndarray:
         a = np.ascontiguousarray(a, dtype=np.float64)
@@ -155,6 +166,7 @@ class SoilContact:
             self.rolled,
             self._travel,
             self._turn,
+            self.pressed,
             self._work,
             self._out,
         )
@@ -261,6 +273,7 @@ class SoilGround:
             c.rolled,
             c._travel,
             c._turn,
+            c.pressed,
             c._work,
             c._out,
             self._inputs,

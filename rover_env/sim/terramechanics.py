@@ -197,14 +197,16 @@ def _sign(x):  # pragma: no cover (compiled)
 
 @_compiled
 def _contact_kernel(
-    p, h, slip, side, sin_beta, moving_in, direction, zp, jprev, hold_x, hold_y, n_theta, out
+    p, h, slip, side, sin_beta, moving_in, direction, zp, jprev, hold_x, hold_y, rise, n_theta, out
 ):  # pragma: no cover (compiled)
     """The contact integrals of every wheel; ``p`` (n, 22) its soil's and wheel's parameters (``_params``).
 
     Per wheel, in its travel frame (``direction`` -1 mirrors a wheel rolling backward): the
     slip ratio, the side slip ``side`` (j_y = r (theta_f - theta) side), sin of the slip angle
     (side-wall bulldozing), how far it is from rest (``moving``, 0..1), the rut (``zp``,
-    ``jprev``) and the held shear (``hold_x``, ``hold_y``), the last three in the caller's frame.
+    ``jprev``) and the held shear (``hold_x``, ``hold_y``), the last three in the caller's frame;
+    ``rise``, how far it has risen above the deepest it pressed the soil under it (which then
+    unloads along its stiff line: :func:`_soil_step`).
     """
     for i in range(h.shape[0]):
         q = p[i]
@@ -255,6 +257,9 @@ def _contact_kernel(
             sig = _pressure(kb, n, k0, au, rs * gap + surf, z_p, surf)
             if mu < 1.0:
                 sig = mu * sig + (1.0 - mu) * _pressure(kb, n, k0, au, r * gap + surf, z_p, surf)
+            if rise[i] > 0.0:  # pressed deeper a moment ago: unloading along the stiff line
+                deep = rs * gap + surf + rise[i]
+                sig = min(sig, max(kb * deep**n - (k0 + au * deep) * rise[i], 0.0))
             sin_t, cos_t = math.sin(th), math.cos(th)
             # shear displacement along the wheel, signed by the slip velocity there
             if driving:
@@ -329,7 +334,7 @@ def _advance(track, i, step, length):  # pragma: no cover (compiled)
 @_compiled
 def _soil_step(
     p, h, vx, w, vy, sink_rate, zp, jprev, dt, damping, shear_damping, n_theta,
-    hold, deflection, rolled, travel, turn, work, out,
+    hold, deflection, rolled, travel, turn, pressed, work, out,
 ):  # pragma: no cover (compiled)  # fmt: skip
     """One substep of :class:`SoilContact` for every wheel: its soil state, then its forces."""
     slip, side, sin_beta, moving, direction, rate_x, rate_y = (
@@ -363,6 +368,16 @@ def _soil_step(
         d = -1.0 if rolled[i] < 0.0 else 1.0
         direction[i] = d
         moving[i] = abs(rolled[i])
+        # the deepest this rolling wheel has pressed the soil under it: its contact's front
+        # meets fresh soil at vx sin(theta_f), so it may rise that fast still carried; faster,
+        # it leaves soil pressed deeper, which unloads along its stiff line, not back up
+        # Bekker's curve (which a wheel at rest keeps, the model's rest state)
+        if out[i, 5] > 0.0:
+            deepest = max(h[i], pressed[i] - abs(vx[i]) * math.sin(out[i, 5]) * dt)
+            pressed[i] = h[i] + moving[i] * (deepest - h[i])
+        else:
+            pressed[i] = h[i]
+        work[7, i] = max(pressed[i] - h[i], 0.0)
         q = min(max(d * jx / length, -1.0), 99.0)
         s = q / (1.0 + abs(q)) if q >= 0.0 else q
         slip[i] = s
@@ -373,7 +388,9 @@ def _soil_step(
         held = HOLD_CAP * max(k_x, k_y)
         hold[0, i] = min(max(hold[0, i] * forget + (rim - vx[i]) * dt, -held), held)
         hold[1, i] = min(max(hold[1, i] * forget - vy[i] * dt, -held), held)
-    _contact_kernel(p, h, slip, side, sin_beta, moving, direction, zp, jprev, hold[0], hold[1], n_theta, out)
+    _contact_kernel(
+        p, h, slip, side, sin_beta, moving, direction, zp, jprev, hold[0], hold[1], work[7], n_theta, out
+    )
     for i in range(h.shape[0]):
         area = p[i, 2] * p[i, 1] * (out[i, 5] - out[i, 6])
         out[i, 1] += damping * max(sink_rate[i], 0.0) * area
@@ -386,7 +403,7 @@ def _soil_step(
 @_compiled
 def _ground_step(
     p, index, wheels, ground, normal, prior, prior_shear, dt, damping, shear_damping, n_theta,
-    hold, deflection, rolled, travel, turn, work, out, inputs, frames, force, torque, sinkage,
+    hold, deflection, rolled, travel, turn, pressed, work, out, inputs, frames, force, torque, sinkage,
 ):  # pragma: no cover (compiled)  # fmt: skip
     """One substep of :class:`SoilGround`: world frames, the soil's step, world forces."""
     h, vx, w, vy, sink_rate = inputs[0], inputs[1], inputs[2], inputs[3], inputs[4]
@@ -412,7 +429,7 @@ def _ground_step(
         w[i] = wheels[i, 10] * a0 + wheels[i, 11] * a1 + wheels[i, 12] * a2
     _soil_step(
         p, h, vx, w, vy, sink_rate, prior, prior_shear, dt, damping, shear_damping, n_theta,
-        hold, deflection, rolled, travel, turn, work, out,
+        hold, deflection, rolled, travel, turn, pressed, work, out,
     )  # fmt: skip
     for i in range(index.shape[0]):
         on = index[i] >= 0
@@ -554,6 +571,7 @@ def contact_forces(
         jp,
         hx,
         hy,
+        np.zeros(h.shape[0]),
         max(int(n_theta), 3),
         out,
     )
