@@ -176,11 +176,7 @@ def test_the_truth_on_soil_is_the_soils_sinkage_pull_and_load(tmp_path):
 
 
 def test_the_full_rig_gives_the_builtin_estimator_encoder_rates_and_wheel_torques():
-    """With encoders the slip filter's wheel rates follow the truth closely; the currents give the torques.
-
-    Drawn with the default renderer: TinyRenderer leaves the wheels' inner faces out, through
-    which the fisheye then sees the ground (docs/terramechanics.md, sinkage).
-    """
+    """With encoders the slip filter's wheel rates follow the truth closely; the currents give the torques."""
     env = gym.make("Rover-v0", rig="full")
     try:
         _, info = env.reset(seed=4)

@@ -333,3 +333,23 @@ def test_view_planes_hold_exactly_the_points_the_view_sees(principal):
     ]
     for x in outside:
         assert (margin(x) < 0).all()
+
+
+def test_every_wheel_triangle_faces_outward_so_no_renderer_culls_it():
+    """Renderers that cull back faces (TinyRenderer) draw a triangle only when it is wound
+    counter-clockwise seen from outside; the wheel is convex about its centre, so each
+    triangle's winding normal points away from the centre."""
+    from rover_env.sim.geometry import RoverGeometry
+    from rover_env.sim.urdf import wheel_mesh
+
+    v, faces = [], []
+    for line in wheel_mesh(RoverGeometry()).read_text().splitlines():
+        tok = line.split()
+        if tok and tok[0] == "v":
+            v.append([float(x) for x in tok[1:4]])
+        elif tok and tok[0] == "f":
+            faces.append([int(c.split("/")[0]) - 1 for c in tok[1:4]])
+    p = np.asarray(v)[np.asarray(faces)]  # (triangles, 3 corners, xyz)
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    outward = np.einsum("ij,ij->i", normal, p.mean(axis=1))
+    assert len(faces) == 4 * 64 and np.all(outward > 0.0)

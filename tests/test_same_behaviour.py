@@ -32,8 +32,6 @@ import pytest
 BASELINE = Path(__file__).parent / "data" / "rollouts_baseline.npz"
 STEPS = 60
 TOL = 1e-6  # float libraries' last bits, amplified by the filters (see the module's docstring)
-#: ``info["ground_truth"]`` keys added after the baseline (issue 71): new fields, nothing changed.
-ADDED_TRUTH = ("wheel_torque", "sinkage", "drawbar_pull", "load")
 #: Every registered id (read without importing the package: the list is rover_env.ENV_IDS,
 #: which a test below checks), each in both sources and with an IMU.
 ENV_IDS = (
@@ -146,9 +144,7 @@ def test_a_fixed_rollout_matches_the_baseline(env_id, source, imu):
         want = {k[len(prefix) :]: z[k] for k in z.files if k.startswith(prefix)}
     got = rollout(env_id, source, imu)
     assert want, f"no baseline for {prefix}"
-    # fields added since the baseline was recorded (the truth's per-wheel torque and soil figures)
-    added = {f"{w}info/ground_truth/{k}" for w in ("", "reset/") for k in ADDED_TRUTH}
-    assert sorted(set(got) - added) == sorted(want), set(got) ^ set(want)
+    assert sorted(got) == sorted(want), set(got) ^ set(want)
     for k in sorted(want):
         np.testing.assert_allclose(
             got[k], want[k], rtol=TOL, atol=TOL, err_msg=f"{env_id} {source} {imu}: {k}"

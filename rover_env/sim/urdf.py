@@ -85,10 +85,13 @@ def wheel_mesh(geom: RoverGeometry, segments: int = 64) -> Path:
 
     Tread texture u = 0.5 + phi / (2 pi), where phi is the angle about +y from the wheel's +z
     axis (so the correction marker at u = 0.5 sits at +z for wheel angle 0); v in [0.27, 0.98]
-    across the tread (image rows of the tread strip), sidewalls at v = 0.1.
+    across the tread (image rows of the tread strip), sidewalls at v = 0.1 (the atlas's sidewall
+    grey), v = 0 at the image's bottom row. Every triangle is wound counter-clockwise seen from
+    outside: renderers cull back faces, and a sidewall wound the other way is not drawn (the
+    fisheye then saw the far sidewall through the near one).
     """
     r, w = geom.wheel_radius, geom.wheel_width
-    key = f"wheel-v1:{r:.6f}:{w:.6f}:{segments}"
+    key = f"wheel-v4:{r:.6f}:{w:.6f}:{segments}"
     path = cache_dir() / f"wheel_{hashlib.sha1(key.encode()).hexdigest()[:12]}.obj"
     if path.is_file():
         return path
@@ -116,7 +119,7 @@ def wheel_mesh(geom: RoverGeometry, segments: int = 64) -> Path:
             lines.append(f"vn 0 {side} 0")
         for k in range(segments):
             i, j = centre + 1 + k, centre + 2 + k
-            faces.append((centre, j, i) if side > 0 else (centre, i, j))
+            faces.append((centre, i, j) if side > 0 else (centre, j, i))  # counter-clockwise from outside
         base += m + 1
     lines += [f"f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}" for a, b, c in faces]
     _atomic_write(path, "\n".join(lines) + "\n")
