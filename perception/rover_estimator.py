@@ -314,6 +314,8 @@ class RoverEstimator:
         self.sinkage = SinkageEstimator(fish.model, self.model, sinkage)
         self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
         self._sinkage_next = -math.inf
+        # the ground above each wheel's lowest point [m], and when it was measured [s]
+        self._lift = (np.zeros(4), -math.inf)
         slip = slip or SlipConfig()
         if imu is not None:
             R = imu.mount[:3, :3]

@@ -339,17 +339,13 @@ def test_every_wheel_triangle_faces_outward_so_no_renderer_culls_it():
     """Renderers that cull back faces (TinyRenderer) draw a triangle only when it is wound
     counter-clockwise seen from outside; the wheel is convex about its centre, so each
     triangle's winding normal points away from the centre."""
+    from rover_env.rendering.gl import load_obj
     from rover_env.sim.geometry import RoverGeometry
     from rover_env.sim.urdf import wheel_mesh
 
-    v, faces = [], []
-    for line in wheel_mesh(RoverGeometry()).read_text().splitlines():
-        tok = line.split()
-        if tok and tok[0] == "v":
-            v.append([float(x) for x in tok[1:4]])
-        elif tok and tok[0] == "f":
-            faces.append([int(c.split("/")[0]) - 1 for c in tok[1:4]])
-    p = np.asarray(v)[np.asarray(faces)]  # (triangles, 3 corners, xyz)
-    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    outward = np.einsum("ij,ij->i", normal, p.mean(axis=1))
-    assert len(faces) == 4 * 64 and np.all(outward > 0.0)
+    pos, nrm, _ = load_obj(str(wheel_mesh(RoverGeometry())))
+    p, n = pos.reshape(-1, 3, 3), nrm.reshape(-1, 3, 3)  # (triangles, corners, xyz)
+    winding = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    assert len(p) == 4 * 64
+    assert np.all(np.einsum("ij,ij->i", winding, p.mean(axis=1)) > 0.0)  # away from the centre
+    assert np.all(np.einsum("ij,ij->i", winding, n.mean(axis=1)) > 0.0)  # as the file's normals

@@ -30,8 +30,9 @@ slip. Stepping it in a simulation at 240 Hz needs three things more, all here:
   the deepest it has pressed the soil under it (``pressed``, let go at that rate), and where
   it has risen above that by ``d`` each node's stress is at most its unloading line's,
   ``p(z + d) - k_u(z + d) d``. Without it a wheel bounced out of its rut on Bekker's curve as
-  on a spring (the rear wheels' hop, ``docs/terramechanics.md``). A wheel at rest keeps the
-  model's rest state, Bekker's curve both ways (its static sinkage after being set down).
+  on a spring (the rear wheels' hop, ``docs/terramechanics.md``). A wheel that has not rolled
+  yet keeps the model's rest state, Bekker's curve both ways (its static sinkage after being
+  set down); one that rolled and stopped keeps its rolled state until it rolls on.
 - **New soil.** The deflection relaxes, and the rolling state advances, only with travel onto
   ground the contact has not worked yet (past the stretch, at most a contact long, it has):
   a wheel rocking back and forth in place does not ratchet downhill.
