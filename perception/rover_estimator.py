@@ -506,7 +506,7 @@ class RoverEstimator:
         t0 = time.perf_counter()
         self._sinkage_next = t + 1.0 / SINKAGE_RATE_HZ
         self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
-        if all(state.valid[d] for d in ("psi_F", "psi_R", "d_F", "d_R", "lam_F", "lam_R")):
+        if state.axles_valid:
             # the wheels stand where the image shows them: at the depths with their rest offset
             depth = state.depth + self.kinematics.depth_zero
             self._sinkage = self.sinkage.measure(img, state.psi, depth, state.delta)

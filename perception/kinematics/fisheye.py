@@ -199,6 +199,11 @@ class KinematicState:
         """Share of the 10 degrees of freedom measured in this frame (0-1)."""
         return sum(self.valid.values()) / len(DOF_NAMES)
 
+    @property
+    def axles_valid(self) -> bool:
+        """Both axles' roll, depth and steering measured in this frame (where the wheels stand)."""
+        return all(self.valid[d] for d in DOF_NAMES[:6])
+
 
 class KinematicStateEstimator:
     """Axle roll, axle-body distance, steering and wheel rotation from fisheye frames.

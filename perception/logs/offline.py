@@ -898,7 +898,7 @@ def _kinematics(source, cam, est, sink, progress, mcap, folder, name) -> FolderK
             n_any += int(any(s.valid.values()))
             dof = np.r_[s.psi, s.depth, s.lam, s.theta]
             z, q_z = np.full(4, math.nan), 0.0
-            if rgb.size and all(s.valid[d] for d in DOF_NAMES[:6]):  # the axles' pose: the wheels'
+            if rgb.size and s.axles_valid:  # where the wheels stand
                 z, q_z = sink.measure(rgb, s.psi, s.depth + est.depth_zero, s.delta).reported()
             wr.writerow(
                 [
