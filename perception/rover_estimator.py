@@ -312,7 +312,7 @@ class RoverEstimator:
         )
         #: Each wheel's sinkage from the fisheye (:mod:`perception.kinematics.sinkage`).
         self.sinkage = SinkageEstimator(fish.model, self.model, sinkage)
-        self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
+        self._sinkage = SinkageEstimate.none()
         self._sinkage_next = -math.inf
         # the ground above each wheel's lowest point [m], and when it was measured [s]
         self._lift = (np.zeros(4), -math.inf)
@@ -399,7 +399,7 @@ class RoverEstimator:
         self.kinematics.reset()
         self.slip.reset()
         self._sinkage_next = -math.inf
-        self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
+        self._sinkage = SinkageEstimate.none()
         # the ground above each wheel's lowest point [m], and when it was measured [s]
         self._lift = (np.zeros(4), -math.inf)
         if self.encoders is not None:
@@ -505,7 +505,7 @@ class RoverEstimator:
             return  # measured at SINKAGE_RATE_HZ; the last measurement stands until the next
         t0 = time.perf_counter()
         self._sinkage_next = t + 1.0 / SINKAGE_RATE_HZ
-        self._sinkage = SinkageEstimate(np.full(4, math.nan), np.zeros(4))
+        self._sinkage = SinkageEstimate.none()
         if state.axles_valid:
             # the wheels stand where the image shows them: at the depths with their rest offset
             depth = state.depth + self.kinematics.depth_zero

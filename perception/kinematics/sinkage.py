@@ -87,6 +87,11 @@ class SinkageEstimate:
     sinkage: np.ndarray
     quality: np.ndarray
 
+    @classmethod
+    def none(cls) -> SinkageEstimate:
+        """No wheel measured: NaN sinkages, quality 0."""
+        return cls(np.full(4, math.nan), np.zeros(4))
+
     def reported(self) -> tuple[np.ndarray, float]:
         """The reported sinkages and their quality.
 

@@ -9,13 +9,14 @@ order FL, FR, RL, RR.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 
 import numpy as np
 
 from rover_env.config.proprio import CommandConfig, EncoderConfig, MotorCurrentConfig
 
 
-class _WheelSensor:
+class _WheelSensor(ABC):
     """What the encoders and current senses share: the rover they read, their part, their rate."""
 
     def __init__(self, sim, config, seed: int | None) -> None:
@@ -29,8 +30,9 @@ class _WheelSensor:
         """Time between readings [s]."""
         return 1.0 / float(self.config.rate_hz)
 
+    @abstractmethod
     def reset(self, seed: int | None = None) -> None:
-        raise NotImplementedError
+        """A new episode: the part's per-episode state, drawn from ``seed``."""
 
 
 class WheelEncoders(_WheelSensor):
