@@ -477,3 +477,53 @@ def test_a_pattern_fixed_in_the_image_is_learnt_and_taken_out_of_a_turning_tread
     # a black frame has no texture, and none is made for it out of the pattern
     black = unwrap_tread(np.zeros_like(shade, dtype=np.uint8), model, cam, *frame, dphi, cfg)
     assert not np.any(static.remove(0, black).texture)
+
+
+def test_a_slow_wheel_measured_against_its_key_strip_reads_its_full_rotation():
+    """A shade fixed in the image (20 % RMS, 3 px across) pulls a small rotation between
+    consecutive frames towards zero: a tread turning one strip column a frame reads 10 % short
+    pair by pair. Against the key strip of an earlier frame (``key_rotation``) the rotation is
+    measured over many columns, and the frames' rotations add up to the truth within 1.5 %."""
+    from perception.kinematics.fisheye import KinematicStateEstimator
+
+    model = rover_model()
+    cam = fisheye(model)
+    cfg = TreadConfig()
+    frame = model.wheel_frames((0.0, 0.0), (0.15, 0.15), np.zeros(4))[1]
+    dphi = strip_resolution(model, cam, *frame, cfg.column_px)
+    rng = np.random.default_rng(1)
+    w, h = cam.image_size
+    shade = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), 3.0)
+    shade = 1 + 0.2 * shade / shade.std()
+    tex = tread_texture(np.random.default_rng(4))
+
+    def strip(theta):
+        img = render_wheel(model, cam, frame, theta, tex).astype(np.float32) * shade
+        noise = cv2.GaussianBlur(rng.normal(size=img.shape).astype(np.float32), (0, 0), 1.5)
+        img = np.clip(img + 5 * noise / noise.std(), 0, 255).astype(np.uint8)
+        return unwrap_tread(img, model, cam, *frame, dphi, cfg)
+
+    est = KinematicStateEstimator(cam, model)
+    alpha = dphi  # one column a frame: 0.8 rad/s, a wheel crawling at 0.1 m/s
+    pairwise, keyed = [], []
+    prev = None
+    for k in range(16):
+        s = strip(alpha * k)
+        if prev is not None:
+            m = measure_pairs([(prev, s)], model.wheel_radius, cfg, [alpha], [0.25], [0])[0]
+            assert m.valid
+            pairwise.append(m.alpha)
+            keyed.append(est._against_keys([s] * 4, [m] * 4)[1])
+        est._strips = [s] * 4
+        prev = s
+    assert all(m.valid for m in keyed)
+    total = alpha * len(pairwise)
+    assert sum(pairwise) <= 0.93 * total
+    assert abs(sum(m.alpha for m in keyed) - total) <= 0.015 * total
+    # a fast wheel's key is the frame before: nothing is aligned twice
+    fast = KinematicStateEstimator(cam, model)
+    a, b = strip(0.0), strip(0.3)
+    m = measure_pairs([(a, b)], model.wheel_radius, cfg, [0.3], [0.25], [0])[0]
+    fast._strips = [a] * 4
+    assert fast._against_keys([b] * 4, [m] * 4)[1] is m
+    assert fast._key[1] is b and fast._key_alpha[1] == 0.0

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -129,6 +129,19 @@ class KinematicsConfig:
         static_min_rotation: A frame feeds the pattern when the wheel turned at least this in
             it [rad] (the tread's own texture then averages out).
         static_min_frames: Frames a cell needs before its pattern is taken out.
+        key_rotation: A slow wheel's rotation is measured against a key strip, the tread of an
+            earlier frame, until the wheel has turned this far from it [rad] (or ``key_frames``
+            have passed, or an alignment fails); then the frame's strip becomes the key. Between
+            consecutive frames a small rotation reads short: something in the treads' image
+            does not turn with them (shading, the band-pass's edges), and its correlation peak at
+            zero pulls the tread's towards it. On rigid ground, ideal cameras, train preset,
+            the rotation per frame read 0.86-0.90 of the truth at 0.4 columns a frame, 0.89-0.94
+            at one, 0.95-0.98 at two and 0.99 at four; aligned against the key, each frame's
+            rotation is the key alignment's change, and the rotation between keys is measured
+            over several columns. A wheel turning ``key_rotation`` in a frame pairs only with the
+            frame before (no extra alignment).
+        key_frames: Most frames a key strip is kept (the light on the treads changes).
+        key_span: Search around the predicted rotation from the key [rad].
         static_shrink: The pattern is taken out where it stands this many times above the
             texture left in its estimate (on the rough mission, where little is static, the
             rates' error rose by 7 % with no shrinkage and by 2 % with it).
@@ -160,6 +173,9 @@ class KinematicsConfig:
     static_min_rotation: float = 0.08
     static_min_frames: int = 5
     static_shrink: float = 2.0
+    key_rotation: float = 0.25
+    key_frames: int = 15
+    key_span: float = 0.05
 
 
 @dataclass
@@ -272,6 +288,10 @@ class KinematicStateEstimator:
         self._missed = np.full(4, 1 << 30)  # frames since each wheel's last measurement
         self._measured = np.zeros(4, dtype=bool)  # measured since the reset
         self._strips: list = [None] * 4  # the last frame's tread strips (static pattern taken out)
+        # each wheel's key strip, its rotation from the key to the last frame [rad] and the frames since
+        self._key: list = [None] * 4
+        self._key_alpha = np.zeros(4)
+        self._key_age = np.zeros(4, dtype=int)
         if self._static is not None:
             self._static.reset()
         self._geometry: tuple[np.ndarray, Any] | None = (
@@ -571,6 +591,7 @@ class KinematicStateEstimator:
                 for k, m in zip(again, more, strict=True):
                     rots[k] = m
             rots = self._check_against_peers(pairs, rots, prior, curr_frames, delta, dt)
+            rots = self._against_keys(strips, rots)
             good = [r.alpha for r in rots if r.valid]
             for k, wheel in enumerate(WHEELS):
                 rot = rots[k]
@@ -662,6 +683,46 @@ class KinematicStateEstimator:
             rots[k] = m
         return rots
 
+    def _against_keys(self, strips: list, rots: list) -> list:
+        """Each slow wheel's rotation in this frame, measured against its key strip (``key_rotation``).
+
+        A wheel whose key is older than the last frame is aligned with it around the rotation
+        from the key plus this frame's; where that alignment is valid, the frame's rotation is
+        its change since the last frame. The keys move on here.
+        """
+        cfg = self.config
+        old = [
+            k for k in range(4)
+            if rots[k].valid and self._key[k] is not None and self._key_age[k] >= 1 and strips[k] is not None
+        ]  # fmt: skip
+        rots = list(rots)
+        if old:
+            again = measure_pairs(
+                [(self._key[k], strips[k]) for k in old], self.model.wheel_radius, cfg.tread,
+                [self._key_alpha[k] + rots[k].alpha for k in old], [cfg.key_span] * len(old),
+                [int(cfg.tread.check_strong)] * len(old),
+            )  # fmt: skip
+            for k, m in zip(old, again, strict=True):
+                if m.valid:
+                    rots[k] = replace(m, alpha=m.alpha - self._key_alpha[k])
+                else:
+                    self._key[k] = None  # from the frame before: this frame's rotation stands
+        for k in range(4):
+            if rots[k].valid and self._key[k] is not None:
+                self._key_alpha[k] += rots[k].alpha
+                self._key_age[k] += 1
+            else:  # no rotation measured, or none against the key
+                self._key[k], self._key_alpha[k], self._key_age[k] = self._strips[k], 0.0, 0
+                if rots[k].valid:
+                    self._key_alpha[k], self._key_age[k] = rots[k].alpha, 1
+            if (
+                abs(self._key_alpha[k]) >= cfg.key_rotation
+                or self._key_age[k] >= cfg.key_frames
+                or not rots[k].valid
+            ):
+                self._key[k], self._key_alpha[k], self._key_age[k] = strips[k], 0.0, 0
+        return rots
+
     @staticmethod
     def _peer_rotations(frames, delta: np.ndarray, measured: dict[int, float], speeds=None) -> list[float]:
         """Each wheel's rotation [rad] as the measured wheels (at least one) predict it.
@@ -685,6 +746,7 @@ class KinematicStateEstimator:
         prev = self._state
         theta = prev.theta + (prev.theta_dot * dt if dt > 0 else 0.0)
         self._strips = [None] * 4  # the next usable frame cannot be paired with an unusable one
+        self._key = [None] * 4
         self._state = KinematicState(
             t,
             prev.psi.copy(),
