@@ -77,6 +77,11 @@ GROUND_LIFT_HOLD_S = 2.0
 #: ... where at least three wheels report at least this sinkage [m] (one wheel's reading alone
 #: is more often a shadow on rigid ground than soil).
 GROUND_LIFT_MIN_SINKAGE = 0.005
+#: Below half this much ground a frame [m], the downward odometry is also measured over as many
+#: frames as cover it (at most its ``history_frames``), for the slip over a window of travel:
+#: on the soft-sand mission (0.09 m/s, train preset) the speed read 0.963 of the truth frame to
+#: frame, 1.019 over 12 mm (four frames) and 0.996 over 25 mm.
+WINDOW_TRAVEL = 0.025
 #: The rate of the fused velocity that the attitude filter takes out of the specific force is a
 #: difference over at least this long [s] (shorter: the odometry's frame-to-frame noise).
 VELOCITY_RATE_S = 0.25
@@ -549,6 +554,29 @@ class RoverEstimator:
             self._last_odom = est
             if est.valid:
                 self.slip.add_odometry(t, est.twist, est.dt, est.quality, cov=est.twist_cov)
+                if isinstance(self.odometry, FlowOdometry):
+                    self._window_odometry(est, t)
+
+    def _window_odometry(self, est: OdometryEstimate, t: float) -> None:
+        """At a crawl, the odometry over the last ``WINDOW_TRAVEL`` of ground to the slip filter.
+
+        The slip over a window of travel (:meth:`perception.fusion.slip.SlipEstimator.window_slip`)
+        rests on it: frame to frame, a crawl reads a few per cent slow
+        (:meth:`perception.odometry.flow.FlowOdometry.track_back`).
+        """
+        assert isinstance(self.odometry, FlowOdometry)
+        window = self.slip.config.window_max
+        step = math.hypot(est.twist[0], est.twist[1]) * est.dt  # ground a frame [m]
+        if window <= 0 or step >= 0.5 * WINDOW_TRAVEL:
+            return
+        n = min(
+            math.ceil(WINDOW_TRAVEL / max(step, 1e-9)),
+            self.odometry.config.history_frames,
+            int(window / est.dt),
+        )
+        w = self.odometry.track_back(n) if n >= 2 else None
+        if w is not None and w.valid:
+            self.slip.add_window_odometry(t - w.dt, t, w.twist, w.twist_cov, w.quality)
 
     def _velocity_rate(self) -> tuple[float, float]:
         """d(v_x, v_y)/dt of the fused twist over the last ``VELOCITY_RATE_S`` or more [m/s^2].

@@ -201,6 +201,27 @@ class SlipConfig:
             flat and rough ground were caught 29 times of 29 with 1 false event, and the
             slip-aware drives of the loose slope made 3; at 0.5, 29 with 3, and 8.
 
+        window_max: A wheel whose slip one frame does not resolve (``max_slip_std``: a wheel
+            crawling, where 0.01 m/s of speed is a slip of 0.1) is given its slip over a window
+            of travel instead: its mean tread speed from the rate measurements and its mean
+            ground speed from the odometry twists over the same time, 1 - ground / tread. The
+            window runs back from the wheel's latest rate, over whole frames, until the ratio's
+            deviation is within ``window_std``, at most this long [s]; a window whose deviation
+            stays above ``max_slip_std`` gives nothing. Measurements, not filtered states: their
+            errors are independent from frame to frame and average out over the window. Where
+            the odometry over a longer baseline is given (:meth:`SlipEstimator.add_window_odometry`:
+            frame to frame, a crawl reads a few per cent slow), its latest window is used. Only
+            twists of quality ``window_min_quality`` or more are taken: a poor odometry's errors
+            need not average out. On the soil missions' slip-aware drives (BMI088, field cameras,
+            seed 0) on ``RoverSoftSand-v0`` the slip while slipping erred by 0.37 with 15 % of those frames
+            resolved (the others read 0); with the windows, by 0.028 with all resolved, and on
+            ``RoverSlopeLoose-v1`` by 0.027.
+        window_std: The deviation at which the window stops growing.
+        window_scale_std: The odometry's scale error, a share of its speed, in the window's
+            deviation: it does not average out (the ground plane under the wheels on soil: 1-3 %).
+        window_min_speed: A window's mean tread or ground speed must reach this [m/s].
+        window_min_quality: Smallest odometry quality taken into a window.
+
     The slip is that of the state at the wheels' latest rates (the middle of the fisheye's last
     frame), held to the query time with the variance growth of ``velocity_rw``,
     ``yaw_rate_rw`` and ``wheel_rate_rw``. Extrapolating the wheels' angular accelerations to
@@ -269,6 +290,11 @@ class SlipConfig:
     accel_rate_std_own: float = 0.75
     outage_after: float = 0.5
     outage_slip_std: float = 0.25
+    window_max: float = 1.0
+    window_std: float = 0.03
+    window_scale_std: float = 0.02
+    window_min_speed: float = 0.02
+    window_min_quality: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("velocity_rw", "yaw_rate_rw", "wheel_rate_rw", "min_quality", "min_speed", "max_age"):
@@ -311,6 +337,18 @@ class SlipConfig:
                 raise ValueError(
                     f"SlipConfig.{name}: {getattr(self, name)!r} must be finite and >= 0 (0: off)"
                 )
+        if not (
+            self.window_max >= 0
+            and self.window_std > 0
+            and self.window_scale_std >= 0
+            and self.window_min_speed > 0
+        ):
+            raise ValueError(
+                f"SlipConfig: window_max={self.window_max!r} s must be >= 0 (0: off), window_std="
+                f"{self.window_std!r} > 0, window_scale_std={self.window_scale_std!r} >= 0, "
+                f"window_min_speed={self.window_min_speed!r} m/s > 0, window_min_quality="
+                f"{self.window_min_quality!r} in [0, 1]"
+            )
         if not self.event_hold >= 0:
             raise ValueError(f"SlipConfig.event_hold: {self.event_hold!r} s must be >= 0")
         if not 0 < self.event_off < self.event_on <= 1:
@@ -462,6 +500,11 @@ class SlipEstimator:
         # the last two odometry v_x: (time [s], v_x [m/s], its variance [m^2/s^2])
         self._odom_v: list[tuple[float, float, float]] = []
         self.rejected = 0  # readings left out as impossible (see MAX_SPEED and the others)
+        # the window's measurements (window_max): odometry (t0, t1, each wheel's v_long and its
+        # variance) and rates (t0, t1, which wheels, tread speeds, their variances) [s, m/s, m^2/s^2]
+        self._odo_win: list[tuple[float, float, np.ndarray, np.ndarray]] = []
+        self._rate_win: list[tuple[float, float, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._odo_long: list[tuple[float, float, np.ndarray, np.ndarray]] = []  # add_window_odometry's
 
     # ------------------------------------------------------------------ inputs
     def add_odometry(self, t: float, twist, dt: float, quality: float = 1.0, cov=None) -> None:
@@ -510,6 +553,13 @@ class SlipEstimator:
             H[2, _ODOM_BIAS] = 1.0
         self._queue(t - 0.5 * max(dt, 0.0), np.arange(3), z, R, H)
         self._t_odom = max(self._t_odom, t)
+        if self.config.window_max > 0 and dt > 0 and quality >= self.config.window_min_quality:
+            zc = z.copy()
+            if self._gyro_used:
+                zc[2] -= self._x[_ODOM_BIAS]
+            J = _long_jacobian(self.wheel_xy, self._steer)
+            self._odo_win.append((t - dt, t, J @ zc, np.einsum("ij,jk,ik->i", J, R[:3, :3], J)))
+            self._odo_win = [m for m in self._odo_win if m[1] > t - 2 * self.config.window_max]
         # the two latest by time, whatever the order they come in
         latest = self._odom_v + [(t - 0.5 * max(dt, 0.0), float(z[0]), float(R[0, 0]))]
         self._odom_v = sorted(latest, key=lambda m: m[0])[-2:]
@@ -565,6 +615,12 @@ class SlipEstimator:
         R = np.diag(sd_z**2)
         self._queue(t - 0.5 * max(dt, 0.0), 3 + np.flatnonzero(ok), z[ok], R)
         self._t_rate[ok] = np.maximum(self._t_rate[ok], t)
+        if self.config.window_max > 0 and dt > 0:
+            r = self.wheel_radius
+            a, var = np.zeros(N_WHEELS), np.zeros(N_WHEELS)
+            a[ok], var[ok] = z[ok] * r, (sd_z * r) ** 2
+            self._rate_win.append((t - dt, t, ok.copy(), a, var))
+            self._rate_win = [m for m in self._rate_win if m[1] > t - 2 * self.config.window_max]
 
     def add_gyro(self, t: float, rate: float, dt: float, std: float) -> None:
         """A gyro's body-z rate, the mean over ``dt`` seconds up to ``t``, which carries a bias.
@@ -810,6 +866,102 @@ class SlipEstimator:
         speed = max(float(np.mean(np.abs(rates))) * r, c.event_min_speed)
         self._update(H, np.zeros(2), np.eye(2) * (c.outage_slip_std * speed) ** 2)
 
+    def add_window_odometry(self, t0: float, t1: float, twist, cov=None, quality: float = 1.0) -> None:
+        """The body twist averaged from ``t0`` to ``t1`` [s]: the odometry over a longer baseline.
+
+        For the slip over a window of travel only (``window_max``), not fused in the filter: it
+        overlaps the frames' twists. ``twist`` (v_x, v_y, omega) [m/s, m/s, rad/s], body frame;
+        ``cov`` its (3, 3) covariance (None: ``odom_std`` squared), ``quality`` the odometry's.
+        Invalid ones, and those under ``window_min_quality``, are left out.
+        """
+        z = np.asarray(twist, dtype=np.float64).reshape(-1)
+        c = self.config
+        if c.window_max <= 0 or z.shape != (3,) or not np.all(np.isfinite(z)) or not t1 > t0:
+            return
+        if not quality >= c.window_min_quality:
+            return
+        C = (
+            np.diag(np.asarray(self.config.odom_std) ** 2)
+            if cov is None
+            else np.asarray(cov, dtype=np.float64)
+        )
+        if C.shape != (3, 3) or not np.all(np.isfinite(C)):
+            return
+        if self._gyro_used:
+            z = z.copy()
+            z[2] -= self._x[_ODOM_BIAS]
+        J = _long_jacobian(self.wheel_xy, self._steer)
+        self._odo_long = [*self._odo_long[-3:], (t0, t1, J @ z, np.einsum("ij,jk,ik->i", J, C, J))]
+
+    def window_slip(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each wheel's slip ratio over a window of travel and its deviation (``window_max``).
+
+        NaN and inf for a wheel without a window that resolves it. The window is that of the
+        latest twist over a longer baseline (:meth:`add_window_odometry`) if it ends within
+        ``max_age`` of the wheel's latest rate, else it runs back from that rate over the frames'
+        twists.
+        """
+        c = self.config
+        s_out, sd_out = np.full(N_WHEELS, math.nan), np.full(N_WHEELS, math.inf)
+        if c.window_max <= 0 or not self._rate_win:
+            return s_out, sd_out
+
+        def ratio(tread, var_t, ground, var_g, span, t_cov, g_cov):
+            with np.errstate(invalid="ignore", divide="ignore"):
+                var_g = var_g + (c.window_scale_std * ground) ** 2
+                sd = np.sqrt(var_g / tread**2 + ground**2 * var_t / tread**4)
+                ok = (
+                    (t_cov >= 0.8 * span) & (g_cov >= 0.8 * span) & np.isfinite(sd)
+                    & (np.maximum(np.abs(tread), np.abs(ground)) >= c.window_min_speed)
+                    & (tread * ground >= 0) & (np.abs(tread) >= np.abs(ground))
+                )  # fmt: skip
+                return 1.0 - ground / tread, sd, ok
+
+        for i in range(N_WHEELS):
+            rows = [m for m in self._rate_win if m[2][i]]
+            if not rows:
+                continue
+            r0, r1 = np.array([m[0] for m in rows]), np.array([m[1] for m in rows])
+            a, va = np.array([m[3][i] for m in rows]), np.array([m[4][i] for m in rows])
+            end = float(r1.max())
+            if self._odo_long and self._odo_long[-1][1] >= end - c.max_age:
+                t0, t1, v_long, var = self._odo_long[-1]
+                ov = np.clip(np.minimum(r1, t1) - np.maximum(r0, t0), 0.0, None)
+                cov_t = float(ov.sum())
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    tread, var_t = (ov @ a) / cov_t, (ov**2 @ va) / cov_t**2
+                s_, sd, ok = ratio(tread, var_t, v_long[i], var[i], t1 - t0, cov_t, t1 - t0)
+                if ok and sd <= c.max_slip_std:
+                    s_out[i], sd_out[i] = float(s_), float(sd)
+                    continue
+            if not self._odo_win:
+                continue
+            o0, o1 = (np.array([m[k] for m in self._odo_win]) for k in (0, 1))
+            ov_v = np.array([m[2][i] for m in self._odo_win])
+            ov_var = np.array([m[3][i] for m in self._odo_win])
+            new = np.argsort(-r1)  # newest first
+            r0, r1, a, va = r0[new], r1[new], a[new], va[new]
+            keep = r0 >= end - c.window_max - 1e-9
+            if not keep.any():
+                continue
+            r0, r1, a, va = r0[keep], r1[keep], a[keep], va[keep]
+            d = r1 - r0
+            t_cov, a_sum, va_sum = np.cumsum(d), np.cumsum(a * d), np.cumsum(va * d * d)
+            start = r0  # window k: from the start of the k-th newest frame to the end
+            ov = np.clip(np.minimum(o1[None], end) - np.maximum(o0[None], start[:, None]), 0.0, None)
+            g_cov = ov.sum(axis=1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                tread, var_t = a_sum / t_cov, va_sum / t_cov**2
+                ground, var_g = (ov @ ov_v) / g_cov, (ov**2 @ ov_var) / g_cov**2
+            rat, sd, ok = ratio(tread, var_t, ground, var_g, end - start, t_cov, g_cov)
+            if not ok.any():
+                continue
+            good = ok & (sd <= c.window_std)
+            k = int(np.argmax(good)) if good.any() else int(np.flatnonzero(ok)[np.argmin(sd[ok])])
+            if sd[k] <= c.max_slip_std:
+                s_out[i], sd_out[i] = float(rat[k]), float(sd[k])
+        return s_out, sd_out
+
     def twist_at(self, t: float) -> np.ndarray:
         """The filtered body twist (v_x, v_y, omega) at ``t`` [s] [m/s, m/s, rad/s], body frame.
 
@@ -878,6 +1030,13 @@ class SlipEstimator:
         speed = np.maximum(np.abs(a), np.abs(v_long))  # tread or ground [m/s]
         moving = speed >= c.min_speed
         valid = fresh & moving & (s_std <= c.max_slip_std)
+        if not valid.all() and c.window_max > 0:
+            # not resolved in a frame: over a window of travel (driving; the frame's estimate
+            # stands for a wheel braking or reversing)
+            s_w, sd_w = self.window_slip()
+            use = fresh & ~valid & np.isfinite(s_w)
+            clipped, s_std = np.where(use, s_w, clipped), np.where(use, sd_w, s_std)
+            valid |= use
         s = np.where(valid, clipped, 0.0)
         beta = np.where(valid, slip_angle(v_long, v_lat), 0.0)
         mag = np.abs(s)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal, overload
 
@@ -691,6 +692,7 @@ class FlowOdometryConfig:
             them); all of them are then put on it.
         use_mask: Ablation switch: the shadow-edge feature mask.
         use_ransac: Ablation switch: RANSAC (off: every tracked feature is used).
+        history_frames: Earlier frames' features kept for :meth:`FlowOdometry.track_back`.
         repeated_frames: What two bit-identical frames mean. ``"invalid"`` (the default): a real
             camera's frames always differ by sensor noise, so an identical pair is a frozen
             camera or a repeated frame, and no motion is observable. ``"still"``: the camera is
@@ -752,6 +754,7 @@ class FlowOdometryConfig:
     plane_max_points: int = 60
     use_mask: bool = True
     use_ransac: bool = True
+    history_frames: int = 15
     repeated_frames: str = "invalid"
     static_rate: float = 0.0
     static_min_speed: float = 0.05
@@ -794,6 +797,10 @@ class FlowOdometryConfig:
         return cls(**scaled)
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.history_frames, int) and 0 <= self.history_frames <= 120):
+            raise ValueError(
+                f"history_frames: {self.history_frames!r}; give a whole number of frames in [0, 120]"
+            )
         w, h = self.min_level_size
         if w < 80 or h < 60:
             raise ValueError(f"min_level_size: {self.min_level_size} is below the paper's 80 x 60 minimum")
@@ -1039,6 +1046,7 @@ class FlowOdometry:
         my_l, mx_l = -(-my >> L), -(-mx >> L)
         self._roi_box = (max(0, my_l - b), min(hl, hl - my_l + b), max(0, mx_l - b), min(wl, wl - mx_l + b))
         self._last: Selection | None = None
+        self._history: deque[Selection] = deque(maxlen=cfg.history_frames + 1)
         self._rng = np.random.default_rng(0)
         # running means of the grey frames' fine texture and its square (static_rate)
         self._static: np.ndarray | None = None
@@ -1469,9 +1477,26 @@ class FlowOdometry:
                 raise ValueError(f"t: {t!r} s is not after the last frame's {self._last.t!r} s")
             out = self._track(self._last, gray, dt, t, ground_plane, rates)
         self._last = self._select(gray, t, ground_plane)
+        self._history.append(self._last)
         if self.config.static_rate > 0:
             self._learn_static(raw, out)
         return out
+
+    def track_back(self, frames: int) -> OdometryEstimate | None:
+        """The motion from the frame ``frames`` before the last one to the last (chained mode).
+
+        The features chosen on that earlier frame, tracked into the last one, over their time
+        apart: the mean velocity over a longer baseline. Between consecutive frames a crawl moves
+        the ground a pixel or two, and what does not move with the ground (the image's grid, its
+        aliasing) weighs on the flow: on the soft-sand mission (ideal cameras, train preset, 0.09
+        m/s) the speed read 0.963 of the truth frame to frame, 0.996 over eight frames. None
+        when fewer frames are kept (``history_frames``).
+        """
+        if not 1 <= frames < len(self._history):
+            return None
+        old, last = self._history[-1 - frames], self._history[-1]
+        assert old.t is not None and last.t is not None
+        return self._track(old, last.gray, last.t - old.t, last.t, last.ground_plane)
 
     def _fine(self, gray: np.ndarray) -> np.ndarray:
         """The fine texture of a grey frame: less its Gaussian blur of ``static_sigma``, float32."""
@@ -1519,6 +1544,7 @@ class FlowOdometry:
     def reset(self) -> None:
         """Forget the chained stream's last frame and restart RANSAC's random stream."""
         self._last = None
+        self._history.clear()
         self._rng = np.random.default_rng(0)
         self._static, self._static_sq, self._static_n, self._moving, self._raw = None, None, 0, False, None
 
