@@ -715,16 +715,20 @@ def test_imu_csv_bad_inputs(tmp_path):
         read_imu_csv(tmp_path / "words.csv")
 
 
+def fixed_pattern(cam, rms: float = 3.0, blur: float = 1.5) -> np.ndarray:
+    """A pattern fixed in the image (a sensor's DSNU, a smudge): ``rms`` grey levels, ``blur`` px."""
+    w, h = cam.image_size
+    noise = cv2.GaussianBlur(np.random.default_rng(7).normal(size=(h, w)).astype(np.float32), (0, 0), blur)
+    return rms * noise / noise.std()
+
+
 def test_a_static_image_taken_out_removes_the_pull_of_a_fixed_pattern_on_low_texture_ground(ground):
     """Ground at 15 % of its contrast under a fixed pattern (3 grey levels RMS, 1.5 px: a
     sensor's DSNU, a smudge) at 0.4 m/s: the tracks lean toward zero motion, up to 5 % slow.
     With the static image (``static_rate``), learnt while the estimates move, every estimate
     after the first second is within 1 %, and a repeated frame is still caught."""
     cam = mast_camera()
-    w, h = cam.image_size
-    rng = np.random.default_rng(7)
-    fixed = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), 1.5)
-    fixed = 3.0 * fixed / fixed.std()
+    fixed = fixed_pattern(cam)
     low = (130 + 0.15 * (ground - 130)).astype(np.float32)
     dt, pose, frames = 1 / 30, START, []
     for k in range(60):
@@ -754,9 +758,7 @@ def test_the_static_image_takes_out_a_fixed_pattern_but_not_the_trail_of_a_movin
     (``static_shrink`` 0) the trail is taken out too: false edges where there are none."""
     cam = mast_camera()
     w, h = cam.image_size
-    rng = np.random.default_rng(7)
-    fixed = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), 1.5)
-    fixed = 3.0 * fixed / fixed.std()
+    fixed = fixed_pattern(cam)
     fixed[:, : w // 2] = 0.0
     low = (130 + 0.15 * (ground - 130)).astype(np.float32)
     xs = np.arange(w, dtype=np.float32)[None, :]
@@ -866,10 +868,7 @@ def test_a_crawl_over_a_fixed_pattern_reads_its_speed_over_a_longer_baseline(gro
     quarter slow. Tracked over eight frames (``track_back``), the same features read it within
     0.5 % on average and 2 % each."""
     cam = mast_camera()
-    w, h = cam.image_size
-    rng = np.random.default_rng(7)
-    fixed = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), 1.5)
-    fixed = 3.0 * fixed / fixed.std()
+    fixed = fixed_pattern(cam)
     low = (130 + 0.3 * (ground - 130)).astype(np.float32)
     v, dt, pose = 0.05, 1 / 30, START
     odo = FlowOdometry(cam)
