@@ -136,10 +136,11 @@ class KinematicsConfig:
             does not turn with them (shading, the band-pass's edges), and its correlation peak at
             zero pulls the tread's towards it. On rigid ground, ideal cameras, train preset,
             the rotation per frame read 0.86-0.90 of the truth at 0.4 columns a frame, 0.89-0.94
-            at one, 0.95-0.98 at two and 0.99 at four; aligned against the key, each frame's
-            rotation is the key alignment's change, and the rotation between keys is measured
-            over several columns. A wheel turning ``key_rotation`` in a frame (0.35 m/s of tread at
-            30 Hz) pairs only with the frame before (no extra alignment). At 0.25 rad the keys
+            at one, 0.95-0.98 at two and 0.99 at four (against keys: 0.97-0.99); aligned against
+            the key, each frame's rotation is the key alignment's change, and the rotation
+            between keys is measured over several columns. A wheel turning ``key_rotation`` in a
+            frame (0.35 m/s of tread at 30 Hz) pairs only with the frame before (no extra
+            alignment). At 0.25 rad the keys
             also took the wheels braking in a turn at 3-4 rad/s, and the slip-unaware follower's
             skids on flat ground were missed 2 times of 6 (seeds 0-2, BMI088; 0 without keys).
         key_frames: Most frames a key strip is kept (the light on the treads changes).
@@ -594,7 +595,7 @@ class KinematicStateEstimator:
                     rots[k] = m
             rots = self._check_against_peers(pairs, rots, prior, curr_frames, delta, dt)
             rots = self._against_keys(strips, rots)
-            good = [r.alpha for r in rots if r.valid]
+            alphas = [r.alpha for r in rots if r.valid]  # this frame's rotations [rad]
             for k, wheel in enumerate(WHEELS):
                 rot = rots[k]
                 if rot.valid:
@@ -614,12 +615,12 @@ class KinematicStateEstimator:
                     self._missed[k] = 0
                 else:
                     self._missed[k] += 1
-                    if not self._measured[k] and good:  # no rate of its own yet: the others'
-                        theta_dot[k] = float(np.median(good)) * self._scale[k] / dt
+                    if not self._measured[k] and alphas:  # no rate of its own yet: the others'
+                        theta_dot[k] = float(np.median(alphas)) * self._scale[k] / dt
                     self._since[k] += (theta_dot[k] * dt / self._scale[k], theta_dot[k] * dt)
                     theta[k] += theta_dot[k] * dt
                 valid[f"theta_{wheel}"] = rot.valid
-                if static is not None and good:
+                if static is not None and alphas:
                     # a wheel not measured in this frame is taken to turn as predicted: the
                     # pattern is often what lost it (a frame with no wheel measured, such as a
                     # dark one, teaches nothing)
