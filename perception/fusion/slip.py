@@ -554,11 +554,7 @@ class SlipEstimator:
         self._queue(t - 0.5 * max(dt, 0.0), np.arange(3), z, R, H)
         self._t_odom = max(self._t_odom, t)
         if self.config.window_max > 0 and dt > 0 and quality >= self.config.window_min_quality:
-            zc = z.copy()
-            if self._gyro_used:
-                zc[2] -= self._x[_ODOM_BIAS]
-            J = _long_jacobian(self.wheel_xy, self._steer)
-            self._odo_win.append((t - dt, t, J @ zc, np.einsum("ij,jk,ik->i", J, R[:3, :3], J)))
+            self._odo_win.append((t - dt, t, *self._wheels_long(z, R[:3, :3])))
             self._odo_win = [m for m in self._odo_win if m[1] > t - 2 * self.config.window_max]
         # the two latest by time, whatever the order they come in
         latest = self._odom_v + [(t - 0.5 * max(dt, 0.0), float(z[0]), float(R[0, 0]))]
@@ -887,11 +883,19 @@ class SlipEstimator:
         )
         if C.shape != (3, 3) or not np.all(np.isfinite(C)):
             return
+        self._odo_long = [*self._odo_long[-3:], (t0, t1, *self._wheels_long(z, C))]
+
+    def _wheels_long(self, twist: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each wheel's ground speed along its heading [m/s] of an odometry twist, and its variance.
+
+        With a gyro, less the odometry's yaw-rate bias the filter holds now; at the steering now.
+        """
+        z = twist
         if self._gyro_used:
             z = z.copy()
             z[2] -= self._x[_ODOM_BIAS]
         J = _long_jacobian(self.wheel_xy, self._steer)
-        self._odo_long = [*self._odo_long[-3:], (t0, t1, J @ z, np.einsum("ij,jk,ik->i", J, C, J))]
+        return J @ z, np.einsum("ij,jk,ik->i", J, cov, J)
 
     def window_slip(self) -> tuple[np.ndarray, np.ndarray]:
         """Each wheel's slip ratio over a window of travel and its deviation (``window_max``).
@@ -917,12 +921,16 @@ class SlipEstimator:
                 )  # fmt: skip
                 return 1.0 - ground / tread, sd, ok
 
+        R0, R1 = (np.array([m[k] for m in self._rate_win]) for k in (0, 1))
+        measured, A, VA = (np.array([m[k] for m in self._rate_win]) for k in (2, 3, 4))
+        if self._odo_win:
+            o0, o1 = (np.array([m[k] for m in self._odo_win]) for k in (0, 1))
+            OV, OVAR = (np.array([m[k] for m in self._odo_win]) for k in (2, 3))
         for i in range(N_WHEELS):
-            rows = [m for m in self._rate_win if m[2][i]]
-            if not rows:
+            rows = measured[:, i]
+            if not rows.any():
                 continue
-            r0, r1 = np.array([m[0] for m in rows]), np.array([m[1] for m in rows])
-            a, va = np.array([m[3][i] for m in rows]), np.array([m[4][i] for m in rows])
+            r0, r1, a, va = R0[rows], R1[rows], A[rows, i], VA[rows, i]
             end = float(r1.max())
             if self._odo_long and self._odo_long[-1][1] >= end - c.max_age:
                 t0, t1, v_long, var = self._odo_long[-1]
@@ -936,9 +944,6 @@ class SlipEstimator:
                     continue
             if not self._odo_win:
                 continue
-            o0, o1 = (np.array([m[k] for m in self._odo_win]) for k in (0, 1))
-            ov_v = np.array([m[2][i] for m in self._odo_win])
-            ov_var = np.array([m[3][i] for m in self._odo_win])
             new = np.argsort(-r1)  # newest first
             r0, r1, a, va = r0[new], r1[new], a[new], va[new]
             keep = r0 >= end - c.window_max - 1e-9
@@ -952,7 +957,7 @@ class SlipEstimator:
             g_cov = ov.sum(axis=1)
             with np.errstate(invalid="ignore", divide="ignore"):
                 tread, var_t = a_sum / t_cov, va_sum / t_cov**2
-                ground, var_g = (ov @ ov_v) / g_cov, (ov**2 @ ov_var) / g_cov**2
+                ground, var_g = (ov @ OV[:, i]) / g_cov, (ov**2 @ OVAR[:, i]) / g_cov**2
             rat, sd, ok = ratio(tread, var_t, ground, var_g, end - start, t_cov, g_cov)
             if not ok.any():
                 continue
