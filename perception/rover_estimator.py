@@ -30,6 +30,7 @@ import numpy as np
 from perception.fusion.encoders import EncoderRates
 from perception.fusion.inertial import AttitudeFilter, G, tilted_step
 from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator
+from perception.fusion.soil import SoilIdConfig, SoilIdentifier
 from perception.fusion.sun_heading import HeadingConfig, HeadingFilter
 from perception.kinematics.fisheye import KinematicsConfig, KinematicState, KinematicStateEstimator
 from perception.kinematics.sinkage import SinkageConfig, SinkageEstimate, SinkageEstimator
@@ -96,8 +97,10 @@ class StepEstimate:
 
     Attributes:
         values: :data:`STEP_KEYS` -> float arrays (wheel order FL, FR, RL, RR; axles F, R), and
-            ``sinkage`` (NaN: not measured), ``sinkage_quality`` (1,) and with motor currents
-            ``wheel_torque``.
+            ``sinkage`` (NaN: not measured), ``sinkage_quality`` (1,), with motor currents
+            ``wheel_torque``, and once the soil's pull curve is identified ``pull_ratio`` (4,)
+            (NaN: a wheel's slip unknown or braking) and ``soil_curve`` (3,): the slips of the
+            largest pull and efficiency, and the identification's quality.
         odometry_quality: Quality of the last odometry estimate (0 when it was invalid).
         kinematics_quality: Share of the fisheye's 10 degrees of freedom measured in its last frame.
         attitude_quality: Share of the control period's IMU samples that were in range, once the
@@ -161,6 +164,12 @@ class StepEstimate:
         for label, x in zip(WHEELS, v["sinkage"], strict=True):
             out[f"sinkage_{label}"] = float(x)
         out["sinkage_quality"] = float(v["sinkage_quality"][0])
+        if "pull_ratio" in v:  # the soil's pull curve identified
+            for label, x in zip(WHEELS, v["pull_ratio"], strict=True):
+                out[f"pull_ratio_{label}"] = float(x)
+            out["slip_best_pull"], out["slip_best_efficiency"], out["soil_quality"] = (
+                float(x) for x in v["soil_curve"]
+            )
         if "wheel_torque" in v:  # a rig with motor currents
             for label, x in zip(WHEELS, v["wheel_torque"], strict=True):
                 out[f"wheel_torque_{label}"] = float(x)
@@ -254,6 +263,7 @@ class RoverEstimator:
         odometry_camera: str = "auto",
         fisheye_odometry: FisheyeOdometryConfig | None = None,
         sinkage: SinkageConfig | None = None,
+        soil: SoilIdConfig | None = None,
     ) -> None:
         down, fish, imu, sun = (
             rig.one("pinhole", "RoverEstimator"),
@@ -350,6 +360,14 @@ class RoverEstimator:
                 enc.name, enc.model.counts_per_rev, enc.model.counter_bits, enc.period, fish.period
             )
         )
+        #: The soil's pull curve, identified from the torques, slips, sinkages and the
+        #: accelerometer (None without motor currents, an IMU or the rover's mass).
+        self.soil: SoilIdentifier | None = None
+        if self.currents is not None and imu is not None and self.model.mass > 0:
+            m = self.model
+            # the body's height over the ground, from the load a pitch moves between the axles
+            h = m.axle_x * m.pitch_sag / m.rest_sag if m.rest_sag > 0 else 0.0
+            self.soil = SoilIdentifier(m.wheel_radius, m.wheel_width, m.mass, m.axle_x, h, soil)
         # sensors whose samples are gathered, not acted on one by one (no dead reckoning up to each)
         self._batched = {s.name for s in (imu, enc, self.currents) if s is not None}
         #: The sun sensor (None without one, or without an IMU to level it) and its heading filter.
@@ -373,7 +391,7 @@ class RoverEstimator:
         self._t = 0.0
         self._request: tuple[float, np.ndarray | None] | None = None
         #: Wall-clock seconds spent: estimating, and choosing readout windows.
-        self.timing = {"perception": 0.0, "readout": 0.0, "sinkage": 0.0}
+        self.timing = {"perception": 0.0, "readout": 0.0, "sinkage": 0.0, "soil": 0.0}
         self._clear()
 
     def _clear(self) -> None:
@@ -389,6 +407,9 @@ class RoverEstimator:
         self._z = 0.0
         self._twist = np.zeros(3)
         self._twist_hist: list[tuple[float, float, float]] = []
+        self._force_sum = np.zeros(3)  # the step's specific force samples, body frame, summed
+        self._force_n = 0
+        self._soil_t: float | None = None
 
     # ------------------------------------------------------------------ the interface
     def reset(self, start_fix: Sequence[float]) -> None:
@@ -411,6 +432,8 @@ class RoverEstimator:
             self.encoders.reset()
         self._current_batch = []
         self._torque = None
+        if self.soil is not None:
+            self.soil.reset()
         self._fix = fix.copy()
         self._pose = fix.copy()
         self._started = False
@@ -640,7 +663,10 @@ class RoverEstimator:
         self.slip.add_gyro(self._imu_t, rate, window, std)
         # the body's acceleration: the specific force less gravity through the attitude, plus the
         # transport terms of a turning frame, is the rate of the body-frame velocity (v_x, v_y)
-        a = self.R_body_imu @ mean[3:] - G * self.attitude.R[2]
+        f = self.R_body_imu @ mean[3:]
+        self._force_sum += f * n
+        self._force_n += n
+        a = f - G * self.attitude.R[2]
         wz = rate - self.slip.gyro_bias[0]
         self.slip.add_accel(self._imu_t, (a[0] + wz * vy, a[1] - wz * vx), window)
         self._imu_batch = []
@@ -673,6 +699,26 @@ class RoverEstimator:
         self._torque = self.currents.model.step_torque(
             np.array(batch), self.slip.estimate(self._t).wheel_rate
         )
+
+    def _soil_step(self, t: float) -> None:
+        """The step's torques, slips, sinkages and specific force to the soil identification."""
+        assert self.soil is not None
+        t0 = time.perf_counter()
+        force = self._force_sum / self._force_n if self._force_n else None
+        self._force_sum, self._force_n = np.zeros(3), 0
+        dt = 0.0 if self._soil_t is None else t - self._soil_t
+        self._soil_t = t
+        sl = self.slip.estimate(t)
+        v = sl.twist[:2]
+        ks = self.kinematics.state
+        centres = np.array([c[:2] for _, c in self.model.wheel_frames(ks.psi, ks.depth, ks.delta)])
+        x, y, yaw = self._pose
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        xy = centres @ np.array([[cy, sy], [-sy, cy]]) + (x, y)
+        sink = self._sinkage.reported()[0]
+        self.soil.add(float(np.hypot(*v)) * dt, sl.slip_ratio, sl.valid, self._torque, sink, force, v, xy)
+        self.soil.estimate(sl.slip_ratio, sl.valid)
+        self.timing["soil"] += time.perf_counter() - t0
 
     def _on_sun(self, data: np.ndarray, t: float) -> None:
         """A sun reading: the heading it gives, fused into the dead-reckoned yaw."""
@@ -730,6 +776,8 @@ class RoverEstimator:
         self._t = float(t)
         if self.currents is not None:
             self._wheel_torque()
+        if self.soil is not None:
+            self._soil_step(t)
         n = self._imu_used + self._imu_saturated
         self._attitude_q = self._imu_used / n if self._attitude_ready and n else 0.0
         out = self.step_estimate()
@@ -783,6 +831,10 @@ class RoverEstimator:
         }
         if self._torque is not None:
             values["wheel_torque"] = self._torque.copy()
+        if self.soil is not None and self.soil.last.identified:
+            cur = self.soil.last
+            values["pull_ratio"] = cur.wheel_pull_ratio.copy()
+            values["soil_curve"] = np.array([cur.slip_best_pull, cur.slip_best_efficiency, cur.quality])
         sink, q_sink = self._sinkage.reported()
         values["sinkage"] = sink
         values["sinkage_quality"] = np.array([q_sink])

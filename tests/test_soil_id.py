@@ -1,0 +1,157 @@
+"""The soil's pull curve identified on board (perception.fusion.soil), on synthetic drives.
+
+The drives are made with a known soil: each wheel's thrust T/(rW) = tau0 + A (1 - exp(-s/B)),
+its sinkage z/r = z0 + z1 s + z2 s^2, its resistance a z/r on fresh soil and b0 + b1 T/(rW) in a
+rut; the accelerometer reads the pulls' sum over the mass. The identifier must give back the
+soil's DP/W curve, its best slips, and which wheels run in ruts.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from perception.fusion.soil import SLIPS, SoilIdConfig, SoilIdentifier
+
+R, WIDTH, MASS, AX, H, TRACK = 0.115, 0.08, 42.6, 0.4, 0.265, 0.62
+EPS = SoilIdConfig().thrust_loss
+BODY = np.array([[AX, TRACK / 2], [AX, -TRACK / 2], [-AX, TRACK / 2], [-AX, -TRACK / 2]])
+
+
+class Soil:
+    """A soil with a pronounced pull peak (resistance growing fast with slip-sinkage)."""
+
+    tau0, A, B = 0.10, 0.45, 0.30
+    z = (0.18, 0.02, 0.20)
+    a = 0.8
+    b0, b1 = 0.05, -0.12
+
+    def tau(self, s):
+        return self.tau0 + self.A * (1.0 - np.exp(-np.asarray(s) / self.B))
+
+    def zeta(self, s):
+        s = np.asarray(s)
+        return self.z[0] + self.z[1] * s + self.z[2] * s * s
+
+    def dpw(self, s):
+        return (1.0 - EPS) * self.tau(s) - self.a * self.zeta(s)
+
+
+def drive(soil: Soil, steps: int = 600, crab: float = 0.0, noise: float = 0.0, seed: int = 0, **cfg):
+    """A straight (or crabbing) drive whose front wheels sweep slip 0-0.8; the rear ones balance them."""
+    rng = np.random.default_rng(seed)
+    sid = SoilIdentifier(R, WIDTH, MASS, AX, H, SoilIdConfig(**cfg))
+    g = 9.81
+    speed, dt = 0.25, 1.0 / 30.0
+    heading = np.array([math.cos(crab), math.sin(crab)])  # travel direction, body frame
+    pos = np.zeros(2)
+    for k in range(steps):
+        u = (k / 300.0) % 1.0
+        s_f = 0.8 * (2 * u if u < 0.5 else 2 - 2 * u)
+        W = np.full(4, MASS * g / 4)  # level, steady: no load moved between the axles
+        tau_f = soil.tau(s_f)
+        pull_f = W[0] * soil.dpw(s_f)
+        # the rear wheels hold the rover steady: their pull cancels the front ones'; they run in
+        # the front wheels' ruts once they reach them, unless the rover crabs
+        z_r = soil.zeta(0.0) + 0.03
+        in_rut = abs(crab) < 0.1 and speed * dt * k > 2 * AX + 0.05
+        eps_r = EPS if pull_f < 0 else SoilIdConfig().thrust_loss_braking
+        if in_rut:  # pull = (1 - eps) tau W - (b0 + b1 tau) W
+            tau_r = (-pull_f / W[2] + soil.b0) / (1.0 - eps_r - soil.b1)
+        else:
+            tau_r = (-pull_f / W[2] + soil.a * z_r) / (1.0 - eps_r)
+        tau = np.array([tau_f, tau_f, tau_r, tau_r])
+        T = tau * R * W
+        z = np.array([soil.zeta(s_f), soil.zeta(s_f), z_r, z_r]) * R
+        s = np.array([s_f, s_f, -0.1, -0.1])
+        f = np.array([0.0, 0.0, g])
+        if noise:
+            T = T * (1 + noise * rng.standard_normal(4))
+            z = z + 0.004 * noise / 0.03 * rng.standard_normal(4)
+            s = s + noise * rng.standard_normal(4)
+            f = f + 0.05 * rng.standard_normal(3)
+        pos = pos + speed * dt * heading
+        xy = BODY + pos
+        sid.add(speed * dt, s, np.ones(4, bool), T, z, f, speed * heading, xy)
+    return sid
+
+
+def test_straight_drive_identifies_the_curve_and_its_peak():
+    soil = Soil()
+    sid = drive(soil)
+    assert sid.fresh.tolist() == [True, True, False, False]  # the rear wheels in the front ones' ruts
+    est = sid.estimate()
+    truth = soil.dpw(SLIPS)
+    judged = (SLIPS >= 0.05) & (SLIPS <= 0.7)
+    assert np.max(np.abs(est.pull_ratio[judged] - truth[judged])) < 0.02
+    assert est.slip_best_pull == pytest.approx(SLIPS[np.argmax(truth)], abs=0.05)
+    eff = np.where(truth > 0, truth * (1 - SLIPS) / soil.tau(SLIPS), -np.inf)
+    assert est.slip_best_efficiency == pytest.approx(SLIPS[np.argmax(eff)], abs=0.05)
+    assert est.resistance[0] == pytest.approx(soil.a, rel=0.05)
+    assert est.quality == pytest.approx(1.0)
+
+
+def test_crabbing_puts_every_wheel_on_fresh_soil():
+    soil = Soil()
+    sid = drive(soil, crab=0.3)
+    assert sid.fresh.all()
+    est = sid.estimate()
+    judged = (SLIPS >= 0.05) & (SLIPS <= 0.7)
+    assert np.max(np.abs(est.pull_ratio[judged] - soil.dpw(SLIPS)[judged])) < 0.03
+
+
+def test_noisy_measurements_stay_within_the_stated_spread():
+    soil = Soil()
+    est = drive(soil, noise=0.03, seed=3).estimate()
+    judged = (SLIPS >= 0.05) & (SLIPS <= 0.7)
+    err = np.abs(est.pull_ratio[judged] - soil.dpw(SLIPS)[judged])
+    assert err.max() < 0.05
+    assert np.all(err < 3.0 * est.pull_ratio_std[judged] + 0.01)
+
+
+def test_wheel_pull_ratio_is_read_at_each_wheels_slip_and_only_when_driving():
+    soil = Soil()
+    sid = drive(soil)
+    est = sid.estimate(np.array([0.3, 0.5, -0.2, np.nan]), np.array([True, True, True, False]))
+    assert est.wheel_pull_ratio[0] == pytest.approx(soil.dpw(0.3), abs=0.02)
+    assert est.wheel_pull_ratio[1] == pytest.approx(soil.dpw(0.5), abs=0.02)
+    assert np.isnan(est.wheel_pull_ratio[2:]).all()  # braking is not identified; unknown slip
+
+
+def test_bunched_slips_give_no_curve():
+    """A drive at one slip says nothing of the curve's shape: no curve, NaN fields, quality 0."""
+    sid = SoilIdentifier(R, WIDTH, MASS, AX, H)
+    soil = Soil()
+    W = MASS * 9.81 / 4
+    for k in range(300):
+        tau = soil.tau(0.1)
+        T = np.array([tau, tau, tau, tau]) * R * W
+        z = np.full(4, soil.zeta(0.1) * R)
+        sid.add(0.01, np.full(4, 0.1), np.ones(4, bool), T, z, [0, 0, 9.81], [0.3, 0.0], BODY + [0.01 * k, 0])
+    est = sid.estimate()
+    assert not est.identified and math.isnan(est.slip_best_pull) and est.quality == 0.0
+
+
+def test_without_torques_or_accelerometer_nothing_is_identified():
+    soil = Soil()
+    for missing in ("torque", "force"):
+        sid = SoilIdentifier(R, WIDTH, MASS, AX, H)
+        for k in range(600):
+            s_f = 0.8 * (k % 300) / 300
+            T = None if missing == "torque" else np.full(4, soil.tau(s_f) * R * 100)
+            f = None if missing == "force" else [0, 0, 9.81]
+            xy = BODY + [0.01 * k, 0]
+            sid.add(0.01, [s_f, s_f, 0, 0], np.ones(4, bool), T, np.full(4, 0.02), f, [0.3, 0], xy)
+        assert not sid.estimate().identified
+
+
+def test_bad_arguments_are_named():
+    with pytest.raises(Exception, match="mass"):
+        SoilIdentifier(R, WIDTH, 0.0, AX)
+    with pytest.raises(Exception, match="memory"):
+        SoilIdConfig(memory=-1.0)
+    sid = SoilIdentifier(R, WIDTH, MASS, AX)
+    with pytest.raises(ValueError, match="distance"):
+        sid.add(math.nan, np.zeros(4), np.ones(4, bool), None, np.zeros(4), None, [0, 0], BODY)
