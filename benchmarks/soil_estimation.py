@@ -15,8 +15,18 @@ slow roll over each mission's soil), with the BMI088 on the standard rig and wit
 rig (wheel encoders), scored by ``slip_metrics`` per axle: the front wheels on fresh soil, the
 rear ones in the front wheels' ruts.
 
+Soil identification (``identify``): the rover with the ``full`` rig crosses level ground of one
+soil, its rear axle braking ever harder so that the front wheels' slip sweeps from 0 to about
+0.8 and back (``brake``: straight, the rear wheels in the front ones' ruts; ``crab``:
+crabbing, every wheel on fresh soil); at 2.5, 5, 7.5,
+10 and 15 m of travel the estimator's pull curve is compared with the truth's (the soil's
+steady state at the fresh wheels' mean load): DP/W error over slips 0.05-0.7, the best slips,
+the quality, how far it drives until the curve stays within 0.05, the per-wheel pull ratios
+against the truth's, and the identification's cost per step.
+
 Run: python benchmarks/soil_estimation.py sinkage [--seeds 701 ... 706] [--presets eval train]
      python benchmarks/soil_estimation.py slip [--seeds 601 ... 620]
+     python benchmarks/soil_estimation.py identify [--seeds 801 802 803] [--drives sweep crab]
 """
 
 from __future__ import annotations
@@ -136,6 +146,140 @@ def slip_table(args) -> None:
                 )
 
 
+#: Travel at which the identified curve is scored [m].
+CHECKPOINTS = (2.5, 5.0, 7.5, 10.0, 15.0)
+
+
+def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: int) -> dict:
+    """One identification drive: the estimator's pull curve at each checkpoint of travel, and the truth's.
+
+    ``brake``: straight; the front wheels' tread runs at 0.45 m/s and the rear wheels (in the
+    front ones' ruts) brake ever harder, their tread slowed from 0.45 m/s to a standstill and
+    back every 16 s, so that the front wheels' slip sweeps from about 0.05 to 0.8 (a drawbar
+    pull test with the rear axle as the load). ``crab``: the same while crabbing, both axles
+    steered 0.25 rad to one side, then the other (every 6 s), so that the rear wheels run on
+    fresh soil beside the front ones' ruts.
+    """
+    from rover_env.config.soil import load_soil
+    from rover_env.sim.terramechanics import PullCurves, WheelSpec
+
+    env = gym.make(
+        "Rover-v0", scenario=str(scenario), preset=preset, rig="full", action_mode="wheels", randomize="on"
+    )
+    try:
+        env.reset(seed=seed)
+        est = env.unwrapped.pipeline.estimator
+        soil = est.soil
+        g = env.unwrapped.sim.rover.geom
+        soil_name = yaml.safe_load(scenario.read_text())["friction"]["patches"][0]["soil"]
+        curves = PullCurves(load_soil(soil_name), WheelSpec(radius=g.wheel_radius, width=g.wheel_width))
+        rng = np.random.default_rng(seed)
+        phase = rng.uniform(0.0, 1.0)
+        hz = env.unwrapped.control_hz
+        loads, marks, wheel_err, history = [], {}, [], []
+        for k in range(steps):
+            t = k / hz
+            u = (t / 16.0 + phase) % 1.0
+            target = 0.8 * (2.0 * u if u < 0.5 else 2.0 - 2.0 * u)
+            lam = 0.25 * (1.0 if (t // 6.0) % 2 == 0 else -1.0) if drive == "crab" else 0.0
+            rear = 0.45 * (1.0 - target / 0.8)
+            a = np.array([0.45, 0.45, rear, rear, lam, lam], dtype=np.float32)
+            info = env.step(a)[4]
+            gt = info["ground_truth"]
+            loads.append(np.asarray(gt["load"])[soil.fresh])
+            cur = soil.last
+            if cur.identified:
+                true_ratio = env.unwrapped.soil_truth()["pull_ratio"]
+                ok = np.isfinite(cur.wheel_pull_ratio) & np.isfinite(true_ratio)
+                wheel_err.extend(np.abs(cur.wheel_pull_ratio - true_ratio)[ok])
+                history.append((soil.travel, cur))
+            for d in CHECKPOINTS:
+                if d not in marks and soil.travel >= d:
+                    marks[d] = cur
+            if soil.travel >= CHECKPOINTS[-1]:
+                break
+        load = float(np.mean(np.concatenate(loads)))
+        timing = est.timing["soil"] / (k + 1)
+    finally:
+        env.close()
+    dpw, eff = curves.curve(load)
+    from perception.fusion.soil import SLIPS
+
+    truth = np.interp(SLIPS, curves.SLIPS, dpw)
+    best_pull = float(curves.SLIPS[np.nanargmax(dpw)])
+    best_eff = float(curves.SLIPS[np.nanargmax(eff)])
+    judged = (SLIPS >= 0.05 - 1e-9) & (SLIPS <= 0.7 + 1e-9)
+    # the travel after which the curve stays within 0.05 of the truth over slips 0.05-0.7
+    within = [np.max(np.abs(c.pull_ratio[judged] - truth[judged])) <= 0.05 for _, c in history]
+    settle = math.nan
+    for i in range(len(within)):
+        if all(within[i:]):
+            settle = history[i][0]
+            break
+    return {
+        "marks": marks,
+        "truth": truth,
+        "best_pull": best_pull,
+        "best_eff": best_eff,
+        "judged": judged,
+        "wheel_mae": float(np.mean(wheel_err)) if wheel_err else math.nan,
+        "settle": settle if within and within[-1] else math.inf,
+        "soil_s": timing,
+    }
+
+
+def identify_table(args) -> None:
+    folder = Path(args.tmp)
+    folder.mkdir(parents=True, exist_ok=True)
+    print(f"seeds {args.seeds}, preset {args.preset}, rig full, randomize on, field cameras")
+    print(
+        "| soil | drive | travel [m] | identified | DP/W error 0.05-0.7, mean / max | max where quality accepts "
+        "| slip_best_pull (truth) | slip_best_efficiency (truth) | soil_quality |"
+    )
+    print("|---|---|---:|---:|---|---:|---|---|---:|")
+    summary = []
+    for soil in SOILS:
+        scen = soil_scenario(soil, folder)
+        for drive in args.drives:
+            runs = [identify_drive(scen, args.preset, s, drive, args.steps) for s in args.seeds]
+            for d in CHECKPOINTS:
+                rows = [(r, r["marks"].get(d)) for r in runs]
+                rows = [(r, c) for r, c in rows if c is not None and c.identified]
+                n = sum(1 for r in runs if d in r["marks"])
+                if not n:
+                    continue
+                if not rows:
+                    print(f"| {soil} | {drive} | {d:g} | 0/{n} | – | – | – | – | – |")
+                    continue
+                err = [np.abs(c.pull_ratio[r["judged"]] - r["truth"][r["judged"]]) for r, c in rows]
+                acc = [
+                    e[c.pull_ratio_std[r["judged"]] <= c_std]
+                    for e, (r, c) in zip(err, rows, strict=True)
+                    for c_std in [0.025]
+                ]
+                acc_max = max((float(a.max()) for a in acc if len(a)), default=math.nan)
+                bp = ", ".join(f"{c.slip_best_pull:.2f}" for _, c in rows)
+                be = ", ".join(f"{c.slip_best_efficiency:.2f}" for _, c in rows)
+                print(
+                    f"| {soil} | {drive} | {d:g} | {len(rows)}/{n} "
+                    f"| {np.mean([e.mean() for e in err]):.3f} / {max(e.max() for e in err):.3f} | {acc_max:.3f} "
+                    f"| {bp} ({rows[0][0]['best_pull']:.2f}) | {be} ({rows[0][0]['best_eff']:.2f}) "
+                    f"| {np.mean([c.quality for _, c in rows]):.2f} |",
+                    flush=True,
+                )
+            summary.append((soil, drive, runs))
+    print()
+    print(
+        "| soil | drive | travel until within 0.05 for good [m] | pull_ratio_* MAE against the truth's | soil cost [ms/step] |"
+    )
+    print("|---|---|---|---:|---:|")
+    for soil, drive, runs in summary:
+        settle = ", ".join("never" if not math.isfinite(r["settle"]) else f"{r['settle']:.1f}" for r in runs)
+        mae = np.nanmean([r["wheel_mae"] for r in runs])
+        cost = 1000.0 * np.mean([r["soil_s"] for r in runs])
+        print(f"| {soil} | {drive} | {settle} | {mae:.3f} | {cost:.3f} |", flush=True)
+
+
 def main(argv=None) -> int:
     cv2.setNumThreads(1)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -148,11 +292,19 @@ def main(argv=None) -> int:
     p = sub.add_parser("slip", help="slip on the two soil missions, with and without encoders")
     p.add_argument("--seeds", type=int, nargs="+", default=list(range(601, 621)))
     p.add_argument("--preset", default="train", choices=("eval", "train"))
+    i = sub.add_parser("identify", help="the soil's pull curve identified on three soils")
+    i.add_argument("--seeds", type=int, nargs="+", default=[801, 802, 803])
+    i.add_argument("--preset", default="train", choices=("eval", "train"))
+    i.add_argument("--drives", nargs="+", default=["brake", "crab"], choices=("brake", "crab"))
+    i.add_argument("--steps", type=int, default=1500, help="at most this many control steps (30 a second)")
+    i.add_argument("--tmp", default="/tmp/soil_estimation", help="folder for the scenario files it writes")
     args = ap.parse_args(argv)
     assert rover_env.ENV_IDS  # registers the environments
     t0 = time.perf_counter()
     if args.part == "sinkage":
         sinkage_table(args)
+    elif args.part == "identify":
+        identify_table(args)
     else:
         slip_table(args)
     print(f"({time.perf_counter() - t0:.0f} s)")

@@ -45,6 +45,7 @@ Wheel order FL, FR, RL, RR.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -58,6 +59,12 @@ __all__ = ["SoilCurveEstimate", "SoilIdConfig", "SoilIdentifier", "SLIPS"]
 SLIPS = np.linspace(0.0, 0.95, 96)
 #: The slips the quality is judged over [-].
 _JUDGED = (SLIPS >= 0.05 - 1e-9) & (SLIPS <= 0.7 + 1e-9)
+#: Slip bins for what counts as measured: their width and centres [-] ...
+_BIN = 0.025
+_BINS = np.arange(0.0, 1.0, _BIN) + _BIN / 2
+#: ... and the fine bins the samples are gathered in (five to a coarse one).
+_FINE_BIN = _BIN / 5
+_FINE = np.arange(0.0, 1.0, _FINE_BIN) + _FINE_BIN / 2
 #: The thrust's saturation slips tried [-].
 _B_GRID = np.geomspace(0.04, 2.0, 40)
 
@@ -77,14 +84,15 @@ class SoilIdConfig:
         rut_torque_prior: Mean and standard deviation of ``b1`` [-] (-0.2 to 0 there).
         force_std: Standard deviation of one step's balance [N]: the accelerometer's noise
             over a step, the wheels' and the body's inertia, and the model's error.
-        memory: Travel over which the measurements count [m] (the soil may change).
+        memory: Travel over which a measurement's weight falls by a factor e [m] (the soil
+            may change).
         track_memory: Travel over which a wheel's track counts as a rut [m].
         rut_clearance: A wheel is in a rut where its centre passes within this of another
             wheel's track [m] (about a wheel's width).
         track_step: The tracks keep a point every this much travel [m].
         min_speed: Below this ground speed nothing is measured [m/s].
-        min_samples: Fresh driving samples (wheel-steps) and balance steps needed before a
-            curve is given.
+        min_samples: Fresh driving samples (wheel-steps) and balance steps, weighted, needed
+            before a curve is given.
         min_slip_span: The fresh driving wheels' slips must span this much [-].
         quality_std: The curve's standard deviation at which a slip counts as identified [-].
         refit_travel: The curve is refitted after this much travel [m].
@@ -92,6 +100,8 @@ class SoilIdConfig:
             nearest measured slip [-] (about the curves' slope at mid-slip).
         model_std: The per-wheel model's own error in DP/W [-] (its rms over the five soils'
             steady states, 0.005-0.015), added to the fits' spread.
+        min_bin_samples: A slip counts as measured where its bin (0.025 wide) holds this
+            many fresh driving samples.
     """
 
     thrust_loss: float = 0.118
@@ -101,16 +111,17 @@ class SoilIdConfig:
     rut_torque_prior: tuple[float, float] = (-0.1, 0.1)
     force_std: float = 6.0
     memory: float = 30.0
-    track_memory: float = 3.0
+    track_memory: float = 2.0
     rut_clearance: float = 0.06
-    track_step: float = 0.01
+    track_step: float = 0.02
     min_speed: float = 0.03
     min_samples: int = 30
     min_slip_span: float = 0.2
     quality_std: float = 0.025
-    refit_travel: float = 0.1
+    refit_travel: float = 0.2
     gap_slope: float = 0.5
     model_std: float = 0.015
+    min_bin_samples: int = 10
 
     def __post_init__(self) -> None:
         for name in (
@@ -173,22 +184,6 @@ class SoilCurveEstimate:
         return bool(np.isfinite(self.pull_ratio).any())
 
 
-def _thrust_fit(s: np.ndarray, tau: np.ndarray):
-    """The saturating thrust through (s, tau): (B, (tau0, A), covariance, residual variance)."""
-    best = None
-    for B in _B_GRID:
-        X = np.stack([np.ones_like(s), 1.0 - np.exp(-s / B)], axis=1)
-        c, *_ = np.linalg.lstsq(X, tau, rcond=None)
-        sse = float(np.sum((X @ c - tau) ** 2))
-        if best is None or sse < best[0]:
-            best = (sse, B, c, X)
-    assert best is not None
-    sse, B, c, X = best
-    var = sse / max(len(s) - 3, 1)
-    cov = var * np.linalg.pinv(X.T @ X)
-    return B, c, cov, var
-
-
 class SoilIdentifier:
     """Identifies the soil's pull curve from a rover's torques, slips, sinkages and accelerometer.
 
@@ -228,17 +223,23 @@ class SoilIdentifier:
     def reset(self) -> None:
         """Forget everything (a new drive)."""
         self.travel = 0.0
-        # fresh driving wheel-steps: slip, T/(rW), z/r (NaN: not measured), travel
-        self._samples: list[tuple[float, float, float, float]] = []
-        # balance steps: y, x_a, x_b0, x_b1, travel
-        self._rows: list[tuple[float, float, float, float, float]] = []
+        # fresh driving wheel-steps in fine slip bins, weighted down with travel: weight, sums
+        # of slip, T/(rW) and its square; weight, sums of slip, z/r and its square where the
+        # sinkage was measured
+        self._bins = np.zeros((8, len(_FINE)))
+        # the balance's normal equations in (a, b0, b1), and their weight
+        self._normal = np.zeros((3, 3))
+        self._rhs = np.zeros(3)
+        self._balance_n = 0.0
+        self._first = math.nan  # the travel at the first sample [m]
         # the tracks: points (x, y) in the odometry frame, the wheel, the travel
         self._track_xy = np.zeros((0, 2))
         self._track_wheel = np.zeros(0, dtype=np.int64)
         self._track_travel = np.zeros(0)
         self._last_track = -math.inf
         self._fitted_at = -math.inf
-        self._fit: tuple | None = None
+        self._curve = SoilCurveEstimate()
+        self._ruts = np.zeros(4, dtype=bool)
         #: (4,) whether each wheel was on fresh soil (on no other wheel's track) at the last step.
         self.fresh = np.ones(4, dtype=bool)
         self.last = SoilCurveEstimate()
@@ -267,9 +268,6 @@ class SoilIdentifier:
 
     def _lay_tracks(self, centres_xy: np.ndarray) -> None:
         c = self.config
-        if self.travel - self._last_track < c.track_step:
-            return
-        self._last_track = self.travel
         keep = self._track_travel >= self.travel - c.track_memory
         self._track_xy = np.concatenate([self._track_xy[keep], centres_xy])
         self._track_wheel = np.concatenate([self._track_wheel[keep], np.arange(4)])
@@ -303,11 +301,22 @@ class SoilIdentifier:
         if not (math.isfinite(distance) and distance >= 0):
             raise ValueError(f"distance: {distance!r}; give the travel since the last step, >= 0 [m]")
         self.travel += distance
+        if distance > 0.0:  # the soil may change: older measurements count less
+            keep = math.exp(-distance / c.memory)
+            self._bins *= keep
+            self._normal *= keep
+            self._rhs *= keep
+            self._balance_n *= keep
         xy = np.asarray(centres_xy, dtype=np.float64).reshape(4, 2)
-        ruts = self._in_ruts(xy) if np.all(np.isfinite(xy)) else np.ones(4, dtype=bool)
-        self.fresh = ~ruts
-        if np.all(np.isfinite(xy)):
+        if not np.isfinite(xy).all():
+            ruts = np.ones(4, dtype=bool)  # unknown: no wheel taken for one on fresh soil
+        elif self.travel - self._last_track >= c.track_step:  # the tracks move with travel only
+            self._last_track = self.travel
+            ruts = self._ruts = self._in_ruts(xy)
             self._lay_tracks(xy)
+        else:
+            ruts = self._ruts
+        self.fresh = ~ruts
         v = np.asarray(velocity, dtype=np.float64)
         speed = float(np.hypot(v[0], v[1])) if np.all(np.isfinite(v)) else 0.0
         if torque is None or specific_force is None or speed < c.min_speed:
@@ -325,8 +334,18 @@ class SoilIdentifier:
         sign = -1.0 if v[0] < 0.0 else 1.0  # reversing: the torques drive the other way
         tau = sign * T / (self.r * W)
         fresh = ~ruts
-        for i in np.flatnonzero(fresh & ok & (s >= 0.0) & (tau > 0.0)):
-            self._samples.append((float(s[i]), float(tau[i]), float(z[i]), self.travel))
+        use = fresh & ok & (s >= 0.0) & (s < 1.0) & (tau > 0.0)
+        if use.any():
+            if math.isnan(self._first):
+                self._first = self.travel
+            k = np.minimum((s[use] / _FINE_BIN).astype(np.int64), len(_FINE) - 1)
+            zu = z[use]
+            has = np.isfinite(zu) * 1.0
+            zu = np.where(has > 0, zu, 0.0)
+            su, tu = s[use], tau[use]
+            np.add.at(
+                self._bins.T, k, np.stack([np.ones(k.size), su, tu, tu * tu, has, has * su, zu, zu * zu], 1)
+            )
         # the balance along the travel: the pulls sum to the mass times the specific force
         u = v / speed
         f_u = float(f[0] * u[0] + f[1] * u[1])
@@ -334,32 +353,26 @@ class SoilIdentifier:
         y = float(np.sum((1.0 - eps) * tau * W)) - self.mass * f_u
         if fresh.any():
             zf = z[fresh]
-            if not np.isfinite(zf).any():
+            seen = np.isfinite(zf)
+            if not seen.any():
                 return
-            zf = np.where(np.isfinite(zf), zf, np.nanmedian(zf))
+            if not seen.all():  # a fresh wheel's sinkage not measured: the others' median
+                zf = np.where(seen, zf, np.median(zf[seen]))
             x_a = float(np.sum(W[fresh] * zf))
         else:
             x_a = 0.0
-        x_b0 = float(np.sum(W[ruts]))
-        x_b1 = float(np.sum(W[ruts] * tau[ruts]))
-        self._rows.append((y, x_a, x_b0, x_b1, self.travel))
-
-    def _forget(self) -> None:
-        start = self.travel - self.config.memory
-        if self._samples and self._samples[0][3] < start:
-            self._samples = [x for x in self._samples if x[3] >= start]
-        if self._rows and self._rows[0][4] < start:
-            self._rows = [x for x in self._rows if x[4] >= start]
+        x = np.array([x_a, float(np.sum(W[ruts])), float(np.sum(W[ruts] * tau[ruts]))])
+        self._normal += np.outer(x, x)
+        self._rhs += x * y
+        self._balance_n += 1.0
 
     def _resistance(self) -> tuple[np.ndarray, np.ndarray]:
-        """(a, b0, b1) and their covariance from the balance rows and the priors."""
+        """(a, b0, b1) and their covariance from the balance's normal equations and the priors."""
         c = self.config
-        R = np.array(self._rows)
-        X, y = R[:, 1:4], R[:, 0]
         prior = np.array([c.resistance_prior, c.rut_resistance_prior, c.rut_torque_prior])
         P = np.diag(1.0 / prior[:, 1] ** 2)
-        A = X.T @ X / c.force_std**2 + P
-        b = X.T @ y / c.force_std**2 + P @ prior[:, 0]
+        A = self._normal / c.force_std**2 + P
+        b = self._rhs / c.force_std**2 + P @ prior[:, 0]
         cov = np.linalg.inv(A)
         return cov @ b, cov
 
@@ -372,51 +385,52 @@ class SoilIdentifier:
         c = self.config
         if self.travel - self._fitted_at >= c.refit_travel:
             self._fitted_at = self.travel
-            self._forget()
-            self._fit = self._identify()
-        out = SoilCurveEstimate()
-        if self._fit is not None:
-            dpw, std, tau, p, cov_a = self._fit
-            out.pull_ratio, out.pull_ratio_std = dpw, std
-            drive = SLIPS > 0.0
-            out.slip_best_pull = float(SLIPS[np.argmax(dpw)])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                eff = np.where(drive & (tau > 0) & (dpw > 0), dpw * (1.0 - SLIPS) / tau, -np.inf)
-            if np.isfinite(eff).any() and eff.max() > 0:
-                out.slip_best_efficiency = float(SLIPS[np.argmax(eff)])
-            out.quality = float(np.mean(std[_JUDGED] <= c.quality_std))
-            out.resistance = (float(p[0]), float(math.sqrt(cov_a)))
-            out.travel = float(self.travel - (self._samples[0][3] if self._samples else self.travel))
-            if slip is not None:
-                s = np.asarray(slip, dtype=np.float64)
-                ok = np.isfinite(s) & (s >= 0.0) & (s <= SLIPS[-1])
-                if slip_valid is not None:
-                    ok &= np.asarray(slip_valid, dtype=bool)
-                out.wheel_pull_ratio = np.where(ok, np.interp(np.where(ok, s, 0.0), SLIPS, dpw), np.nan)
+            self._curve = self._curve_estimate(self._identify())
+        out = dataclasses.replace(self._curve, travel=float(self.travel - self._first))
+        if slip is not None and out.identified:
+            s = np.asarray(slip, dtype=np.float64)
+            ok = np.isfinite(s) & (s >= 0.0) & (s <= SLIPS[-1])
+            if slip_valid is not None:
+                ok &= np.asarray(slip_valid, dtype=bool)
+            out.wheel_pull_ratio = np.where(
+                ok, np.interp(np.where(ok, s, 0.0), SLIPS, out.pull_ratio), np.nan
+            )
         self.last = out
+        return out
+
+    def _curve_estimate(self, fit) -> SoilCurveEstimate:
+        """The curve's figures from :meth:`_identify`'s fit (None: an empty estimate)."""
+        out = SoilCurveEstimate()
+        if fit is None:
+            return out
+        dpw, std, tau, p, var_a = fit
+        out.pull_ratio, out.pull_ratio_std = dpw, std
+        out.slip_best_pull = float(SLIPS[np.argmax(dpw)])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            eff = np.where((SLIPS > 0.0) & (tau > 0) & (dpw > 0), dpw * (1.0 - SLIPS) / tau, -np.inf)
+        if eff.max() > 0:
+            out.slip_best_efficiency = float(SLIPS[np.argmax(eff)])
+        out.quality = float(np.mean(std[_JUDGED] <= self.config.quality_std))
+        out.resistance = (float(p[0]), float(math.sqrt(var_a)))
         return out
 
     def _identify(self):
         """(DP/W, its std, the thrust T/(rW), (a, b0, b1), var a) over :data:`SLIPS`, or None."""
         c = self.config
-        if len(self._samples) < c.min_samples or len(self._rows) < c.min_samples:
+        w, wz = self._bins[0], self._bins[4]
+        if w.sum() < c.min_samples or self._balance_n < c.min_samples or wz.sum() < c.min_samples:
             return None
-        S = np.array(self._samples)
-        s, tau, z = S[:, 0], S[:, 1], S[:, 2]
-        if np.ptp(s) < c.min_slip_span:
+        # a slip counts as measured where its coarse bin holds enough samples (a few stray
+        # samples of a transient do not make it measured)
+        coarse = w.reshape(len(_BINS), -1).sum(axis=1)
+        measured = _BINS[coarse >= c.min_bin_samples]
+        if not len(measured) or np.ptp(measured) < c.min_slip_span:
             return None
-        B, ct, cov_t, _ = _thrust_fit(s, tau)
-        g = 1.0 - np.exp(-SLIPS / B)
-        G = np.stack([np.ones_like(SLIPS), g], axis=1)
+        B, ct, cov_t = self._thrust_fit()
+        G = np.stack([np.ones_like(SLIPS), 1.0 - np.exp(-SLIPS / B)], axis=1)
         tau_c = G @ ct
         var_tau = np.einsum("ij,jk,ik->i", G, cov_t, G)
-        has_z = np.isfinite(z)
-        if has_z.sum() < c.min_samples:
-            return None
-        Z = np.stack([np.ones(has_z.sum()), s[has_z], s[has_z] ** 2], axis=1)
-        cz, *_ = np.linalg.lstsq(Z, z[has_z], rcond=None)
-        var_z_res = float(np.sum((Z @ cz - z[has_z]) ** 2)) / max(has_z.sum() - 3, 1)
-        cov_z = var_z_res * np.linalg.pinv(Z.T @ Z)
+        cz, cov_z = self._sinkage_fit()
         Q = np.stack([np.ones_like(SLIPS), SLIPS, SLIPS**2], axis=1)
         zeta = Q @ cz
         var_zeta = np.einsum("ij,jk,ik->i", Q, cov_z, Q)
@@ -425,11 +439,39 @@ class SoilIdentifier:
         dpw = (1.0 - c.thrust_loss) * tau_c - a * zeta
         var = (1.0 - c.thrust_loss) ** 2 * var_tau + zeta**2 * var_a + a * a * var_zeta
         # away from the slips measured the fits interpolate or extrapolate: their spread grows
-        # with the distance to the nearest measured slip (about the curves' slope at mid-slip)
-        measured = np.unique(np.round(s, 3))
-        k = np.clip(np.searchsorted(measured, SLIPS), 1, len(measured) - 1)
-        gap = np.minimum(np.abs(SLIPS - measured[k - 1]), np.abs(SLIPS - measured[k]))
-        if len(measured) == 1:
-            gap = np.abs(SLIPS - measured[0])
+        # with the distance to the nearest measured slip
+        gap = np.min(np.abs(SLIPS[:, None] - measured[None, :]), axis=1)
         std = np.sqrt(var + c.model_std**2 + (c.gap_slope * gap) ** 2)
         return dpw, std, tau_c, p, var_a
+
+    def _thrust_fit(self):
+        """The saturating thrust through the bins: (B, (tau0, A), their covariance)."""
+        w, ws, wt, wtt = self._bins[:4]
+        on = w > 1e-9
+        w, sm, tm = w[on], ws[on] / w[on], wt[on] / w[on]
+        within = float(np.sum(wtt[on] - w * tm * tm))  # the spread inside the bins
+        g = 1.0 - np.exp(-sm[None, :] / _B_GRID[:, None])  # (B, bins)
+        s0, s1, s2 = w.sum(), g @ w, (g * g) @ w
+        t0, t1 = float(w @ tm), (g * tm) @ w
+        det = s0 * s2 - s1 * s1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c0 = (s2 * t0 - s1 * t1) / det
+            c1 = (s0 * t1 - s1 * t0) / det
+        sse = float(w @ (tm * tm)) - c0 * t0 - c1 * t1  # each B's least-squares residual
+        sse = np.where(np.isfinite(sse) & (det > 1e-12 * s0 * s0), sse, np.inf)
+        i = int(np.argmin(sse))
+        var = max(float(sse[i]) + within, 0.0) / max(s0 - 3.0, 1.0)
+        XtWX = np.array([[s0, s1[i]], [s1[i], s2[i]]])
+        return float(_B_GRID[i]), np.array([c0[i], c1[i]]), var * np.linalg.pinv(XtWX)
+
+    def _sinkage_fit(self):
+        """The relative sinkage's quadratic in slip through the bins: (coefficients, covariance)."""
+        wz, wzs, zs, zsq = self._bins[4:8]
+        on = wz > 1e-9
+        w, sm, zm = wz[on], wzs[on] / wz[on], zs[on] / wz[on]
+        X = np.stack([np.ones_like(sm), sm, sm * sm], axis=1)
+        XtWX = X.T @ (X * w[:, None])
+        coef = np.linalg.pinv(XtWX) @ (X.T @ (w * zm))
+        sse = float(w @ (X @ coef - zm) ** 2) + float(np.sum(zsq[on] - w * zm * zm))
+        var = max(sse, 0.0) / max(float(w.sum()) - 3.0, 1.0)
+        return coef, var * np.linalg.pinv(XtWX)
