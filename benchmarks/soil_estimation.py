@@ -148,6 +148,8 @@ def slip_table(args) -> None:
 
 #: Travel at which the identified curve is scored [m].
 CHECKPOINTS = (2.5, 5.0, 7.5, 10.0, 15.0)
+#: The curve's standard deviation up to which the soil quality counts a slip identified.
+ACCEPTED_STD = 0.025
 
 
 def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: int) -> dict:
@@ -233,8 +235,8 @@ def identify_table(args) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     print(f"seeds {args.seeds}, preset {args.preset}, rig full, randomize on, field cameras")
     print(
-        "| soil | drive | travel [m] | identified | DP/W error 0.05-0.7, mean / max | max where quality accepts "
-        "| slip_best_pull (truth) | slip_best_efficiency (truth) | soil_quality |"
+        "| soil | drive | travel [m] | identified | DP/W error 0.05-0.7, mean / max "
+        "| max where quality accepts | slip_best_pull (truth) | slip_best_efficiency (truth) | soil_quality |"
     )
     print("|---|---|---:|---:|---|---:|---|---|---:|")
     summary = []
@@ -252,17 +254,15 @@ def identify_table(args) -> None:
                     print(f"| {soil} | {drive} | {d:g} | 0/{n} | – | – | – | – | – |")
                     continue
                 err = [np.abs(c.pull_ratio[r["judged"]] - r["truth"][r["judged"]]) for r, c in rows]
-                acc = [
-                    e[c.pull_ratio_std[r["judged"]] <= c_std]
-                    for e, (r, c) in zip(err, rows, strict=True)
-                    for c_std in [0.025]
-                ]
+                accepted = [c.pull_ratio_std[r["judged"]] <= ACCEPTED_STD for r, c in rows]
+                acc = [e[a] for e, a in zip(err, accepted, strict=True)]
                 acc_max = max((float(a.max()) for a in acc if len(a)), default=math.nan)
                 bp = ", ".join(f"{c.slip_best_pull:.2f}" for _, c in rows)
                 be = ", ".join(f"{c.slip_best_efficiency:.2f}" for _, c in rows)
                 print(
                     f"| {soil} | {drive} | {d:g} | {len(rows)}/{n} "
-                    f"| {np.mean([e.mean() for e in err]):.3f} / {max(e.max() for e in err):.3f} | {acc_max:.3f} "
+                    f"| {np.mean([e.mean() for e in err]):.3f} / {max(e.max() for e in err):.3f} "
+                    f"| {acc_max:.3f} "
                     f"| {bp} ({rows[0][0]['best_pull']:.2f}) | {be} ({rows[0][0]['best_eff']:.2f}) "
                     f"| {np.mean([c.quality for _, c in rows]):.2f} |",
                     flush=True,
@@ -270,7 +270,8 @@ def identify_table(args) -> None:
             summary.append((soil, drive, runs))
     print()
     print(
-        "| soil | drive | travel until within 0.05 for good [m] | pull_ratio_* MAE against the truth's | soil cost [ms/step] |"
+        "| soil | drive | travel until within 0.05 for good [m] | pull_ratio_* MAE against the truth's "
+        "| soil cost [ms/step] |"
     )
     print("|---|---|---|---:|---:|")
     for soil, drive, runs in summary:
