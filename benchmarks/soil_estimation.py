@@ -43,6 +43,7 @@ import numpy as np
 import yaml
 
 import rover_env
+from perception.fusion.soil import SLIPS, SoilIdConfig
 from rover_env.config.io import to_dict
 from rover_env.config.scenario import load_scenario
 
@@ -148,8 +149,6 @@ def slip_table(args) -> None:
 
 #: Travel at which the identified curve is scored [m].
 CHECKPOINTS = (2.5, 5.0, 7.5, 10.0, 15.0)
-#: The curve's standard deviation up to which the soil quality counts a slip identified.
-ACCEPTED_STD = 0.025
 
 
 def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: int) -> dict:
@@ -205,8 +204,6 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
     finally:
         env.close()
     dpw, eff = curves.curve(load)
-    from perception.fusion.soil import SLIPS
-
     truth = np.interp(SLIPS, curves.SLIPS, dpw)
     best_pull = float(curves.SLIPS[np.nanargmax(dpw)])
     best_eff = float(curves.SLIPS[np.nanargmax(eff)])
@@ -254,7 +251,8 @@ def identify_table(args) -> None:
                     print(f"| {soil} | {drive} | {d:g} | 0/{n} | – | – | – | – | – |")
                     continue
                 err = [np.abs(c.pull_ratio[r["judged"]] - r["truth"][r["judged"]]) for r, c in rows]
-                accepted = [c.pull_ratio_std[r["judged"]] <= ACCEPTED_STD for r, c in rows]
+                std = SoilIdConfig().quality_std  # what the soil quality counts as identified
+                accepted = [c.pull_ratio_std[r["judged"]] <= std for r, c in rows]
                 acc = [e[a] for e, a in zip(err, accepted, strict=True)]
                 acc_max = max((float(a.max()) for a in acc if len(a)), default=math.nan)
                 bp = ", ".join(f"{c.slip_best_pull:.2f}" for _, c in rows)
