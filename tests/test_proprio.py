@@ -267,3 +267,41 @@ def test_on_rigid_ground_the_wheels_pull_is_the_mass_times_the_acceleration(tmp_
     mid = 0.5 * (pull[1:] + pull[:-1])
     assert accel[2:6].min() > 3.0  # at the motors' torque limit
     np.testing.assert_allclose(mid[2:6], 42.6 * accel[2:6], rtol=0.05)
+
+
+def test_the_soil_identification_reads_the_loads_off_the_accelerometer():
+    """With currents and an IMU the estimator identifies the soil; its loads carry the weight as the truth's do."""
+    env = gym.make("Rover-v0", rig="full", renderer="tiny")
+    try:
+        env.reset(seed=2)
+        est = env.unwrapped.pipeline.estimator
+        assert est.soil is not None and est.soil.mass == pytest.approx(42.6)
+        seen = []
+        orig = est.soil.add
+
+        def spy(distance, slip, valid, torque, sinkage, force, velocity, xy):
+            if force is not None:
+                seen.append(est.soil.loads(force))
+            orig(distance, slip, valid, torque, sinkage, force, velocity, xy)
+
+        est.soil.add = spy
+        truth = []
+        for _ in range(45):
+            info = env.step(np.array([0.4, 0.0, 0.0], dtype=np.float32))[4]
+            truth.append(info["ground_truth"]["load"])
+        W, T = np.array(seen[15:]), np.array(truth[-len(seen[15:]) :])
+        np.testing.assert_allclose(W.sum(axis=1), T.sum(axis=1), rtol=0.03)
+        # each axle's share: the front's within 5 % of the truth's on average
+        assert W[:, :2].sum(axis=1).mean() == pytest.approx(T[:, :2].sum(axis=1).mean(), rel=0.05)
+        # rigid ground, one slip: no pull curve to identify, and none is reported
+        assert not est.soil.last.identified
+        assert "slip_best_pull" not in env.unwrapped.estimate_values
+    finally:
+        env.close()
+    # without motor currents there is no identification
+    env = gym.make("Rover-v0", imu="bmi088", renderer="tiny")
+    try:
+        env.reset(seed=2)
+        assert env.unwrapped.pipeline.estimator.soil is None
+    finally:
+        env.close()

@@ -13,7 +13,7 @@ accelerometer, which reads their sum:
 
   T the wheel's torque [N m], r its radius, W its load [N], z its sinkage [m]. ``eps`` is the
   part of the shear's torque that does not push forward (the contact arc's slope: 0.118
-  driving, 0.03 braking); ``a`` is the soil's resistance per unit of relative sinkage, which
+  driving, 0.033 braking); ``a`` is the soil's resistance per unit of relative sinkage, which
   depends on the soil (0.29-0.37 on sands, 0.91 on the CMU test bed's soil) and is identified.
   Over loads 70-140 N and slips 0.02-0.8 this holds to 0.005-0.015 rms (0.02-0.034 at worst).
 - **A wheel in another's rut** (the rear wheels of a rover driving straight) pulls on soil that
@@ -105,7 +105,7 @@ class SoilIdConfig:
     """
 
     thrust_loss: float = 0.118
-    thrust_loss_braking: float = 0.03
+    thrust_loss_braking: float = 0.033
     resistance_prior: tuple[float, float] = (0.5, 1.0)
     rut_resistance_prior: tuple[float, float] = (0.04, 0.04)
     rut_torque_prior: tuple[float, float] = (-0.1, 0.1)
