@@ -270,7 +270,7 @@ def test_on_rigid_ground_the_wheels_pull_is_the_mass_times_the_acceleration(tmp_
 
 
 def test_the_soil_identification_reads_the_loads_off_the_accelerometer():
-    """With currents and an IMU the estimator identifies the soil; its loads carry the weight as the truth's do."""
+    """With currents and an IMU the soil is identified; its loads carry the weight like the truth."""
     env = gym.make("Rover-v0", rig="full", renderer="tiny")
     try:
         env.reset(seed=2)
