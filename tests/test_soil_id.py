@@ -39,42 +39,58 @@ class Soil:
         return (1.0 - EPS) * self.tau(s) - self.a * self.zeta(s)
 
 
-def drive(soil: Soil, steps: int = 600, crab: float = 0.0, noise: float = 0.0, seed: int = 0, **cfg):
-    """A straight (or crabbing) drive whose front wheels sweep slip 0-0.8; the rear ones balance them."""
+def drive(
+    soil: Soil,
+    steps: int = 600,
+    crab: float = 0.0,
+    noise: float = 0.0,
+    seed: int = 0,
+    bias: float = 0.0,
+    reverse_every: int = 0,
+    **cfg,
+):
+    """A drive whose leading wheels sweep slip 0-0.8 while the trailing ones balance them.
+
+    Straight, or crabbing at ``crab`` [rad]; with ``reverse_every`` steps it zig-zags, backing
+    up (the rear wheels leading) with the crab angle mirrored, so that it keeps to fresh soil.
+    The accelerometer reads ``bias`` [m/s^2] along body x and y.
+    """
     rng = np.random.default_rng(seed)
-    sid = SoilIdentifier(R, WIDTH, MASS, AX, H, SoilIdConfig(**cfg))
+    c = SoilIdConfig(**cfg)
+    sid = SoilIdentifier(R, WIDTH, MASS, AX, H, c)
     g = 9.81
     speed, dt = 0.25, 1.0 / 30.0
-    heading = np.array([math.cos(crab), math.sin(crab)])  # travel direction, body frame
     pos = np.zeros(2)
     for k in range(steps):
+        back = reverse_every > 0 and (k // reverse_every) % 2 == 1
+        lam = -crab if back else crab
+        direction = np.array([math.cos(lam), math.sin(lam)]) * (-1.0 if back else 1.0)  # body frame
+        lead, trail = ([2, 3], [0, 1]) if back else ([0, 1], [2, 3])
         u = (k / 300.0) % 1.0
-        s_f = 0.8 * (2 * u if u < 0.5 else 2 - 2 * u)
+        s_lead = 0.8 * (2 * u if u < 0.5 else 2 - 2 * u)
         W = np.full(4, MASS * g / 4)  # level, steady: no load moved between the axles
-        tau_f = soil.tau(s_f)
-        pull_f = W[0] * soil.dpw(s_f)
-        # the rear wheels hold the rover steady: their pull cancels the front ones'; they run in
-        # the front wheels' ruts once they reach them, unless the rover crabs
-        z_r = soil.zeta(0.0) + 0.03
-        in_rut = abs(crab) < 0.1 and speed * dt * k > 2 * AX + 0.05
-        eps_r = EPS if pull_f < 0 else SoilIdConfig().thrust_loss_braking
+        pull = W[0] * soil.dpw(s_lead)
+        # the trailing wheels hold the rover steady: their pull cancels the leading ones'; on
+        # fresh soil they resist a z/r, in a rut (as the identifier sees it) b0 + b1 tau
+        z_t = soil.zeta(0.0) + 0.03
+        eps_t = EPS if pull < 0 else c.thrust_loss_braking
+        in_rut = not sid.fresh[trail[0]]
         if in_rut:  # pull = (1 - eps) tau W - (b0 + b1 tau) W
-            tau_r = (-pull_f / W[2] + soil.b0) / (1.0 - eps_r - soil.b1)
+            tau_t = (-pull / W[2] + soil.b0) / (1.0 - eps_t - soil.b1)
         else:
-            tau_r = (-pull_f / W[2] + soil.a * z_r) / (1.0 - eps_r)
-        tau = np.array([tau_f, tau_f, tau_r, tau_r])
-        T = tau * R * W
-        z = np.array([soil.zeta(s_f), soil.zeta(s_f), z_r, z_r]) * R
-        s = np.array([s_f, s_f, -0.1, -0.1])
-        f = np.array([0.0, 0.0, g])
+            tau_t = (-pull / W[2] + soil.a * z_t) / (1.0 - eps_t)
+        tau, z, s = np.zeros(4), np.zeros(4), np.zeros(4)
+        tau[lead], z[lead], s[lead] = soil.tau(s_lead), soil.zeta(s_lead) * R, s_lead
+        tau[trail], z[trail], s[trail] = tau_t, z_t * R, -0.1
+        T = tau * R * W * (-1.0 if back else 1.0)  # backing up, the torques drive backwards
+        f = np.array([bias, bias, g])
         if noise:
             T = T * (1 + noise * rng.standard_normal(4))
             z = z + 0.004 * noise / 0.03 * rng.standard_normal(4)
             s = s + noise * rng.standard_normal(4)
             f = f + 0.05 * rng.standard_normal(3)
-        pos = pos + speed * dt * heading
-        xy = BODY + pos
-        sid.add(speed * dt, s, np.ones(4, bool), T, z, f, speed * heading, xy)
+        pos = pos + speed * dt * direction
+        sid.add(speed * dt, s, np.ones(4, bool), T, z, f, speed * direction, BODY + pos)
     return sid
 
 
@@ -91,6 +107,17 @@ def test_straight_drive_identifies_the_curve_and_its_peak():
     assert est.slip_best_efficiency == pytest.approx(SLIPS[np.argmax(eff)], abs=0.05)
     assert est.resistance[0] == pytest.approx(soil.a, rel=0.05)
     assert est.quality == pytest.approx(1.0)
+
+
+def test_a_drive_that_backs_up_finds_the_accelerometers_bias():
+    """0.1 m/s^2 of bias reads as 4 N of pull; backing up it changes sign, the resistance does not."""
+    soil = Soil()
+    sid = drive(soil, crab=0.3, bias=0.1, reverse_every=150, steps=900)
+    assert sid.fresh.all()  # zig-zagging sideways, it keeps to fresh soil
+    est = sid.estimate()
+    assert est.accel_bias[0] == pytest.approx(0.1, abs=0.02)
+    judged = (SLIPS >= 0.05) & (SLIPS <= 0.7)
+    assert np.max(np.abs(est.pull_ratio[judged] - soil.dpw(SLIPS)[judged])) < 0.02
 
 
 def test_crabbing_puts_every_wheel_on_fresh_soil():
