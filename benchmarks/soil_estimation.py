@@ -154,12 +154,12 @@ CHECKPOINTS = (2.5, 5.0, 7.5, 10.0, 15.0)
 def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: int) -> dict:
     """One identification drive: the estimator's pull curve at each checkpoint of travel, and the truth's.
 
-    ``brake``: straight; the front wheels' tread runs at 0.45 m/s and the rear wheels (in the
-    front ones' ruts) brake ever harder, their tread slowed from 0.45 m/s to a standstill and
+    ``brake``: straight; the front wheels' tread runs at 0.9 m/s and the rear wheels (in the
+    front ones' ruts) brake ever harder, their tread slowed from 0.9 m/s to a standstill and
     back every 16 s, so that the front wheels' slip sweeps from about 0.05 to 0.8 (a drawbar
     pull test with the rear axle as the load). ``crab``: the same while crabbing, both axles
-    steered 0.25 rad to one side, then the other (every 6 s), so that the rear wheels run on
-    fresh soil beside the front ones' ruts.
+    steered 7.5 deg to one side, then the other (every 6 s), so that the rear wheels run on
+    fresh soil 10 cm beside the front ones' ruts.
     """
     from rover_env.config.soil import load_soil
     from rover_env.sim.terramechanics import PullCurves, WheelSpec
@@ -183,7 +183,7 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
             u = (t / 16.0 + phase) % 1.0
             target = 0.8 * (2.0 * u if u < 0.5 else 2.0 - 2.0 * u)
             lam = 0.25 * (1.0 if (t // 6.0) % 2 == 0 else -1.0) if drive == "crab" else 0.0
-            rear = 0.45 * (1.0 - target / 0.8)
+            rear = 0.45 * (1.0 - target / 0.8)  # of v_max, 2 m/s; steering of 30 deg
             a = np.array([0.45, 0.45, rear, rear, lam, lam], dtype=np.float32)
             info = env.step(a)[4]
             gt = info["ground_truth"]
