@@ -369,9 +369,7 @@ class RoverEstimator:
             h = m.axle_x * m.pitch_sag / m.rest_sag if m.rest_sag > 0 else 0.0
             if soil is None:  # the accelerometer's bias from its data sheet: offset and cross-axis g
                 acc = imu.model.accel
-                soil = SoilIdConfig(
-                    accel_bias_std=max(math.hypot(acc.turn_on_bias, acc.misalignment * G), 1e-3)
-                )
+                soil = SoilIdConfig(accel_bias_std=math.hypot(acc.turn_on_bias, acc.misalignment * G))
             self.soil = SoilIdentifier(m.wheel_radius, m.wheel_width, m.mass, m.axle_x, h, soil)
         # sensors whose samples are gathered, not acted on one by one (no dead reckoning up to each)
         self._batched = {s.name for s in (imu, enc, self.currents) if s is not None}

@@ -46,14 +46,12 @@ def drive(
     noise: float = 0.0,
     seed: int = 0,
     bias: float = 0.0,
-    reverse_every: int = 0,
     **cfg,
 ):
-    """A drive whose leading wheels sweep slip 0-0.8 while the trailing ones balance them.
+    """A drive whose front wheels sweep slip 0-0.8 while the rear ones balance them.
 
-    Straight, or crabbing at ``crab`` [rad]; with ``reverse_every`` steps it zig-zags, backing
-    up (the rear wheels leading) with the crab angle mirrored, so that it keeps to fresh soil.
-    The accelerometer reads ``bias`` [m/s^2] along body x and y.
+    Straight, or crabbing at ``crab`` [rad]; the accelerometer reads ``bias`` [m/s^2] along
+    body x and y.
     """
     rng = np.random.default_rng(seed)
     c = SoilIdConfig(**cfg)
@@ -62,10 +60,8 @@ def drive(
     speed, dt = 0.25, 1.0 / 30.0
     pos = np.zeros(2)
     for k in range(steps):
-        back = reverse_every > 0 and (k // reverse_every) % 2 == 1
-        lam = -crab if back else crab
-        direction = np.array([math.cos(lam), math.sin(lam)]) * (-1.0 if back else 1.0)  # body frame
-        lead, trail = ([2, 3], [0, 1]) if back else ([0, 1], [2, 3])
+        direction = np.array([math.cos(crab), math.sin(crab)])  # of travel, body frame
+        lead, trail = [0, 1], [2, 3]
         u = (k / 300.0) % 1.0
         s_lead = 0.8 * (2 * u if u < 0.5 else 2 - 2 * u)
         W = np.full(4, MASS * g / 4)  # level, steady: no load moved between the axles
@@ -82,7 +78,7 @@ def drive(
         tau, z, s = np.zeros(4), np.zeros(4), np.zeros(4)
         tau[lead], z[lead], s[lead] = soil.tau(s_lead), soil.zeta(s_lead) * R, s_lead
         tau[trail], z[trail], s[trail] = tau_t, z_t * R, -0.1
-        T = tau * R * W * (-1.0 if back else 1.0)  # backing up, the torques drive backwards
+        T = tau * R * W
         f = np.array([bias, bias, g])
         if noise:
             T = T * (1 + noise * rng.standard_normal(4))
@@ -109,15 +105,21 @@ def test_straight_drive_identifies_the_curve_and_its_peak():
     assert est.quality == pytest.approx(1.0)
 
 
-def test_a_drive_that_backs_up_finds_the_accelerometers_bias():
-    """0.1 m/s^2 of bias reads as 4 N of pull; backing up it changes sign, the resistance does not."""
+def test_an_accelerometer_bias_reads_as_resistance_and_is_counted_in_the_spread():
+    """0.1 m/s^2 of bias reads as 4 N of pull: not told from the resistance going forward, so counted."""
     soil = Soil()
-    sid = drive(soil, crab=0.3, bias=0.1, reverse_every=150, steps=900)
-    assert sid.fresh.all()  # zig-zagging sideways, it keeps to fresh soil
-    est = sid.estimate()
-    assert est.accel_bias[0] == pytest.approx(0.1, abs=0.02)
     judged = (SLIPS >= 0.05) & (SLIPS <= 0.7)
-    assert np.max(np.abs(est.pull_ratio[judged] - soil.dpw(SLIPS)[judged])) < 0.02
+    blind = drive(soil, bias=0.1).estimate()
+    told = drive(soil, bias=0.1, accel_bias_std=0.1).estimate()
+    err = np.abs(told.pull_ratio[judged] - soil.dpw(SLIPS)[judged])
+    assert 0.01 < err.max() < 0.05
+    # the spread says so: m * bias / (the two fresh wheels' load) = 42.6 * 0.1 / 209 = 0.020
+    assert np.all(err < 2.0 * told.pull_ratio_std[judged])
+    assert np.all(told.pull_ratio_std[judged] > 0.02)
+    assert np.all(told.pull_ratio_std[judged] > blind.pull_ratio_std[judged] + 0.005)
+    # crabbing, four fresh wheels carry the bias: half the spread
+    crab = drive(soil, crab=0.3, bias=0.1, accel_bias_std=0.1).estimate()
+    assert np.median(crab.pull_ratio_std[judged]) < np.median(told.pull_ratio_std[judged]) - 0.003
 
 
 def test_crabbing_puts_every_wheel_on_fresh_soil():

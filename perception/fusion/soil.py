@@ -25,8 +25,10 @@ accelerometer, which reads their sum:
 - **The rover's balance**: the pulls sum to the mass times the specific force along the travel
   (the accelerometer's, gravity included: a climb reads as the pull it takes). Each control
   step with the four torques, the loads and the fresh wheels' sinkages is one linear equation
-  in ``a``, ``b0`` and ``b1``; they are solved by Bayesian least squares over the last
-  ``memory`` metres of travel.
+  in ``a``, ``b0`` and ``b1``; they are solved by Bayesian least squares, a measurement's
+  weight falling by e over ``memory`` metres of travel. The accelerometer's bias reads as a
+  pull too; a drive that only goes forward cannot tell it from the resistance, and it is
+  counted in the curve's spread (``accel_bias_std``).
 - **The curve**: the fresh driving wheels' T / (r W) against slip is fitted by a saturating
   thrust, ``tau0 + A (1 - exp(-s / B))``, and their relative sinkage by a quadratic in slip;
   DP/W(s) follows. The loads come from the mass, the specific force and the body's height
@@ -35,9 +37,9 @@ accelerometer, which reads their sum:
 
 Outputs (:class:`SoilCurveEstimate`): the DP/W curve over slips 0-0.95 with its standard
 deviation, each wheel's DP/W at its slip (driving slips only: braking is not identified), the
-slips of largest DP/W and largest tractive efficiency DP (1 - s) / (T / r), and a quality: the
-share of the slips 0.05-0.7 where the curve's standard deviation is at most
-``quality_std``.
+slips of largest DP/W and largest tractive efficiency DP (1 - s) / (T / r), and a quality over
+the slips 0.05-0.7: 1 where the curve's standard deviation is at most ``quality_std``, 0 where
+it is twice that or more, linear between, averaged.
 
 Frames: body frame (x forward, y left, z up); the wheels' tracks in the odometry frame.
 Wheel order FL, FR, RL, RR.
@@ -82,10 +84,11 @@ class SoilIdConfig:
         rut_resistance_prior: Mean and standard deviation of ``b0`` [-]: a wheel in a rut
             resists with 0-0.08 of its load in the model's second passes.
         rut_torque_prior: Mean and standard deviation of ``b1`` [-] (-0.2 to 0 there).
-        accel_bias_std: Standard deviation of the accelerometer's bias along body x and y
-            [m/s^2] (its data sheet's turn-on bias): identified with the rest where the drive
-            reverses, else it limits how well the resistance is known (0.1 m/s^2 of bias
-            reads as 4 N on a 43 kg rover, a third of the sand's resistance).
+        accel_bias_std: Standard deviation of the accelerometer's bias along the travel
+            [m/s^2] (its data sheet's offset and cross-axis gravity). The bias reads as a
+            pull: on a drive that only goes forward it cannot be told from the resistance
+            (estimating it made the curve worse on the benchmark's drives), so it is not
+            estimated but counted in the curve's spread, m * bias / (the fresh wheels' load).
         force_std: Standard deviation of one step's balance [N]: the accelerometer's noise
             over a step, the wheels' and the body's inertia, and the model's error.
         memory: Travel over which a measurement's weight falls by a factor e [m] (the soil
@@ -98,7 +101,8 @@ class SoilIdConfig:
         min_samples: Fresh driving samples (wheel-steps) and balance steps, weighted, needed
             before a curve is given.
         min_slip_span: The fresh driving wheels' slips must span this much [-].
-        quality_std: The curve's standard deviation at which a slip counts as identified [-].
+        quality_std: The curve's standard deviation up to which a slip counts as identified
+            [-]; from twice as much it counts as not identified at all.
         refit_travel: The curve is refitted after this much travel [m].
         gap_slope: The curve's standard deviation grows by this per unit of slip away from the
             nearest measured slip [-] (about the curves' slope at mid-slip).
@@ -113,7 +117,7 @@ class SoilIdConfig:
     resistance_prior: tuple[float, float] = (0.5, 1.0)
     rut_resistance_prior: tuple[float, float] = (0.04, 0.04)
     rut_torque_prior: tuple[float, float] = (-0.1, 0.1)
-    accel_bias_std: float = 0.2
+    accel_bias_std: float = 0.0
     force_std: float = 6.0
     memory: float = 30.0
     track_memory: float = 2.0
@@ -131,7 +135,6 @@ class SoilIdConfig:
     def __post_init__(self) -> None:
         for name in (
             "force_std",
-            "accel_bias_std",
             "memory",
             "track_memory",
             "rut_clearance",
@@ -144,6 +147,10 @@ class SoilIdConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"SoilIdConfig.{name}: {v!r}; give a positive number")
+        if not (math.isfinite(self.accel_bias_std) and self.accel_bias_std >= 0):
+            raise ConfigError(
+                f"SoilIdConfig.accel_bias_std: {self.accel_bias_std!r}; give a spread >= 0 [m/s^2]"
+            )
         for name in ("thrust_loss", "thrust_loss_braking", "min_speed", "min_slip_span"):
             v = getattr(self, name)
             if not (math.isfinite(v) and 0 <= v < 1):
@@ -168,11 +175,9 @@ class SoilCurveEstimate:
             braking) [-].
         slip_best_pull: The slip of the largest DP/W [-] (NaN: not identified).
         slip_best_efficiency: The slip of the largest tractive efficiency [-] (NaN: none).
-        quality: Share of the slips 0.05-0.7 where the standard deviation is at most
-            ``quality_std`` [0, 1].
+        quality: Over the slips 0.05-0.7, 1 where the standard deviation is at most
+            ``quality_std``, 0 from twice that, linear between, averaged [0, 1].
         resistance: The identified ``a`` and its standard deviation [-].
-        accel_bias: The accelerometer's bias along body x and y as the balance identified it
-            [m/s^2].
         travel: The travel the measurements span [m].
     """
 
@@ -184,7 +189,6 @@ class SoilCurveEstimate:
     slip_best_efficiency: float = math.nan
     quality: float = 0.0
     resistance: tuple[float, float] = (math.nan, math.inf)
-    accel_bias: tuple[float, float] = (math.nan, math.nan)
     travel: float = 0.0
 
     @property
@@ -237,8 +241,9 @@ class SoilIdentifier:
         # sinkage was measured
         self._bins = np.zeros((8, len(_FINE)))
         # the balance's normal equations in (a, b0, b1), and their weight
-        self._normal = np.zeros((8, 8))
-        self._rhs = np.zeros(8)
+        self._normal = np.zeros((6, 6))
+        self._rhs = np.zeros(6)
+        self._fresh_load = 0.0  # the balance steps' fresh wheels' loads, summed [N]
         self._balance_n = 0.0
         self._first = math.nan  # the travel at the first sample [m]
         # the tracks: points (x, y) in the odometry frame, the wheel, the travel
@@ -316,6 +321,7 @@ class SoilIdentifier:
             self._normal *= keep
             self._rhs *= keep
             self._balance_n *= keep
+            self._fresh_load *= keep
         xy = np.asarray(centres_xy, dtype=np.float64).reshape(4, 2)
         if not np.isfinite(xy).all():
             ruts = np.ones(4, dtype=bool)  # unknown: no wheel taken for one on fresh soil
@@ -376,9 +382,7 @@ class SoilIdentifier:
                 zo = np.where(seen, zo, np.median(zs))
             x_other = float(np.sum(W[other] * zo))
         wd, sd = W[drives], s[drives]
-        # the moments of the driving wheels' loads in slip, the others' W z/r; b0, b1; and the
-        # accelerometer's bias along body x and y, which reads as a pull along the travel (only
-        # a drive that reverses tells it from the resistance)
+        # the moments of the driving wheels' loads in slip, the others' W z/r; b0, b1
         x = np.array(
             [
                 float(wd.sum()),
@@ -387,22 +391,20 @@ class SoilIdentifier:
                 x_other,
                 float(np.sum(W[ruts])),
                 float(np.sum(W[ruts] * tau[ruts])),
-                -self.mass * u[0],
-                -self.mass * u[1],
             ]
         )
         self._normal += np.outer(x, x)
         self._rhs += x * y
         self._balance_n += 1.0
+        self._fresh_load += float(np.sum(W[fresh]))
 
     def _resistance(self, sinkage_fit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(a, b0, b1, bias x, bias y) and their covariance, the driving wheels' z/r from ``sinkage_fit``."""
+        """(a, b0, b1) and their covariance, the driving wheels' z/r from ``sinkage_fit``."""
         c = self.config
-        M = np.zeros((5, 8))
+        M = np.zeros((3, 6))
         M[0, :4] = (*sinkage_fit, 1.0)  # a's regressor: sum W (c0 + c1 s + c2 s^2) + the others'
-        M[1:, 4:] = np.eye(4)
-        bias = (0.0, c.accel_bias_std)
-        prior = np.array([c.resistance_prior, c.rut_resistance_prior, c.rut_torque_prior, bias, bias])
+        M[1:, 4:] = np.eye(2)
+        prior = np.array([c.resistance_prior, c.rut_resistance_prior, c.rut_torque_prior])
         P = np.diag(1.0 / prior[:, 1] ** 2)
         A = M @ self._normal @ M.T / c.force_std**2 + P
         b = M @ self._rhs / c.force_std**2 + P @ prior[:, 0]
@@ -443,9 +445,9 @@ class SoilIdentifier:
             eff = np.where((SLIPS > 0.0) & (tau > 0) & (dpw > 0), dpw * (1.0 - SLIPS) / tau, -np.inf)
         if eff.max() > 0:
             out.slip_best_efficiency = float(SLIPS[np.argmax(eff)])
-        out.quality = float(np.mean(std[_JUDGED] <= self.config.quality_std))
+        q = self.config.quality_std  # 1 within q, 0 from twice q, linear between
+        out.quality = float(np.mean(np.clip(2.0 - std[_JUDGED] / q, 0.0, 1.0)))
         out.resistance = (float(p[0]), float(math.sqrt(var_a)))
-        out.accel_bias = (float(p[3]), float(p[4]))
         return out
 
     def _identify(self):
@@ -475,7 +477,9 @@ class SoilIdentifier:
         # away from the slips measured the fits interpolate or extrapolate: their spread grows
         # with the distance to the nearest measured slip
         gap = np.min(np.abs(SLIPS[:, None] - measured[None, :]), axis=1)
-        std = np.sqrt(var + c.model_std**2 + (c.gap_slope * gap) ** 2)
+        # the accelerometer's bias, read as the fresh wheels' resistance
+        bias = self.mass * c.accel_bias_std * self._balance_n / max(self._fresh_load, 1e-9)
+        std = np.sqrt(var + c.model_std**2 + bias**2 + (c.gap_slope * gap) ** 2)
         return dpw, std, tau_c, p, var_a
 
     def _thrust_fit(self):
