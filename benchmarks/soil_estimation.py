@@ -233,7 +233,7 @@ def identify_table(args) -> None:
     print(f"seeds {args.seeds}, preset {args.preset}, rig full, randomize on, field cameras")
     print(
         "| soil | drive | travel [m] | identified | DP/W error 0.05-0.7, mean / max "
-        "| max where quality accepts | slip_best_pull (truth) | slip_best_efficiency (truth) | soil_quality |"
+        "| max, std <= 0.025 | slip_best_pull (truth) | slip_best_efficiency (truth) | soil_quality |"
     )
     print("|---|---|---:|---:|---|---:|---|---|---:|")
     summary = []
@@ -260,7 +260,7 @@ def identify_table(args) -> None:
                 print(
                     f"| {soil} | {drive} | {d:g} | {len(rows)}/{n} "
                     f"| {np.mean([e.mean() for e in err]):.3f} / {max(e.max() for e in err):.3f} "
-                    f"| {acc_max:.3f} "
+                    f"| {'–' if math.isnan(acc_max) else f'{acc_max:.3f}'} "
                     f"| {bp} ({rows[0][0]['best_pull']:.2f}) | {be} ({rows[0][0]['best_eff']:.2f}) "
                     f"| {np.mean([c.quality for _, c in rows]):.2f} |",
                     flush=True,
