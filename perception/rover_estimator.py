@@ -371,6 +371,7 @@ class RoverEstimator:
                 acc = imu.model.accel
                 soil = SoilIdConfig(accel_bias_std=math.hypot(acc.turn_on_bias, acc.misalignment * G))
             self.soil = SoilIdentifier(m.wheel_radius, m.wheel_width, m.mass, m.axle_x, h, soil)
+        self._wheel_xy = np.array([c[:2] for _, c in nominal])  # the wheels' centres, body x-y [m]
         # sensors whose samples are gathered, not acted on one by one (no dead reckoning up to each)
         self._batched = {s.name for s in (imu, enc, self.currents) if s is not None}
         #: The sun sensor (None without one, or without an IMU to level it) and its heading filter.
@@ -692,29 +693,25 @@ class RoverEstimator:
             )
         self._current_batch.append(i)
 
-    def _wheel_torque(self) -> None:
+    def _wheel_torque(self, wheel_rate: np.ndarray) -> None:
         """The step's wheel torques [N m] from the median of its currents (a spike is outvoted)."""
         batch, self._current_batch = self._current_batch, []
         if not batch:
             self._torque = None  # no reading this step: unknown, not the last one
             return
         assert self.currents is not None
-        self._torque = self.currents.model.step_torque(
-            np.array(batch), self.slip.estimate(self._t).wheel_rate
-        )
+        self._torque = self.currents.model.step_torque(np.array(batch), wheel_rate)
 
-    def _soil_step(self, t: float) -> None:
-        """The step's torques, slips, sinkages and specific force to the soil identification."""
+    def _soil_step(self, t: float, sl: SlipEstimate) -> None:
+        """The step's torques, slips (``sl``), sinkages and specific force to the soil identification."""
         assert self.soil is not None
         t0 = time.perf_counter()
         force = self._force_sum / self._force_n if self._force_n else None
         self._force_sum, self._force_n = np.zeros(3), 0
         dt = 0.0 if self._soil_t is None else t - self._soil_t
         self._soil_t = t
-        sl = self.slip.estimate(t)
         v = sl.twist[:2]
-        ks = self.kinematics.state
-        centres = np.array([c[:2] for _, c in self.model.wheel_frames(ks.psi, ks.depth, ks.delta)])
+        centres = self._wheel_xy  # the kingpins: a steered wheel turns about its own
         x, y, yaw = self._pose
         cy, sy = math.cos(yaw), math.sin(yaw)
         xy = centres @ np.array([[cy, sy], [-sy, cy]]) + (x, y)
@@ -777,13 +774,14 @@ class RoverEstimator:
             self._flush_imu()
         self._integrate(t)
         self._t = float(t)
+        sl = self.slip.estimate(self._t)
         if self.currents is not None:
-            self._wheel_torque()
+            self._wheel_torque(sl.wheel_rate)
         if self.soil is not None:
-            self._soil_step(t)
+            self._soil_step(t, sl)
         n = self._imu_used + self._imu_saturated
         self._attitude_q = self._imu_used / n if self._attitude_ready and n else 0.0
-        out = self.step_estimate()
+        out = self.step_estimate(sl)
         self.last_step = out
         self._imu_saturated = 0
         self._imu_used = 0
@@ -812,10 +810,11 @@ class RoverEstimator:
                 self._pose, self._z = tilted_step(self._pose, self._z, twist, a.roll, a.pitch, rate, dt)
             self._t_pose = t1
 
-    def step_estimate(self) -> StepEstimate:
-        """The full estimate at the last processed time."""
+    def step_estimate(self, sl: SlipEstimate | None = None) -> StepEstimate:
+        """The full estimate at the last processed time (``sl``: the slip filter's then, if known)."""
         t = self._t
-        sl = self.slip.estimate(t)
+        if sl is None:
+            sl = self.slip.estimate(t)
         ks = self.kinematics.state
         odo = self._last_odom
         q_odo = float(odo.quality) if odo is not None and odo.valid else 0.0
