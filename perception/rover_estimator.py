@@ -99,7 +99,7 @@ class StepEstimate:
         values: :data:`STEP_KEYS` -> float arrays (wheel order FL, FR, RL, RR; axles F, R), and
             ``sinkage`` (NaN: not measured), ``sinkage_quality`` (1,), with motor currents
             ``wheel_torque``, and once the soil's pull curve is identified ``pull_ratio`` (4,)
-            (NaN: a wheel's slip unknown or braking) and ``soil_curve`` (3,): the slips of the
+            (NaN: a wheel's slip unknown, braking or above 0.95) and ``soil_curve`` (3,): the slips of the
             largest pull and efficiency, and the identification's quality.
         odometry_quality: Quality of the last odometry estimate (0 when it was invalid).
         kinematics_quality: Share of the fisheye's 10 degrees of freedom measured in its last frame.
@@ -370,7 +370,7 @@ class RoverEstimator:
             if soil is None:  # the accelerometer's bias from its data sheet: offset and cross-axis g
                 acc = imu.model.accel
                 soil = SoilIdConfig(accel_bias_std=math.hypot(acc.turn_on_bias, acc.misalignment * G))
-            self.soil = SoilIdentifier(m.wheel_radius, m.wheel_width, m.mass, m.axle_x, h, soil)
+            self.soil = SoilIdentifier(m.wheel_radius, m.mass, m.axle_x, h, soil)
         self._wheel_xy = np.array([c[:2] for _, c in nominal])  # the wheels' centres, body x-y [m]
         # sensors whose samples are gathered, not acted on one by one (no dead reckoning up to each)
         self._batched = {s.name for s in (imu, enc, self.currents) if s is not None}
@@ -668,8 +668,9 @@ class RoverEstimator:
         # the body's acceleration: the specific force less gravity through the attitude, plus the
         # transport terms of a turning frame, is the rate of the body-frame velocity (v_x, v_y)
         f = self.R_body_imu @ mean[3:]
-        self._force_sum += f * n
-        self._force_n += n
+        if self.soil is not None:
+            self._force_sum += f * n
+            self._force_n += n
         a = f - G * self.attitude.R[2]
         wz = rate - self.slip.gyro_bias[0]
         self.slip.add_accel(self._imu_t, (a[0] + wz * vy, a[1] - wz * vx), window)
@@ -716,7 +717,10 @@ class RoverEstimator:
         cy, sy = math.cos(yaw), math.sin(yaw)
         xy = centres @ np.array([[cy, sy], [-sy, cy]]) + (x, y)
         sink = self._sinkage.reported()[0]
-        self.soil.add(float(np.hypot(*v)) * dt, sl.slip_ratio, sl.valid, self._torque, sink, force, v, xy)
+        distance = float(np.hypot(*v)) * dt
+        if not math.isfinite(distance):
+            distance = 0.0  # no velocity: no travel counted
+        self.soil.add(distance, sl.slip_ratio, sl.valid, self._torque, sink, force, v, xy)
         self.soil.estimate(sl.slip_ratio, sl.valid)
         self.timing["soil"] += time.perf_counter() - t0
 

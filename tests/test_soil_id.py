@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from perception.fusion.soil import SLIPS, SoilIdConfig, SoilIdentifier
+from perception.models.validation import ConfigError
 
-R, WIDTH, MASS, AX, H, TRACK = 0.115, 0.08, 42.6, 0.4, 0.265, 0.62
+R, MASS, AX, H, TRACK = 0.115, 42.6, 0.4, 0.265, 0.62
 EPS = SoilIdConfig().thrust_loss
 BODY = np.array([[AX, TRACK / 2], [AX, -TRACK / 2], [-AX, TRACK / 2], [-AX, -TRACK / 2]])
 
@@ -46,39 +47,47 @@ def drive(
     noise: float = 0.0,
     seed: int = 0,
     bias: float = 0.0,
+    backward: bool = False,
     **cfg,
 ):
-    """A drive whose front wheels sweep slip 0-0.8 while the rear ones balance them.
+    """A drive whose leading wheels sweep slip 0-0.8 while the trailing ones balance them.
 
-    Straight, or crabbing at ``crab`` [rad]; the accelerometer reads ``bias`` [m/s^2] along
-    body x and y.
+    Straight, or crabbing at ``crab`` [rad] (every wheel on fresh soil); ``backward``: backing
+    up, the rear wheels leading, the torques and the slips negative as the slip filter gives
+    them. The accelerometer reads ``bias`` [m/s^2] along body x and y.
     """
     rng = np.random.default_rng(seed)
     c = SoilIdConfig(**cfg)
-    sid = SoilIdentifier(R, WIDTH, MASS, AX, H, c)
+    sid = SoilIdentifier(R, MASS, AX, H, c)
     g = 9.81
     speed, dt = 0.25, 1.0 / 30.0
+    sign = -1.0 if backward else 1.0
+    direction = sign * np.array([math.cos(crab), math.sin(crab)])  # of travel, body frame
+    lead, trail = ([2, 3], [0, 1]) if backward else ([0, 1], [2, 3])
     pos = np.zeros(2)
     for k in range(steps):
-        direction = np.array([math.cos(crab), math.sin(crab)])  # of travel, body frame
-        lead, trail = [0, 1], [2, 3]
         u = (k / 300.0) % 1.0
         s_lead = 0.8 * (2 * u if u < 0.5 else 2 - 2 * u)
         W = np.full(4, MASS * g / 4)  # level, steady: no load moved between the axles
         pull = W[0] * soil.dpw(s_lead)
         # the trailing wheels hold the rover steady: their pull cancels the leading ones'; on
-        # fresh soil they resist a z/r, in a rut (as the identifier sees it) b0 + b1 tau
+        # fresh soil they resist a z/r, in the leading wheels' ruts (once they reach them,
+        # driving straight) b0 + b1 tau
         z_t = soil.zeta(0.0) + 0.03
-        eps_t = EPS if pull < 0 else c.thrust_loss_braking
-        in_rut = not sid.fresh[trail[0]]
-        if in_rut:  # pull = (1 - eps) tau W - (b0 + b1 tau) W
-            tau_t = (-pull / W[2] + soil.b0) / (1.0 - eps_t - soil.b1)
-        else:
-            tau_t = (-pull / W[2] + soil.a * z_t) / (1.0 - eps_t)
+        in_rut = abs(crab) < 0.05 and speed * dt * k >= 2 * AX - c.rut_clearance
+        tau_t = math.nan
+        for eps_t in (EPS, c.thrust_loss_braking):  # the one whose sign of tau it takes
+            if in_rut:  # pull = (1 - eps) tau W - (b0 + b1 tau) W
+                tau_t = (-pull / W[2] + soil.b0) / (1.0 - eps_t - soil.b1)
+            else:
+                tau_t = (-pull / W[2] + soil.a * z_t) / (1.0 - eps_t)
+            if (tau_t >= 0) == (eps_t == EPS):
+                break
         tau, z, s = np.zeros(4), np.zeros(4), np.zeros(4)
         tau[lead], z[lead], s[lead] = soil.tau(s_lead), soil.zeta(s_lead) * R, s_lead
         tau[trail], z[trail], s[trail] = tau_t, z_t * R, -0.1
-        T = tau * R * W
+        T = sign * tau * R * W
+        s = sign * s
         f = np.array([bias, bias, g])
         if noise:
             T = T * (1 + noise * rng.standard_normal(4))
@@ -122,6 +131,19 @@ def test_an_accelerometer_bias_reads_as_resistance_and_is_counted_in_the_spread(
     assert np.median(crab.pull_ratio_std[judged]) < np.median(told.pull_ratio_std[judged]) - 0.003
 
 
+def test_backing_up_the_rear_wheels_lead_and_the_curve_is_the_same():
+    soil = Soil()
+    sid = drive(soil, backward=True)
+    assert sid.fresh.tolist() == [False, False, True, True]  # the front wheels in the rear ones' ruts
+    # the slip filter's signs backing up: driving backwards negative, braking positive
+    est = sid.estimate(np.array([0.1, 0.1, -0.3, -0.5]), np.ones(4, bool))
+    judged = (SLIPS >= 0.05) & (SLIPS <= 0.7)
+    assert np.max(np.abs(est.pull_ratio[judged] - soil.dpw(SLIPS)[judged])) < 0.02
+    # the rear wheels drive (backwards) at 0.3 and 0.5; the front ones brake: not identified
+    assert est.wheel_pull_ratio[2:] == pytest.approx(soil.dpw(np.array([0.3, 0.5])), abs=0.02)
+    assert np.isnan(est.wheel_pull_ratio[:2]).all()
+
+
 def test_crabbing_puts_every_wheel_on_fresh_soil():
     soil = Soil()
     sid = drive(soil, crab=0.3)
@@ -151,7 +173,7 @@ def test_wheel_pull_ratio_is_read_at_each_wheels_slip_and_only_when_driving():
 
 def test_bunched_slips_give_no_curve():
     """A drive at one slip says nothing of the curve's shape: no curve, NaN fields, quality 0."""
-    sid = SoilIdentifier(R, WIDTH, MASS, AX, H)
+    sid = SoilIdentifier(R, MASS, AX, H)
     soil = Soil()
     W = MASS * 9.81 / 4
     for k in range(300):
@@ -166,7 +188,7 @@ def test_bunched_slips_give_no_curve():
 def test_without_torques_or_accelerometer_nothing_is_identified():
     soil = Soil()
     for missing in ("torque", "force"):
-        sid = SoilIdentifier(R, WIDTH, MASS, AX, H)
+        sid = SoilIdentifier(R, MASS, AX, H)
         for k in range(600):
             s_f = 0.8 * (k % 300) / 300
             T = None if missing == "torque" else np.full(4, soil.tau(s_f) * R * 100)
@@ -177,10 +199,10 @@ def test_without_torques_or_accelerometer_nothing_is_identified():
 
 
 def test_bad_arguments_are_named():
-    with pytest.raises(Exception, match="mass"):
-        SoilIdentifier(R, WIDTH, 0.0, AX)
-    with pytest.raises(Exception, match="memory"):
+    with pytest.raises(ConfigError, match="mass"):
+        SoilIdentifier(R, 0.0, AX)
+    with pytest.raises(ConfigError, match="memory"):
         SoilIdConfig(memory=-1.0)
-    sid = SoilIdentifier(R, WIDTH, MASS, AX)
+    sid = SoilIdentifier(R, MASS, AX)
     with pytest.raises(ValueError, match="distance"):
         sid.add(math.nan, np.zeros(4), np.ones(4, bool), None, np.zeros(4), None, [0, 0], BODY)

@@ -41,7 +41,8 @@ slips of largest DP/W and largest tractive efficiency DP (1 - s) / (T / r), and 
 the slips 0.05-0.7: 1 where the curve's standard deviation is at most ``quality_std``, 0 where
 it is twice that or more, linear between, averaged.
 
-Frames: body frame (x forward, y left, z up); the wheels' tracks in the odometry frame.
+Frames: body frame (x forward, y left, z up); the wheels' tracks in the frame of the
+dead-reckoned pose.
 Wheel order FL, FR, RL, RR.
 """
 
@@ -85,7 +86,8 @@ class SoilIdConfig:
             resists with 0-0.08 of its load in the model's second passes.
         rut_torque_prior: Mean and standard deviation of ``b1`` [-] (-0.2 to 0 there).
         accel_bias_std: Standard deviation of the accelerometer's bias along the travel
-            [m/s^2] (its data sheet's offset and cross-axis gravity). The bias reads as a
+            [m/s^2] (its data sheet's offset and cross-axis gravity; the built-in estimator
+            takes it from its IMU's model unless given a config). The bias reads as a
             pull: on a drive that only goes forward it cannot be told from the resistance
             (estimating it made the curve worse on the benchmark's drives), so it is not
             estimated but counted in the curve's spread, m * bias / (the fresh wheels' load).
@@ -98,8 +100,8 @@ class SoilIdConfig:
             wheel's track [m] (about a wheel's width).
         track_step: The tracks keep a point every this much travel [m].
         min_speed: Below this ground speed nothing is measured [m/s].
-        min_samples: Fresh driving samples (wheel-steps) and balance steps, weighted, needed
-            before a curve is given.
+        min_samples: Fresh driving samples (wheel-steps), as many with a measured sinkage, and
+            balance steps, weighted, needed before a curve is given.
         min_slip_span: The fresh driving wheels' slips must span this much [-].
         quality_std: The curve's standard deviation up to which a slip counts as identified
             [-]; from twice as much it counts as not identified at all.
@@ -171,14 +173,15 @@ class SoilCurveEstimate:
         slips: The slips the curve is given at, :data:`SLIPS` [-].
         pull_ratio: DP/W at each of them [-]; NaN before the first identification.
         pull_ratio_std: Its standard deviation [-].
-        wheel_pull_ratio: (4,) DP/W at each wheel's slip (NaN: not identified, slip unknown or
-            braking) [-].
+        wheel_pull_ratio: (4,) DP/W at each wheel's slip (NaN: not identified, slip unknown,
+            braking or above 0.95) [-].
         slip_best_pull: The slip of the largest DP/W [-] (NaN: not identified).
         slip_best_efficiency: The slip of the largest tractive efficiency [-] (NaN: none).
         quality: Over the slips 0.05-0.7, 1 where the standard deviation is at most
             ``quality_std``, 0 from twice that, linear between, averaged [0, 1].
         resistance: The identified ``a`` and its standard deviation [-].
-        travel: The travel the measurements span [m].
+        travel: The travel since the first fresh driving sample [m] (NaN before it; older
+            samples weigh less, ``SoilIdConfig.memory``).
     """
 
     slips: np.ndarray = field(default_factory=lambda: SLIPS.copy())
@@ -201,7 +204,7 @@ class SoilIdentifier:
     """Identifies the soil's pull curve from a rover's torques, slips, sinkages and accelerometer.
 
     Args:
-        wheel_radius: [m]. wheel_width: [m].
+        wheel_radius: [m].
         mass: The rover's mass [kg] (> 0).
         axle_x: Distance of each axle from the body's centre [m] (the wheelbase is twice it).
         cg_height: Height of the centre of mass above the ground [m] (0: no load moved between
@@ -212,7 +215,6 @@ class SoilIdentifier:
     def __init__(
         self,
         wheel_radius: float,
-        wheel_width: float,
         mass: float,
         axle_x: float,
         cg_height: float = 0.0,
@@ -220,7 +222,6 @@ class SoilIdentifier:
     ) -> None:
         for name, v in (
             ("wheel_radius", wheel_radius),
-            ("wheel_width", wheel_width),
             ("mass", mass),
             ("axle_x", axle_x),
         ):
@@ -228,7 +229,7 @@ class SoilIdentifier:
                 raise ConfigError(f"SoilIdentifier: {name}={v!r}; give a positive number")
         if not (math.isfinite(cg_height) and cg_height >= 0):
             raise ConfigError(f"SoilIdentifier: cg_height={cg_height!r}; give a height >= 0 [m]")
-        self.r, self.width, self.mass = float(wheel_radius), float(wheel_width), float(mass)
+        self.r, self.mass = float(wheel_radius), float(mass)
         self.axle_x, self.h = float(axle_x), float(cg_height)
         self.config = config or SoilIdConfig()
         self.reset()
@@ -254,6 +255,7 @@ class SoilIdentifier:
         self._fitted_at = -math.inf
         self._curve = SoilCurveEstimate()
         self._ruts = np.zeros(4, dtype=bool)
+        self._direction = 1.0  # +1 driving forward, -1 backing up
         #: (4,) whether each wheel was on fresh soil (on no other wheel's track) at the last step.
         self.fresh = np.ones(4, dtype=bool)
         self.last = SoilCurveEstimate()
@@ -302,14 +304,15 @@ class SoilIdentifier:
 
         Args:
             distance: Ground travelled since the last call [m] (>= 0).
-            slip: (4,) slip ratios [-].
+            slip: (4,) slip ratios [-], signed as the slip filter gives them: positive for a
+                wheel that drives forward, negative for one that drives backward.
             slip_valid: (4,) whether each is measured.
             torque: (4,) wheel torques [N m] (None or NaN: not measured).
             sinkage: (4,) sinkages [m] (NaN: not measured).
             specific_force: (3,) the step's mean specific force, body frame [m/s^2] (None or
                 NaN: no accelerometer).
             velocity: (2,) the body's ground velocity (v_x, v_y), body frame [m/s].
-            centres_xy: (4, 2) the wheels' centres in the odometry frame [m].
+            centres_xy: (4, 2) the wheels' centres in the frame of the dead-reckoned pose [m].
         """
         c = self.config
         if not (math.isfinite(distance) and distance >= 0):
@@ -331,7 +334,7 @@ class SoilIdentifier:
             self._lay_tracks(xy)
         else:
             ruts = self._ruts
-        self.fresh = ~ruts
+        self.fresh = fresh = ~ruts
         v = np.asarray(velocity, dtype=np.float64)
         speed = float(np.hypot(v[0], v[1])) if np.all(np.isfinite(v)) else 0.0
         if torque is None or specific_force is None or speed < c.min_speed:
@@ -343,13 +346,14 @@ class SoilIdentifier:
         W = self.loads(f)
         if np.any(W <= 0.0):
             return  # a wheel off the ground: no balance to read
-        s = np.asarray(slip, dtype=np.float64)
+        # reversing, the torques and the slips drive the other way: taken along the travel
+        self._direction = sign = -1.0 if v[0] < 0.0 else 1.0
+        s = sign * np.asarray(slip, dtype=np.float64)
         ok = np.asarray(slip_valid, dtype=bool) & np.isfinite(s)
         z = np.asarray(sinkage, dtype=np.float64) / self.r
-        sign = -1.0 if v[0] < 0.0 else 1.0  # reversing: the torques drive the other way
         tau = sign * T / (self.r * W)
-        fresh = ~ruts
-        use = fresh & ok & (s >= 0.0) & (s < 1.0) & (tau > 0.0)
+        drives = fresh & ok & (s >= 0.0) & (s < 1.0) & (tau > 0.0)
+        use = drives
         if use.any():
             if math.isnan(self._first):
                 self._first = self.travel
@@ -369,7 +373,6 @@ class SoilIdentifier:
         # the fresh wheels' resistance a z/r: a driving wheel's sinkage from the sinkage's fit
         # against slip (a noisy sinkage in the regressor would bias a low: its noise is a fair
         # part of its spread), kept as its load's moments in slip; the others' as measured
-        drives = fresh & ok & (s >= 0.0)
         other = fresh & ~drives
         x_other = 0.0
         if other.any():
@@ -423,7 +426,7 @@ class SoilIdentifier:
             self._curve = self._curve_estimate(self._identify())
         out = dataclasses.replace(self._curve, travel=float(self.travel - self._first))
         if slip is not None and out.identified:
-            s = np.asarray(slip, dtype=np.float64)
+            s = self._direction * np.asarray(slip, dtype=np.float64)
             ok = np.isfinite(s) & (s >= 0.0) & (s <= SLIPS[-1])
             if slip_valid is not None:
                 ok &= np.asarray(slip_valid, dtype=bool)
@@ -462,6 +465,9 @@ class SoilIdentifier:
         measured = _BINS[coarse >= c.min_bin_samples]
         if not len(measured) or np.ptp(measured) < c.min_slip_span:
             return None
+        z_measured = _BINS[wz.reshape(len(_BINS), -1).sum(axis=1) >= c.min_bin_samples]
+        if not len(z_measured) or np.ptp(z_measured) < c.min_slip_span:
+            return None  # the sinkage seen over too narrow a span of slip for its quadratic
         B, ct, cov_t = self._thrust_fit()
         G = np.stack([np.ones_like(SLIPS), 1.0 - np.exp(-SLIPS / B)], axis=1)
         tau_c = G @ ct
@@ -473,6 +479,8 @@ class SoilIdentifier:
         p, cov = self._resistance(cz)
         a, var_a = float(p[0]), float(cov[0, 0])
         dpw = (1.0 - c.thrust_loss) * tau_c - a * zeta
+        # the terms as if independent: a and the sinkage's fit are anti-correlated through the
+        # balance, so this overstates the spread somewhat (B's uncertainty is left out)
         var = (1.0 - c.thrust_loss) ** 2 * var_tau + zeta**2 * var_a + a * a * var_zeta
         # away from the slips measured the fits interpolate or extrapolate: their spread grows
         # with the distance to the nearest measured slip
