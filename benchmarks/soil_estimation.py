@@ -177,7 +177,7 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
         rng = np.random.default_rng(seed)
         phase = rng.uniform(0.0, 1.0)
         hz = env.unwrapped.control_hz
-        loads, marks, wheel_err, history = [], {}, [], []
+        loads, marks, wheel_err, history, own = [], {}, [], [], []
         for k in range(steps):
             t = k / hz
             u = (t / 16.0 + phase) % 1.0
@@ -188,6 +188,9 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
             info = env.step(a)[4]
             gt = info["ground_truth"]
             loads.append(np.asarray(gt["load"])[soil.fresh])
+            # what the data allow: the fresh wheels' own DP/W against their true slip
+            for i in np.flatnonzero(soil.fresh & (np.asarray(gt["slip_ratio"]) > 0)):
+                own.append((gt["slip_ratio"][i], gt["drawbar_pull"][i] / gt["load"][i]))
             cur = soil.last
             if cur.identified:
                 true_ratio = env.unwrapped.soil_truth()["pull_ratio"]
@@ -215,7 +218,15 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
         if all(within[i:]):
             settle = history[i][0]
             break
+    # the fresh wheels' own DP/W, binned by slip (0.05 wide, at least 20 steps), less the truth's
+    own_s, own_d = np.array(own).T if own else (np.zeros(0), np.zeros(0))
+    gap = {}
+    for lo in np.arange(0.05, 0.9, 0.05):
+        m = (own_s >= lo) & (own_s < lo + 0.05)
+        if m.sum() >= 20:
+            gap[round(lo, 2)] = float(np.mean(own_d[m]) - np.interp(lo + 0.025, curves.SLIPS, dpw))
     return {
+        "own_gap": gap,
         "marks": marks,
         "truth": truth,
         "best_pull": best_pull,
@@ -277,6 +288,17 @@ def identify_table(args) -> None:
         mae = np.nanmean([r["wheel_mae"] for r in runs])
         cost = 1000.0 * np.mean([r["soil_s"] for r in runs])
         print(f"| {soil} | {drive} | {settle} | {mae:.3f} | {cost:.3f} |", flush=True)
+    print()
+    print("What the data allow: the fresh wheels' own DP/W (the truth's pull over load, binned by their")
+    print("true slip) less the steady state's, averaged over the runs")
+    print("| soil | drive | " + " | ".join(f"{lo:.2f}" for lo in np.arange(0.05, 0.9, 0.05)) + " |")
+    print("|---|---|" + "---:|" * len(np.arange(0.05, 0.9, 0.05)))
+    for soil, drive, runs in summary:
+        cells = []
+        for lo in np.arange(0.05, 0.9, 0.05):
+            v = [r["own_gap"][round(lo, 2)] for r in runs if round(lo, 2) in r["own_gap"]]
+            cells.append(f"{np.mean(v):+.3f}" if v else "–")
+        print(f"| {soil} | {drive} | " + " | ".join(cells) + " |", flush=True)
 
 
 def main(argv=None) -> int:
