@@ -218,13 +218,14 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
         if all(within[i:]):
             settle = history[i][0]
             break
-    # the fresh wheels' own DP/W, binned by slip (0.05 wide, at least 20 steps), less the truth's
+    # the fresh wheels' own DP/W, binned by slip (0.05 wide, at least 20 steps; the median: a
+    # wheel all but unloaded reads a DP/W of several), less the truth's
     own_s, own_d = np.array(own).T if own else (np.zeros(0), np.zeros(0))
     gap = {}
     for lo in np.arange(0.05, 0.9, 0.05):
         m = (own_s >= lo) & (own_s < lo + 0.05)
         if m.sum() >= 20:
-            gap[round(lo, 2)] = float(np.mean(own_d[m]) - np.interp(lo + 0.025, curves.SLIPS, dpw))
+            gap[round(lo, 2)] = float(np.median(own_d[m]) - np.interp(lo + 0.025, curves.SLIPS, dpw))
     return {
         "own_gap": gap,
         "marks": marks,
@@ -289,8 +290,8 @@ def identify_table(args) -> None:
         cost = 1000.0 * np.mean([r["soil_s"] for r in runs])
         print(f"| {soil} | {drive} | {settle} | {mae:.3f} | {cost:.3f} |", flush=True)
     print()
-    print("What the data allow: the fresh wheels' own DP/W (the truth's pull over load, binned by their")
-    print("true slip) less the steady state's, averaged over the runs")
+    print("What the data allow: the fresh wheels' own DP/W (the truth's pull over load, the median in")
+    print("bins of their true slip) less the steady state's, averaged over the runs")
     print("| soil | drive | " + " | ".join(f"{lo:.2f}" for lo in np.arange(0.05, 0.9, 0.05)) + " |")
     print("|---|---|" + "---:|" * len(np.arange(0.05, 0.9, 0.05)))
     for soil, drive, runs in summary:
