@@ -241,13 +241,14 @@ class SoilIdentifier:
         # of slip, T/(rW) and its square; weight, sums of slip, z/r and its square where the
         # sinkage was measured
         self._bins = np.zeros((8, len(_FINE)))
-        # the balance's normal equations in (a, b0, b1), and their weight
+        # the balance's normal equations in its six regressors (the driving wheels' load
+        # moments in slip, the other fresh wheels' W z/r, and b0's and b1's), and their weight
         self._normal = np.zeros((6, 6))
         self._rhs = np.zeros(6)
         self._fresh_load = 0.0  # the balance steps' fresh wheels' loads, summed [N]
         self._balance_n = 0.0
         self._first = math.nan  # the travel at the first sample [m]
-        # the tracks: points (x, y) in the odometry frame, the wheel, the travel
+        # the tracks: points (x, y) in the dead-reckoned pose's frame, the wheel, the travel
         self._track_xy = np.zeros((0, 2))
         self._track_wheel = np.zeros(0, dtype=np.int64)
         self._track_travel = np.zeros(0)
