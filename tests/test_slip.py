@@ -753,3 +753,28 @@ def test_a_crawling_wheel_gets_its_slip_over_a_window_of_travel():
     assert not est.estimate(2.0).valid.any()
     with pytest.raises(ValueError, match="window_max"):
         SlipConfig(window_max=-1.0)
+
+
+def test_a_second_rate_source_of_the_same_frames_does_not_double_the_grip_prior():
+    """Encoders beside the fisheye measure the same frames: one zero-slip prior a wheel a frame."""
+    est = SlipEstimator(XY, R_WHEEL)
+    applied = []
+    update = est._update
+
+    def counting(H, z, R):
+        if not np.any(z):  # the pseudo-measurements: z = 0 rows on twist and rates
+            applied.append(H.shape[0])
+        update(H, z, R)
+
+    est._update = counting
+    ff = 1 / 30
+    v = 0.5
+    rate = np.full(4, v / R_WHEEL)
+    for k in range(1, 31):
+        t = k * ff
+        est.add_odometry(t, np.array([v, 0.0, 0.0]), ff)
+        est.add_wheels(t, rate, ff)  # the fisheye's
+        est.add_wheels(t - 0.002, rate * 1.001, ff)  # the encoders' window of the same frame
+        est.estimate(t)
+    assert sum(applied) <= 4 * 30  # at most one a wheel a frame
+    assert sum(applied) >= 4 * 25  # and the prior is still there

@@ -146,7 +146,9 @@ class SlipConfig:
         eps: Denominator floor of the slip ratio [m/s] (the ground truth's).
         grip_std: Slip standard deviation of a gripping wheel, the zero-slip pseudo-measurement
             that each measured wheel rate brings (0: none; the filter then rests on the visual
-            odometry alone). Applied while the wheel's speed reaches ``event_min_speed``.
+            odometry alone). Applied while the wheel's speed reaches ``event_min_speed``, at
+            most once in three quarters of a rate measurement's window: the wheel encoders'
+            rates of a frame, beside the fisheye's, do not double the prior.
         grip_gate: The pseudo-measurement is left out for a wheel whose new rate measurement,
             or the filter's rate after it, puts its slip this many standard deviations from
             zero (that wheel slips). It is also left out where the measurements alone do not
@@ -486,6 +488,8 @@ class SlipEstimator:
         self._t_odom = -math.inf
         self._t_first = math.inf  # the first measurement's time [s]
         self._t_rate = np.full(N_WHEELS, -math.inf)
+        self._t_grip = np.full(N_WHEELS, -math.inf)  # each wheel's last zero-slip pseudo-measurement [s]
+        self._rate_dt = 0.0  # the latest rate measurement's window [s]
         self._events = np.zeros(N_WHEELS, bool)
         self._event_seen = np.full(N_WHEELS, -math.inf)  # an event's last resolved estimate [s]
         self._above_since = np.full(N_WHEELS, math.nan)  # when |s| last rose to event_on [s]
@@ -609,6 +613,7 @@ class SlipEstimator:
             share_own = self.config.accel_rate_std_own if self._accel_used else self.config.rate_std_own
             sd_z = np.maximum(sd_z, share_own * own)
         R = np.diag(sd_z**2)
+        self._rate_dt = max(dt, 0.0)
         self._queue(t - 0.5 * max(dt, 0.0), 3 + np.flatnonzero(ok), z[ok], R)
         self._t_rate[ok] = np.maximum(self._t_rate[ok], t)
         if self.config.window_max > 0 and dt > 0:
@@ -826,6 +831,10 @@ class SlipEstimator:
         J = _long_jacobian(self.wheel_xy, self._steer)  # v_long = J @ twist
         speed = np.maximum(np.abs(x[3:_BIAS] * self.wheel_radius), np.abs(J @ x[:3]))
         w = wheels[speed[wheels] >= c.event_min_speed]
+        # once a frame: a second rate source (encoders) measuring the same frame does not add a
+        # second prior of grip
+        assert self._t is not None
+        w = w[self._t - self._t_grip[w] >= 0.75 * self._rate_dt]
         if not len(w):
             return
         H = np.zeros((len(w), len(x)))
@@ -838,6 +847,7 @@ class SlipEstimator:
         grip = (innov**2 <= c.grip_gate**2 * S) & (S - var <= (c.max_slip_std * speed[w]) ** 2)
         if grip.any():
             self._update(H[grip], np.zeros(int(grip.sum())), np.diag(var[grip]))
+            self._t_grip[w[grip]] = self._t
 
     def in_outage(self, t: float) -> bool:
         """Whether no valid odometry twist has come for ``outage_after`` seconds up to ``t`` [s]."""
