@@ -371,7 +371,7 @@ class RoverEstimator:
                 acc = imu.model.accel
                 soil = SoilIdConfig(accel_bias_std=math.hypot(acc.turn_on_bias, acc.misalignment * G))
             self.soil = SoilIdentifier(m.wheel_radius, m.mass, m.axle_x, h, soil)
-        self._wheel_xy = np.array([c[:2] for _, c in nominal])  # the wheels' centres, body x-y [m]
+            self._wheel_xy = np.array([c[:2] for _, c in nominal])  # the wheels' centres, body x-y [m]
         # sensors whose samples are gathered, not acted on one by one (no dead reckoning up to each)
         self._batched = {s.name for s in (imu, enc, self.currents) if s is not None}
         #: The sun sensor (None without one, or without an IMU to level it) and its heading filter.

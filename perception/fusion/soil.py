@@ -354,15 +354,14 @@ class SoilIdentifier:
         z = np.asarray(sinkage, dtype=np.float64) / self.r
         tau = sign * T / (self.r * W)
         drives = fresh & ok & (s >= 0.0) & (s < 1.0) & (tau > 0.0)
-        use = drives
-        if use.any():
+        if drives.any():
             if math.isnan(self._first):
                 self._first = self.travel
-            k = np.minimum((s[use] / _FINE_BIN).astype(np.int64), len(_FINE) - 1)
-            zu = z[use]
+            k = np.minimum((s[drives] / _FINE_BIN).astype(np.int64), len(_FINE) - 1)
+            zu = z[drives]
             has = np.isfinite(zu) * 1.0
             zu = np.where(has > 0, zu, 0.0)
-            su, tu = s[use], tau[use]
+            su, tu = s[drives], tau[drives]
             np.add.at(
                 self._bins.T, k, np.stack([np.ones(k.size), su, tu, tu * tu, has, has * su, zu, zu * zu], 1)
             )
