@@ -33,7 +33,7 @@ from perception.fusion.slip import SlipConfig, SlipEstimate, SlipEstimator
 from perception.fusion.soil import SoilIdConfig, SoilIdentifier
 from perception.fusion.sun_heading import HeadingConfig, HeadingFilter
 from perception.kinematics.fisheye import KinematicsConfig, KinematicState, KinematicStateEstimator
-from perception.kinematics.sinkage import SinkageConfig, SinkageEstimate, SinkageEstimator
+from perception.kinematics.sinkage import SinkageConfig, SinkageEstimate, SinkageEstimator, SinkageTrack
 from perception.models.drive_geometry import AXLES, WHEELS
 from perception.models.rover import MARKERS
 from perception.models.rover_parts import joint_window_parts, kinematics_roi
@@ -70,7 +70,7 @@ STEP_KEYS: tuple[str, ...] = ("odometry_pose", *STATE_KEYS)
 #: (BMI088), 0.02 and 0.008 rad of heading over a 40 s mission.
 IMU_CALIBRATION_S = 1.5
 #: The fisheye's frames are measured for sinkage at most this often [Hz] (it changes over
-#: decimetres of travel; 2 ms a train-preset frame, benchmarks/soil_estimation.py).
+#: decimetres of travel; 1.7 ms a train-preset frame, benchmarks/soil_estimation.py).
 SINKAGE_RATE_HZ = 10.0
 #: The odometry's ground plane is raised by the wheels' measured sinkages for at most this long
 #: after they were measured [s]; then it falls back to the wheels' lowest points.
@@ -327,6 +327,8 @@ class RoverEstimator:
         )
         #: Each wheel's sinkage from the fisheye (:mod:`perception.kinematics.sinkage`).
         self.sinkage = SinkageEstimator(fish.model, self.model, sinkage)
+        #: The sinkages over the last frames' measurements (a frame's reading can flip).
+        self.sinkage_track = SinkageTrack()
         self._sinkage = SinkageEstimate.none()
         self._sinkage_next = -math.inf
         # the ground above each wheel's lowest point [m], and when it was measured [s]
@@ -430,6 +432,7 @@ class RoverEstimator:
         self.slip.reset()
         self._sinkage_next = -math.inf
         self._sinkage = SinkageEstimate.none()
+        self.sinkage_track.reset()
         # the ground above each wheel's lowest point [m], and when it was measured [s]
         self._lift = (np.zeros(4), -math.inf)
         if self.encoders is not None:
@@ -537,14 +540,15 @@ class RoverEstimator:
             return  # measured at SINKAGE_RATE_HZ; the last measurement stands until the next
         t0 = time.perf_counter()
         self._sinkage_next = t + 1.0 / SINKAGE_RATE_HZ
-        self._sinkage = SinkageEstimate.none()
+        measured = None
         if state.axles_valid:
             # the wheels stand where the image shows them: at the depths with their rest offset
             depth = state.depth + self.kinematics.depth_zero
-            self._sinkage = self.sinkage.measure(img, state.psi, depth, state.delta)
-            lift = ground_lift(self._sinkage.reported()[0])
-            if lift is not None:
-                self._lift = (lift, t)
+            measured = self.sinkage.measure(img, state.psi, depth, state.delta)
+        self._sinkage = self.sinkage_track.update(t, measured)
+        lift = ground_lift(self._sinkage.reported()[0])
+        if lift is not None:
+            self._lift = (lift, t)
         self.timing["sinkage"] += time.perf_counter() - t0
 
     def wheel_ground_plane(self) -> tuple[float, float, float]:

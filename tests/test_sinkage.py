@@ -109,3 +109,50 @@ def test_the_ground_in_view_is_lifted_only_where_most_wheels_report_sinkage():
     np.testing.assert_array_equal(ground_lift([0.0, 0.011, 0.0, nan]), np.zeros(4))
     np.testing.assert_array_equal(ground_lift([0.008, 0.011, nan, nan]), np.zeros(4))
     assert ground_lift([nan] * 4) is None  # nothing measured: the last lift holds
+
+
+def _frame(z, q):
+    from perception.kinematics.sinkage import SinkageEstimate
+
+    return SinkageEstimate(np.asarray(z, dtype=float), np.asarray(q, dtype=float))
+
+
+def test_the_track_outvotes_a_flipped_frame_and_forgets_old_ones():
+    from perception.kinematics.sinkage import SinkageTrack
+
+    track = SinkageTrack(window=0.8, min_weight=1.5)
+    nan = float("nan")
+    # one frame's quality alone is not enough
+    out = track.update(0.0, _frame([0.020, 0.020, 0.0, nan], [0.9, 0.9, 0.9, 0.0]))
+    assert np.all(np.isnan(out.sinkage)) and np.all(out.quality == 0.0)
+    out = track.update(0.1, _frame([0.022, 0.020, 0.0, 0.030], [0.9, 0.9, 0.9, 0.9]))
+    np.testing.assert_allclose(out.sinkage[:3], [0.020, 0.020, 0.0])
+    np.testing.assert_allclose(out.quality[:3], 0.6)
+    assert np.isnan(out.sinkage[3])
+    # FL's reading flips to 0 (its soil in the wheel's shade taken for the face); FR's below
+    # the reported quality does not count
+    out = track.update(0.2, _frame([0.0, 0.060, 0.0, 0.030], [0.5, 0.2, 0.9, 0.9]))
+    np.testing.assert_allclose(out.sinkage, [0.020, 0.020, 0.0, 0.030])
+    # nothing new for longer than the window: none left
+    out = track.update(1.05, None)
+    assert np.all(np.isnan(out.sinkage)) and np.all(out.quality == 0.0)
+    # a change of ground wins once its frames outweigh the old ones
+    for k in range(5):
+        track.update(1.1 + 0.1 * k, _frame([0.030] * 4, [0.9] * 4))
+    out = track.update(1.6, _frame([0.010] * 4, [0.9] * 4))
+    np.testing.assert_allclose(out.sinkage, 0.030)
+    for k in range(5):
+        out = track.update(1.7 + 0.1 * k, _frame([0.010] * 4, [0.9] * 4))
+    np.testing.assert_allclose(out.sinkage, 0.010)
+    np.testing.assert_allclose(out.quality, 1.0)
+    # time running back (a new log): afresh
+    out = track.update(0.0, _frame([0.040] * 4, [0.9] * 4))
+    assert np.all(np.isnan(out.sinkage))
+
+
+@pytest.mark.parametrize("kw", [{"window": 0.0}, {"window": float("nan")}, {"min_weight": -1.0}])
+def test_a_track_without_a_window_or_weight_is_refused(kw):
+    from perception.kinematics.sinkage import SinkageTrack
+
+    with pytest.raises(ValueError, match="window|min_weight"):
+        SinkageTrack(**kw)

@@ -24,6 +24,10 @@ how clearly the colour below it is the soil's (or, on rigid ground, the face's);
 of like colour (the face in the rover's shadow against soil in that shadow, a black frame), a
 face as mottled as the soil, or a contact out of view give no sinkage (NaN, quality 0). No
 simulator here: camera, rover model and image only.
+
+A frame's reading can flip (the soil in the wheel's shade taken for the face, reading 0), while
+a wheel's sinkage changes over decimetres of its travel: :class:`SinkageTrack` reports the
+quality-weighted median of the last 0.8 s of measurements where they weigh enough.
 """
 
 from __future__ import annotations
@@ -103,6 +107,62 @@ class SinkageEstimate:
         return np.where(ok, self.sinkage, np.nan), float(np.mean(np.where(ok, self.quality, 0.0)))
 
 
+class SinkageTrack:
+    """Each wheel's sinkage over the last ``window`` seconds of measurements.
+
+    A wheel's sinkage changes over its travel, a frame's reading can flip (the soil in the
+    wheel's shade taken for the face, reading 0; a streak of texture taken for the soil line):
+    the track reports the quality-weighted median of the measurements of quality at least
+    :data:`MIN_QUALITY` within the window, where their qualities sum to ``min_weight``, with a
+    quality of their sum over twice that (at most 1; at least 0.5 where reported). A
+    measurement older than the window is forgotten; time running back starts afresh.
+
+    Args:
+        window: How far back measurements count [s].
+        min_weight: The sum of qualities needed for a sinkage [-].
+    """
+
+    def __init__(self, window: float = 0.8, min_weight: float = 1.5):
+        if not (math.isfinite(window) and window > 0.0):
+            raise ValueError(f"window {window!r} s: give a positive duration")
+        if not (math.isfinite(min_weight) and min_weight > 0.0):
+            raise ValueError(f"min_weight {min_weight!r}: give a positive sum of qualities")
+        self.window = float(window)
+        self.min_weight = float(min_weight)
+        self._t: list[float] = []
+        self._z: list[np.ndarray] = []
+        self._q: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        """Forget every measurement."""
+        self._t.clear()
+        self._z.clear()
+        self._q.clear()
+
+    def update(self, t: float, measured: SinkageEstimate | None) -> SinkageEstimate:
+        """Add a frame's measurement (None: none at ``t``) and return the sinkages at ``t`` [s]."""
+        if self._t and t < self._t[-1]:
+            self.reset()
+        if measured is not None:
+            good = (measured.quality >= MIN_QUALITY) & np.isfinite(measured.sinkage)
+            self._t.append(float(t))
+            self._z.append(np.where(good, measured.sinkage, 0.0))
+            self._q.append(np.where(good, measured.quality, 0.0))
+        old = next((i for i, ti in enumerate(self._t) if ti >= t - self.window - 1e-9), len(self._t))
+        del self._t[:old], self._z[:old], self._q[:old]
+        out = SinkageEstimate.none()
+        if not self._t:
+            return out
+        Z, Q = np.array(self._z), np.array(self._q)  # (measurements, wheels)
+        total = Q.sum(axis=0)
+        for k in np.flatnonzero(total >= self.min_weight):
+            order = np.argsort(Z[:, k], kind="stable")
+            cum = np.cumsum(Q[order, k])
+            out.sinkage[k] = Z[order[np.searchsorted(cum, 0.5 * cum[-1])], k]
+            out.quality[k] = min(1.0, total[k] / (2.0 * self.min_weight))
+        return out
+
+
 class SinkageEstimator:
     """Sinkage of the four wheels in one fisheye frame (see the module docstring).
 
@@ -128,6 +188,12 @@ class SinkageEstimator:
         self._col = np.broadcast_to(np.arange(len(x))[:, None], X.shape)[on_face]
         self._ncol = len(x)
         self._n_face = len(self._row)
+        # one-hot maps of each face sample to its height and its column; the face's band
+        self._row_hot = np.eye(len(self.zeta))[self._row]
+        self._col_hot = np.eye(len(x))[self._col]
+        self._top = self.zeta[self._row] >= c.max_sinkage - c.face_band
+        #: The breaks searched: below the lowest height, between the heights, above the highest [m].
+        self._breaks_at = np.r_[0.0, self.zeta[1:] - 0.5 * c.step, self.zeta[-1] + 0.5 * c.step]
         # per wheel, knuckle frame: the inner face's points (toward the body), then the ground
         # beside it, 15-45 mm inward, at a typical sinkage's height
         gx, gy = np.meshgrid(np.linspace(-0.06, 0.06, 9), np.linspace(0.015, 0.045, 4), indexing="ij")
@@ -167,14 +233,15 @@ class SinkageEstimator:
         markers = self.model.marker_positions(psi, depth, delta)
         beams, beam_r = self.model.beam_parts(psi, depth)
         per_axle = len(beams) // 2
+        parts, radii = [], []
         for k, (R, c) in enumerate(frames):
             axle = WHEELS[k][0]
-            mine = np.array([markers[m] for m in (*PLATE[axle], *ROD[axle])])
+            mine = [markers[m] for m in (*PLATE[axle], *ROD[axle])]
+            beam = slice("FR".index(axle) * per_axle, ("FR".index(axle) + 1) * per_axle)
             arm, arm_r = self.model.occluders(WHEELS[k], R, c)
-            i = "FR".index(axle)
-            parts = np.vstack([arm, mine, beams[i * per_axle : (i + 1) * per_axle]]) - T[:3, 3]
-            radii = np.r_[arm_r, np.full(len(mine), 0.75 * self.model.marker_size), beam_r[:per_axle]]
-            seen[k] &= ~_behind_parts(P[k], parts, radii)
+            parts.append(np.vstack([arm, *mine, beams[beam]]))
+            radii.append(np.r_[arm_r, np.full(len(mine), 0.75 * self.model.marker_size), beam_r[beam]])
+        seen &= ~_behind_parts(P, np.stack(parts) - T[:3, 3], np.stack(radii))
         samples = cv2.remap(
             img,
             np.where(seen, u, -1).astype(np.float32).reshape(1, -1),
@@ -186,82 +253,101 @@ class SinkageEstimator:
         samples = samples.reshape(*seen.shape, -1)
         seen &= samples.max(axis=-1) > 0  # a black pixel is no image (a window not read out)
         samples = _features(samples.astype(np.float64), self.config.intensity_weight)
-        sink = np.full(4, math.nan)
-        qual = np.zeros(4)
         nf = self._n_face
-        for k in range(4):
-            sink[k], qual[k] = self._break(samples[k, :nf], seen[k, :nf], samples[k, nf:], seen[k, nf:])
-        return SinkageEstimate(sink, qual)
+        return self._breaks(samples[:, :nf], seen[:, :nf], samples[:, nf:], seen[:, nf:])
 
-    def _break(
+    def _breaks(
         self, samples: np.ndarray, seen: np.ndarray, ground: np.ndarray, ground_seen: np.ndarray
-    ) -> tuple[float, float]:
-        """One wheel's sinkage [m] (or NaN) and its quality from its face's and ground's samples."""
+    ) -> SinkageEstimate:
+        """The wheels' sinkages [m] (or NaN) and their quality from their faces' and grounds' samples.
+
+        Args:
+            samples: (4, n, f) the faces' samples' colour features.
+            seen: (4, n) which of them are seen.
+            ground: (4, m, f) the colour features of the ground beside each face.
+            ground_seen: (4, m) which of them are seen.
+        """
         cfg = self.config
-        nz = len(self.zeta)
-        if np.count_nonzero(np.bincount(self._col[seen], minlength=self._ncol)) < cfg.min_columns:
-            return math.nan, 0.0
-        top = seen & (self.zeta[self._row] >= cfg.max_sinkage - cfg.face_band)
-        if np.count_nonzero(ground_seen) < 8 or np.count_nonzero(top) < 8:
-            return math.nan, 0.0  # no soil or no face in view to compare
-        soil = np.median(ground[ground_seen], axis=0)
-        face = np.median(samples[top], axis=0)
-        contrast = float(np.linalg.norm(face - soil))
-        if contrast < cfg.min_step:  # face and soil alike (deep shadow, a black frame)
-            return math.nan, 0.0
+        nw = len(samples)
+        R = self._row_hot  # (n, heights) which height each face sample has
+        cols_seen = (seen.astype(np.float64) @ self._col_hot > 0).sum(axis=1)
+        top = seen & self._top
+        ok = (cols_seen >= cfg.min_columns) & (ground_seen.sum(axis=1) >= 8) & (top.sum(axis=1) >= 8)
+        soil = _masked_median(ground, ground_seen)  # (4, f)
+        face = _masked_median(samples, top)
+        contrast = np.linalg.norm(face - soil, axis=1)
         # a face as mottled as the soil (a textured face; TinyRenderer draws the tread's texture
-        # on it) cannot be told from the soil by its colour
-        mottle = float(np.median(np.linalg.norm(samples[top] - face, axis=1)))
-        if mottle > cfg.max_mottle * contrast:
-            return math.nan, 0.0
-        rows = self._row[seen]
-        x = samples[seen]
-        # the split into two colours of least squared error: below each break k the soil, above
+        # on it) cannot be told from the soil by its colour; face and soil alike (deep shadow, a
+        # black frame) neither
+        mottle = _masked_median(np.linalg.norm(samples - face[:, None], axis=2)[..., None], top)[:, 0]
+        with np.errstate(invalid="ignore"):
+            ok &= (contrast >= cfg.min_step) & (mottle <= cfg.max_mottle * contrast)
+        # the split into two colours of least squared error: below each break the soil, above
         # it the face (prefix sums over the heights)
-        cnt = np.bincount(rows, minlength=nz).astype(np.float64)
-        sums = np.stack([np.bincount(rows, x[:, j], nz) for j in range(x.shape[1])], -1)
-        sq = np.bincount(rows, (x * x).sum(axis=1), nz)
-        n1, s1, q1 = (
-            np.concatenate([np.zeros((1, *a.shape[1:])), np.cumsum(a, axis=0)]) for a in (cnt, sums, sq)
-        )
-        n, st, qt = n1[-1], s1[-1], q1[-1]
+        x = np.where(seen[..., None], samples, 0.0)
+        cnt = seen.astype(np.float64) @ R  # (4, heights)
+        sums = np.swapaxes(np.swapaxes(x, 1, 2) @ R, 1, 2)  # (4, heights, f)
+        sq = (x * x).sum(axis=2) @ R
+        zero = np.zeros((nw, 1))
+        n1 = np.concatenate([zero, np.cumsum(cnt, axis=1)], axis=1)
+        s1 = np.concatenate([zero[..., None] + np.zeros((1, 1, x.shape[2])), np.cumsum(sums, axis=1)], axis=1)
+        q1 = np.concatenate([zero, np.cumsum(sq, axis=1)], axis=1)
+        n, st, qt = n1[:, -1:], s1[:, -1:], q1[:, -1:]
         n2, s2, q2 = n - n1, st - s1, qt - q1
         least = 2 * cfg.min_columns
         enough = (n1 >= least) & (n2 >= least)
         with np.errstate(invalid="ignore", divide="ignore"):
             sse = (q1 - (s1 * s1).sum(-1) / n1) + (q2 - (s2 * s2).sum(-1) / n2)
         sse = np.where(enough, sse, np.inf)
-        breaks = np.r_[0.0, self.zeta[1:] - 0.5 * cfg.step, self.zeta[-1] + 0.5 * cfg.step]
-        if not enough.any():
-            return math.nan, 0.0
-        k = int(np.argmin(sse))
-        below = s1[k] / n1[k]
-        # how much more the colour under the break is the soil's than the face's, in units of
-        # their difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
-        margin = float(np.linalg.norm(below - face) - np.linalg.norm(below - soil)) / contrast
-        if margin <= 0.0:
-            # what lies under the break looks like the face, not the soil beside it: the face
-            # reaches the rim (rigid ground, or a sinkage under the first rows), as surely as
-            # the colour under the break is nearer the face's
-            k, z, std, margin = 0, 0.0, cfg.step, -margin
-        else:
-            z = float(breaks[k])
-            if 0 < k < len(sse) - 1 and np.isfinite(sse[k - 1]) and np.isfinite(sse[k + 1]):
-                # between the breaks: the vertex of the parabola through the three least SSEs
-                curv = sse[k - 1] - 2.0 * sse[k] + sse[k + 1]
-                if curv > 0:
-                    z += 0.5 * cfg.step * float(np.clip((sse[k - 1] - sse[k + 1]) / curv, -1.0, 1.0))
-            # the break's spread: each break's likelihood exp(-SSE / 2 var), var the samples'
-            # spread about the two colours at the best break (floored)
-            var = max(float(sse[k]) / (float(n) * x.shape[1]), 0.01)
-            like = np.where(enough, np.exp(-(np.where(enough, sse, sse[k]) - sse[k]) / (2.0 * var)), 0.0)
-            like /= like.sum()
-            std = math.sqrt(float(like @ (breaks - z) ** 2) + cfg.step**2 / 12.0)
-        cols = np.count_nonzero(np.bincount(self._col[seen & (self._row >= k)], minlength=self._ncol))
-        quality = 1.0 / (1.0 + (std / cfg.std_scale) ** 2) * min(1.0, 2.0 * cols / self._ncol)
-        # soil that looks barely more like the soil beside it than like the face: unsure
-        quality *= min(1.0, float(margin) / cfg.min_margin)
-        return z, float(quality)
+        ok &= enough.any(axis=1)
+        breaks = self._breaks_at
+        k = np.argmin(sse, axis=1)
+        w = np.arange(nw)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            below = s1[w, k] / n1[w, k][:, None]
+            # how much more the colour under the break is the soil's than the face's, in units
+            # of their difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
+            margin = (np.linalg.norm(below - face, axis=1) - np.linalg.norm(below - soil, axis=1)) / contrast
+        sink = np.full(nw, math.nan)
+        qual = np.zeros(nw)
+        for j in np.flatnonzero(ok):
+            kj, m = int(k[j]), float(margin[j])
+            if m <= 0.0:
+                # what lies under the break looks like the face, not the soil beside it: the
+                # face reaches the rim (rigid ground, or a sinkage under the first rows), as
+                # surely as the colour under the break is nearer the face's
+                kj, z, std, m = 0, 0.0, cfg.step, -m
+            else:
+                e = sse[j]
+                z = float(breaks[kj])
+                if 0 < kj < len(e) - 1 and np.isfinite(e[kj - 1]) and np.isfinite(e[kj + 1]):
+                    # between the breaks: the vertex of the parabola through the three least SSEs
+                    curv = e[kj - 1] - 2.0 * e[kj] + e[kj + 1]
+                    if curv > 0:
+                        z += 0.5 * cfg.step * float(np.clip((e[kj - 1] - e[kj + 1]) / curv, -1.0, 1.0))
+                # the break's spread: each break's likelihood exp(-SSE / 2 var), var the samples'
+                # spread about the two colours at the best break (floored)
+                var = max(float(e[kj]) / (float(n[j, 0]) * x.shape[2]), 0.01)
+                like = np.exp(-(e - e[kj]) / (2.0 * var))  # 0 where not enough (SSE inf)
+                like /= like.sum()
+                std = math.sqrt(float(like @ (breaks - z) ** 2) + cfg.step**2 / 12.0)
+            cols = np.count_nonzero((seen[j] & (self._row >= kj)).astype(np.float64) @ self._col_hot)
+            quality = 1.0 / (1.0 + (std / cfg.std_scale) ** 2) * min(1.0, 2.0 * cols / self._ncol)
+            # soil that looks barely more like the soil beside it than like the face: unsure
+            sink[j] = z
+            qual[j] = quality * min(1.0, m / cfg.min_margin)
+        return SinkageEstimate(sink, qual)
+
+
+def _masked_median(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(b, f) the medians over axis 1 of ``x`` (b, n, f) where ``mask`` (b, n) holds (NaN: none)."""
+    s = np.sort(np.where(mask[..., None], x, np.inf), axis=1)
+    cnt = mask.sum(axis=1)
+    lo = np.maximum((cnt - 1) // 2, 0)[:, None, None]
+    hi = np.maximum(cnt // 2, 0)[:, None, None]
+    with np.errstate(invalid="ignore"):
+        out = 0.5 * (np.take_along_axis(s, lo, 1) + np.take_along_axis(s, hi, 1))[:, 0]
+    return np.where(cnt[:, None] > 0, out, np.nan)
 
 
 def _features(rgb: np.ndarray, intensity_weight: float) -> np.ndarray:
@@ -285,23 +371,27 @@ def _features(rgb: np.ndarray, intensity_weight: float) -> np.ndarray:
 
 
 def _behind_parts(P: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """Which points (n, 3) (from the camera) lie behind one of the spheres (centres, radii) from it.
+    """Which points (b, n, 3) (from the camera) lie behind one of the spheres (b, m, 3) of radii (b, m).
 
-    The spheres outside the cone of the points' rays (with their own angular radius) are left
-    out first: a wheel's points lie in a narrow cone, and most parts are elsewhere.
+    Each batch b of points is tested against its own spheres. The spheres outside the cone of a
+    batch's rays (with their own angular radius) are left out first: a wheel's points lie in a
+    narrow cone, and most parts are elsewhere.
     """
-    d = np.sqrt(np.einsum("pk,pk->p", P, P))
-    ray = P / d[:, None]
-    axis = ray.mean(axis=0)
-    axis /= np.linalg.norm(axis)
-    spread = math.acos(min(1.0, float((ray @ axis).min())))
-    dist = np.sqrt(np.einsum("pk,pk->p", centres, centres))
-    off = np.arccos(np.clip(centres @ axis / dist, -1.0, 1.0))
-    near = off <= spread + np.arcsin(np.clip(radii / dist, 0.0, 1.0)) + 1e-9
-    if not near.any():
-        return np.zeros(len(P), dtype=bool)
-    c, r = centres[near], radii[near]
-    along = ray @ c.T  # (n, parts)
-    perp2 = np.einsum("pk,pk->p", c, c)[None, :] - along**2
-    hidden = (perp2 < r[None, :] ** 2) & (along > 0) & (along < d[:, None] - r[None, :])
-    return hidden.any(axis=1)
+    d = np.sqrt(np.einsum("bpk,bpk->bp", P, P))
+    ray = P / d[..., None]
+    axis = ray.mean(axis=1)
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    spread = np.arccos(np.minimum(1.0, np.einsum("bpk,bk->bp", ray, axis).min(axis=1)))
+    dist = np.sqrt(np.einsum("bmk,bmk->bm", centres, centres))
+    off = np.arccos(np.clip(np.einsum("bmk,bk->bm", centres, axis) / dist, -1.0, 1.0))
+    near = off <= spread[:, None] + np.arcsin(np.clip(radii / dist, 0.0, 1.0)) + 1e-9
+    m = int(near.sum(axis=1).max())
+    if m == 0:
+        return np.zeros(P.shape[:2], dtype=bool)
+    pick = np.argsort(~near, axis=1, kind="stable")[:, :m]  # each batch's near spheres first
+    c = np.take_along_axis(centres, pick[..., None], 1)
+    r = np.where(np.take_along_axis(near, pick, 1), np.take_along_axis(radii, pick, 1), 0.0)[:, None, :]
+    along = ray @ np.swapaxes(c, 1, 2)  # (b, n, m)
+    perp2 = np.einsum("bmk,bmk->bm", c, c)[:, None, :] - along**2
+    hidden = (perp2 < r**2) & (along > 0) & (along < d[..., None] - r)
+    return hidden.any(axis=2)

@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation
 from perception.fusion.inertial import ImuLog, check_gyro_against_odometry, check_imu_units, read_imu_csv
 from perception.kinematics.fisheye import DOF_NAMES, KinematicsConfig, KinematicStateEstimator
 from perception.kinematics.markers import SteeringCalibration
-from perception.kinematics.sinkage import SinkageEstimator
+from perception.kinematics.sinkage import SinkageEstimator, SinkageTrack
 from perception.logs.bags import LogFrame
 from perception.logs.log_time import Placed, in_stamp_order, place
 from perception.logs.outputs import OutputFolder
@@ -800,8 +800,9 @@ def run_folder_kinematics(
             one row per image: t, the 10 degrees of freedom (psi_F, psi_R [rad], d_F, d_R [m],
             lambda_F, lambda_R [rad], theta FL..RR [rad]), the four wheel rates [rad/s],
             quality, a validity flag per degree of freedom, each wheel's sinkage [m]
-            (:mod:`perception.kinematics.sinkage`; empty where its quality is below
-            ``MIN_QUALITY`` or the axles' pose was not measured) and their quality, and a note. With ``mcap``,
+            (:class:`perception.kinematics.sinkage.SinkageTrack` over the frames measured, as the
+            built-in estimator gives it; empty where too few frames of the last 0.8 s measured
+            it) and their quality, and a note. With ``mcap``,
             ``kinematics.mcap`` holds one ``sensor_msgs/JointState`` per image (NaN where a
             joint was not measured).
         steering: Optional steering calibration (eq. 5 ratio map) YAML or object.
@@ -869,6 +870,7 @@ def _kinematics(source, cam, est, sink, progress, mcap, folder, name) -> FolderK
             + ["sinkage_quality", "note"]
         )
         t_row = -math.inf
+        track = SinkageTrack()
         for n, p in enumerate(source.placed, start=1):
             frame, t = p.item, p.t
             k = frame.index
@@ -897,9 +899,10 @@ def _kinematics(source, cam, est, sink, progress, mcap, folder, name) -> FolderK
             n_all += int(all(s.valid.values()))
             n_any += int(any(s.valid.values()))
             dof = np.r_[s.psi, s.depth, s.lam, s.theta]
-            z, q_z = np.full(4, math.nan), 0.0
+            measured = None
             if rgb.size and s.axles_valid:  # where the wheels stand
-                z, q_z = sink.measure(rgb, s.psi, s.depth + est.depth_zero, s.delta).reported()
+                measured = sink.measure(rgb, s.psi, s.depth + est.depth_zero, s.delta)
+            z, q_z = track.update(t, measured).reported()
             wr.writerow(
                 [
                     f"{t:.6f}",
