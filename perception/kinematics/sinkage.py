@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from perception.models._jit import compiled
 from perception.models.cameras import OmniCamera
 from perception.models.drive_geometry import WHEELS
 from perception.models.rover import PLATE, ROD, RoverKinematicModel
@@ -188,10 +189,7 @@ class SinkageEstimator:
         self._col = np.broadcast_to(np.arange(len(x))[:, None], X.shape)[on_face]
         self._ncol = len(x)
         self._n_face = len(self._row)
-        # one-hot maps of each face sample to its height and its column; the face's band
-        self._row_hot = np.eye(len(self.zeta))[self._row]
-        self._col_hot = np.eye(len(x))[self._col]
-        self._top = self.zeta[self._row] >= c.max_sinkage - c.face_band
+        self._top = self.zeta[self._row] >= c.max_sinkage - c.face_band  # the face's band
         #: The breaks searched: below the lowest height, between the heights, above the highest [m].
         self._breaks_at = np.r_[0.0, self.zeta[1:] - 0.5 * c.step, self.zeta[-1] + 0.5 * c.step]
         # per wheel, knuckle frame: the inner face's points (toward the body), then the ground
@@ -267,87 +265,15 @@ class SinkageEstimator:
             ground: (4, m, f) the colour features of the ground beside each face.
             ground_seen: (4, m) which of them are seen.
         """
-        cfg = self.config
-        nw = len(samples)
-        R = self._row_hot  # (n, heights) which height each face sample has
-        cols_seen = (seen.astype(np.float64) @ self._col_hot > 0).sum(axis=1)
-        top = seen & self._top
-        ok = (cols_seen >= cfg.min_columns) & (ground_seen.sum(axis=1) >= 8) & (top.sum(axis=1) >= 8)
-        soil = _masked_median(ground, ground_seen)  # (4, f)
-        face = _masked_median(samples, top)
-        contrast = np.linalg.norm(face - soil, axis=1)
-        # a face as mottled as the soil (a textured face; TinyRenderer draws the tread's texture
-        # on it) cannot be told from the soil by its colour; face and soil alike (deep shadow, a
-        # black frame) neither
-        mottle = _masked_median(np.linalg.norm(samples - face[:, None], axis=2)[..., None], top)[:, 0]
-        with np.errstate(invalid="ignore"):
-            ok &= (contrast >= cfg.min_step) & (mottle <= cfg.max_mottle * contrast)
-        # the split into two colours of least squared error: below each break the soil, above
-        # it the face (prefix sums over the heights)
-        x = np.where(seen[..., None], samples, 0.0)
-        cnt = seen.astype(np.float64) @ R  # (4, heights)
-        sums = np.swapaxes(np.swapaxes(x, 1, 2) @ R, 1, 2)  # (4, heights, f)
-        sq = (x * x).sum(axis=2) @ R
-        zero = np.zeros((nw, 1))
-        n1 = np.concatenate([zero, np.cumsum(cnt, axis=1)], axis=1)
-        s1 = np.concatenate([zero[..., None] + np.zeros((1, 1, x.shape[2])), np.cumsum(sums, axis=1)], axis=1)
-        q1 = np.concatenate([zero, np.cumsum(sq, axis=1)], axis=1)
-        n, st, qt = n1[:, -1:], s1[:, -1:], q1[:, -1:]
-        n2, s2, q2 = n - n1, st - s1, qt - q1
-        least = 2 * cfg.min_columns
-        enough = (n1 >= least) & (n2 >= least)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sse = (q1 - (s1 * s1).sum(-1) / n1) + (q2 - (s2 * s2).sum(-1) / n2)
-        sse = np.where(enough, sse, np.inf)
-        ok &= enough.any(axis=1)
-        breaks = self._breaks_at
-        k = np.argmin(sse, axis=1)
-        w = np.arange(nw)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            below = s1[w, k] / n1[w, k][:, None]
-            # how much more the colour under the break is the soil's than the face's, in units
-            # of their difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
-            margin = (np.linalg.norm(below - face, axis=1) - np.linalg.norm(below - soil, axis=1)) / contrast
-        sink = np.full(nw, math.nan)
-        qual = np.zeros(nw)
-        for j in np.flatnonzero(ok):
-            kj, m = int(k[j]), float(margin[j])
-            if m <= 0.0:
-                # what lies under the break looks like the face, not the soil beside it: the
-                # face reaches the rim (rigid ground, or a sinkage under the first rows), as
-                # surely as the colour under the break is nearer the face's
-                kj, z, std, m = 0, 0.0, cfg.step, -m
-            else:
-                e = sse[j]
-                z = float(breaks[kj])
-                if 0 < kj < len(e) - 1 and np.isfinite(e[kj - 1]) and np.isfinite(e[kj + 1]):
-                    # between the breaks: the vertex of the parabola through the three least SSEs
-                    curv = e[kj - 1] - 2.0 * e[kj] + e[kj + 1]
-                    if curv > 0:
-                        z += 0.5 * cfg.step * float(np.clip((e[kj - 1] - e[kj + 1]) / curv, -1.0, 1.0))
-                # the break's spread: each break's likelihood exp(-SSE / 2 var), var the samples'
-                # spread about the two colours at the best break (floored)
-                var = max(float(e[kj]) / (float(n[j, 0]) * x.shape[2]), 0.01)
-                like = np.exp(-(e - e[kj]) / (2.0 * var))  # 0 where not enough (SSE inf)
-                like /= like.sum()
-                std = math.sqrt(float(like @ (breaks - z) ** 2) + cfg.step**2 / 12.0)
-            cols = np.count_nonzero((seen[j] & (self._row >= kj)).astype(np.float64) @ self._col_hot)
-            quality = 1.0 / (1.0 + (std / cfg.std_scale) ** 2) * min(1.0, 2.0 * cols / self._ncol)
-            # soil that looks barely more like the soil beside it than like the face: unsure
-            sink[j] = z
-            qual[j] = quality * min(1.0, m / cfg.min_margin)
-        return SinkageEstimate(sink, qual)
-
-
-def _masked_median(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(b, f) the medians over axis 1 of ``x`` (b, n, f) where ``mask`` (b, n) holds (NaN: none)."""
-    s = np.sort(np.where(mask[..., None], x, np.inf), axis=1)
-    cnt = mask.sum(axis=1)
-    lo = np.maximum((cnt - 1) // 2, 0)[:, None, None]
-    hi = np.maximum(cnt // 2, 0)[:, None, None]
-    with np.errstate(invalid="ignore"):
-        out = 0.5 * (np.take_along_axis(s, lo, 1) + np.take_along_axis(s, hi, 1))[:, 0]
-    return np.where(cnt[:, None] > 0, out, np.nan)
+        c = self.config
+        out = SinkageEstimate.none()
+        for k in range(len(samples)):
+            out.sinkage[k], out.quality[k] = _split(
+                samples[k], seen[k], self._row, self._col, self._top, ground[k], ground_seen[k],
+                self._breaks_at, self._ncol, c.step, c.min_columns, c.min_step, c.max_mottle,
+                c.min_margin, c.std_scale,
+            )  # fmt: skip
+        return out
 
 
 def _features(rgb: np.ndarray, intensity_weight: float) -> np.ndarray:
@@ -370,28 +296,183 @@ def _features(rgb: np.ndarray, intensity_weight: float) -> np.ndarray:
     )
 
 
-def _behind_parts(P: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+@compiled
+def _behind_parts(P, centres, radii):  # pragma: no cover (compiled)
     """Which points (b, n, 3) (from the camera) lie behind one of the spheres (b, m, 3) of radii (b, m).
 
-    Each batch b of points is tested against its own spheres. The spheres outside the cone of a
-    batch's rays (with their own angular radius) are left out first: a wheel's points lie in a
-    narrow cone, and most parts are elsewhere.
+    Each batch b of points is tested against its own spheres (a radius of 0: none). The spheres
+    outside the cone of a batch's rays (with their own angular radius) are left out first: a
+    wheel's points lie in a narrow cone, and most parts are elsewhere.
     """
-    d = np.sqrt(np.einsum("bpk,bpk->bp", P, P))
-    ray = P / d[..., None]
-    axis = ray.mean(axis=1)
-    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    spread = np.arccos(np.minimum(1.0, np.einsum("bpk,bk->bp", ray, axis).min(axis=1)))
-    dist = np.sqrt(np.einsum("bmk,bmk->bm", centres, centres))
-    off = np.arccos(np.clip(np.einsum("bmk,bk->bm", centres, axis) / dist, -1.0, 1.0))
-    near = off <= spread[:, None] + np.arcsin(np.clip(radii / dist, 0.0, 1.0)) + 1e-9
-    m = int(near.sum(axis=1).max())
-    if m == 0:
-        return np.zeros(P.shape[:2], dtype=bool)
-    pick = np.argsort(~near, axis=1, kind="stable")[:, :m]  # each batch's near spheres first
-    c = np.take_along_axis(centres, pick[..., None], 1)
-    r = np.where(np.take_along_axis(near, pick, 1), np.take_along_axis(radii, pick, 1), 0.0)[:, None, :]
-    along = ray @ np.swapaxes(c, 1, 2)  # (b, n, m)
-    perp2 = np.einsum("bmk,bmk->bm", c, c)[:, None, :] - along**2
-    hidden = (perp2 < r**2) & (along > 0) & (along < d[..., None] - r)
-    return hidden.any(axis=2)
+    b, n, m = P.shape[0], P.shape[1], centres.shape[1]
+    hidden = np.zeros((b, n), dtype=np.bool_)
+    ray = np.empty((n, 3))
+    d = np.empty(n)
+    near = np.empty(m, dtype=np.int64)
+    for w in range(b):
+        axis = np.zeros(3)
+        for i in range(n):
+            d[i] = math.sqrt(P[w, i, 0] ** 2 + P[w, i, 1] ** 2 + P[w, i, 2] ** 2)
+            ray[i] = P[w, i] / max(d[i], 1e-12)
+            axis += ray[i]
+        axis /= max(math.sqrt(np.sum(axis**2)), 1e-12)
+        cos_spread = 1.0
+        for i in range(n):
+            cos_spread = min(cos_spread, np.sum(ray[i] * axis))
+        spread = math.acos(max(-1.0, min(1.0, cos_spread)))
+        k = 0
+        for j in range(m):
+            dist = math.sqrt(np.sum(centres[w, j] ** 2))
+            if radii[w, j] <= 0.0 or dist <= 0.0:
+                continue
+            off = math.acos(max(-1.0, min(1.0, np.sum(centres[w, j] * axis) / dist)))
+            if off <= spread + math.asin(min(1.0, radii[w, j] / dist)) + 1e-9:
+                near[k] = j
+                k += 1
+        for i in range(n):
+            for a in range(k):
+                j = near[a]
+                r = radii[w, j]
+                along = (
+                    ray[i, 0] * centres[w, j, 0] + ray[i, 1] * centres[w, j, 1] + ray[i, 2] * centres[w, j, 2]
+                )
+                if along <= 0.0 or along >= d[i] - r:
+                    continue
+                if (
+                    centres[w, j, 0] ** 2 + centres[w, j, 1] ** 2 + centres[w, j, 2] ** 2 - along * along
+                    < r * r
+                ):
+                    hidden[w, i] = True
+                    break
+    return hidden
+
+
+@compiled
+def _split(
+    x,
+    seen,
+    row,
+    col,
+    top,
+    ground,
+    ground_seen,
+    breaks,
+    ncol,
+    step,
+    min_columns,
+    min_step,
+    max_mottle,
+    min_margin,
+    std_scale,
+):  # pragma: no cover (compiled)
+    """One wheel's sinkage [m] (NaN: none) and its quality from its face's and ground's samples.
+
+    ``x`` (n, f) the face's samples' colour features, ``seen`` (n,), ``row`` and ``col`` (n,)
+    each sample's height and column, ``top`` (n,) the face's band; ``ground`` (m, f) and
+    ``ground_seen`` (m,) the ground beside the face; ``breaks`` (heights + 1,) the breaks [m].
+    The rest: :class:`SinkageConfig`.
+    """
+    n, f = x.shape
+    nz = breaks.shape[0] - 1
+    cols = np.zeros(ncol, dtype=np.bool_)
+    n_top = 0
+    for i in range(n):
+        if seen[i]:
+            cols[col[i]] = True
+            if top[i]:
+                n_top += 1
+    n_ground = 0
+    for i in range(ground.shape[0]):
+        if ground_seen[i]:
+            n_ground += 1
+    if cols.sum() < min_columns or n_ground < 8 or n_top < 8:
+        return math.nan, 0.0  # too little of the face in view, or no soil or no face to compare
+    soil = np.empty(f)
+    face = np.empty(f)
+    g = np.empty(n_ground)
+    t = np.empty(n_top)
+    for j in range(f):
+        a = 0
+        for i in range(ground.shape[0]):
+            if ground_seen[i]:
+                g[a] = ground[i, j]
+                a += 1
+        soil[j] = np.median(g)
+        a = 0
+        for i in range(n):
+            if seen[i] and top[i]:
+                t[a] = x[i, j]
+                a += 1
+        face[j] = np.median(t)
+    contrast = math.sqrt(np.sum((face - soil) ** 2))
+    if contrast < min_step:  # face and soil alike (deep shadow, a black frame)
+        return math.nan, 0.0
+    # a face as mottled as the soil (a textured face; TinyRenderer draws the tread's texture
+    # on it) cannot be told from the soil by its colour
+    a = 0
+    for i in range(n):
+        if seen[i] and top[i]:
+            t[a] = math.sqrt(np.sum((x[i] - face) ** 2))
+            a += 1
+    if np.median(t) > max_mottle * contrast:
+        return math.nan, 0.0
+    # the split into two colours of least squared error: below each break the soil, above it
+    # the face (prefix sums over the heights)
+    n1 = np.zeros(nz + 1)
+    s1 = np.zeros((nz + 1, f))
+    q1 = np.zeros(nz + 1)
+    for i in range(n):
+        if seen[i]:
+            r = row[i] + 1
+            n1[r] += 1.0
+            for j in range(f):
+                s1[r, j] += x[i, j]
+                q1[r] += x[i, j] * x[i, j]
+    for r in range(1, nz + 1):
+        n1[r] += n1[r - 1]
+        s1[r] += s1[r - 1]
+        q1[r] += q1[r - 1]
+    least = 2 * min_columns
+    sse = np.full(nz + 1, np.inf)
+    for r in range(nz + 1):
+        na, nb = n1[r], n1[nz] - n1[r]
+        if na >= least and nb >= least:
+            e = q1[r] - np.sum(s1[r] ** 2) / na + (q1[nz] - q1[r]) - np.sum((s1[nz] - s1[r]) ** 2) / nb
+            sse[r] = e
+    if not np.isfinite(sse).any():
+        return math.nan, 0.0
+    k = int(np.argmin(sse))
+    below = s1[k] / n1[k]
+    # how much more the colour under the break is the soil's than the face's, in units of their
+    # difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
+    margin = (math.sqrt(np.sum((below - face) ** 2)) - math.sqrt(np.sum((below - soil) ** 2))) / contrast
+    if margin <= 0.0:
+        # what lies under the break looks like the face, not the soil beside it: the face
+        # reaches the rim (rigid ground, or a sinkage under the first rows), as surely as the
+        # colour under the break is nearer the face's
+        k, z, std, margin = 0, 0.0, step, -margin
+    else:
+        z = breaks[k]
+        if 0 < k < nz and np.isfinite(sse[k - 1]) and np.isfinite(sse[k + 1]):
+            # between the breaks: the vertex of the parabola through the three least SSEs
+            curv = sse[k - 1] - 2.0 * sse[k] + sse[k + 1]
+            if curv > 0:
+                z += 0.5 * step * min(1.0, max(-1.0, (sse[k - 1] - sse[k + 1]) / curv))
+        # the break's spread: each break's likelihood exp(-SSE / 2 var), var the samples'
+        # spread about the two colours at the best break (floored)
+        var = max(sse[k] / (n1[nz] * f), 0.01)
+        wsum = 0.0
+        m2 = 0.0
+        for r in range(nz + 1):
+            if np.isfinite(sse[r]):
+                lk = math.exp(-(sse[r] - sse[k]) / (2.0 * var))
+                wsum += lk
+                m2 += lk * (breaks[r] - z) ** 2
+        std = math.sqrt(m2 / wsum + step * step / 12.0)
+    cols[:] = False
+    for i in range(n):
+        if seen[i] and row[i] >= k:
+            cols[col[i]] = True
+    quality = 1.0 / (1.0 + (std / std_scale) ** 2) * min(1.0, 2.0 * cols.sum() / ncol)
+    # soil that looks barely more like the soil beside it than like the face: unsure
+    return z, quality * min(1.0, margin / min_margin)

@@ -59,6 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perception.models._jit import compiled as _compiled
 from rover_env.config.io import ConfigError, check_range
 from rover_env.config.soil import SoilConfig
 from rover_env.sim.geometry import GRAVITY
@@ -81,15 +82,6 @@ RELOAD = 10.0
 #: Speed below which a wheel counts as at rest [m/s] (the side wall's bulldozing fades in below
 #: it in the stepped contact). These constants are compiled into the kernels: edit, not assign.
 REST_SPEED = 0.005
-
-
-def _compiled(f):
-    """``f`` compiled by numba (cached on disk); without numba the same code runs as Python."""
-    try:
-        from numba import njit
-    except ImportError:  # pragma: no cover
-        return f
-    return njit(cache=True)(f)
 
 
 @dataclass(frozen=True)
