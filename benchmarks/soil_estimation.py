@@ -188,9 +188,10 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
             info = env.step(a)[4]
             gt = info["ground_truth"]
             loads.append(np.asarray(gt["load"])[soil.fresh])
-            # what the data allow: the fresh wheels' own DP/W against their true slip
+            # what the data allow: the fresh wheels' own DP/W against their true slip, while
+            # the rear axle brakes harder (the front slip rising) and while it lets go
             for i in np.flatnonzero(soil.fresh & (np.asarray(gt["slip_ratio"]) > 0)):
-                own.append((gt["slip_ratio"][i], gt["drawbar_pull"][i] / gt["load"][i]))
+                own.append((gt["slip_ratio"][i], gt["drawbar_pull"][i] / gt["load"][i], u < 0.5))
             cur = soil.last
             if cur.identified:
                 true_ratio = env.unwrapped.soil_truth()["pull_ratio"]
@@ -204,6 +205,7 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
                 break
         load = float(np.mean(np.concatenate(loads)))
         timing = est.timing["soil"] / (k + 1)
+        timing_sinkage = est.timing["sinkage"] / (k + 1)
     finally:
         env.close()
     dpw, eff = curves.curve(load)
@@ -220,12 +222,14 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
             break
     # the fresh wheels' own DP/W, binned by slip (0.05 wide, at least 20 steps; the median: a
     # wheel all but unloaded reads a DP/W of several), less the truth's
-    own_s, own_d = np.array(own).T if own else (np.zeros(0), np.zeros(0))
-    gap = {}
-    for lo in np.arange(0.05, 0.9, 0.05):
-        m = (own_s >= lo) & (own_s < lo + 0.05)
-        if m.sum() >= 20:
-            gap[round(lo, 2)] = float(np.median(own_d[m]) - np.interp(lo + 0.025, curves.SLIPS, dpw))
+    own_s, own_d, rising = np.array(own).T if own else (np.zeros(0), np.zeros(0), np.zeros(0))
+    gap: dict[str, dict[float, float]] = {"all": {}, "rising": {}, "falling": {}}
+    for phase, sel in (("all", own_s == own_s), ("rising", rising > 0), ("falling", rising == 0)):
+        for lo in np.arange(0.05, 0.9, 0.05):
+            m = sel & (own_s >= lo) & (own_s < lo + 0.05)
+            if m.sum() >= 20:
+                ss = np.interp(lo + 0.025, curves.SLIPS, dpw)
+                gap[phase][round(lo, 2)] = float(np.median(own_d[m]) - ss)
     return {
         "own_gap": gap,
         "marks": marks,
@@ -236,6 +240,7 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
         "wheel_mae": float(np.mean(wheel_err)) if wheel_err else math.nan,
         "settle": settle if within and within[-1] else math.inf,
         "soil_s": timing,
+        "sinkage_s": timing_sinkage,
     }
 
 
@@ -281,25 +286,31 @@ def identify_table(args) -> None:
     print()
     print(
         "| soil | drive | travel until within 0.05 for good [m] | pull_ratio_* MAE against the truth's "
-        "| soil cost [ms/step] |"
+        "| soil cost [ms/step] | sinkage cost [ms/step] | both [ms/step] |"
     )
-    print("|---|---|---|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|")
     for soil, drive, runs in summary:
         settle = ", ".join("never" if not math.isfinite(r["settle"]) else f"{r['settle']:.1f}" for r in runs)
         mae = np.nanmean([r["wheel_mae"] for r in runs])
         cost = 1000.0 * np.mean([r["soil_s"] for r in runs])
-        print(f"| {soil} | {drive} | {settle} | {mae:.3f} | {cost:.3f} |", flush=True)
+        cost_z = 1000.0 * np.mean([r["sinkage_s"] for r in runs])
+        print(
+            f"| {soil} | {drive} | {settle} | {mae:.3f} | {cost:.3f} | {cost_z:.3f} | {cost + cost_z:.3f} |",
+            flush=True,
+        )
     print()
     print("What the data allow: the fresh wheels' own DP/W (the truth's pull over load, the median in")
-    print("bins of their true slip) less the steady state's, averaged over the runs")
-    print("| soil | drive | " + " | ".join(f"{lo:.2f}" for lo in np.arange(0.05, 0.9, 0.05)) + " |")
-    print("|---|---|" + "---:|" * len(np.arange(0.05, 0.9, 0.05)))
+    print("bins of their true slip) less the steady state's, averaged over the runs; all steps, and")
+    print("split by the rear axle braking harder (the front slip rising) or letting go (falling)")
+    print("| soil | drive | steps | " + " | ".join(f"{lo:.2f}" for lo in np.arange(0.05, 0.9, 0.05)) + " |")
+    print("|---|---|---|" + "---:|" * len(np.arange(0.05, 0.9, 0.05)))
     for soil, drive, runs in summary:
-        cells = []
-        for lo in np.arange(0.05, 0.9, 0.05):
-            v = [r["own_gap"][round(lo, 2)] for r in runs if round(lo, 2) in r["own_gap"]]
-            cells.append(f"{np.mean(v):+.3f}" if v else "–")
-        print(f"| {soil} | {drive} | " + " | ".join(cells) + " |", flush=True)
+        for phase in ("all", "rising", "falling"):
+            cells = []
+            for lo in np.arange(0.05, 0.9, 0.05):
+                v = [r["own_gap"][phase][round(lo, 2)] for r in runs if round(lo, 2) in r["own_gap"][phase]]
+                cells.append(f"{np.mean(v):+.3f}" if v else "–")
+            print(f"| {soil} | {drive} | {phase} | " + " | ".join(cells) + " |", flush=True)
 
 
 def main(argv=None) -> int:

@@ -66,6 +66,13 @@ class SinkageConfig:
         ground_height: The soil's colour is read from the ground beside the face at this height
             above the rim's lowest point [m] (a typical sinkage).
         std_scale: The break's standard deviation at which the quality is one half [m].
+        soil_break: A break at least this high [m] is soil where most of the samples under it
+            are unlike the face, whatever their mean colour: soil half in the wheel's shade,
+            darker and brighter than the face, averages to the face's grey. Lower, where a
+            pose error of a pixel or two shows the ground under a rim on rigid ground, the
+            mean decides.
+        face_tolerance: A sample is like the face within this share of the soil's and the
+            face's difference (or three times the face's mottle, if more) [-].
     """
 
     max_sinkage: float = 0.07
@@ -79,6 +86,8 @@ class SinkageConfig:
     face_band: float = 0.012
     ground_height: float = 0.02
     std_scale: float = 0.003
+    soil_break: float = 0.015
+    face_tolerance: float = 0.3
 
 
 #: A wheel's sinkage is reported where its measurement has at least this quality.
@@ -271,7 +280,7 @@ class SinkageEstimator:
             out.sinkage[k], out.quality[k] = _split(
                 samples[k], seen[k], self._row, self._col, self._top, ground[k], ground_seen[k],
                 self._breaks_at, self._ncol, c.step, c.min_columns, c.min_step, c.max_mottle,
-                c.min_margin, c.std_scale,
+                c.min_margin, c.std_scale, c.soil_break, c.face_tolerance,
             )  # fmt: skip
         return out
 
@@ -364,6 +373,8 @@ def _split(
     max_mottle,
     min_margin,
     std_scale,
+    soil_break,
+    face_tolerance,
 ):  # pragma: no cover (compiled)
     """One wheel's sinkage [m] (NaN: none) and its quality from its face's and ground's samples.
 
@@ -414,7 +425,8 @@ def _split(
         if seen[i] and top[i]:
             t[a] = math.sqrt(np.sum((x[i] - face) ** 2))
             a += 1
-    if np.median(t) > max_mottle * contrast:
+    mottle = np.median(t)
+    if mottle > max_mottle * contrast:
         return math.nan, 0.0
     # the split into two colours of least squared error: below each break the soil, above it
     # the face (prefix sums over the heights)
@@ -446,6 +458,19 @@ def _split(
     # how much more the colour under the break is the soil's than the face's, in units of their
     # difference: 1 the soil's exactly, 0 halfway, below 0 nearer the face's
     margin = (math.sqrt(np.sum((below - face) ** 2)) - math.sqrt(np.sum((below - soil) ** 2))) / contrast
+    if margin <= 0.0 and breaks[k] >= soil_break:
+        # a high break whose samples below are mostly unlike the face: soil, half in the
+        # wheel's shade, whose mean passes for the face's grey; as sure as few are face-like
+        tol = max(3.0 * mottle, face_tolerance * contrast)
+        n_low = 0
+        n_like = 0
+        for i in range(n):
+            if seen[i] and row[i] < k:
+                n_low += 1
+                if math.sqrt(np.sum((x[i] - face) ** 2)) <= tol:
+                    n_like += 1
+        if n_low and n_like < 0.5 * n_low:
+            margin = 1.0 - 2.0 * n_like / n_low
     if margin <= 0.0:
         # what lies under the break looks like the face, not the soil beside it: the face
         # reaches the rim (rigid ground, or a sinkage under the first rows), as surely as the
