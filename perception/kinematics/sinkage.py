@@ -91,7 +91,7 @@ class SinkageConfig:
 
 
 #: A wheel's sinkage is reported where its measurement has at least this quality.
-MIN_QUALITY = 0.3
+MIN_QUALITY = 0.4
 
 
 @dataclass
