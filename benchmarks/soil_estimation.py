@@ -151,13 +151,15 @@ def slip_table(args) -> None:
 CHECKPOINTS = (2.5, 5.0, 7.5, 10.0, 15.0)
 
 
-def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: int) -> dict:
+def identify_drive(
+    scenario: Path, preset: str, seed: int, drive: str, steps: int, period: float = 16.0
+) -> dict:
     """One identification drive: the estimator's pull curve at each checkpoint of travel, and the truth's.
 
     ``brake``: straight; the front wheels' tread runs at 0.9 m/s and the rear wheels (in the
     front ones' ruts) brake ever harder, their tread slowed from 0.9 m/s to a standstill and
-    back every 16 s, so that the front wheels' slip sweeps from about 0.05 to 0.8 (a drawbar
-    pull test with the rear axle as the load). ``crab``: the same while crabbing, both axles
+    back every ``period`` seconds (16), so that the front wheels' slip sweeps from about 0.05
+    to 0.8 (a drawbar pull test with the rear axle as the load). ``crab``: the same while crabbing, both axles
     steered 7.5 deg to one side, then the other (every 6 s), so that the rear wheels run on
     fresh soil 10 cm beside the front ones' ruts.
     """
@@ -180,7 +182,7 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
         loads, marks, wheel_err, history, own = [], {}, [], [], []
         for k in range(steps):
             t = k / hz
-            u = (t / 16.0 + phase) % 1.0
+            u = (t / period + phase) % 1.0
             target = 0.8 * (2.0 * u if u < 0.5 else 2.0 - 2.0 * u)
             lam = 0.25 * (1.0 if (t // 6.0) % 2 == 0 else -1.0) if drive == "crab" else 0.0
             rear = 0.45 * (1.0 - target / 0.8)  # of v_max, 2 m/s; steering of 30 deg
@@ -247,7 +249,10 @@ def identify_drive(scenario: Path, preset: str, seed: int, drive: str, steps: in
 def identify_table(args) -> None:
     folder = Path(args.tmp)
     folder.mkdir(parents=True, exist_ok=True)
-    print(f"seeds {args.seeds}, preset {args.preset}, rig full, randomize on, field cameras")
+    print(
+        f"seeds {args.seeds}, preset {args.preset}, rig full, randomize on, field cameras, "
+        f"braking cycle {args.period:g} s"
+    )
     print(
         "| soil | drive | travel [m] | identified | DP/W error 0.05-0.7, mean / max "
         "| max, std <= 0.025 | slip_best_pull (truth) | slip_best_efficiency (truth) | soil_quality |"
@@ -257,7 +262,7 @@ def identify_table(args) -> None:
     for soil in SOILS:
         scen = soil_scenario(soil, folder)
         for drive in args.drives:
-            runs = [identify_drive(scen, args.preset, s, drive, args.steps) for s in args.seeds]
+            runs = [identify_drive(scen, args.preset, s, drive, args.steps, args.period) for s in args.seeds]
             for d in CHECKPOINTS:
                 rows = [(r, r["marks"].get(d)) for r in runs]
                 rows = [(r, c) for r, c in rows if c is not None and c.identified]
@@ -330,6 +335,7 @@ def main(argv=None) -> int:
     i.add_argument("--preset", default="train", choices=("eval", "train"))
     i.add_argument("--drives", nargs="+", default=["brake", "crab"], choices=("brake", "crab"))
     i.add_argument("--steps", type=int, default=1500, help="at most this many control steps (30 a second)")
+    i.add_argument("--period", type=float, default=16.0, help="the rear axle's braking cycle [s]")
     i.add_argument("--tmp", default="/tmp/soil_estimation", help="folder for the scenario files it writes")
     args = ap.parse_args(argv)
     assert rover_env.ENV_IDS  # registers the environments
