@@ -259,7 +259,7 @@ def identify_table(args) -> None:
     )
     print("|---|---|---:|---:|---|---:|---|---|---:|")
     summary = []
-    for soil in SOILS:
+    for soil in args.soils:
         scen = soil_scenario(soil, folder)
         for drive in args.drives:
             runs = [identify_drive(scen, args.preset, s, drive, args.steps, args.period) for s in args.seeds]
@@ -334,6 +334,7 @@ def main(argv=None) -> int:
     i.add_argument("--seeds", type=int, nargs="+", default=[801, 802, 803])
     i.add_argument("--preset", default="train", choices=("eval", "train"))
     i.add_argument("--drives", nargs="+", default=["brake", "crab"], choices=("brake", "crab"))
+    i.add_argument("--soils", nargs="+", default=list(SOILS), choices=SOILS)
     i.add_argument("--steps", type=int, default=1500, help="at most this many control steps (30 a second)")
     i.add_argument("--period", type=float, default=16.0, help="the rear axle's braking cycle [s]")
     i.add_argument("--tmp", default="/tmp/soil_estimation", help="folder for the scenario files it writes")
