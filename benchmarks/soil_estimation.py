@@ -8,7 +8,9 @@ slip from about -0.7 to 0.7; straight, and turning (the axles steered +-17 deg).
 step the estimate's ``sinkage_*`` (reported where its quality reaches 0.3, else absent) is
 compared with the simulator's: MAE per wheel over the reported steps, the relative error where
 the true sinkage is 10 mm or more, the share of steps reported, and the estimator's time spent
-on sinkage per step.
+on sinkage per step. With ``--capture DIR`` every frame measured for sinkage is kept, and
+``sinkage-replay DIR`` runs them through the estimator as it is then (with ``--set`` for its
+``SinkageConfig``), in seconds: the drives do not depend on the sinkage.
 
 Slip on soil (``slip``): ``benchmarks/slip_accuracy.py``'s drives (full throttle, reverse and a
 slow roll over each mission's soil), with the BMI088 on the standard rig and with the ``full``
@@ -24,7 +26,8 @@ steady state at the fresh wheels' mean load): DP/W error over slips 0.05-0.7, th
 the quality, how far it drives until the curve stays within 0.05, the per-wheel pull ratios
 against the truth's, and the identification's cost per step.
 
-Run: python benchmarks/soil_estimation.py sinkage [--seeds 701 ... 706] [--presets eval train]
+Run: python benchmarks/soil_estimation.py sinkage [--seeds 701 ... 706] [--presets eval train] [--capture DIR]
+     python benchmarks/soil_estimation.py sinkage-replay DIR [--set soil_break=1.0] [--per-frame]
      python benchmarks/soil_estimation.py slip [--seeds 601 ... 620]
      python benchmarks/soil_estimation.py identify [--seeds 801 802 803] [--drives sweep crab]
 """
@@ -66,13 +69,31 @@ def soil_scenario(soil: str, folder: Path) -> Path:
     return path
 
 
-def sinkage_drive(scenario: Path, preset: str, seed: int, turning: bool, steps: int) -> dict:
-    """One drive; per step the estimated (NaN: not reported) and true sinkage [m], and timing."""
+def sinkage_drive(
+    scenario: Path, preset: str, seed: int, turning: bool, steps: int, capture: Path | None = None
+) -> dict:
+    """One drive; per step the estimated (NaN: not reported) and true sinkage [m], and timing.
+
+    With ``capture``, every frame measured for sinkage (its image and joints, as the estimator
+    gave them to :meth:`SinkageEstimator.measure`, its time and the truth at the step's end) is
+    written to ``capture/{soil}_{preset}_{seed}_{straight|turning}.npz`` for ``sinkage-replay``.
+    """
     env = gym.make(
         "Rover-v0", scenario=str(scenario), preset=preset, rig="full", action_mode="wheels", randomize="on"
     )
+    frames: list[dict] = []
     try:
         env.reset(seed=seed)
+        estimator = env.unwrapped.pipeline.estimator
+        if capture is not None:
+            measure = estimator.sinkage.measure
+
+            def recorded(image, psi, depth, delta):
+                t = estimator.kinematics.state.t
+                frames.append({"img": np.array(image), "psi": psi, "depth": depth, "delta": delta, "t": t})
+                return measure(image, psi, depth, delta)
+
+            estimator.sinkage.measure = recorded
         rng = np.random.default_rng(seed)
         ph = rng.uniform(0.0, 2.0 * math.pi, 3)
         est, true = [], []
@@ -82,7 +103,10 @@ def sinkage_drive(scenario: Path, preset: str, seed: int, turning: bool, steps: 
             lead = 1.0 + 2.5 * (0.5 + 0.5 * math.sin(t / 3.0 + ph[1]))
             f, r = (base * lead, base) if math.sin(t / 5.0 + ph[2]) > 0 else (base, base * lead)
             lam = 0.6 * math.sin(t / 2.5) if turning else 0.0
+            n = len(frames)
             info = env.step(np.array([f, f, r, r, lam, -lam], dtype=np.float32))[4]
+            for rec in frames[n:]:
+                rec["true"] = np.array(info["ground_truth"]["sinkage"])
             if k >= 15:  # after the start
                 v = env.unwrapped.estimate_values
                 est.append([v.get(f"sinkage_{w}", np.nan) for w in WHEELS])
@@ -90,12 +114,22 @@ def sinkage_drive(scenario: Path, preset: str, seed: int, turning: bool, steps: 
         timing = env.unwrapped.pipeline.estimator.timing["sinkage"]
     finally:
         env.close()
+    if capture is not None and frames:
+        soil = yaml.safe_load(scenario.read_text())["friction"]["patches"][0]["soil"]
+        drive = "turning" if turning else "straight"
+        np.savez_compressed(
+            capture / f"{soil}_{preset}_{seed}_{drive}.npz",
+            **{key: np.stack([np.asarray(f[key]) for f in frames]) for key in frames[0]},
+        )
     return {"est": np.array(est), "true": np.array(true), "sinkage_s": timing, "steps": steps}
 
 
 def sinkage_table(args) -> None:
     folder = Path(args.tmp)
     folder.mkdir(parents=True, exist_ok=True)
+    capture = Path(args.capture) if args.capture else None
+    if capture is not None:
+        capture.mkdir(parents=True, exist_ok=True)
     print(f"seeds {args.seeds}, {args.steps} steps a drive, rig full, randomize on, field cameras")
     print(
         "| soil | preset | drive | reported | MAE FL / FR / RL / RR [mm] | MAE [mm] "
@@ -106,7 +140,7 @@ def sinkage_table(args) -> None:
         for soil in SOILS:
             scen = soil_scenario(soil, folder)
             for turning in (False, True):
-                runs = [sinkage_drive(scen, preset, s, turning, args.steps) for s in args.seeds]
+                runs = [sinkage_drive(scen, preset, s, turning, args.steps, capture) for s in args.seeds]
                 E = np.concatenate([r["est"] - r["true"] for r in runs]) * 1000.0
                 T = np.concatenate([r["true"] for r in runs]) * 1000.0
                 ok = np.isfinite(E)
@@ -120,6 +154,63 @@ def sinkage_table(args) -> None:
                     f"| {np.mean(E[ok]):+.2f} | {cost:.2f} |",
                     flush=True,
                 )
+
+
+def sinkage_replay(args) -> None:
+    """The sinkage of captured frames (``sinkage --capture``) through today's estimator and track."""
+    from dataclasses import replace
+
+    from perception.kinematics.sinkage import SinkageConfig, SinkageEstimator, SinkageTrack
+
+    files = sorted(Path(args.folder).glob("*.npz"))
+    if not files:
+        raise SystemExit(f"{args.folder}: no captured drives (*.npz); write them with: sinkage --capture DIR")
+    config = SinkageConfig()
+    for item in args.set:
+        key, _, value = item.partition("=")
+        config = replace(config, **{key: type(getattr(config, key))(value)})
+    estimators = {}
+    print(f"{len(files)} drives from {args.folder}; {'each frame' if args.per_frame else 'the track'}")
+    print(f"SinkageConfig: {', '.join(args.set) if args.set else 'the defaults'}")
+    print(
+        "| preset | frames | reported | MAE FL / FR / RL / RR [mm] | MAE [mm] "
+        "| rel. error, true >= 10 mm | ms/frame |"
+    )
+    print("|---|---:|---:|---|---:|---:|---:|")
+    for preset in ("eval", "train"):
+        errs, trues, cost, n = [], [], 0.0, 0
+        for f in (f for f in files if f"_{preset}_" in f.name):
+            if preset not in estimators:
+                env = gym.make("Rover-v0", preset=preset, rig="full")
+                sink = env.unwrapped.pipeline.estimator.sinkage
+                estimators[preset] = (sink.camera, sink.model)
+                env.close()
+            est = SinkageEstimator(*estimators[preset], config)
+            track = SinkageTrack()
+            with np.load(f) as z:
+                d = {k: z[k] for k in z.files}
+            for i in range(len(d["t"])):
+                t0 = time.perf_counter()
+                m = est.measure(d["img"][i], d["psi"][i], d["depth"][i], d["delta"][i])
+                cost += time.perf_counter() - t0
+                n += 1
+                zr = m.reported()[0] if args.per_frame else track.update(float(d["t"][i]), m).reported()[0]
+                errs.append(1000.0 * (zr - d["true"][i]))
+                trues.append(1000.0 * d["true"][i])
+        if not n:
+            continue
+        E, T = np.array(errs), np.array(trues)
+        ok = np.isfinite(E)
+        mae = " / ".join(
+            f"{np.mean(np.abs(E[ok[:, i], i])):.1f}" if ok[:, i].any() else "–" for i in range(4)
+        )
+        deep = ok & (T >= 10.0)
+        rel = f"{100.0 * np.mean(np.abs(E[deep]) / T[deep]):.1f} %" if deep.any() else "–"
+        print(
+            f"| {preset} | {n} | {100 * ok.mean():.0f} % | {mae} | {np.mean(np.abs(E[ok])):.2f} | {rel} "
+            f"| {1000.0 * cost / n:.2f} |",
+            flush=True,
+        )
 
 
 def slip_table(args) -> None:
@@ -327,6 +418,11 @@ def main(argv=None) -> int:
     s.add_argument("--presets", nargs="+", default=["eval", "train"], choices=("eval", "train"))
     s.add_argument("--steps", type=int, default=300, help="control steps a drive (30 per second)")
     s.add_argument("--tmp", default="/tmp/soil_estimation", help="folder for the scenario files it writes")
+    s.add_argument("--capture", help="also write every frame measured for sinkage to this folder")
+    r = sub.add_parser("sinkage-replay", help="captured frames (sinkage --capture) through today's sinkage")
+    r.add_argument("folder", help="the folder sinkage --capture wrote")
+    r.add_argument("--set", nargs="*", default=[], help="SinkageConfig fields, key=value")
+    r.add_argument("--per-frame", action="store_true", help="each frame's own reading, not the track's")
     p = sub.add_parser("slip", help="slip on the two soil missions, with and without encoders")
     p.add_argument("--seeds", type=int, nargs="+", default=list(range(601, 621)))
     p.add_argument("--preset", default="train", choices=("eval", "train"))
@@ -343,6 +439,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     if args.part == "sinkage":
         sinkage_table(args)
+    elif args.part == "sinkage-replay":
+        sinkage_replay(args)
     elif args.part == "identify":
         identify_table(args)
     else:
