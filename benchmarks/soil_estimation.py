@@ -5,12 +5,13 @@ cameras) crosses level ground of one soil with domain randomisation on (sun, haz
 light, ground texture, camera mounts); in ``wheels`` action mode one axle's wheels turn up to
 3.5 times as fast as the other's, the lead changing axle every few seconds, so that the wheels
 slip from about -0.7 to 0.7; straight, and turning (the axles steered +-17 deg). Every control
-step the estimate's ``sinkage_*`` (reported where its quality reaches 0.3, else absent) is
-compared with the simulator's: MAE per wheel over the reported steps, the relative error where
-the true sinkage is 10 mm or more, the share of steps reported, and the estimator's time spent
-on sinkage per step. With ``--capture DIR`` every frame measured for sinkage is kept, and
-``sinkage-replay DIR`` runs them through the estimator as it is then (with ``--set`` for its
-``SinkageConfig``), in seconds: the drives do not depend on the sinkage.
+step the estimate's ``sinkage_*`` (the track over the last 0.8 s of frames, absent where too
+few measured it) is compared with the simulator's: MAE per wheel over the reported steps, the
+relative error where the true sinkage is 10 mm or more, the share of steps reported, and the
+estimator's time spent on sinkage per step. With ``--capture DIR`` every frame measured for
+sinkage is kept, and ``sinkage-replay DIR`` runs them through the estimator as it is then
+(with ``--set`` for its ``SinkageConfig``), in seconds: the drives do not depend on the
+sinkage.
 
 Slip on soil (``slip``): ``benchmarks/slip_accuracy.py``'s drives (full throttle, reverse and a
 slow roll over each mission's soil), with the BMI088 on the standard rig and with the ``full``

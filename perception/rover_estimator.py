@@ -70,7 +70,7 @@ STEP_KEYS: tuple[str, ...] = ("odometry_pose", *STATE_KEYS)
 #: (BMI088), 0.02 and 0.008 rad of heading over a 40 s mission.
 IMU_CALIBRATION_S = 1.5
 #: The fisheye's frames are measured for sinkage at most this often [Hz] (it changes over
-#: decimetres of travel; 1.7 ms a train-preset frame, benchmarks/soil_estimation.py).
+#: decimetres of travel; about 0.8 ms a train-preset frame, benchmarks/soil_estimation.py).
 SINKAGE_RATE_HZ = 10.0
 #: The odometry's ground plane is raised by the wheels' measured sinkages for at most this long
 #: after they were measured [s]; then it falls back to the wheels' lowest points.
