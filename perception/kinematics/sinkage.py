@@ -244,7 +244,8 @@ class SinkageEstimator:
         for k, (R, c) in enumerate(frames):
             axle = WHEELS[k][0]
             mine = [markers[m] for m in (*PLATE[axle], *ROD[axle])]
-            beam = slice("FR".index(axle) * per_axle, ("FR".index(axle) + 1) * per_axle)
+            i = "FR".index(axle)
+            beam = slice(i * per_axle, (i + 1) * per_axle)
             arm, arm_r = self.model.occluders(WHEELS[k], R, c)
             parts.append(np.vstack([arm, *mine, beams[beam]]))
             radii.append(np.r_[arm_r, np.full(len(mine), 0.75 * self.model.marker_size), beam_r[beam]])
